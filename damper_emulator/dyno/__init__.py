@@ -1,0 +1,1 @@
+"""Virtual dyno: test protocols, measured-data files and plots."""

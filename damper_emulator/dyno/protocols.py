@@ -1,0 +1,78 @@
+"""Motion histories of the virtual dyno's test protocols (MODEL.md §3–4).
+
+Each protocol returns ``(time [s], stroke [m, extension +], velocity [m/s])`` sampled at
+``rate_hz``; the velocity is the exact derivative of the stroke, not a finite difference.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def _times(duration_s: float, rate_hz: float) -> np.ndarray:
+    if not (duration_s > 0 and rate_hz > 0):
+        raise ValueError("duration and sample rate must be positive")
+    return np.arange(int(round(duration_s * rate_hz)) + 1) / rate_hz
+
+
+def quasi_static(velocity_m_s: float = 0.004, amplitude_m: float = 0.075, cycles: int = 2,
+                 rate_hz: float = 50.0):
+    """Constant-velocity triangle: 0 → +A → −A → 0 per cycle at ``velocity_m_s``.
+
+    The paper's quasi-static test (4 mm/s); the default lasts 150 s.
+    """
+    if velocity_m_s <= 0 or amplitude_m <= 0 or cycles < 1:
+        raise ValueError("quasi-static velocity, amplitude and cycles must be positive")
+    period = 4.0 * amplitude_m / velocity_m_s
+    t = _times(cycles * period, rate_hz)
+    # phase in [0, 4): 0→1 rising from 0 to A, 1→3 falling to −A, 3→4 rising to 0
+    s = np.mod(t / period * 4.0, 4.0)
+    x = amplitude_m * np.where(s < 1, s, np.where(s < 3, 2.0 - s, s - 4.0))
+    v = velocity_m_s * np.where((s < 1) | (s >= 3), 1.0, -1.0)
+    return t, x, v
+
+
+def chirp(f_start_hz: float = 0.5, f_end_hz: float = 16.0, duration_s: float = 60.0,
+          v_start_m_s: float = 0.05, v_end_m_s: float = 1.5, rate_hz: float = 1000.0):
+    """Exponential sine sweep whose velocity amplitude grows exponentially.
+
+    Frequency ``f(t) = f0 (f1/f0)^(t/T)``, phase ``φ = 2π f0 T (e^(t ln(f1/f0)/T) − 1) /
+    ln(f1/f0)``, displacement amplitude ``A(t) = v_a(t) / (2π f(t))`` with ``v_a`` growing
+    from ``v_start`` to ``v_end``; ``x = A sin φ``.
+    """
+    if not (0 < f_start_hz < f_end_hz):
+        raise ValueError("chirp needs 0 < f_start < f_end")
+    if not (v_start_m_s > 0 and v_end_m_s > 0):
+        raise ValueError("chirp velocity amplitudes must be positive")
+    t = _times(duration_s, rate_hz)
+    k = math.log(f_end_hz / f_start_hz) / duration_s
+    phase = 2.0 * math.pi * f_start_hz * np.expm1(k * t) / k
+    omega = 2.0 * math.pi * f_start_hz * np.exp(k * t)
+    a0 = v_start_m_s / (2.0 * math.pi * f_start_hz)
+    beta = math.log((v_end_m_s / v_start_m_s) * (f_start_hz / f_end_hz)) / duration_s
+    amp = a0 * np.exp(beta * t)
+    x = amp * np.sin(phase)
+    v = amp * (beta * np.sin(phase) + omega * np.cos(phase))
+    return t, x, v
+
+
+def sine(frequency_hz: float, amplitude_m: float, cycles: float = 3, rate_hz: float = 1000.0,
+         start_cycles: float = 0.0):
+    """``x = A sin(2π f t)`` for ``cycles`` periods, optionally starting ``start_cycles``
+    periods early (negative times: a lead-in to discard)."""
+    if frequency_hz <= 0 or amplitude_m <= 0 or cycles <= 0:
+        raise ValueError("sine frequency, amplitude and cycles must be positive")
+    t = _times((cycles + start_cycles) / frequency_hz, rate_hz) - start_cycles / frequency_hz
+    w = 2.0 * math.pi * frequency_hz
+    return t, amplitude_m * np.sin(w * t), amplitude_m * w * np.cos(w * t)
+
+
+def fourteen_speed_frequencies(points: int = 14, amplitude_m: float = 0.025,
+                               v_min_m_s: float = 0.025, v_max_m_s: float = 1.5) -> np.ndarray:
+    """Frequencies [Hz] of an N-speed test: peak velocities spaced geometrically from
+    ``v_min`` to ``v_max`` at the fixed displacement amplitude."""
+    if points < 2 or not (0 < v_min_m_s < v_max_m_s) or amplitude_m <= 0:
+        raise ValueError("N-speed test needs points >= 2, 0 < v_min < v_max, amplitude > 0")
+    return np.geomspace(v_min_m_s, v_max_m_s, points) / (2.0 * math.pi * amplitude_m)

@@ -1,0 +1,1 @@
+"""The damper physics core (numpy/scipy/numba only, never rclpy)."""

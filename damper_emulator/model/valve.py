@@ -1,0 +1,197 @@
+"""Valve pressure–flow characteristic of one piston-valve direction.
+
+Simms & Crolla (SAE 2002-01-0319), section 2.2: a port restriction in series with a leak
+restriction in parallel with a preloaded blow-off valve.  All functions take the flow
+*magnitude* ``q_m3_s >= 0`` through the valve and return the pressure drop magnitude [Pa];
+the sign convention (rebound / compression) is applied by the callers.
+
+The scalar kernels are compiled with numba so that the real-time stepper, the batch
+simulator and the identification share one implementation.  ``pressure_drop_array`` maps
+the scalar kernel over a numpy array.
+
+Valve parameters are passed as a 5-tuple ``(k_leak, k_port, k_spring, preload_pa, g)``
+in the paper's units: ``K_leak``, ``K_port`` [kg/m^(27/4)], ``K_spring``
+[kg^(3/2)/(s^2 m^(9/2))], ``Δp0`` [Pa], smoothing exponent ``G`` [-].
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+#: Exponent of the Reybrouck power law ``Δp ∝ Q^(7/4)`` (eqs 8, 9).
+FLOW_EXPONENT = 7.0 / 4.0
+
+#: Valve forms: the paper's explicit Taylor–Cardano solution (eq 22) or an exact root
+#: solve of eq 19.
+VALVE_FORMS = ("cardano", "exact")
+FORM_CARDANO = 0
+FORM_EXACT = 1
+
+# Bisection/Newton iterations of the exact solve of eq 19: enough to reach double precision
+# from a bracket of relative width one (2^-60 ~ 1e-18).
+_EXACT_ITERATIONS = 60
+
+
+@njit(cache=True)
+def blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s):
+    """Taylor coefficients of the open-valve flow about the blow-off point.
+
+    Eqs 23 and 40–43: ``B0 = Q_leak,bo = (Δp0 / (K_leak ν^¼))^(4/7)`` and
+    ``Q_tot ≈ B0 + B1 y + B2 y² + B3 y³`` with ``y = Q_leak − B0``.
+
+    Returns
+    -------
+    b0, b1, b2, b3 : float
+        ``B0`` [m³/s], ``B1`` [-], ``B2`` [s/m³], ``B3`` [s²/m⁶].
+    """
+    kl = k_leak * nu_m2_s ** 0.25
+    b0 = (preload_pa / kl) ** (1.0 / FLOW_EXPONENT)
+    c = preload_pa ** 1.5 / k_spring
+    b1 = 1.0 + 7.0 * c / (4.0 * b0)
+    b2 = 35.0 * c / (16.0 * b0 * b0)
+    b3 = 217.0 * c / (512.0 * b0 * b0 * b0)
+    return b0, b1, b2, b3
+
+
+@njit(cache=True)
+def _real_cbrt(a):
+    return math.copysign(abs(a) ** (1.0 / 3.0), a)
+
+
+@njit(cache=True)
+def leak_flow_cardano(q_tot, b0, b1, b2, b3):
+    """Leak flow of the open valve by the paper's explicit cubic solution (eqs 44–46, 22).
+
+    Where ``D3 < 0`` (three real roots) the principal complex cube roots of eq 22 are
+    evaluated in their equivalent trigonometric form: ``2 √(−D1/3) cos(φ/3)`` with
+    ``cos φ = (−D2/2) / √(−D1³/27)`` (the imaginary parts cancel).
+    """
+    d1 = (3.0 * b1 * b3 - b2 * b2) / (3.0 * b3 * b3)  # eq 44
+    d2 = (2.0 * b2 ** 3 - 9.0 * b1 * b2 * b3 + 27.0 * (b0 - q_tot) * b3 * b3) / (
+        27.0 * b3 ** 3
+    )  # eq 45
+    d3 = d2 * d2 / 4.0 + d1 ** 3 / 27.0  # eq 46
+    if d3 >= 0.0:
+        s = math.sqrt(d3)
+        t = _real_cbrt(-d2 / 2.0 + s) + _real_cbrt(-d2 / 2.0 - s)
+    else:
+        r = math.sqrt(-d1 / 3.0)
+        c = (-d2 / 2.0) / (r * r * r)
+        c = min(1.0, max(-1.0, c))
+        t = 2.0 * r * math.cos(math.acos(c) / 3.0)
+    return b0 - b2 / (3.0 * b3) + t  # eq 22
+
+
+@njit(cache=True)
+def total_flow_open(q_leak, k_leak, k_spring, preload_pa, nu_m2_s):
+    """Total flow of the open valve as a function of the leak flow, eq 19."""
+    dp_leak = k_leak * nu_m2_s ** 0.25 * q_leak ** FLOW_EXPONENT
+    return q_leak + (dp_leak - preload_pa) * math.sqrt(dp_leak) / k_spring
+
+
+@njit(cache=True)
+def leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0):
+    """Leak flow of the open valve by an exact root solve of eq 19 (``q_tot >= b0``).
+
+    Eq 19 is increasing in ``Q_leak`` above the blow-off point and ``Q_tot(Q_leak) >=
+    Q_leak``, so the root lies in ``[B0, Q_tot]``; bisection to double precision.
+    """
+    lo = b0
+    hi = max(q_tot, b0)
+    for _ in range(_EXACT_ITERATIONS + int(math.log2(1.0 + hi / max(b0, 1e-300)))):
+        mid = 0.5 * (lo + hi)
+        if total_flow_open(mid, k_leak, k_spring, preload_pa, nu_m2_s) < q_tot:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-16 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True)
+def pressure_drop_closed(q_tot, k_leak, k_port, nu_m2_s):
+    """Pressure drop with the blow-off valve closed, eq 15."""
+    return (k_port + k_leak) * nu_m2_s ** 0.25 * q_tot ** FLOW_EXPONENT
+
+
+@njit(cache=True)
+def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, form):
+    """Pressure drop with the blow-off valve open: eq 27 above the blow-off flow, its
+    linear extension eqs 29/47 below it (``H1`` as corrected in MODEL.md)."""
+    nu4 = nu_m2_s ** 0.25
+    b0, b1, b2, b3 = blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s)
+    if q_tot >= b0:
+        if form == FORM_EXACT:
+            q_leak = leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0)
+        else:
+            q_leak = leak_flow_cardano(q_tot, b0, b1, b2, b3)
+        return nu4 * (k_leak * q_leak ** FLOW_EXPONENT + k_port * q_tot ** FLOW_EXPONENT)
+    h0 = b0 ** FLOW_EXPONENT * nu4 * (k_leak + k_port)  # eq 47
+    h1 = FLOW_EXPONENT * nu4 * b0 ** 0.75 * (k_leak / b1 + k_port)  # MODEL.md note on eq 48
+    return h0 + h1 * (q_tot - b0)  # eq 29
+
+
+@njit(cache=True)
+def smooth_transition(dp_open, dp_closed, g):
+    """Smoothed minimum of the two branches, eq 28."""
+    if dp_closed == 0.0 or dp_open == 0.0:
+        return 0.0
+    return dp_open * dp_closed / (abs(dp_open) ** g + abs(dp_closed) ** g) ** (1.0 / g)
+
+
+@njit(cache=True)
+def pressure_drop(q_tot, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form):
+    """Valve pressure drop magnitude ``Δp(Q)`` [Pa] for a flow magnitude ``q_tot`` [m³/s].
+
+    The smoothed (eq 28) combination of the closed-valve (eq 15) and open-valve
+    (eqs 27, 29) characteristics.  ``form`` is ``FORM_CARDANO`` (eq 22 as published) or
+    ``FORM_EXACT`` (root of eq 19).
+    """
+    closed = pressure_drop_closed(q_tot, k_leak, k_port, nu_m2_s)
+    opened = pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, form)
+    return smooth_transition(opened, closed, g)
+
+
+@njit(cache=True)
+def _pressure_drop_loop(q, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form, out):
+    for i in range(q.size):
+        out[i] = pressure_drop(q[i], k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form)
+
+
+def form_code(form: str) -> int:
+    """Numeric code of a valve form name (``"cardano"`` or ``"exact"``)."""
+    try:
+        return VALVE_FORMS.index(form)
+    except ValueError:
+        raise ValueError(f"valve form must be one of {VALVE_FORMS}, not {form!r}") from None
+
+
+def pressure_drop_array(q_m3_s, valve, nu_m2_s, form="cardano"):
+    """``Δp(Q)`` [Pa] of one valve over an array of flow magnitudes [m³/s].
+
+    Parameters
+    ----------
+    q_m3_s : array_like
+        Flow magnitudes, ``>= 0``.
+    valve : ValveParams or tuple
+        ``(k_leak, k_port, k_spring, preload_pa, smoothing_g)``.
+    nu_m2_s : float
+        Kinematic viscosity of the oil [m²/s].
+    form : {"cardano", "exact"}
+        Open-valve solution: eq 22 as published, or the exact root of eq 19.
+
+    Returns
+    -------
+    ndarray
+        Pressure drop magnitudes, same shape as ``q_m3_s``.
+    """
+    q = np.ascontiguousarray(q_m3_s, dtype=float)
+    out = np.empty(q.size)
+    k_leak, k_port, k_spring, preload, g = tuple(valve)
+    _pressure_drop_loop(q.ravel(), k_leak, k_port, k_spring, preload, g, nu_m2_s,
+                        form_code(form), out)
+    return out.reshape(q.shape)

@@ -1,0 +1,187 @@
+"""Inverse valve look-up table ``Q(Δp)`` for the compressible model (eq 2).
+
+The paper supplies the piston-valve flow of the compressible model "in the form of a simple
+look-up table": the inverse of the incompressible characteristic ``Δp(Q)`` of
+:mod:`damper_emulator.model.valve`.  Near ``Δp = 0`` the flow grows as ``Δp^(4/7)``, so the
+table is built on the coordinate
+
+    z = log(1 + (Δp / Δp_s)^(4/7)),      Δp = Δp_s (e^z − 1)^(7/4)
+
+(``Δp_s`` the valve preload) in which ``Q`` is smooth with a finite slope at zero and which
+spreads nodes evenly from the leak regime through blow-off to high flow.  Nodes are uniform
+in ``z``; ``Q(z)`` is a monotone piecewise-cubic (PCHIP) interpolant through exact inverses of
+``Δp(Q)``.  Beyond the last node the table extrapolates linearly in ``z`` (monotone) and says
+so.  The implicit solver of the pressure equation works in ``z`` (signed: ``z > 0`` rebound
+valve, ``z < 0`` compression valve).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numba import njit
+from scipy.interpolate import PchipInterpolator
+
+from damper_emulator.model.valve import (FLOW_EXPONENT, form_code, pressure_drop,
+                                         pressure_drop_array)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from damper_emulator.params import ModelConfig
+
+#: Dense samples of ``Δp(Q)`` used to prove the characteristic strictly increasing.
+MONOTONIC_CHECK_POINTS = 20001
+#: The solver may extrapolate the table up to this multiple of its last ``z`` node.
+EXTRAPOLATION_LIMIT = 2.0
+# Bisection steps of the exact inverse at the nodes (relative width 2^-64).
+_INVERSE_ITERATIONS = 64
+
+
+class ValveTableError(ValueError):
+    """The valve characteristic cannot be tabulated (not invertible or not finite)."""
+
+
+@njit(cache=True)
+def pressure_drop_of_z(z, scale_pa):
+    """``Δp(z) = Δp_s (e^z − 1)^(7/4)`` and ``dΔp/dz`` for ``z >= 0``."""
+    u = math.expm1(z)
+    u34 = u ** (FLOW_EXPONENT - 1.0)
+    return scale_pa * u * u34, scale_pa * FLOW_EXPONENT * u34 * (u + 1.0)
+
+
+@njit(cache=True)
+def z_of_pressure_drop(dp, scale_pa):
+    """Inverse of :func:`pressure_drop_of_z` for ``dp >= 0``."""
+    return math.log1p((dp / scale_pa) ** (1.0 / FLOW_EXPONENT))
+
+
+@njit(cache=True)
+def table_flow(coef, step, z):
+    """Flow ``Q(z)`` [m³/s], ``dQ/dz`` and whether ``z`` lies beyond the table (``z >= 0``).
+
+    ``coef[i] = (c3, c2, c1, c0)`` of the cubic on ``[i·step, (i+1)·step]``.
+    """
+    n = coef.shape[0]
+    i = int(z / step)
+    if i >= n:
+        # Linear extrapolation from the end of the last interval.
+        c3, c2, c1, c0 = coef[n - 1, 0], coef[n - 1, 1], coef[n - 1, 2], coef[n - 1, 3]
+        q_end = ((c3 * step + c2) * step + c1) * step + c0
+        slope = (3.0 * c3 * step + 2.0 * c2) * step + c1
+        return q_end + slope * (z - n * step), slope, True
+    t = z - i * step
+    c3, c2, c1, c0 = coef[i, 0], coef[i, 1], coef[i, 2], coef[i, 3]
+    return ((c3 * t + c2) * t + c1) * t + c0, (3.0 * c3 * t + 2.0 * c2) * t + c1, False
+
+
+@njit(cache=True)
+def _flows_at(dp_nodes, q_hi, valve, nu, form, out):
+    """Exact inverse of ``Δp(Q)`` at each node, by bisection on the forward characteristic."""
+    k_leak, k_port, k_spring, preload, g = valve
+    for i in range(dp_nodes.size):
+        lo, hi = 0.0, q_hi
+        for _ in range(_INVERSE_ITERATIONS):
+            mid = 0.5 * (lo + hi)
+            if pressure_drop(mid, k_leak, k_port, k_spring, preload, g, nu, form) < dp_nodes[i]:
+                lo = mid
+            else:
+                hi = mid
+        out[i] = 0.5 * (lo + hi)
+
+
+@njit(cache=True)
+def _table_flow_array(coef, step, z, out):
+    for i in range(z.size):
+        out[i] = table_flow(coef, step, z[i])[0]
+
+
+@dataclass(frozen=True)
+class ValveTable:
+    """Inverse characteristic of one valve direction.
+
+    Attributes
+    ----------
+    scale_pa : float
+        ``Δp_s`` of the ``z`` coordinate (the valve preload) [Pa].
+    step : float
+        Node spacing in ``z``.
+    coef : ndarray, shape (n - 1, 4)
+        Cubic coefficients per interval, highest power first.
+    max_flow_m3_s, max_pressure_drop_pa : float
+        The last node.
+    """
+
+    scale_pa: float
+    step: float
+    coef: np.ndarray
+    max_flow_m3_s: float
+    max_pressure_drop_pa: float
+
+    @property
+    def z_max(self) -> float:
+        return self.step * self.coef.shape[0]
+
+    def flow(self, dp_pa: np.ndarray) -> np.ndarray:
+        """``Q(Δp)`` [m³/s] for pressure drop magnitudes ``Δp >= 0`` [Pa]."""
+        dp = np.ascontiguousarray(dp_pa, dtype=float)
+        z = np.log1p((dp / self.scale_pa) ** (1.0 / FLOW_EXPONENT)).ravel()
+        out = np.empty(z.size)
+        _table_flow_array(self.coef, self.step, z, out)
+        return out.reshape(dp.shape)
+
+
+def build_valve_table(valve, annulus_area_m2: float, nu_m2_s: float, form: str,
+                      points: int, max_velocity_m_s: float, label: str) -> ValveTable:
+    """Tabulate the inverse of one valve's ``Δp(Q)`` after checking it is invertible.
+
+    Raises
+    ------
+    ValveTableError
+        If ``Δp(Q)`` is not finite and strictly increasing from 0 to the flow at
+        ``max_velocity_m_s``.
+    """
+    q_max = max_velocity_m_s * annulus_area_m2
+    q = np.concatenate(([0.0], np.geomspace(q_max * 1e-9, q_max, MONOTONIC_CHECK_POINTS)))
+    dp = pressure_drop_array(q, valve, nu_m2_s, form)
+    bad = ~np.isfinite(dp)
+    if bad.any():
+        qb = q[np.argmax(bad)]
+        raise ValveTableError(
+            f"{label}: Δp(Q) is not finite at Q = {qb:.3g} m³/s "
+            f"(velocity {qb / annulus_area_m2:.3g} m/s)")
+    rising = np.diff(dp) > 0
+    if not rising.all():
+        qb = q[np.argmin(rising)]
+        raise ValveTableError(
+            f"{label}: Δp(Q) is not strictly increasing near Q = {qb:.3g} m³/s "
+            f"(velocity {qb / annulus_area_m2:.3g} m/s), so it cannot be inverted "
+            "(MODEL.md §2.1)")
+    valve = tuple(float(v) for v in valve)
+    scale = valve[3]
+    z_max = math.log1p((dp[-1] / scale) ** (1.0 / FLOW_EXPONENT))
+    z = np.linspace(0.0, z_max, points)
+    dp_nodes = scale * np.expm1(z) ** FLOW_EXPONENT
+    dp_nodes[-1] = min(dp_nodes[-1], dp[-1])
+    q_nodes = np.empty(points)
+    _flows_at(dp_nodes, q_max, valve, nu_m2_s, form_code(form),
+              q_nodes)
+    q_nodes[0] = 0.0
+    coef = np.ascontiguousarray(PchipInterpolator(z, q_nodes).c.T)
+    return ValveTable(scale, float(z[1] - z[0]), coef, float(q_nodes[-1]), float(dp[-1]))
+
+
+def build_valve_tables(cfg: "ModelConfig") -> tuple[ValveTable, ValveTable]:
+    """The (rebound, compression) tables of a configuration (cached per parameter set)."""
+    return _build_tables(cfg.damper, cfg.numerics)
+
+
+@functools.lru_cache(maxsize=32)
+def _build_tables(d, n) -> tuple[ValveTable, ValveTable]:
+    return tuple(
+        build_valve_table(getattr(d, side), d.annulus_area_m2, d.oil_kinematic_viscosity_m2_s,
+                          n.valve_form, n.valve_table_points, n.valve_table_max_velocity_m_s,
+                          f"damper.{side} valve")
+        for side in ("rebound", "compression"))

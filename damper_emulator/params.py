@@ -1,0 +1,334 @@
+"""Typed damper parameters, loaded and validated from ROS 2 params-file YAML.
+
+A parameter file is a ROS 2 params file (``<node or /**>: ros__parameters: {...}``) or the
+bare mapping inside it.  Two groups are read:
+
+``damper``
+    the physical parameters of Simms & Crolla (MODEL.md §2.3), SI units named in each key;
+``numerics``
+    the settings of the numerical implementation (valve look-up table, implicit solver).
+
+Every value is checked; a bad file raises :class:`ParameterError` whose message is one line
+naming the file, the key and the rule that was broken.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from damper_emulator.model.valve import VALVE_FORMS
+
+#: Default parameter file: the paper's 'sport' damper.
+DEFAULT_PARAMS_FILE = Path(__file__).resolve().parent.parent / "config" / "sport.yaml"
+
+
+class ParameterError(ValueError):
+    """A parameter file or value is invalid; the message is one line."""
+
+
+class _FloatLoader(yaml.SafeLoader):
+    """YAML loader that also reads ``1e14`` / ``2.5e-6`` as floats (as ROS 2 does).
+
+    PyYAML follows YAML 1.1, where a float needs a dot and a signed exponent.
+    """
+
+
+_FLOAT_RE = re.compile(
+    r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""",
+    re.X,
+)
+_FloatLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_RE, list("-+0123456789."))
+
+
+def read_yaml(path: str | Path) -> Any:
+    """Read a YAML file with ROS 2-compatible float parsing; one-line errors."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ParameterError(f"{path}: cannot read parameter file: {exc.strerror}") from None
+    try:
+        return yaml.load(text, Loader=_FloatLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ParameterError(f"{path}:{where} invalid YAML: {problem}") from None
+
+
+# --------------------------------------------------------------------------------------
+# Parameter groups.  Each field's metadata holds its rule: ``positive``, ``range`` (lo, hi)
+# exclusive of lo, or ``choices``.
+
+
+def _pos(doc: str) -> Any:
+    return field(metadata={"rule": "positive", "doc": doc})
+
+
+@dataclass(frozen=True)
+class ValveParams:
+    """One direction of the piston valve (eqs 8–10, 28)."""
+
+    k_leak: float = _pos("leak restriction K_leak [kg/m^(27/4)], eq 9")
+    k_port: float = _pos("port restriction K_port [kg/m^(27/4)], eq 8")
+    k_spring: float = _pos("blow-off stiffness K_spring [kg^(3/2)/(s^2 m^(9/2))], eq 10")
+    preload_pa: float = _pos("blow-off preload Δp0 [Pa], eq 10")
+    smoothing_g: float = _pos("transition smoothing exponent G [-], eq 28")
+
+    def __iter__(self):
+        return iter((self.k_leak, self.k_port, self.k_spring, self.preload_pa, self.smoothing_g))
+
+
+@dataclass(frozen=True)
+class DamperParams:
+    """Physical parameters of the mono-tube damper (MODEL.md §2.3)."""
+
+    pressure_tube_length_m: float = _pos("pressure tube length L_pt [m]")
+    x0_m: float = _pos("piston position at rest X0 [m] (rebound chamber length L_pt − X0)")
+    rod_diameter_m: float = _pos("piston rod diameter [m]")
+    piston_diameter_m: float = _pos("piston diameter [m]")
+    gas_gamma: float = field(metadata={"rule": ("range", 1.0, 5.0 / 3.0),
+                                       "doc": "gas polytropic exponent γ [-], eq 3"})
+    oil_kinematic_viscosity_m2_s: float = _pos("oil kinematic viscosity ν [m²/s]")
+    oil_compressibility_per_pa: float = _pos("oil compressibility α [1/Pa], eq 1")
+    friction_force_n: float = field(metadata={"rule": "non-negative",
+                                              "doc": "Coulomb friction F_friction [N], eq 4"})
+    gas_volume_static_m3: float = _pos("gas volume at the static position V_gas,static [m³]")
+    gas_pressure_static_pa: float = _pos("gas pressure at the static position P_gas,static [Pa]")
+    rebound: ValveParams = field(metadata={"rule": "group", "doc": "rebound valve (Δp > 0)"})
+    compression: ValveParams = field(metadata={"rule": "group",
+                                               "doc": "compression valve (Δp < 0)"})
+    name: str = field(default="damper", metadata={"rule": "name", "doc": "damper name"})
+
+    @property
+    def rod_area_m2(self) -> float:
+        return math.pi / 4.0 * self.rod_diameter_m ** 2
+
+    @property
+    def piston_area_m2(self) -> float:
+        return math.pi / 4.0 * self.piston_diameter_m ** 2
+
+    @property
+    def annulus_area_m2(self) -> float:
+        """Rebound-chamber (annulus) area ``A_pt − A_rod`` [m²]."""
+        return self.piston_area_m2 - self.rod_area_m2
+
+    @property
+    def static_force_n(self) -> float:
+        """Force at rest, ``F_static = −A_rod P_gas,static`` (eq 30) [N]."""
+        return -self.rod_area_m2 * self.gas_pressure_static_pa
+
+    @property
+    def max_extension_m(self) -> float:
+        """Physical travel in extension: the rebound chamber length ``L_pt − X0`` [m]."""
+        return self.pressure_tube_length_m - self.x0_m
+
+    @property
+    def max_compression_m(self) -> float:
+        """Physical travel in compression until the gas volume vanishes (> 0) [m]."""
+        return self.gas_volume_static_m3 / self.rod_area_m2
+
+
+@dataclass(frozen=True)
+class NumericsParams:
+    """Settings of the numerical implementation (not physics)."""
+
+    valve_form: str = field(default="cardano", metadata={
+        "rule": ("choices", VALVE_FORMS),
+        "doc": "open-valve solution: 'cardano' (eq 22 as published) or 'exact' (eq 19)"})
+    valve_table_points: int = field(default=1024, metadata={
+        "rule": ("int_range", 16, 1_000_000), "doc": "nodes of the inverse valve table"})
+    valve_table_max_velocity_m_s: float = field(default=10.0, metadata={
+        "rule": "positive", "doc": "damper velocity covered by the valve table [m/s]"})
+    max_substep_s: float = field(default=1e-3, metadata={
+        "rule": "positive", "doc": "longest implicit sub-step of the pressure equation [s]"})
+    newton_tolerance: float = field(default=1e-10, metadata={
+        "rule": "positive", "doc": "convergence of the implicit solve (table coordinate)"})
+    newton_max_iterations: int = field(default=60, metadata={
+        "rule": ("int_range", 4, 1000), "doc": "iteration cap of the implicit solve"})
+    travel_margin_m: float = field(default=1e-4, metadata={
+        "rule": "positive", "doc": "the stepper clamps stroke this far inside the travel [m]"})
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """A damper and the numerics that evaluate it."""
+
+    damper: DamperParams
+    numerics: NumericsParams = NumericsParams()
+    source: str = "<memory>"
+
+    def replace_damper(self, **changes: Any) -> "ModelConfig":
+        """A copy with some damper parameters changed (validated)."""
+        cfg = dataclasses.replace(self, damper=dataclasses.replace(self.damper, **changes))
+        validate(cfg)
+        return cfg
+
+
+# --------------------------------------------------------------------------------------
+# Loading
+
+
+def _node_parameters(doc: Any, where: str) -> Mapping[str, Any]:
+    """The ``ros__parameters`` mapping of a ROS 2 params file, or the bare mapping."""
+    if not isinstance(doc, Mapping):
+        raise ParameterError(f"{where}: expected a mapping at the top level")
+    if "damper" in doc:
+        return doc
+    for node, body in doc.items():
+        if isinstance(body, Mapping) and isinstance(body.get("ros__parameters"), Mapping):
+            if "damper" in body["ros__parameters"]:
+                return body["ros__parameters"]
+    raise ParameterError(f"{where}: no 'damper' parameters found (expected "
+                         "'<node>: ros__parameters: damper: ...' or 'damper: ...')")
+
+
+def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
+    if not isinstance(data, Mapping):
+        raise ParameterError(f"{where}: {prefix} must be a mapping")
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ParameterError(f"{where}: unknown parameter {prefix}.{unknown[0]}")
+    values: dict[str, Any] = {}
+    for f in fields(cls):
+        key = f"{prefix}.{f.name}"
+        if f.name not in data:
+            if f.default is dataclasses.MISSING:
+                raise ParameterError(f"{where}: missing parameter {key} ({f.metadata['doc']})")
+            continue
+        raw = data[f.name]
+        if f.metadata["rule"] == "group":
+            values[f.name] = _build(ValveParams, raw, key, where)
+        else:
+            values[f.name] = _coerce(raw, f, key, where)
+    return cls(**values)
+
+
+def _coerce(raw: Any, f: dataclasses.Field, key: str, where: str) -> Any:
+    rule = f.metadata["rule"]
+    if rule == "name" or (isinstance(rule, tuple) and rule[0] == "choices"):
+        if not isinstance(raw, str):
+            raise ParameterError(f"{where}: {key} must be a string, got {raw!r}")
+        return raw
+    if isinstance(rule, tuple) and rule[0] == "int_range":
+        if isinstance(raw, bool) or not isinstance(raw, int):
+            raise ParameterError(f"{where}: {key} must be an integer, got {raw!r}")
+        return raw
+    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+        raise ParameterError(f"{where}: {key} must be a number, got {raw!r}")
+    return float(raw)
+
+
+def _check_field(value: Any, f: dataclasses.Field, key: str) -> str | None:
+    """The broken rule for one value, or None."""
+    rule = f.metadata["rule"]
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"{key} = {value} must be finite"
+    if rule == "positive" and not value > 0:
+        return f"{key} = {value:g} must be positive ({f.metadata['doc']})"
+    if rule == "non-negative" and not value >= 0:
+        return f"{key} = {value:g} must not be negative ({f.metadata['doc']})"
+    if isinstance(rule, tuple):
+        kind = rule[0]
+        if kind == "range" and not rule[1] <= value <= rule[2]:
+            return f"{key} = {value:g} must lie in [{rule[1]:g}, {rule[2]:g}] ({f.metadata['doc']})"
+        if kind == "int_range" and not rule[1] <= value <= rule[2]:
+            return f"{key} = {value} must lie in [{rule[1]}, {rule[2]}]"
+        if kind == "choices" and value not in rule[1]:
+            return f"{key} = {value!r} must be one of {', '.join(rule[1])}"
+    return None
+
+
+def _problems(obj: Any, prefix: str) -> list[str]:
+    out = []
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if f.metadata["rule"] == "group":
+            out += _problems(value, f"{prefix}.{f.name}")
+        else:
+            msg = _check_field(value, f, f"{prefix}.{f.name}")
+            if msg:
+                out.append(msg)
+    return out
+
+
+def validate(cfg: ModelConfig) -> None:
+    """Check every rule; raise :class:`ParameterError` for the first one broken.
+
+    Rules: positive lengths, areas, volumes, pressures and valve constants; rod thinner than
+    the piston; ``X0 < L_pt``; ``1 <= γ <= 5/3``; a valve characteristic that is strictly
+    increasing (hence invertible) over the table range, checked by building the table.
+    """
+    where = cfg.source
+    problems = _problems(cfg.damper, "damper") + _problems(cfg.numerics, "numerics")
+    if problems:
+        raise ParameterError(f"{where}: {problems[0]}")
+    d = cfg.damper
+    if not d.rod_diameter_m < d.piston_diameter_m:
+        raise ParameterError(
+            f"{where}: damper.rod_diameter_m = {d.rod_diameter_m:g} must be smaller than "
+            f"damper.piston_diameter_m = {d.piston_diameter_m:g}")
+    if not d.x0_m < d.pressure_tube_length_m:
+        raise ParameterError(
+            f"{where}: damper.x0_m = {d.x0_m:g} must be smaller than "
+            f"damper.pressure_tube_length_m = {d.pressure_tube_length_m:g}")
+    if not d.oil_compressibility_per_pa * d.gas_pressure_static_pa < 1.0:
+        raise ParameterError(
+            f"{where}: damper.oil_compressibility_per_pa × gas_pressure_static_pa must be "
+            "below 1 (eq 1: the oil volume would vanish)")
+    # The inverse valve table checks monotonicity of both characteristics.
+    from damper_emulator.model.valve_table import ValveTableError, build_valve_tables
+
+    try:
+        build_valve_tables(cfg)
+    except ValveTableError as exc:
+        raise ParameterError(f"{where}: {exc}") from None
+
+
+def config_from_mapping(doc: Any, source: str = "<memory>") -> ModelConfig:
+    """Build and validate a :class:`ModelConfig` from a parsed params-file mapping."""
+    body = _node_parameters(doc, source)
+    damper = _build(DamperParams, body["damper"], "damper", source)
+    numerics = _build(NumericsParams, body.get("numerics") or {}, "numerics", source)
+    cfg = ModelConfig(damper=damper, numerics=numerics, source=source)
+    validate(cfg)
+    return cfg
+
+
+def load_config(path: str | Path | None = None) -> ModelConfig:
+    """Load and validate a parameter file (default: ``config/sport.yaml``)."""
+    path = Path(path) if path is not None else DEFAULT_PARAMS_FILE
+    return config_from_mapping(read_yaml(path), str(path))
+
+
+def config_to_mapping(cfg: ModelConfig, node: str = "/**") -> dict[str, Any]:
+    """The params-file mapping of a configuration (inverse of :func:`config_from_mapping`)."""
+    return {node: {"ros__parameters": {"damper": dataclasses.asdict(cfg.damper),
+                                       "numerics": dataclasses.asdict(cfg.numerics)}}}
+
+
+def save_config(cfg: ModelConfig, path: str | Path, node: str = "/**") -> None:
+    """Write a configuration as a ROS 2 params file (floats with signed exponents)."""
+
+    class _Dumper(yaml.SafeDumper):
+        pass
+
+    def _float(dumper: yaml.SafeDumper, value: float) -> yaml.ScalarNode:
+        return dumper.represent_scalar("tag:yaml.org,2002:float", repr(float(value))
+                                       if "e" not in repr(value) else f"{value:.10e}")
+
+    _Dumper.add_representer(float, _float)
+    Path(path).write_text(yaml.dump(config_to_mapping(cfg, node), Dumper=_Dumper,
+                                    sort_keys=False))

@@ -1,0 +1,1 @@
+"""Quarter-car ride simulation (issue 4): physics only, no ROS imports."""

@@ -151,7 +151,7 @@ class NumericsParams:
         "rule": ("int_range", 16, 1_000_000), "doc": "nodes of the inverse valve table"})
     valve_table_max_velocity_m_s: float = field(default=10.0, metadata={
         "rule": "positive", "doc": "damper velocity covered by the valve table [m/s]"})
-    max_substep_s: float = field(default=1e-3, metadata={
+    max_substep_s: float = field(default=5e-4, metadata={
         "rule": "positive", "doc": "longest implicit sub-step of the pressure equation [s]"})
     newton_tolerance: float = field(default=1e-10, metadata={
         "rule": "positive", "doc": "convergence of the implicit solve (table coordinate)"})

@@ -78,7 +78,8 @@ def _valve_state(z, prm, coef_r, coef_c):
 
 @njit(cache=True)
 def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h):
-    """One backward-Euler step of eq 2 to stroke ``x`` and velocity ``v`` over ``h`` seconds.
+    """One implicit step ``p − p_old = h f(p)`` of eq 2 to stroke ``x``, velocity ``v``:
+    backward Euler as it stands, BDF2 with ``p_old``, ``h`` the BDF2 combinations.
 
     Solves ``R(z) = p_com + Δp(z) − p_old − k (ẋ A − Q(z)) (1 − α p(z)) = 0`` with
     ``k = h / (V_reb α)``; ``R`` increases with ``z``.  Returns ``(z, p_reb, p_com, flags)``.
@@ -92,13 +93,12 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h):
     hi = prm[P_ZLIM_R]
     z = min(max(z_old, lo), hi)
     tol = prm[P_TOL]
-    flags = _SOLVER  # until converged
+    flags = 0
     for _ in range(int(prm[P_MAXIT])):
         dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
         p = p_com + dp
         r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
         if r == 0.0:
-            flags = 0
             break
         dr = ddp + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * ddp
         if r > 0.0:
@@ -109,11 +109,11 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h):
         if z_new <= lo or z_new >= hi:
             z_new = 0.5 * (lo + hi)
         if abs(z_new - z) <= tol * (1.0 + abs(z)):
-            z = z_new
-            flags = 0
-            break
+            break  # z (evaluated above) is within the tolerance of the root
         z = z_new
-    dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
+    else:
+        dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
+        flags = _SOLVER
     if beyond:
         flags |= _VALVE_EXTRAPOLATED
     return z, p_com + dp, p_com, flags
@@ -334,12 +334,16 @@ class SimulationResult:
     faults: np.ndarray
 
 
-def _check_history(t, x, v, model: DamperModel) -> None:
-    for name, arr in (("time", t), ("stroke", x), ("velocity", v)):
-        bad = ~np.isfinite(arr)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise ValueError(f"{name} sample {i} is {arr[i]} (must be finite)")
+def _check_finite(name: str, arr: np.ndarray) -> None:
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"{name} sample {i} is {arr[i]} (must be finite)")
+
+
+def _check_samples(t: np.ndarray, x: np.ndarray, model: DamperModel) -> None:
+    _check_finite("time", t)
+    _check_finite("stroke", x)
     if t.size > 1:
         dt = np.diff(t)
         if not (dt > 0).all():
@@ -383,13 +387,14 @@ def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None) -> Simulat
     if t.ndim != 1 or x.shape != t.shape or t.size == 0:
         raise ValueError(f"time and stroke must be 1-D arrays of equal, non-zero length "
                          f"(got shapes {t.shape} and {x.shape})")
+    _check_samples(t, x, model)
     if velocity_m_s is None:
         v = np.gradient(x, t) if t.size > 1 else np.zeros_like(x)
     else:
         v = np.ascontiguousarray(velocity_m_s, dtype=float)
         if v.shape != t.shape:
             raise ValueError(f"velocity has shape {v.shape}, time {t.shape}")
-    _check_history(t, x, v, model)
+        _check_finite("velocity", v)
     n = t.size
     force, p_reb, p_com = np.empty(n), np.empty(n), np.empty(n)
     faults = np.zeros(n, dtype=np.int64)

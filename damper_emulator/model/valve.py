@@ -189,7 +189,7 @@ def pressure_drop_array(q_m3_s, valve, nu_m2_s, form="cardano"):
     ndarray
         Pressure drop magnitudes, same shape as ``q_m3_s``.
     """
-    q = np.ascontiguousarray(q_m3_s, dtype=float)
+    q = np.array(q_m3_s, dtype=float)  # a copy: contiguous, shape kept (also 0-d)
     out = np.empty(q.size)
     k_leak, k_port, k_spring, preload, g = tuple(valve)
     _pressure_drop_loop(q.ravel(), k_leak, k_port, k_spring, preload, g, nu_m2_s,

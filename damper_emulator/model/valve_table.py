@@ -126,7 +126,7 @@ class ValveTable:
 
     def flow(self, dp_pa: np.ndarray) -> np.ndarray:
         """``Q(Δp)`` [m³/s] for pressure drop magnitudes ``Δp >= 0`` [Pa]."""
-        dp = np.ascontiguousarray(dp_pa, dtype=float)
+        dp = np.asarray(dp_pa, dtype=float)
         z = np.log1p((dp / self.scale_pa) ** (1.0 / FLOW_EXPONENT)).ravel()
         out = np.empty(z.size)
         _table_flow_array(self.coef, self.step, z, out)

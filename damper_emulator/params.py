@@ -153,6 +153,9 @@ class NumericsParams:
         "rule": "positive", "doc": "damper velocity covered by the valve table [m/s]"})
     max_substep_s: float = field(default=5e-4, metadata={
         "rule": "positive", "doc": "longest implicit sub-step of the pressure equation [s]"})
+    settle_gap_s: float = field(default=0.1, metadata={
+        "rule": "positive", "doc": "a step longer than this (a gap in the input) restarts "
+        "from quasi-steady equilibrium at the new sample [s]"})
     newton_tolerance: float = field(default=1e-10, metadata={
         "rule": "positive", "doc": "convergence of the implicit solve (table coordinate)"})
     newton_max_iterations: int = field(default=60, metadata={

@@ -188,23 +188,32 @@ def test_stepper_clamps_stroke_beyond_travel(sport_model, sport_cfg):
     for x in (d.max_extension_m + 0.1, -d.max_compression_m - 0.1, 1e6, -1e6):
         force, fault = stepper.step(x, 0.0, 1e-3)
         assert math.isfinite(force) and fault & Fault.STROKE_CLAMPED
-    # extreme velocities beyond the valve table: finite, flagged
-    stepper.reset()
-    for v in (60.0, -60.0, 1e4):
+    # velocities beyond the valve table are clamped to it: finite, flagged
+    v_max = sport_cfg.numerics.valve_table_max_velocity_m_s
+    for v in (1.01 * v_max, -60.0, 1e300):
         stepper.reset()
-        faults = 0
         for _ in range(50):
             force, fault = stepper.step(0.0, v, 1e-3)
-            assert math.isfinite(force)
-            faults |= fault
-        assert faults & Fault.VALVE_EXTRAPOLATED
+            assert math.isfinite(force) and fault & Fault.VELOCITY_CLAMPED
+        stepper.reset()
+        for _ in range(50):
+            clamped, _ = stepper.step(0.0, math.copysign(v_max, v), 1e-3)
+        assert clamped == force
+    # a pressure beyond the table (a long push at the table's velocity with the stroke
+    # held) is extrapolated and flagged
+    faults = 0
+    for _ in range(200):
+        force, fault = stepper.step(0.0, v_max, 1e-3)
+        assert math.isfinite(force)
+        faults |= fault
+    assert faults & Fault.VALVE_EXTRAPOLATED
 
 
 def test_stepper_survives_a_pause(sport_model):
     stepper = DamperStepper(sport_model)
     for i in range(50):
         stepper.step(0.001 * i, 1.0, 1e-3)
-    force, fault = stepper.step(0.05, 0.0, 5.0)  # long gap: BDF2 restarts with BE
+    force, fault = stepper.step(0.05, 0.0, 5.0)  # a gap: restart from equilibrium
     assert math.isfinite(force) and fault == Fault.NONE
     assert force == pytest.approx(sport_model.cfg.damper.rod_area_m2 * -_p_com(
         0.05, sport_model.cfg.damper), rel=1e-3)
@@ -216,6 +225,7 @@ def test_stepper_survives_a_pause(sport_model):
     ([0, 1e-3, 1e-3], [0, 0, 0], None, "not strictly increasing at sample 2"),
     ([0, 1e-3, 2e-3], [0, 0.5, 0], None, "beyond the physical travel"),
     ([0, 1e-3, 2e-3], [0, -2.0, 0], None, "beyond the physical travel"),
+    ([0, 1e-3, 2e-3], [0, 0, 0], [0, 0, 11.0], "velocity sample 2 = 11 m/s exceeds"),
 ])
 def test_batch_rejects_bad_history(sport_model, t, x, v, words):
     with pytest.raises(ValueError, match=words):

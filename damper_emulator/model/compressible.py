@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from damper_emulator.model.jit import kernel
 
 from damper_emulator.model.gas import compression_chamber_pressure
 from damper_emulator.model.valve_table import (EXTRAPOLATION_LIMIT, build_valve_tables,
@@ -43,6 +43,8 @@ class Fault(enum.IntFlag):
     VALVE_EXTRAPOLATED = 4
     #: the implicit solve did not converge within the iteration cap.
     SOLVER = 8
+    #: velocity beyond ``numerics.valve_table_max_velocity_m_s``: clamped to it.
+    VELOCITY_CLAMPED = 16
 
 
 #: Variable-step BDF2 is zero-stable for step ratios below 1 + √2; a larger jump in the
@@ -54,17 +56,18 @@ _INVALID_INPUT = int(Fault.INVALID_INPUT)
 _STROKE_CLAMPED = int(Fault.STROKE_CLAMPED)
 _VALVE_EXTRAPOLATED = int(Fault.VALVE_EXTRAPOLATED)
 _SOLVER = int(Fault.SOLVER)
+_VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
 
 # Layout of the packed parameter vector (see ``DamperModel``).
 (P_A_ANNULUS, P_A_PISTON, P_A_ROD, P_MAX_EXT, P_ALPHA, P_FRICTION, P_GAS, V_GAS, P_GAMMA,
  P_SCALE_R, P_STEP_R, P_SCALE_C, P_STEP_C, P_X_MIN, P_X_MAX, P_SUBSTEP, P_TOL, P_MAXIT,
- P_ZLIM_R, P_ZLIM_C, P_SIZE) = range(21)
+ P_ZLIM_R, P_ZLIM_C, P_SETTLE, P_V_MAX, P_SIZE) = range(23)
 
 # Layout of the state vector.
 S_P_REB, S_Z, S_X, S_V, S_FORCE, S_P_COM, S_P_PREV, S_H_PREV, S_SIZE = range(9)
 
 
-@njit(cache=True)
+@kernel
 def _valve_state(z, prm, coef_r, coef_c):
     """Signed Δp [Pa], dΔp/dz, signed Q_pv [m³/s], dQ/dz, beyond-table flag at ``z``."""
     if z >= 0.0:
@@ -76,7 +79,7 @@ def _valve_state(z, prm, coef_r, coef_c):
     return -dp, ddp, -q, dq, beyond
 
 
-@njit(cache=True)
+@kernel
 def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h):
     """One implicit step ``p − p_old = h f(p)`` of eq 2 to stroke ``x``, velocity ``v``:
     backward Euler as it stands, BDF2 with ``p_old``, ``h`` the BDF2 combinations.
@@ -119,14 +122,48 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h):
     return z, p_com + dp, p_com, flags
 
 
-@njit(cache=True)
+@kernel
 def _force(prm, p_reb, p_com, v):
     """Damper force [N, rebound +], eq 4."""
     sgn = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
     return prm[P_A_ANNULUS] * p_reb - prm[P_A_PISTON] * p_com + prm[P_FRICTION] * sgn
 
 
-@njit(cache=True)
+@kernel
+def _equilibrium_z(prm, coef_r, coef_c, q_target):
+    """Table coordinate at which the valve passes ``q_target`` (the rigid-oil limit)."""
+    lo = -prm[P_ZLIM_C]
+    hi = prm[P_ZLIM_R]
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if _valve_state(mid, prm, coef_r, coef_c)[2] < q_target:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= prm[P_TOL]:
+            break
+    return 0.5 * (lo + hi)
+
+
+@kernel
+def init_state(prm, coef_r, coef_c, state, x, v):
+    """Put ``state`` in quasi-steady equilibrium at stroke ``x`` moving at ``v``: the valve
+    passes ``v (A_pt − A_rod)`` (at rest: ``p_reb = P_com``)."""
+    x = min(max(x, prm[P_X_MIN]), prm[P_X_MAX])
+    z = _equilibrium_z(prm, coef_r, coef_c, v * prm[P_A_ANNULUS]) if v != 0.0 else 0.0
+    p_com = compression_chamber_pressure(x, prm[P_GAS], prm[V_GAS], prm[P_A_ROD], prm[P_GAMMA])
+    p = p_com + _valve_state(z, prm, coef_r, coef_c)[0]
+    state[S_P_REB] = p
+    state[S_Z] = z
+    state[S_X] = x
+    state[S_V] = v
+    state[S_P_COM] = p_com
+    state[S_FORCE] = _force(prm, p, p_com, v)
+    state[S_P_PREV] = p
+    state[S_H_PREV] = 0.0
+
+
+@kernel
 def step(prm, coef_r, coef_c, state, x, v, dt):
     """Advance ``state`` to the sample (stroke ``x`` [m], velocity ``v`` [m/s]) taken ``dt``
     seconds after the previous one; returns ``(force [N], fault flags)``.
@@ -143,6 +180,14 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
     elif x > prm[P_X_MAX]:
         x = prm[P_X_MAX]
         flags |= _STROKE_CLAMPED
+    if abs(v) > prm[P_V_MAX]:
+        v = math.copysign(prm[P_V_MAX], v)
+        flags |= _VELOCITY_CLAMPED
+    if dt > prm[P_SETTLE]:
+        # after a gap far longer than the pressure time constants the damper is in
+        # quasi-steady equilibrium at the new sample
+        init_state(prm, coef_r, coef_c, state, x, v)
+        return state[S_FORCE], flags
     n_sub = max(1, int(math.ceil(dt / prm[P_SUBSTEP] - 1e-9)))
     h = dt / n_sub
     x0 = state[S_X]
@@ -179,41 +224,7 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
     return force, flags
 
 
-@njit(cache=True)
-def _equilibrium_z(prm, coef_r, coef_c, q_target):
-    """Table coordinate at which the valve passes ``q_target`` (the rigid-oil limit)."""
-    lo = -prm[P_ZLIM_C]
-    hi = prm[P_ZLIM_R]
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if _valve_state(mid, prm, coef_r, coef_c)[2] < q_target:
-            lo = mid
-        else:
-            hi = mid
-        if hi - lo <= prm[P_TOL]:
-            break
-    return 0.5 * (lo + hi)
-
-
-@njit(cache=True)
-def init_state(prm, coef_r, coef_c, state, x, v):
-    """Put ``state`` in quasi-steady equilibrium at stroke ``x`` moving at ``v``: the valve
-    passes ``v (A_pt − A_rod)`` (at rest: ``p_reb = P_com``)."""
-    x = min(max(x, prm[P_X_MIN]), prm[P_X_MAX])
-    z = _equilibrium_z(prm, coef_r, coef_c, v * prm[P_A_ANNULUS]) if v != 0.0 else 0.0
-    p_com = compression_chamber_pressure(x, prm[P_GAS], prm[V_GAS], prm[P_A_ROD], prm[P_GAMMA])
-    p = p_com + _valve_state(z, prm, coef_r, coef_c)[0]
-    state[S_P_REB] = p
-    state[S_Z] = z
-    state[S_X] = x
-    state[S_V] = v
-    state[S_P_COM] = p_com
-    state[S_FORCE] = _force(prm, p, p_com, v)
-    state[S_P_PREV] = p
-    state[S_H_PREV] = 0.0
-
-
-@njit(cache=True)
+@kernel
 def _simulate(prm, coef_r, coef_c, state, t, x, v, force, p_reb, p_com, flags):
     for i in range(t.size):
         if i == 0:
@@ -257,6 +268,8 @@ class DamperModel:
         prm[P_SUBSTEP] = n.max_substep_s
         prm[P_TOL] = n.newton_tolerance
         prm[P_MAXIT] = n.newton_max_iterations
+        prm[P_SETTLE] = n.settle_gap_s
+        prm[P_V_MAX] = n.valve_table_max_velocity_m_s
         prm[P_ZLIM_R] = EXTRAPOLATION_LIMIT * rebound.z_max
         prm[P_ZLIM_C] = EXTRAPOLATION_LIMIT * compression.z_max
         self.prm = prm
@@ -302,8 +315,8 @@ class DamperStepper:
         """Advance by ``dt_s`` to the new sample; returns ``(force [N], Fault bits)``.
 
         Never raises for bad numbers: invalid input holds the last force and sets
-        :attr:`Fault.INVALID_INPUT`; a stroke beyond the travel is clamped
-        (:attr:`Fault.STROKE_CLAMPED`).
+        :attr:`Fault.INVALID_INPUT`; a stroke beyond the travel or a velocity beyond the
+        valve table is clamped (:attr:`Fault.STROKE_CLAMPED`, :attr:`Fault.VELOCITY_CLAMPED`).
         """
         return step(self._prm, self._coef_r, self._coef_c, self.state, stroke_m, velocity_m_s,
                     dt_s)
@@ -379,8 +392,8 @@ def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None) -> Simulat
     Raises
     ------
     ValueError
-        Non-finite samples, time not strictly increasing, or stroke beyond the physical
-        travel (one line naming the sample).
+        Non-finite samples, time not strictly increasing, stroke beyond the physical
+        travel or velocity beyond the valve table (one line naming the sample).
     """
     t = np.ascontiguousarray(time_s, dtype=float)
     x = np.ascontiguousarray(stroke_m, dtype=float)
@@ -395,6 +408,12 @@ def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None) -> Simulat
         if v.shape != t.shape:
             raise ValueError(f"velocity has shape {v.shape}, time {t.shape}")
         _check_finite("velocity", v)
+    v_max = model.cfg.numerics.valve_table_max_velocity_m_s
+    fast = np.abs(v) > v_max
+    if fast.any():
+        i = int(np.argmax(fast))
+        raise ValueError(f"velocity sample {i} = {v[i]:.6g} m/s exceeds "
+                         f"numerics.valve_table_max_velocity_m_s = {v_max:g} m/s")
     n = t.size
     force, p_reb, p_com = np.empty(n), np.empty(n), np.empty(n)
     faults = np.zeros(n, dtype=np.int64)

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from numba import njit
+from damper_emulator.model.jit import kernel
 
 
-@njit(cache=True)
+@kernel
 def compression_chamber_pressure(x_m, p_gas_static_pa, v_gas_static_m3, rod_area_m2, gamma):
     """Compression-chamber (gas) pressure ``P_com`` [Pa], eq 3.
 

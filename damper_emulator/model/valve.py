@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from damper_emulator.model.jit import kernel
 
 #: Exponent of the Reybrouck power law ``Δp ∝ Q^(7/4)`` (eqs 8, 9).
 FLOW_EXPONENT = 7.0 / 4.0
@@ -35,7 +35,7 @@ FORM_EXACT = 1
 _EXACT_ITERATIONS = 60
 
 
-@njit(cache=True)
+@kernel
 def blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s):
     """Taylor coefficients of the open-valve flow about the blow-off point.
 
@@ -56,12 +56,12 @@ def blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s):
     return b0, b1, b2, b3
 
 
-@njit(cache=True)
+@kernel
 def _real_cbrt(a):
     return math.copysign(abs(a) ** (1.0 / 3.0), a)
 
 
-@njit(cache=True)
+@kernel
 def leak_flow_cardano(q_tot, b0, b1, b2, b3):
     """Leak flow of the open valve by the paper's explicit cubic solution (eqs 44–46, 22).
 
@@ -85,14 +85,14 @@ def leak_flow_cardano(q_tot, b0, b1, b2, b3):
     return b0 - b2 / (3.0 * b3) + t  # eq 22
 
 
-@njit(cache=True)
+@kernel
 def total_flow_open(q_leak, k_leak, k_spring, preload_pa, nu_m2_s):
     """Total flow of the open valve as a function of the leak flow, eq 19."""
     dp_leak = k_leak * nu_m2_s ** 0.25 * q_leak ** FLOW_EXPONENT
     return q_leak + (dp_leak - preload_pa) * math.sqrt(dp_leak) / k_spring
 
 
-@njit(cache=True)
+@kernel
 def leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0):
     """Leak flow of the open valve by an exact root solve of eq 19 (``q_tot >= b0``).
 
@@ -112,13 +112,13 @@ def leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0):
     return 0.5 * (lo + hi)
 
 
-@njit(cache=True)
+@kernel
 def pressure_drop_closed(q_tot, k_leak, k_port, nu_m2_s):
     """Pressure drop with the blow-off valve closed, eq 15."""
     return (k_port + k_leak) * nu_m2_s ** 0.25 * q_tot ** FLOW_EXPONENT
 
 
-@njit(cache=True)
+@kernel
 def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, form):
     """Pressure drop with the blow-off valve open: eq 27 above the blow-off flow, its
     linear extension eqs 29/47 below it (``H1`` as corrected in MODEL.md)."""
@@ -135,7 +135,7 @@ def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, for
     return h0 + h1 * (q_tot - b0)  # eq 29
 
 
-@njit(cache=True)
+@kernel
 def smooth_transition(dp_open, dp_closed, g):
     """Smoothed minimum of the two branches, eq 28."""
     if dp_closed == 0.0 or dp_open == 0.0:
@@ -143,7 +143,7 @@ def smooth_transition(dp_open, dp_closed, g):
     return dp_open * dp_closed / (abs(dp_open) ** g + abs(dp_closed) ** g) ** (1.0 / g)
 
 
-@njit(cache=True)
+@kernel
 def pressure_drop(q_tot, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form):
     """Valve pressure drop magnitude ``Δp(Q)`` [Pa] for a flow magnitude ``q_tot`` [m³/s].
 
@@ -156,7 +156,7 @@ def pressure_drop(q_tot, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form)
     return smooth_transition(opened, closed, g)
 
 
-@njit(cache=True)
+@kernel
 def _pressure_drop_loop(q, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form, out):
     for i in range(q.size):
         out[i] = pressure_drop(q[i], k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit
+from damper_emulator.model.jit import kernel
 from scipy.interpolate import PchipInterpolator
 
 from damper_emulator.model.valve import (FLOW_EXPONENT, form_code, pressure_drop,
@@ -44,7 +44,7 @@ class ValveTableError(ValueError):
     """The valve characteristic cannot be tabulated (not invertible or not finite)."""
 
 
-@njit(cache=True)
+@kernel
 def pressure_drop_of_z(z, scale_pa):
     """``Δp(z) = Δp_s (e^z − 1)^(7/4)`` and ``dΔp/dz`` for ``z >= 0``."""
     u = math.expm1(z)
@@ -52,13 +52,13 @@ def pressure_drop_of_z(z, scale_pa):
     return scale_pa * u * u34, scale_pa * FLOW_EXPONENT * u34 * (u + 1.0)
 
 
-@njit(cache=True)
+@kernel
 def z_of_pressure_drop(dp, scale_pa):
     """Inverse of :func:`pressure_drop_of_z` for ``dp >= 0``."""
     return math.log1p((dp / scale_pa) ** (1.0 / FLOW_EXPONENT))
 
 
-@njit(cache=True)
+@kernel
 def table_flow(coef, step, z):
     """Flow ``Q(z)`` [m³/s], ``dQ/dz`` and whether ``z`` lies beyond the table (``z >= 0``).
 
@@ -77,7 +77,7 @@ def table_flow(coef, step, z):
     return ((c3 * t + c2) * t + c1) * t + c0, (3.0 * c3 * t + 2.0 * c2) * t + c1, False
 
 
-@njit(cache=True)
+@kernel
 def _flows_at(dp_nodes, q_hi, valve, nu, form, out):
     """Exact inverse of ``Δp(Q)`` at each node, by bisection on the forward characteristic."""
     k_leak, k_port, k_spring, preload, g = valve
@@ -92,7 +92,7 @@ def _flows_at(dp_nodes, q_hi, valve, nu, form, out):
         out[i] = 0.5 * (lo + hi)
 
 
-@njit(cache=True)
+@kernel
 def _table_flow_array(coef, step, z, out):
     for i in range(z.size):
         out[i] = table_flow(coef, step, z[i])[0]

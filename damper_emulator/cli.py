@@ -1,0 +1,326 @@
+"""The ``damper-hil`` command line (CONTRACT.md "Command line").
+
+Subcommands so far: ``dyno`` (virtual dyno on the model) and ``demo``.  Every user error
+(bad parameter file, bad measured data, bad option value, an output that cannot be
+written) is one line ``damper-hil: error: <message>`` on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+PROG = "damper-hil"
+
+#: protocol → {option dest: default}; an option that is not listed does not apply
+PROTOCOL_DEFAULTS: dict[str, dict[str, Any]] = {
+    "sine": {"frequency": 1.0, "amplitude": 0.05, "cycles": 3, "rate": 1000.0,
+             "settle_cycles": 1},
+    "quasi-static": {"velocity": 0.004, "amplitude": 0.075, "cycles": 2, "rate": 50.0},
+    "chirp": {"f_start": 0.5, "f_end": 16.0, "duration": 60.0, "v_start": 0.05,
+              "v_end": 1.5, "rate": 1000.0},
+    "14-speed": {"points": 14, "amplitude": 0.025, "v_min": 0.025, "v_max": 1.5,
+                 "cycles": 2, "rate": 1000.0},
+}
+_PROTOCOL_OPTIONS = sorted({k for d in PROTOCOL_DEFAULTS.values() for k in d})
+
+#: the paper's validation sines (MODEL.md §3): (frequency [Hz], amplitude [m])
+PAPER_SINES = ((1.0, 0.05), (3.0, 0.05), (12.0, 0.005))
+
+
+class CliError(Exception):
+    """A user error detected by the command line itself (one-line message)."""
+
+
+# --------------------------------------------------------------------------------------
+# argument types
+
+
+def _number(kind: str, test: Callable[[float], bool], cast: Callable = float):
+    def parse(text: str):
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}") from None
+        if not (math.isfinite(value) and test(value)):
+            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}")
+        return value
+    return parse
+
+
+_positive = _number("a positive number", lambda v: v > 0)
+_non_negative = _number("a number >= 0", lambda v: v >= 0)
+_pos_int = _number("a positive integer", lambda v: v >= 1, int)
+_non_neg_int = _number("an integer >= 0", lambda v: v >= 0, int)
+_points = _number("an integer >= 2", lambda v: v >= 2, int)
+
+
+# --------------------------------------------------------------------------------------
+# parser
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions and epilogs keep their line breaks; option help is wrapped."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Hardware-in-the-loop damper emulator: Simms & Crolla hysteretic "
+                    "mono-tube model, virtual dyno, identification and ride simulation.")
+    from damper_emulator import __version__
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="SUBCOMMAND", required=True)
+
+    # ---- dyno ------------------------------------------------------------------------
+    dyno = sub.add_parser(
+        "dyno", formatter_class=_Formatter,
+        help="virtual dyno: run a test protocol on the model, write CSV + plots",
+        description="Run a dyno test protocol on the compressible (hysteretic) damper model\n"
+                    "and write into --out DIR: the measured-data CSV (time [s], displacement\n"
+                    "[m, extension +], velocity [m/s], force [N, rebound +]), its\n"
+                    "force–velocity / force–displacement plot (PNG) and dyno.json\n"
+                    "(protocol, options, parameter file, files written, summary).",
+        epilog="files written per protocol:\n"
+               "  sine          sine_<f>hz.csv, sine_<f>hz.png   (<f> = frequency, %g)\n"
+               "  quasi-static  quasi_static.csv, quasi_static.png\n"
+               "  chirp         chirp.csv, chirp.png\n"
+               "  14-speed      14speed.csv (frequency_hz, peak_velocity_rebound_m_s,\n"
+               "                peak_force_rebound_n, peak_velocity_compression_m_s,\n"
+               "                peak_force_compression_n), 14speed.png\n"
+               "Options marked [sine], [chirp], ... apply to those protocols only; their\n"
+               "defaults are per protocol.\n"
+               "examples:\n"
+               f"  {PROG} dyno --protocol sine --frequency 3 --amplitude 0.05 --out dyno_out\n"
+               f"  {PROG} dyno --protocol chirp --duration 30 --noise-std 5 --out dyno_out")
+    dyno.add_argument("--protocol", required=True, choices=list(PROTOCOL_DEFAULTS),
+                      help="test protocol: quasi-static (4 mm/s triangle), chirp (swept sine), "
+                           "sine, 14-speed (peak force vs peak velocity)")
+    dyno.add_argument("--params", metavar="PARAMS.yaml", type=Path, default=None,
+                      help="damper parameter file (ROS 2 params YAML; default: "
+                           "config/sport.yaml)")
+    dyno.add_argument("--out", metavar="DIR", type=Path, required=True,
+                      help="output directory (created if missing)")
+    dyno.add_argument("--noise-std", metavar="N", type=_non_negative, default=0.0,
+                      help="standard deviation of Gaussian noise added to the force [N] "
+                           "(default: 0, no noise)")
+    dyno.add_argument("--seed", metavar="S", type=_non_neg_int, default=0,
+                      help="seed of the force-noise generator (default: 0)")
+    g = dyno.add_argument_group("protocol options (default: per protocol)")
+    g.add_argument("--frequency", metavar="HZ", type=_positive,
+                   help="[sine] frequency [Hz] (default: 1)")
+    g.add_argument("--amplitude", metavar="M", type=_positive,
+                   help="displacement amplitude [m]: [sine] 0.05, [quasi-static] 0.075, "
+                        "[14-speed] 0.025")
+    g.add_argument("--cycles", metavar="N", type=_pos_int,
+                   help="recorded cycles: [sine] 3, [quasi-static] 2, [14-speed] 2 per "
+                        "frequency")
+    g.add_argument("--settle-cycles", metavar="N", type=_non_neg_int,
+                   help="[sine] lead-in cycles simulated but not recorded (default: 1)")
+    g.add_argument("--rate", metavar="HZ", type=_positive,
+                   help="sample rate [Hz]: [quasi-static] 50, others 1000")
+    g.add_argument("--velocity", metavar="M/S", type=_positive,
+                   help="[quasi-static] constant stroke velocity [m/s] (default: 0.004)")
+    g.add_argument("--f-start", metavar="HZ", type=_positive,
+                   help="[chirp] start frequency [Hz] (default: 0.5)")
+    g.add_argument("--f-end", metavar="HZ", type=_positive,
+                   help="[chirp] end frequency [Hz] (default: 16)")
+    g.add_argument("--duration", metavar="S", type=_positive,
+                   help="[chirp] sweep duration [s] (default: 60)")
+    g.add_argument("--v-start", metavar="M/S", type=_positive,
+                   help="[chirp] velocity amplitude at the start [m/s] (default: 0.05)")
+    g.add_argument("--v-end", metavar="M/S", type=_positive,
+                   help="[chirp] velocity amplitude at the end [m/s] (default: 1.5)")
+    g.add_argument("--points", metavar="N", type=_points,
+                   help="[14-speed] number of test speeds (default: 14)")
+    g.add_argument("--v-min", metavar="M/S", type=_positive,
+                   help="[14-speed] lowest peak velocity [m/s] (default: 0.025)")
+    g.add_argument("--v-max", metavar="M/S", type=_positive,
+                   help="[14-speed] highest peak velocity [m/s] (default: 1.5)")
+    dyno.set_defaults(handler=cmd_dyno)
+
+    # ---- demo ------------------------------------------------------------------------
+    demo = sub.add_parser(
+        "demo", formatter_class=_Formatter,
+        help="demonstration run (for now: the virtual dyno on the sport damper)",
+        description="Demonstration run.\n\n"
+                    "For now this runs the virtual dyno on the 'sport' damper\n"
+                    "(config/sport.yaml): the quasi-static test, the chirp, the paper's\n"
+                    "validation sines (1 Hz / 0.05 m, 3 Hz / 0.05 m, 12 Hz / 0.005 m) with\n"
+                    "an overlay plot (paper_sines.png) and the 14-speed test, and writes\n"
+                    "demo.json.  The closed-loop ROS 2 demo (emulator + ride simulation +\n"
+                    "CAN bridge, recorded as a rosbag2 bag) replaces this later.")
+    demo.add_argument("--duration", metavar="S", type=_positive, default=60.0,
+                      help="chirp duration [s] (default: 60)")
+    demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
+                      help="output directory (created if missing; default: demo_out)")
+    demo.set_defaults(handler=cmd_demo)
+    return parser
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+
+
+def _progress(path: Path) -> None:
+    print(f"wrote {path}", file=sys.stderr, flush=True)
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    path.write_text(json.dumps(doc, indent=2) + "\n")
+    _progress(path)
+
+
+def _load_model(params: Path | None):
+    from damper_emulator.model.compressible import DamperModel
+    from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config
+
+    cfg = load_config(params)
+    return DamperModel(cfg), str(params if params is not None else DEFAULT_PARAMS_FILE)
+
+
+def _protocol_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The options of ``args.protocol``, defaults filled in; an option given for another
+    protocol is an error."""
+    defaults = PROTOCOL_DEFAULTS[args.protocol]
+    for dest in _PROTOCOL_OPTIONS:
+        if dest not in defaults and getattr(args, dest) is not None:
+            users = [p for p, d in PROTOCOL_DEFAULTS.items() if dest in d]
+            raise CliError(f"--{dest.replace('_', '-')} does not apply to --protocol "
+                           f"{args.protocol} (only to {', '.join(users)})")
+    return {dest: (getattr(args, dest) if getattr(args, dest) is not None else default)
+            for dest, default in defaults.items()}
+
+
+# --------------------------------------------------------------------------------------
+# subcommands
+
+
+def cmd_dyno(args: argparse.Namespace) -> int:
+    opts = _protocol_options(args)  # before the heavy imports: a typo fails fast
+    from damper_emulator.dyno import runner
+
+    model, params_file = _load_model(args.params)
+    common = dict(noise_std=args.noise_std, seed=args.seed, progress=_progress)
+    out: Path = args.out
+    if args.protocol == "sine":
+        summary = runner.run_sine(model, out, opts["frequency"], opts["amplitude"],
+                                  opts["cycles"], opts["rate"], opts["settle_cycles"],
+                                  **common)
+    elif args.protocol == "quasi-static":
+        summary = runner.run_quasi_static(model, out, opts["velocity"], opts["amplitude"],
+                                          opts["cycles"], opts["rate"], **common)
+    elif args.protocol == "chirp":
+        summary = runner.run_chirp(model, out, opts["f_start"], opts["f_end"],
+                                   opts["duration"], opts["v_start"], opts["v_end"],
+                                   opts["rate"], **common)
+    else:
+        summary = runner.run_fourteen_speed(model, out, opts["points"], opts["amplitude"],
+                                            opts["v_min"], opts["v_max"], opts["cycles"],
+                                            opts["rate"], **common)
+    _write_json(out / "dyno.json", {
+        "protocol": args.protocol,
+        "options": {**opts, "noise_std_n": args.noise_std, "seed": args.seed},
+        "params_file": params_file,
+        "damper": model.cfg.damper.name,
+        "files": summary["files"] + ["dyno.json"],
+        "summary": summary,
+    })
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from damper_emulator.dyno import plots, runner
+    from damper_emulator.dyno.measured import read_measured_csv
+
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    model, params_file = _load_model(None)
+    steps = 4 + len(PAPER_SINES)
+    results: dict[str, Any] = {}
+    files: list[str] = []
+    k = 0
+
+    def step(label: str) -> None:
+        nonlocal k
+        k += 1
+        print(f"[{k}/{steps}] {label} ...", file=sys.stderr, flush=True)
+
+    step("quasi-static test (4 mm/s, ±75 mm, 150 s)")
+    results["quasi_static"] = runner.run_quasi_static(model, out, progress=_progress)
+    step(f"chirp 0.5–16 Hz, {args.duration:g} s")
+    results["chirp"] = runner.run_chirp(model, out, duration=args.duration,
+                                        progress=_progress)
+    sines = []
+    for freq, amp in PAPER_SINES:
+        step(f"sine {freq:g} Hz, {amp * 1e3:g} mm")
+        s = runner.run_sine(model, out, freq, amp, progress=_progress)
+        results[f"sine_{freq:g}hz"] = s
+        data = read_measured_csv(out / s["files"][0])  # the file, as a user would read it
+        sines.append((f"{freq:g} Hz, ±{amp * 1e3:g} mm "
+                      f"({s['energy_per_cycle_j']:.0f} J/cycle)",
+                      data.displacement, data.velocity, data.force))
+    step("overlay of the paper's sines")
+    overlay = plots.plot_sines_overlay(
+        out / "paper_sines.png", sines, cfg=model.cfg,
+        title=f"Paper's validation sines ({model.cfg.damper.name} damper, compressible "
+              "model): hysteresis grows with frequency")
+    _progress(overlay)
+    step("14-speed test (0.025 m amplitude, 0.025–1.5 m/s)")
+    results["14speed"] = runner.run_fourteen_speed(model, out, progress=_progress)
+    for r in results.values():
+        files += r["files"]
+    files += [overlay.name, "demo.json"]
+    elapsed = time.perf_counter() - started
+    _write_json(out / "demo.json", {
+        "mode": "virtual-dyno",
+        "note": "the closed-loop ROS 2 demo replaces this virtual-dyno demo later",
+        "params_file": params_file,
+        "damper": model.cfg.damper.name,
+        "chirp_duration_s": args.duration,
+        "files": files,
+        "results": results,
+        "elapsed_s": round(elapsed, 3),
+    })
+    print(f"demo finished in {elapsed:.1f} s; results in {out}", file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------------------
+# entry point
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split()) or "unknown error"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status (2 for any user error)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)  # usage errors: argparse prints usage, exits 2
+    try:
+        return args.handler(args)
+    except CliError as exc:
+        print(f"{PROG}: error: {_one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"{PROG}: error: {_one_line(where + (exc.strerror or str(exc)))}",
+              file=sys.stderr)
+        return 2
+    except ValueError as exc:  # ParameterError, MeasuredDataError, bad option values
+        print(f"{PROG}: error: {_one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,218 @@
+"""Measured-data CSV files: dyno data in and out (CONTRACT.md "Measured-data files").
+
+A measured-data file is a CSV with a header row.  Required columns: ``time`` [s],
+``displacement`` [m, extension positive], ``force`` [N, rebound positive]; optional:
+``velocity`` [m/s], ``temperature`` [°C].  Extra columns are ignored, column names are
+matched case-insensitively after stripping blanks, and ``.csv.gz`` files (recognised by
+their gzip magic bytes) are read the same way.
+
+Every problem with a file is reported as :class:`MeasuredDataError`, whose message is one
+line naming the file, the data row (1-based, the header is not counted; the file line is
+given too) and the problem.
+"""
+
+from __future__ import annotations
+
+import csv
+import gzip
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+#: Columns every file must have, in the order they are written.
+REQUIRED_COLUMNS = ("time", "displacement", "force")
+#: Columns read when present.
+OPTIONAL_COLUMNS = ("velocity", "temperature")
+
+#: Plausibility limits that catch wrong units by orders of magnitude: a damper's stroke
+#: is well under a metre (so ``|x| > 1`` means millimetres), its velocity well under
+#: 20 m/s (so more means mm/s), its oil temperature below 250 °C (so more means kelvin).
+MAX_ABS_DISPLACEMENT_M = 1.0
+MAX_ABS_VELOCITY_M_S = 20.0
+MAX_TEMPERATURE_C = 250.0
+
+_GZIP_MAGIC = b"\x1f\x8b"
+
+
+class MeasuredDataError(ValueError):
+    """A measured-data file is unreadable or malformed; the message is one line."""
+
+
+@dataclass(frozen=True)
+class MeasuredData:
+    """One measured-data file, as arrays of equal length (SI units)."""
+
+    time: np.ndarray
+    displacement: np.ndarray
+    force: np.ndarray
+    velocity: np.ndarray | None = None
+    temperature: np.ndarray | None = None
+    #: the file's name (no directory), e.g. ``sine_3hz.csv``
+    name: str = ""
+    #: the path it was read from
+    path: str = ""
+
+    def __len__(self) -> int:
+        return int(self.time.size)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.time[-1] - self.time[0])
+
+    def velocity_or_derivative(self) -> np.ndarray:
+        """The measured velocity, or the numerical derivative of the displacement [m/s]."""
+        if self.velocity is not None:
+            return self.velocity
+        return np.gradient(self.displacement, self.time)
+
+
+def _open_text(path: Path):
+    """Text stream of a plain or gzip-compressed file."""
+    with open(path, "rb") as fh:
+        magic = fh.read(2)
+    if magic == _GZIP_MAGIC:
+        return io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8-sig", newline="")
+    return open(path, encoding="utf-8-sig", newline="")
+
+
+def _plain(value: str) -> str:
+    return value if len(value) <= 40 else value[:37] + "..."
+
+
+def read_measured_csv(path: str | Path) -> MeasuredData:
+    """Read and check a measured-data CSV (or ``.csv.gz``).
+
+    Raises
+    ------
+    MeasuredDataError
+        For an unreadable or empty file, a missing required column, a non-numeric, NaN or
+        infinite value, time not strictly increasing, values in the wrong unit by orders of
+        magnitude (displacement in millimetres, velocity in mm/s, temperature in kelvin) or
+        fewer than 2 data rows.  The one-line message names the file and the data row.
+    """
+    path = Path(path)
+    where = str(path)
+
+    lines: list[int] = []  # file line of each data row
+
+    def fail(msg: str, row: int | None = None) -> MeasuredDataError:
+        if row is None:
+            return MeasuredDataError(f"{where}: {msg}")
+        line = lines[row - 1] if row <= len(lines) else row + 1
+        return MeasuredDataError(f"{where}: row {row} (line {line}): {msg}")
+
+    try:
+        stream = _open_text(path)
+    except OSError as exc:
+        raise fail(f"cannot read measured-data file: {exc.strerror or exc}") from None
+    try:
+        with stream:
+            rows = csv.reader(stream)
+            header = next(rows, None)
+            if header is None or not any(h.strip() for h in header):
+                raise fail("empty file: expected a header row with columns "
+                           + ", ".join(REQUIRED_COLUMNS))
+            names = [h.strip().lower() for h in header]
+            index: dict[str, int] = {}
+            for col in REQUIRED_COLUMNS + OPTIONAL_COLUMNS:
+                hits = [i for i, n in enumerate(names) if n == col]
+                if len(hits) > 1:
+                    raise fail(f"header: column '{col}' appears {len(hits)} times")
+                if hits:
+                    index[col] = hits[0]
+            missing = [c for c in REQUIRED_COLUMNS if c not in index]
+            if missing:
+                raise fail(f"header: missing required column '{missing[0]}' (have: "
+                           f"{', '.join(n for n in names if n) or 'none'}; need "
+                           f"{', '.join(REQUIRED_COLUMNS)})")
+            cols = list(index)
+            values: dict[str, list[float]] = {c: [] for c in cols}
+            need = max(index.values()) + 1
+            row = 0
+            for fields_ in rows:
+                if not fields_ or not any(f.strip() for f in fields_):
+                    continue  # blank line
+                row += 1
+                lines.append(rows.line_num)
+                if len(fields_) < need:
+                    absent = next(c for c in cols if index[c] >= len(fields_))
+                    raise fail(f"{len(fields_)} fields, no value for column '{absent}'", row)
+                for c in cols:
+                    text = fields_[index[c]].strip()
+                    try:
+                        val = float(text)
+                    except ValueError:
+                        what = "empty" if not text else f"'{_plain(text)}', not a number"
+                        raise fail(f"{c} is {what}", row) from None
+                    if not math.isfinite(val):
+                        raise fail(f"{c} is {text} (must be a finite number)", row)
+                    values[c].append(val)
+    except MeasuredDataError:
+        raise
+    except UnicodeDecodeError:
+        raise fail("not a text CSV file (cannot decode as UTF-8)") from None
+    except (OSError, EOFError, csv.Error) as exc:
+        raise fail(f"cannot read measured-data file: {exc}") from None
+
+    if row < 2:
+        raise fail(f"{row} data row{'s' if row != 1 else ''}; need at least 2")
+    arrays = {c: np.asarray(v, dtype=float) for c, v in values.items()}
+    t = arrays["time"]
+    bad = np.flatnonzero(~(np.diff(t) > 0))
+    if bad.size:
+        i = int(bad[0]) + 1  # 0-based index of the offending sample
+        raise fail(f"time is not strictly increasing ({t[i - 1]:.9g} s then {t[i]:.9g} s)",
+                   i + 1)
+    _check_magnitude(arrays["displacement"], MAX_ABS_DISPLACEMENT_M, "displacement",
+                     "m", "looks like millimetres; expected metres", fail)
+    if "velocity" in arrays:
+        _check_magnitude(arrays["velocity"], MAX_ABS_VELOCITY_M_S, "velocity", "m/s",
+                         "looks like mm/s; expected m/s", fail)
+    if "temperature" in arrays:
+        _check_magnitude(arrays["temperature"], MAX_TEMPERATURE_C, "temperature", "°C",
+                         "looks like kelvin; expected degrees Celsius", fail)
+    return MeasuredData(time=t, displacement=arrays["displacement"], force=arrays["force"],
+                        velocity=arrays.get("velocity"), temperature=arrays.get("temperature"),
+                        name=path.name, path=str(path))
+
+
+def _check_magnitude(values, limit, column, unit, hint, fail) -> None:
+    i = int(np.argmax(np.abs(values)))
+    if abs(values[i]) > limit:
+        raise fail(f"{column} {values[i]:.6g} exceeds {limit:g} {unit} in magnitude: {hint}",
+                   i + 1)
+
+
+def write_measured_csv(path: str | Path, time, displacement, force, velocity=None,
+                       temperature=None) -> Path:
+    """Write a measured-data CSV (gzip-compressed when ``path`` ends in ``.gz``).
+
+    Columns ``time,displacement[,velocity],force[,temperature]`` in SI units, values
+    formatted ``%.9g``.  Returns the path written.
+
+    Raises
+    ------
+    ValueError
+        Arrays of unequal length or not one-dimensional.
+    OSError
+        The file cannot be written.
+    """
+    path = Path(path)
+    cols = [("time", time), ("displacement", displacement)]
+    if velocity is not None:
+        cols.append(("velocity", velocity))
+    cols.append(("force", force))
+    if temperature is not None:
+        cols.append(("temperature", temperature))
+    arrays = [np.asarray(a, dtype=float) for _, a in cols]
+    n = arrays[0].size
+    for (name, _), a in zip(cols, arrays):
+        if a.ndim != 1 or a.size != n:
+            raise ValueError(f"measured-data column '{name}' has shape {a.shape}, "
+                             f"expected ({n},)")
+    np.savetxt(path, np.column_stack(arrays), fmt="%.9g", delimiter=",",
+               header=",".join(name for name, _ in cols), comments="")
+    return path

@@ -1,0 +1,296 @@
+"""Virtual dyno: run the test protocols on the compressible model and write the results.
+
+Each ``run_*`` function simulates one protocol (MODEL.md §3–4) on a :class:`DamperModel`,
+optionally adds Gaussian force noise (a seeded :class:`numpy.random.Generator`, like a load
+cell's), writes the measured-data CSV (CONTRACT.md) and its PNG plot into ``out_dir`` and
+returns a small JSON-ready summary: ``files`` (names written, relative to ``out_dir``),
+peak forces [N], peak velocities [m/s] and, for sines, the dissipated energy per cycle [J].
+
+``progress``, when given, is called with the path of every file as soon as it is written.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import numpy as np
+
+from damper_emulator.dyno import plots, protocols
+from damper_emulator.dyno.measured import write_measured_csv
+from damper_emulator.model.compressible import DamperModel, Fault, simulate
+
+Progress = Optional[Callable[[Path], None]]
+
+#: columns of ``14speed.csv``
+FOURTEEN_SPEED_COLUMNS = ("frequency_hz", "peak_velocity_rebound_m_s", "peak_force_rebound_n",
+                          "peak_velocity_compression_m_s", "peak_force_compression_n")
+
+
+def sine_file_name(frequency_hz: float) -> str:
+    """``sine_<f>hz.csv`` with ``<f>`` formatted ``%g`` (``sine_3hz.csv``, ``sine_0.5hz.csv``)."""
+    return f"sine_{frequency_hz:g}hz.csv"
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+
+
+def _finite_positive(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number, got {value!r}")
+
+
+def _rng(noise_std: float, seed: int | None) -> np.random.Generator:
+    if not (math.isfinite(noise_std) and noise_std >= 0):
+        raise ValueError(f"force noise standard deviation must be >= 0 N, got {noise_std!r}")
+    return np.random.default_rng(seed)
+
+
+def _add_noise(force: np.ndarray, noise_std: float, rng: np.random.Generator) -> np.ndarray:
+    if noise_std > 0:
+        return force + rng.normal(0.0, noise_std, force.size)
+    return force
+
+
+def _check_travel(model: DamperModel, x: np.ndarray, what: str) -> None:
+    """One-line error when a protocol's stroke leaves the damper's physical travel."""
+    lo, hi = model.stroke_limits_m
+    margin = model.cfg.numerics.travel_margin_m
+    x_max, x_min = float(np.max(x)), float(np.min(x))
+    if x_max >= hi - margin:
+        raise ValueError(f"{what} reaches {x_max:.4g} m of extension, beyond the damper's "
+                         f"travel {hi:.4g} m (pressure_tube_length_m − x0_m)")
+    if x_min <= lo + margin:
+        raise ValueError(f"{what} reaches {-x_min:.4g} m of compression, beyond the damper's "
+                         f"travel {-lo:.4g} m (gas volume / rod area)")
+
+
+def _fault_names(faults: np.ndarray) -> list[str]:
+    bits = Fault(int(np.bitwise_or.reduce(faults))) if faults.size else Fault.NONE
+    return [f.name for f in Fault if f and f in bits]
+
+
+def _energy(x: np.ndarray, f: np.ndarray) -> float:
+    """``∫ F dx`` [J] by the trapezoid rule: work done on the damper by the dyno."""
+    return float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(x)))
+
+
+def _write(out_dir: Path, name: str, progress: Progress, t, x, v, f) -> Path:
+    path = write_measured_csv(out_dir / name, t, x, f, velocity=v)
+    if progress:
+        progress(path)
+    return path
+
+
+def _plot(path: Path, progress: Progress, fn, *args, **kw) -> Path:
+    fn(path, *args, **kw)
+    if progress:
+        progress(path)
+    return path
+
+
+def _out(out_dir: str | Path) -> Path:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _force_summary(v: np.ndarray, f: np.ndarray) -> dict[str, float]:
+    return {"peak_force_rebound_n": float(f.max()),
+            "peak_force_compression_n": float(f.min()),
+            "peak_velocity_rebound_m_s": float(v.max()),
+            "peak_velocity_compression_m_s": float(v.min())}
+
+
+# --------------------------------------------------------------------------------------
+# protocols
+
+
+def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles: int = 3,
+                  rate: float = 1000.0, settle_cycles: int = 1):
+    """Simulate ``x = A sin(2π f t)`` for ``settle_cycles + cycles`` periods and return the
+    recorded part ``(t, x, v, F, faults)``, ``t`` starting at exactly 0.
+
+    The lead-in lets the pressures settle from the quasi-steady initial state; it is
+    rounded up to whole samples so that a sample falls on ``t = 0``.
+    """
+    _finite_positive("sine frequency [Hz]", frequency)
+    _finite_positive("sine amplitude [m]", amplitude)
+    _finite_positive("sine cycles", cycles)
+    _finite_positive("sample rate [Hz]", rate)
+    if not (settle_cycles >= 0 and math.isfinite(settle_cycles)):
+        raise ValueError(f"settle cycles must be >= 0, got {settle_cycles!r}")
+    if rate <= 4.0 * frequency:
+        raise ValueError(f"sample rate {rate:g} Hz is too low for a {frequency:g} Hz sine "
+                         "(need more than 4 samples per period)")
+    n_settle = int(math.ceil(settle_cycles * rate / frequency - 1e-9))
+    t, x, v = protocols.sine(frequency, amplitude, cycles, rate,
+                             start_cycles=n_settle * frequency / rate)
+    _check_travel(model, x, f"sine amplitude {amplitude:g} m")
+    res = simulate(model, t, x, v)
+    k = n_settle
+    return (t[k:] - t[k], x[k:], v[k:], res.force_n[k:], res.faults[k:])
+
+
+def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitude: float,
+             cycles: int = 3, rate: float = 1000.0, settle_cycles: int = 1,
+             noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
+             ) -> dict[str, Any]:
+    """Sine test ``x = A sin(2π f t)``: writes ``sine_<f>hz.csv`` and ``sine_<f>hz.png``.
+
+    ``settle_cycles`` lead-in periods are simulated but not recorded; the file's time
+    starts at 0.  Summary: peak forces and velocities, dissipated energy per cycle
+    ``∮ F dx / cycles`` [J].
+    """
+    rng = _rng(noise_std, seed)
+    out = _out(out_dir)
+    t, x, v, f, faults = simulate_sine(model, frequency, amplitude, cycles, rate,
+                                       settle_cycles)
+    f = _add_noise(f, noise_std, rng)
+    name = sine_file_name(frequency)
+    csv_path = _write(out, name, progress, t, x, v, f)
+    png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
+                f"Sine {frequency:g} Hz, amplitude {amplitude * 1e3:g} mm "
+                f"({model.cfg.damper.name} damper, compressible model)", cfg=model.cfg)
+    return {"protocol": "sine", "files": [csv_path.name, png.name],
+            "frequency_hz": float(frequency), "amplitude_m": float(amplitude),
+            "cycles": cycles, "settle_cycles": settle_cycles, "rate_hz": float(rate),
+            "samples": int(t.size), "duration_s": float(t[-1]),
+            **_force_summary(v, f),
+            "energy_per_cycle_j": _energy(x, f) / cycles,
+            "faults": _fault_names(faults)}
+
+
+def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 0.004,
+                     amplitude: float = 0.075, cycles: int = 2, rate: float = 50.0,
+                     noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
+                     ) -> dict[str, Any]:
+    """Quasi-static test (constant-velocity triangle, MODEL.md §3): writes
+    ``quasi_static.csv`` and ``quasi_static.png``.
+
+    Summary adds ``friction_estimate_n``: half the difference between the mean forces
+    while extending and while compressing (the gas force cancels over the symmetric
+    stroke), i.e. friction plus the small viscous force at ``velocity``.
+    """
+    rng = _rng(noise_std, seed)
+    for name, val in (("quasi-static velocity [m/s]", velocity),
+                      ("quasi-static amplitude [m]", amplitude), ("cycles", cycles),
+                      ("sample rate [Hz]", rate)):
+        _finite_positive(name, val)
+    out = _out(out_dir)
+    t, x, v = protocols.quasi_static(velocity, amplitude, cycles, rate)
+    _check_travel(model, x, f"quasi-static amplitude {amplitude:g} m")
+    res = simulate(model, t, x, v)
+    f = _add_noise(res.force_n, noise_std, rng)
+    csv_path = _write(out, "quasi_static.csv", progress, t, x, v, f)
+    png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
+                f"Quasi-static test, {velocity * 1e3:g} mm/s, ±{amplitude * 1e3:g} mm "
+                f"({model.cfg.damper.name} damper)", cfg=model.cfg, time_series=True,
+                velocity_points=True)
+    ext, com = v > 0, v < 0
+    friction = 0.5 * (float(f[ext].mean()) - float(f[com].mean()))
+    return {"protocol": "quasi-static", "files": [csv_path.name, png.name],
+            "velocity_m_s": float(velocity), "amplitude_m": float(amplitude),
+            "cycles": cycles, "rate_hz": float(rate), "samples": int(t.size),
+            "duration_s": float(t[-1] - t[0]), **_force_summary(v, f),
+            "friction_estimate_n": friction, "faults": _fault_names(res.faults)}
+
+
+def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
+              f_end: float = 16.0, duration: float = 60.0, v_start: float = 0.05,
+              v_end: float = 1.5, rate: float = 1000.0, noise_std: float = 0.0,
+              seed: int | None = 0, progress: Progress = None) -> dict[str, Any]:
+    """Exponential sine chirp with growing velocity amplitude (MODEL.md §3): writes
+    ``chirp.csv`` and ``chirp.png``."""
+    rng = _rng(noise_std, seed)
+    for name, val in (("chirp start frequency [Hz]", f_start),
+                      ("chirp end frequency [Hz]", f_end), ("chirp duration [s]", duration),
+                      ("chirp start velocity [m/s]", v_start),
+                      ("chirp end velocity [m/s]", v_end), ("sample rate [Hz]", rate)):
+        _finite_positive(name, val)
+    if rate <= 4.0 * f_end:
+        raise ValueError(f"sample rate {rate:g} Hz is too low for a chirp up to {f_end:g} Hz "
+                         "(need more than 4 samples per period)")
+    out = _out(out_dir)
+    t, x, v = protocols.chirp(f_start, f_end, duration, v_start, v_end, rate)
+    _check_travel(model, x, "chirp displacement")
+    res = simulate(model, t, x, v)
+    f = _add_noise(res.force_n, noise_std, rng)
+    csv_path = _write(out, "chirp.csv", progress, t, x, v, f)
+    png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
+                f"Chirp {f_start:g}–{f_end:g} Hz in {duration:g} s, velocity amplitude "
+                f"{v_start:g}–{v_end:g} m/s ({model.cfg.damper.name} damper)", cfg=model.cfg,
+                time_series=True)
+    return {"protocol": "chirp", "files": [csv_path.name, png.name],
+            "f_start_hz": float(f_start), "f_end_hz": float(f_end),
+            "duration_s": float(duration), "v_start_m_s": float(v_start),
+            "v_end_m_s": float(v_end), "rate_hz": float(rate), "samples": int(t.size),
+            **_force_summary(v, f), "peak_displacement_m": float(np.abs(x).max()),
+            "dissipated_energy_j": _energy(x, f), "faults": _fault_names(res.faults)}
+
+
+def fourteen_speed_table(model: DamperModel, points: int = 14, amplitude: float = 0.025,
+                         v_min: float = 0.025, v_max: float = 1.5, cycles: int = 2,
+                         rate: float = 1000.0, noise_std: float = 0.0,
+                         rng: np.random.Generator | None = None,
+                         ) -> tuple[dict[str, np.ndarray], list[str]]:
+    """Simulate an N-speed test (MODEL.md §4) and return its table (columns
+    :data:`FOURTEEN_SPEED_COLUMNS`) and the fault names seen.
+
+    For each frequency a sine of ``amplitude`` is simulated (one settle cycle dropped);
+    the peak rebound force (max F) is paired with the peak rebound velocity (max v) and
+    the peak compression force (min F) with the peak compression velocity (min v).
+    """
+    _finite_positive("N-speed cycles", cycles)
+    if rng is None:
+        rng = np.random.default_rng(0)
+    freqs = protocols.fourteen_speed_frequencies(points, amplitude, v_min, v_max)
+    rows = []
+    faults = np.zeros(0, dtype=np.int64)
+    for freq in freqs:
+        t, x, v, f, flt = simulate_sine(model, float(freq), amplitude, cycles, rate, 1)
+        f = _add_noise(f, noise_std, rng)
+        rows.append((freq, v.max(), f.max(), v.min(), f.min()))
+        faults = np.concatenate([faults, flt])
+    arr = np.array(rows, dtype=float)
+    return ({c: arr[:, i] for i, c in enumerate(FOURTEEN_SPEED_COLUMNS)},
+            _fault_names(faults))
+
+
+def run_fourteen_speed(model: DamperModel, out_dir: str | Path, points: int = 14,
+                       amplitude: float = 0.025, v_min: float = 0.025, v_max: float = 1.5,
+                       cycles: int = 2, rate: float = 1000.0, noise_std: float = 0.0,
+                       seed: int | None = 0, progress: Progress = None) -> dict[str, Any]:
+    """N-speed test ('14-speed', MODEL.md §4): writes ``14speed.csv`` (columns
+    :data:`FOURTEEN_SPEED_COLUMNS`) and ``14speed.png``."""
+    rng = _rng(noise_std, seed)
+    if isinstance(points, bool) or not isinstance(points, int) or points < 2:
+        raise ValueError(f"N-speed points must be an integer >= 2, got {points!r}")
+    out = _out(out_dir)
+    table, faults = fourteen_speed_table(model, points, amplitude, v_min, v_max, cycles, rate,
+                                         noise_std, rng)
+    csv_path = out / "14speed.csv"
+    np.savetxt(csv_path, np.column_stack([table[c] for c in FOURTEEN_SPEED_COLUMNS]),
+               fmt="%.9g", delimiter=",", header=",".join(FOURTEEN_SPEED_COLUMNS),
+               comments="")
+    if progress:
+        progress(csv_path)
+    png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_fourteen_speed, table,
+                model.cfg, title=f"{points}-speed test, amplitude {amplitude * 1e3:g} mm "
+                f"({model.cfg.damper.name} damper): peak force vs peak velocity")
+    return {"protocol": "14-speed", "files": [csv_path.name, png.name],
+            "points": points, "amplitude_m": float(amplitude), "v_min_m_s": float(v_min),
+            "v_max_m_s": float(v_max), "cycles": cycles, "rate_hz": float(rate),
+            "table": {c: [float(a) for a in table[c]] for c in FOURTEEN_SPEED_COLUMNS},
+            "faults": faults}
+
+
+def read_fourteen_speed_csv(path: str | Path) -> dict[str, np.ndarray]:
+    """Read a ``14speed.csv`` table written by :func:`run_fourteen_speed`."""
+    data = np.genfromtxt(path, delimiter=",", names=True, dtype=float)
+    missing = [c for c in FOURTEEN_SPEED_COLUMNS if c not in (data.dtype.names or ())]
+    if missing:
+        raise ValueError(f"{path}: missing column '{missing[0]}' of an N-speed table")
+    return {c: np.atleast_1d(data[c]) for c in FOURTEEN_SPEED_COLUMNS}

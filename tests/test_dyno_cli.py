@@ -1,0 +1,247 @@
+"""Virtual dyno command line and measured-data files (CONTRACT.md "Measured-data files",
+"Command line").
+
+End-to-end checks run ``python -m damper_emulator.cli`` in a subprocess (exit status,
+exactly what reaches stderr); the others call ``main()`` in-process to stay fast.
+"""
+
+import gzip
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from damper_emulator.cli import main
+from damper_emulator.dyno.measured import (MeasuredDataError, read_measured_csv,
+                                           write_measured_csv)
+from damper_emulator.params import DEFAULT_PARAMS_FILE
+
+
+def run_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "damper_emulator.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=300, cwd=cwd)
+
+
+def zero_crossings(t, x):
+    """Times where ``x`` changes sign (either way), linearly interpolated."""
+    i = np.flatnonzero(((x[:-1] < 0) & (x[1:] >= 0)) | ((x[:-1] > 0) & (x[1:] <= 0)))
+    return t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i])
+
+
+def is_png(path: Path) -> bool:
+    return path.is_file() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# --------------------------------------------------------------------------------------
+# dyno: end to end
+
+
+def test_sine_writes_readable_file_with_requested_motion(tmp_path):
+    out = tmp_path / "dyno"
+    res = run_cli("dyno", "--protocol", "sine", "--frequency", 3, "--amplitude", 0.05,
+                  "--cycles", 3, "--out", out)
+    assert res.returncode == 0, res.stderr
+    assert f"wrote {out / 'sine_3hz.csv'}" in res.stderr.splitlines()
+    data = read_measured_csv(out / "sine_3hz.csv")
+    assert data.name == "sine_3hz.csv"
+    assert data.velocity is not None and data.temperature is None
+    # settle cycle dropped: the file starts at t = 0, x = 0 and covers 3 periods at 1 kHz
+    assert data.time[0] == 0.0 and data.displacement[0] == pytest.approx(0.0, abs=1e-12)
+    assert np.allclose(np.diff(data.time), 1e-3)
+    assert data.duration_s == pytest.approx(1.0, abs=1e-9)
+    assert np.abs(data.displacement).max() == pytest.approx(0.05, abs=1e-6)
+    half_periods = np.diff(zero_crossings(data.time, data.displacement))
+    assert half_periods.size >= 4 and np.allclose(2 * half_periods, 1 / 3, rtol=1e-6)
+    assert is_png(out / "sine_3hz.png")
+
+    doc = json.loads((out / "dyno.json").read_text())
+    assert doc["protocol"] == "sine"
+    assert doc["options"]["frequency"] == 3 and doc["options"]["rate"] == 1000
+    assert set(doc["files"]) == {"sine_3hz.csv", "sine_3hz.png", "dyno.json"}
+    energy = doc["summary"]["energy_per_cycle_j"]
+    assert energy > 0
+    # the same energy from the file: ∮ F dx over the 3 recorded cycles
+    x, f = data.displacement, data.force
+    assert np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(x)) / 3 == pytest.approx(energy, rel=1e-6)
+    assert doc["summary"]["faults"] == []
+
+
+def test_invalid_params_file_is_one_line_exit_2(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    text, n = re.subn(r"rod_diameter_m:\s*\S+", "rod_diameter_m: 40.0e-3",
+                      DEFAULT_PARAMS_FILE.read_text())
+    assert n == 1
+    bad.write_text(text)  # rod thicker than the 36 mm piston
+    res = run_cli("dyno", "--protocol", "sine", "--params", bad, "--out", tmp_path / "o")
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    assert lines[0].startswith("damper-hil: error: ")
+    assert "rod_diameter_m" in lines[0] and str(bad) in lines[0]
+    assert not (tmp_path / "o" / "sine_1hz.csv").exists()
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--protocol", "chirp", "--frequency", "3"], "--frequency does not apply"),
+    (["--protocol", "sine", "--amplitude", "0.5"], "travel"),
+    (["--protocol", "sine", "--frequency", "400"], "sample rate"),
+])
+def test_bad_option_values_are_one_line_exit_2(tmp_path, capsys, args, needle):
+    assert main(["dyno", *args, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("damper-hil: error: ") and needle in err[0]
+
+
+def test_usage_error_exits_2(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["dyno", "--protocol", "sine", "--frequency", "-1", "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    assert "--frequency" in capsys.readouterr().err
+
+
+def test_unwritable_output_is_one_line_exit_2(tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a directory")
+    assert main(["dyno", "--protocol", "sine", "--out", str(blocker / "sub")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("damper-hil: error: ")
+    assert "Traceback" not in "".join(err)
+
+
+def test_fourteen_speed_peaks_are_monotonic(tmp_path, capsys):
+    assert main(["dyno", "--protocol", "14-speed", "--out", str(tmp_path)]) == 0
+    table = json.loads((tmp_path / "dyno.json").read_text())["summary"]["table"]
+    vr, fr = np.array(table["peak_velocity_rebound_m_s"]), np.array(table["peak_force_rebound_n"])
+    vc = np.array(table["peak_velocity_compression_m_s"])
+    fc = np.array(table["peak_force_compression_n"])
+    assert vr.size == 14
+    assert vr[0] == pytest.approx(0.025, rel=1e-3) and vr[-1] == pytest.approx(1.5, rel=1e-3)
+    assert np.all(np.diff(vr) > 0) and np.all(np.diff(fr) > 0)
+    assert np.all(np.diff(vc) < 0) and np.all(np.diff(fc) < 0)
+    assert np.all(fr > fc)
+    lines = (tmp_path / "14speed.csv").read_text().splitlines()
+    assert lines[0] == ("frequency_hz,peak_velocity_rebound_m_s,peak_force_rebound_n,"
+                        "peak_velocity_compression_m_s,peak_force_compression_n")
+    assert len(lines) == 15
+    assert is_png(tmp_path / "14speed.png")
+
+
+def test_quasi_static_default_lasts_150_s_at_50_hz(tmp_path, capsys):
+    assert main(["dyno", "--protocol", "quasi-static", "--out", str(tmp_path)]) == 0
+    data = read_measured_csv(tmp_path / "quasi_static.csv")
+    assert len(data) == 7501
+    assert data.duration_s == pytest.approx(150.0, abs=1e-9)
+    assert np.allclose(np.diff(data.time), 0.02)
+    assert np.allclose(np.abs(data.velocity), 0.004)
+    # the 50 Hz grid need not hit the turning points: within one sample of travel
+    assert np.abs(data.displacement).max() == pytest.approx(0.075, abs=0.004 / 50)
+    summary = json.loads((tmp_path / "dyno.json").read_text())["summary"]
+    assert 40 < summary["friction_estimate_n"] < 80  # 43.7 N Coulomb + a little viscous
+    assert is_png(tmp_path / "quasi_static.png")
+
+
+def test_chirp_with_noise_is_reproducible(tmp_path, capsys):
+    args = ["dyno", "--protocol", "chirp", "--duration", "2", "--noise-std", "5",
+            "--seed", "7"]
+    assert main([*args, "--out", str(tmp_path / "a")]) == 0
+    assert main([*args, "--out", str(tmp_path / "b")]) == 0
+    a = read_measured_csv(tmp_path / "a" / "chirp.csv")
+    b = read_measured_csv(tmp_path / "b" / "chirp.csv")
+    assert len(a) == 2001 and np.array_equal(a.force, b.force)
+    assert is_png(tmp_path / "a" / "chirp.png")
+    err = capsys.readouterr().err
+    assert f"wrote {tmp_path / 'a' / 'chirp.csv'}" in err
+
+
+def test_demo_writes_everything(tmp_path, capsys):
+    assert main(["demo", "--duration", "2", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert "[1/7]" in err and "[7/7]" in err
+    doc = json.loads((tmp_path / "demo.json").read_text())
+    for name in ("quasi_static.csv", "chirp.csv", "sine_1hz.csv", "sine_3hz.csv",
+                 "sine_12hz.csv", "14speed.csv", "paper_sines.png", "demo.json"):
+        assert name in doc["files"] and (tmp_path / name).is_file()
+    assert all(is_png(tmp_path / n) for n in doc["files"] if n.endswith(".png"))
+    e1, e3 = (doc["results"][k]["energy_per_cycle_j"] for k in ("sine_1hz", "sine_3hz"))
+    assert 0 < e1 < e3  # same stroke, three times the speed
+    assert len(read_measured_csv(tmp_path / "sine_12hz.csv")) == 251
+
+
+# --------------------------------------------------------------------------------------
+# measured-data files
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+GOOD = "time,displacement,force\n0,0,10\n0.001,0.001,20\n0.002,0.002,30\n"
+
+
+@pytest.mark.parametrize("text, row, needle", [
+    ("time,displacement\n0,0\n0.001,0.001\n", None, "missing required column 'force'"),
+    ("time,displacement,force\n0,0,10\n0.001,nan,20\n0.002,0.002,30\n", 2, "displacement"),
+    ("time,displacement,force\n0,0,10\n0.001,0.001,inf\n0.002,0.002,30\n", 2, "force"),
+    ("time,displacement,force\n0,0,10\n0.001,0.001,abc\n", 2, "not a number"),
+    ("time,displacement,force\n0,0,10\n0.002,0.001,20\n0.001,0.002,30\n", 3,
+     "not strictly increasing"),
+    ("time,displacement,force\n0,0,10\n0.001,0.001,20\n0.001,0.002,30\n", 3,
+     "not strictly increasing"),
+    ("time,displacement,force\n0,0,10\n0.001,12.5,20\n0.002,25.0,30\n", 3,
+     "looks like millimetres; expected metres"),
+    ("time,displacement,velocity,force\n0,0,0,10\n0.001,0.001,800,20\n", 2, "mm/s"),
+    ("time,displacement,force\n0,0,10\n0.001,0.001\n", 2, "no value for column 'force'"),
+    ("time,displacement,force\n0,0,10\n", None, "need at least 2"),
+    ("time,displacement,force\n", None, "need at least 2"),
+    ("", None, "empty file"),
+])
+def test_reader_rejects_malformed_file_naming_file_and_row(tmp_path, text, row, needle):
+    path = _write(tmp_path / "bad.csv", text)
+    with pytest.raises(MeasuredDataError) as exc:
+        read_measured_csv(path)
+    msg = str(exc.value)
+    assert "\n" not in msg
+    assert msg.startswith(str(path))
+    assert needle in msg
+    if row is not None:
+        assert f"row {row} " in msg
+
+
+def test_reader_row_numbers_skip_blank_lines(tmp_path):
+    path = _write(tmp_path / "blank.csv", "time,displacement,force\n0,0,1\n\n0.1,x,2\n")
+    with pytest.raises(MeasuredDataError, match=r"row 2 \(line 4\)"):
+        read_measured_csv(path)
+
+
+def test_reader_missing_file_is_measured_data_error(tmp_path):
+    with pytest.raises(MeasuredDataError, match="nope.csv"):
+        read_measured_csv(tmp_path / "nope.csv")
+
+
+def test_round_trip_gzip_extra_columns_and_optional_columns(tmp_path):
+    t = np.arange(5) * 1e-3
+    x = 0.01 * np.sin(t * 100)
+    v = 1.0 * np.cos(t * 100)
+    f = 1234.5678901 * x
+    temp = np.full(5, 42.5)
+    path = write_measured_csv(tmp_path / "rt.csv.gz", t, x, f, velocity=v, temperature=temp)
+    with gzip.open(path, "rt") as fh:
+        assert fh.readline().strip() == "time,displacement,velocity,force,temperature"
+    data = read_measured_csv(path)
+    assert data.name == "rt.csv.gz"
+    np.testing.assert_allclose(data.force, f, rtol=1e-8)
+    np.testing.assert_allclose(data.velocity, v, rtol=1e-8)
+    np.testing.assert_allclose(data.temperature, temp)
+    # extra columns ignored, column order free, names case/blank-insensitive
+    extra = _write(tmp_path / "extra.csv",
+                   "Force , comment,TIME,displacement\n1,a,0,0\n2,b,1,0.1\n")
+    data = read_measured_csv(extra)
+    np.testing.assert_array_equal(data.force, [1, 2])
+    assert data.velocity is None and data.temperature is None
+    np.testing.assert_array_equal(read_measured_csv(
+        _write(tmp_path / "good.csv", GOOD)).force, [10, 20, 30])

@@ -60,11 +60,15 @@ def chirp(f_start_hz: float = 0.5, f_end_hz: float = 16.0, duration_s: float = 6
 
 def sine(frequency_hz: float, amplitude_m: float, cycles: float = 3, rate_hz: float = 1000.0,
          start_cycles: float = 0.0):
-    """``x = A sin(2π f t)`` for ``cycles`` periods, optionally starting ``start_cycles``
-    periods early (negative times: a lead-in to discard)."""
-    if frequency_hz <= 0 or amplitude_m <= 0 or cycles <= 0:
-        raise ValueError("sine frequency, amplitude and cycles must be positive")
-    t = _times((cycles + start_cycles) / frequency_hz, rate_hz) - start_cycles / frequency_hz
+    """``x = A sin(2π f t)`` for ``cycles`` periods from ``t = 0``, optionally preceded by a
+    lead-in of ``start_cycles`` periods (negative times, to discard).  The lead-in is rounded
+    up to whole samples so that one sample falls exactly on ``t = 0``."""
+    if frequency_hz <= 0 or amplitude_m <= 0 or cycles <= 0 or rate_hz <= 0:
+        raise ValueError("sine frequency, amplitude, cycles and sample rate must be positive")
+    if start_cycles < 0:
+        raise ValueError("sine lead-in cycles must not be negative")
+    lead = int(math.ceil(start_cycles * rate_hz / frequency_hz - 1e-9))
+    t = np.arange(-lead, int(round(cycles * rate_hz / frequency_hz)) + 1) / rate_hz
     w = 2.0 * math.pi * frequency_hz
     return t, amplitude_m * np.sin(w * t), amplitude_m * w * np.cos(w * t)
 

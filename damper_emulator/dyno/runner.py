@@ -113,8 +113,7 @@ def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles
     """Simulate ``x = A sin(2π f t)`` for ``settle_cycles + cycles`` periods and return the
     recorded part ``(t, x, v, F, faults)``, ``t`` starting at exactly 0.
 
-    The lead-in lets the pressures settle from the quasi-steady initial state; it is
-    rounded up to whole samples so that a sample falls on ``t = 0``.
+    The lead-in lets the pressures settle from the quasi-steady initial state.
     """
     _finite_positive("sine frequency [Hz]", frequency)
     _finite_positive("sine amplitude [m]", amplitude)
@@ -125,13 +124,11 @@ def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles
     if rate <= 4.0 * frequency:
         raise ValueError(f"sample rate {rate:g} Hz is too low for a {frequency:g} Hz sine "
                          "(need more than 4 samples per period)")
-    n_settle = int(math.ceil(settle_cycles * rate / frequency - 1e-9))
-    t, x, v = protocols.sine(frequency, amplitude, cycles, rate,
-                             start_cycles=n_settle * frequency / rate)
+    t, x, v = protocols.sine(frequency, amplitude, cycles, rate, start_cycles=settle_cycles)
     _check_travel(model, x, f"sine amplitude {amplitude:g} m")
     res = simulate(model, t, x, v)
-    k = n_settle
-    return (t[k:] - t[k], x[k:], v[k:], res.force_n[k:], res.faults[k:])
+    k = int(np.searchsorted(t, 0.0))  # protocols.sine puts a sample on t = 0
+    return (t[k:], x[k:], v[k:], res.force_n[k:], res.faults[k:])
 
 
 def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitude: float,

@@ -160,6 +160,75 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
                       help="output directory (created if missing; default: demo_out)")
     demo.set_defaults(handler=cmd_demo)
+
+    # ---- validate --------------------------------------------------------------------
+    validate = sub.add_parser(
+        "validate", formatter_class=_Formatter,
+        help="compare the compressible model with measured data: r.m.s. force error "
+             "per file",
+        description="Simulate the compressible (hysteretic) model over the displacement\n"
+                    "history of each measured-data file and compare the simulated force\n"
+                    "with the measured one (MODEL.md eqs 34-35):\n"
+                    "  rms_N        = sqrt(mean((F_sim - F_meas)^2))   [N]\n"
+                    "  relative_rms = rms_N / sqrt(mean(F_meas^2))\n"
+                    "Every sample counts, the first cycle included: the simulation starts\n"
+                    "in quasi-steady equilibrium at the first sample.  The velocity is the\n"
+                    "file's velocity column, or else a Savitzky-Golay derivative of the\n"
+                    "displacement (cubic, window 1/20 of the dominant period).\n\n"
+                    "Results are written to the JSON file (--json) as\n"
+                    '  {"params_file": ..., "files": {NAME: {"rms_N": .., "relative_rms": ..,\n'
+                    "   samples, peak forces, velocity source, ...}}}\n"
+                    "(NAME: the file's base name) and printed as a table on stdout.",
+        epilog="examples:\n"
+               f"  {PROG} validate --params config/sport.yaml out/sine_1hz.csv "
+               "out/sine_3hz.csv\n"
+               f"  {PROG} validate --params fitted.yaml --report val_out data/*.csv")
+    validate.add_argument("data", metavar="DATA.csv", type=Path, nargs="+",
+                          help="measured-data files (CSV or .csv.gz: time [s], "
+                               "displacement [m], force [N], optional velocity [m/s]); "
+                               "base names must differ")
+    validate.add_argument("--params", metavar="PARAMS.yaml", type=Path, required=True,
+                          help="damper parameter file to validate (ROS 2 params YAML)")
+    validate.add_argument("--json", metavar="FILE", type=Path, default=None,
+                          help="results file (default: validation.json in the --report "
+                               "directory when given, else in the current directory)")
+    validate.add_argument("--report", metavar="DIR", type=Path, default=None,
+                          help="also write figures into DIR (created if missing): per file "
+                               "validate_<name>.png (measured and simulated force-velocity "
+                               "and force-displacement loops, force error vs time) and "
+                               "validation_summary.png (relative r.m.s. per file)")
+    validate.set_defaults(handler=cmd_validate)
+
+    # ---- identify ----------------------------------------------------------------------
+    ident = sub.add_parser(
+        "identify", formatter_class=_Formatter,
+        help="fit the model's parameters to a quasi-static and a chirp test",
+        description="Identify gas spring, friction and both valves from dyno data "
+                    "(MODEL.md §3).\n\n"
+                    "Quasi-static fit (eq 37) and chirp fit of the incompressible valve\n"
+                    "model after the paper's hysteresis filter, alternated until they agree;\n"
+                    "least squares with an exact Jacobian, log-scaled parameters and start\n"
+                    "values derived from the data.  The chirp's valve flow is corrected for\n"
+                    "oil compressibility with eq 2 (--no-compressibility-correction gives the\n"
+                    "paper's plain procedure).  Geometry, gamma, viscosity and alpha come from\n"
+                    "--base (the data sheet).  Writes PARAMS.yaml (loadable by every command\n"
+                    "and the emulator), a JSON with the fit statistics and a report.")
+    ident.add_argument("--quasi-static", metavar="QS.csv", type=Path, required=True,
+                       help="quasi-static test (constant low velocity, both directions)")
+    ident.add_argument("--chirp", metavar="CHIRP.csv", type=Path, required=True,
+                       help="chirp test (swept sine with growing velocity amplitude)")
+    ident.add_argument("--out", metavar="PARAMS.yaml", type=Path, required=True,
+                       help="identified parameter file to write (ROS 2 params YAML)")
+    ident.add_argument("--base", metavar="BASE.yaml", type=Path, default=None,
+                       help="fixed parameters (geometry, gamma, nu, alpha) and numerics "
+                            "(default: config/sport.yaml)")
+    ident.add_argument("--json", metavar="FILE", type=Path, default=None,
+                       help="fit results as JSON (default: PARAMS.json beside --out)")
+    ident.add_argument("--report", metavar="DIR", type=Path, default=None,
+                       help="write the report figures (PNG) into DIR")
+    ident.add_argument("--no-compressibility-correction", action="store_true",
+                       help="use the rigid-oil valve flow |v|(A_pt − A_rod) as the paper does")
+    ident.set_defaults(handler=cmd_identify)
     return parser
 
 
@@ -289,6 +358,97 @@ def cmd_demo(args: argparse.Namespace) -> int:
         "elapsed_s": round(elapsed, 3),
     })
     print(f"demo finished in {elapsed:.1f} s; results in {out}", file=sys.stderr)
+    return 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    paths: list[Path] = args.data
+    seen: dict[str, Path] = {}
+    for p in paths:  # the JSON is keyed by base name: refuse ambiguity before any work
+        if p.name in seen:
+            raise CliError(f"two data files have the base name {p.name!r} ({seen[p.name]} "
+                           f"and {p}): results are keyed by base name")
+        seen[p.name] = p
+    from damper_emulator import validation
+    from damper_emulator.dyno.measured import read_measured_csv
+
+    json_path: Path = args.json if args.json is not None else (
+        (args.report if args.report is not None else Path(".")) / "validation.json")
+    model, params_file = _load_model(args.params)
+    datasets = [read_measured_csv(p) for p in paths]  # a malformed file fails before work
+    results: dict[str, Any] = {}
+    n = len(datasets)
+    for k, data in enumerate(datasets, 1):
+        print(f"[{k}/{n}] validating {data.name} ({len(data)} samples, "
+              f"{data.duration_s:.3g} s) ...", file=sys.stderr, flush=True)
+        results[data.name] = validation.validate_file(model, data)
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    _write_json(json_path, {
+        "params_file": params_file,
+        "files": {name: validation.json_summary(r) for name, r in results.items()},
+    })
+    if args.report is not None:
+        report: Path = args.report
+        report.mkdir(parents=True, exist_ok=True)
+        label = f"{args.params.name}, damper '{model.cfg.damper.name}'"
+        for name, r in results.items():
+            png = report / f"validate_{validation.report_stem(name)}.png"
+            _progress(validation.plot_validation(
+                png, r, title=f"{name} vs compressible model ({label}): "
+                              f"{validation.rms_caption(r)}"))
+        _progress(validation.plot_relative_rms_summary(
+            report / "validation_summary.png", results,
+            title=f"Validation of {args.params.name}: relative r.m.s. force error per file "
+                  "(label: r.m.s. in N)"))
+    width = max(len("file"), *(len(name) for name in results))
+    print(f"{'file':<{width}}  {'samples':>8}  {'rms [N]':>9}  {'relative':>9}  "
+          f"{'peak F meas [N]':>17}  {'peak F sim [N]':>17}")
+    for name, r in results.items():
+        rel = (f"{100.0 * r['relative_rms']:8.3f}%" if r["relative_rms"] is not None
+               else f"{'-':>9}")
+        print(f"{name:<{width}}  {r['samples']:>8d}  {r['rms_N']:>9.3f}  {rel}  "
+              f"{r['peak_force_measured_rebound_n']:>+8.0f}/"
+              f"{r['peak_force_measured_compression_n']:<+8.0f}  "
+              f"{r['peak_force_simulated_rebound_n']:>+8.0f}/"
+              f"{r['peak_force_simulated_compression_n']:<+8.0f}")
+    return 0
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.identify.pipeline import identify
+    from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config, save_config
+
+    started = time.perf_counter()
+    base = load_config(args.base)
+    qs = read_measured_csv(args.quasi_static)
+    chirp = read_measured_csv(args.chirp)
+    print(f"identifying from {qs.name} ({len(qs)} samples) and {chirp.name} "
+          f"({len(chirp)} samples) ...", file=sys.stderr, flush=True)
+    result = identify(qs, chirp, base, progress=lambda m: print(m, file=sys.stderr,
+                                                                 flush=True),
+                      correct_compressibility=not args.no_compressibility_correction)
+    cfg = result.config
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    save_config(cfg, args.out)
+    _progress(args.out)
+    json_path = args.json or args.out.with_suffix(".json")
+    doc = {"params_file": str(args.out),
+           "base_params_file": str(args.base or DEFAULT_PARAMS_FILE),
+           "quasi_static_file": str(args.quasi_static), "chirp_file": str(args.chirp),
+           "compressibility_correction": not args.no_compressibility_correction,
+           **result.as_dict()}
+    if args.report is not None:
+        from damper_emulator.identify.report import write_report
+
+        for path in write_report(args.report, result, qs, chirp):
+            _progress(path)
+        doc["report_dir"] = str(args.report)
+    doc["elapsed_s"] = round(time.perf_counter() - started, 3)
+    _write_json(json_path, doc)
+    print(f"identified in {doc['elapsed_s']:.1f} s: quasi-static r.m.s. "
+          f"{result.quasi_static.rms:.2f} N, rebound {result.rebound.rms:.2f} N, "
+          f"compression {result.compression.rms:.2f} N", file=sys.stderr)
     return 0
 
 

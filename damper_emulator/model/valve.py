@@ -57,8 +57,16 @@ def blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s):
 
 
 @kernel
-def _real_cbrt(a):
-    return math.copysign(abs(a) ** (1.0 / 3.0), a)
+def _abs(a):
+    """``|a|`` by the sign of the real part: the identity for real numbers, and for a
+    complex-step argument ``a + ih`` it keeps the derivative (``abs`` would not)."""
+    return a if a.real >= 0.0 else -a
+
+
+@kernel
+def _cbrt(a):
+    """Real cube root (sign by the real part; complex-step safe)."""
+    return a ** (1.0 / 3.0) if a.real >= 0.0 else -((-a) ** (1.0 / 3.0))
 
 
 @kernel
@@ -70,18 +78,23 @@ def leak_flow_cardano(q_tot, b0, b1, b2, b3):
     ``cos φ = (−D2/2) / √(−D1³/27)`` (the imaginary parts cancel).
     """
     d1 = (3.0 * b1 * b3 - b2 * b2) / (3.0 * b3 * b3)  # eq 44
-    d2 = (2.0 * b2 ** 3 - 9.0 * b1 * b2 * b3 + 27.0 * (b0 - q_tot) * b3 * b3) / (
-        27.0 * b3 ** 3
+    # (integer powers written as products: a complex power of a negative number goes
+    # through the polar form and spoils complex-step derivatives)
+    d2 = (2.0 * b2 * b2 * b2 - 9.0 * b1 * b2 * b3 + 27.0 * (b0 - q_tot) * b3 * b3) / (
+        27.0 * b3 * b3 * b3
     )  # eq 45
-    d3 = d2 * d2 / 4.0 + d1 ** 3 / 27.0  # eq 46
-    if d3 >= 0.0:
-        s = math.sqrt(d3)
-        t = _real_cbrt(-d2 / 2.0 + s) + _real_cbrt(-d2 / 2.0 - s)
+    d3 = d2 * d2 / 4.0 + d1 * d1 * d1 / 27.0  # eq 46
+    if d3.real >= 0.0:
+        s = d3 ** 0.5
+        t = _cbrt(-d2 / 2.0 + s) + _cbrt(-d2 / 2.0 - s)
     else:
-        r = math.sqrt(-d1 / 3.0)
+        r = (-d1 / 3.0) ** 0.5
         c = (-d2 / 2.0) / (r * r * r)
-        c = min(1.0, max(-1.0, c))
-        t = 2.0 * r * math.cos(math.acos(c) / 3.0)
+        if c.real > 1.0:
+            c = c - (c.real - 1.0)
+        elif c.real < -1.0:
+            c = c - (c.real + 1.0)
+        t = 2.0 * r * np.cos(np.arccos(c) / 3.0)
     return b0 - b2 / (3.0 * b3) + t  # eq 22
 
 
@@ -89,7 +102,7 @@ def leak_flow_cardano(q_tot, b0, b1, b2, b3):
 def total_flow_open(q_leak, k_leak, k_spring, preload_pa, nu_m2_s):
     """Total flow of the open valve as a function of the leak flow, eq 19."""
     dp_leak = k_leak * nu_m2_s ** 0.25 * q_leak ** FLOW_EXPONENT
-    return q_leak + (dp_leak - preload_pa) * math.sqrt(dp_leak) / k_spring
+    return q_leak + (dp_leak - preload_pa) * dp_leak ** 0.5 / k_spring
 
 
 @kernel
@@ -97,19 +110,27 @@ def leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0):
     """Leak flow of the open valve by an exact root solve of eq 19 (``q_tot >= b0``).
 
     Eq 19 is increasing in ``Q_leak`` above the blow-off point and ``Q_tot(Q_leak) >=
-    Q_leak``, so the root lies in ``[B0, Q_tot]``; bisection to double precision.
+    Q_leak``, so the root lies in ``[B0, Q_tot]``: bisection to double precision on the
+    real parts, then one Newton step with the exact derivative of eq 19, which carries the
+    derivatives of a complex-step evaluation through the root.
     """
-    lo = b0
-    hi = max(q_tot, b0)
-    for _ in range(_EXACT_ITERATIONS + int(math.log2(1.0 + hi / max(b0, 1e-300)))):
+    b0r = b0.real
+    kl, ks, dp0, qt = k_leak.real, k_spring.real, preload_pa.real, q_tot.real
+    lo = b0r
+    hi = max(qt, b0r)
+    for _ in range(_EXACT_ITERATIONS + int(math.log2(1.0 + hi / max(b0r, 1e-300)))):
         mid = 0.5 * (lo + hi)
-        if total_flow_open(mid, k_leak, k_spring, preload_pa, nu_m2_s) < q_tot:
+        if total_flow_open(mid, kl, ks, dp0, nu_m2_s) < qt:
             lo = mid
         else:
             hi = mid
         if hi - lo <= 1e-16 * hi:
             break
-    return 0.5 * (lo + hi)
+    root = 0.5 * (lo + hi)
+    p = k_leak * nu_m2_s ** 0.25 * root ** FLOW_EXPONENT
+    slope = 1.0 + FLOW_EXPONENT * p / root * (p ** 0.5 + (p - preload_pa) / (2.0 * p ** 0.5)) \
+        / k_spring
+    return root - (total_flow_open(root, k_leak, k_spring, preload_pa, nu_m2_s) - q_tot) / slope
 
 
 @kernel
@@ -124,7 +145,7 @@ def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, for
     linear extension eqs 29/47 below it (``H1`` as corrected in MODEL.md)."""
     nu4 = nu_m2_s ** 0.25
     b0, b1, b2, b3 = blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s)
-    if q_tot >= b0:
+    if q_tot.real >= b0.real:
         if form == FORM_EXACT:
             q_leak = leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0)
         else:
@@ -138,9 +159,9 @@ def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, for
 @kernel
 def smooth_transition(dp_open, dp_closed, g):
     """Smoothed minimum of the two branches, eq 28."""
-    if dp_closed == 0.0 or dp_open == 0.0:
-        return 0.0
-    return dp_open * dp_closed / (abs(dp_open) ** g + abs(dp_closed) ** g) ** (1.0 / g)
+    if dp_closed.real == 0.0 or dp_open.real == 0.0:
+        return dp_open * 0.0
+    return dp_open * dp_closed / (_abs(dp_open) ** g + _abs(dp_closed) ** g) ** (1.0 / g)
 
 
 @kernel
@@ -195,3 +216,59 @@ def pressure_drop_array(q_m3_s, valve, nu_m2_s, form="cardano"):
     _pressure_drop_loop(q.ravel(), k_leak, k_port, k_spring, preload, g, nu_m2_s,
                         form_code(form), out)
     return out.reshape(q.shape)
+
+
+#: Imaginary step of the complex-step derivative (relative to each parameter): small enough
+#: that the result is exact to round-off, with no subtractive cancellation.
+COMPLEX_STEP = 1e-30
+
+
+@kernel
+def _pressure_drop_jacobian_loop(q, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form,
+                                 out):
+    params = np.array([k_leak, k_port, k_spring, preload_pa, g])
+    for j in range(5):
+        h = COMPLEX_STEP * params[j]
+        p = params.astype(np.complex128)
+        p[j] += 1j * h
+        for i in range(q.size):
+            qc = q[i] + 0j
+            out[i, j] = pressure_drop(qc, p[0], p[1], p[2], p[3], p[4], nu_m2_s, form).imag / h
+
+
+def pressure_drop_jacobian(q_m3_s, valve, nu_m2_s, form="cardano"):
+    """Derivatives of ``Δp(Q)`` with respect to the valve parameters.
+
+    Exact to round-off by complex-step differentiation (forward mode for an analytic
+    function: ``∂f/∂θ = Im f(θ + ih) / h``), evaluating the same compiled characteristic as
+    :func:`pressure_drop_array` with complex arguments — not finite differences.
+
+    Returns
+    -------
+    ndarray, shape (n, 5)
+        ``∂Δp/∂(k_leak, k_port, k_spring, preload_pa, smoothing_g)`` [Pa per unit].
+    """
+    q = np.ascontiguousarray(q_m3_s, dtype=float).ravel()
+    out = np.empty((q.size, 5))
+    k_leak, k_port, k_spring, preload, g = (float(v) for v in valve)
+    _pressure_drop_jacobian_loop(q, k_leak, k_port, k_spring, preload, g, nu_m2_s,
+                                 form_code(form), out)
+    return out
+
+
+@kernel
+def _pressure_drop_slope_loop(q, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form, out):
+    for i in range(q.size):
+        h = COMPLEX_STEP * max(q[i], 1e-12)
+        out[i] = pressure_drop(q[i] + 1j * h, k_leak + 0j, k_port + 0j, k_spring + 0j,
+                               preload_pa + 0j, g + 0j, nu_m2_s, form).imag / h
+
+
+def pressure_drop_slope(q_m3_s, valve, nu_m2_s, form="cardano"):
+    """``dΔp/dQ`` [Pa s/m³] of one valve (complex step, exact to round-off)."""
+    q = np.ascontiguousarray(q_m3_s, dtype=float).ravel()
+    out = np.empty(q.size)
+    k_leak, k_port, k_spring, preload, g = (float(v) for v in valve)
+    _pressure_drop_slope_loop(q, k_leak, k_port, k_spring, preload, g, nu_m2_s,
+                              form_code(form), out)
+    return out

@@ -1,0 +1,121 @@
+"""Least-squares fitting with log-scaled parameters and fit statistics (eqs 33–35).
+
+A thin layer over :func:`scipy.optimize.least_squares`: the caller supplies residuals and
+their exact Jacobian with respect to the parameters; this module works in ``log θ`` for
+positive parameters (so that constants spanning decades are scaled alike), applies bounds,
+and returns the fit metrics of the paper (eqs 33–35) with standard errors and correlations
+from the Jacobian at the optimum.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy.optimize import least_squares
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Outcome of one least-squares fit.
+
+    Attributes
+    ----------
+    names : tuple of str
+    values : ndarray
+        Fitted parameters (natural scale).
+    std_errors : ndarray
+        One-sigma standard errors (natural scale), from ``s² (JᵀJ)⁻¹``.
+    correlation : ndarray, shape (p, p)
+    cost : float
+        Eq 33, ``C = Σ (U_model − U_measured)²`` [N²].
+    rms : float
+        Eq 34, ``C_RMS = √(C/N)`` [N].
+    relative_rms : float
+        Eq 35, ``C_RMS / U_measured,RMS``.
+    samples : int
+    nfev : int
+        Residual evaluations used.
+    """
+
+    names: tuple[str, ...]
+    values: np.ndarray
+    std_errors: np.ndarray
+    correlation: np.ndarray
+    cost: float
+    rms: float
+    relative_rms: float
+    samples: int
+    nfev: int
+
+    def as_dict(self) -> dict:
+        return {
+            "parameters": {n: float(v) for n, v in zip(self.names, self.values)},
+            "std_errors": {n: float(s) for n, s in zip(self.names, self.std_errors)},
+            "relative_std_errors": {n: float(s / abs(v)) if v else None
+                                    for n, s, v in zip(self.names, self.std_errors,
+                                                       self.values)},
+            "correlation": np.round(self.correlation, 4).tolist(),
+            "cost_N2": self.cost, "rms_N": self.rms, "relative_rms": self.relative_rms,
+            "samples": self.samples, "evaluations": self.nfev,
+        }
+
+
+def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+        names: Sequence[str], start: np.ndarray, log_scaled: Sequence[bool],
+        lower: np.ndarray, upper: np.ndarray, measured: np.ndarray) -> FitResult:
+    """Minimise ``Σ r(θ)²`` from ``start`` within ``[lower, upper]`` (natural scale).
+
+    Parameters
+    ----------
+    residual_and_jacobian : callable
+        ``θ -> (r, ∂r/∂θ)`` with ``r`` shape (n,) [N] and the Jacobian shape (n, p), both in
+        natural parameter scale (the change to ``log θ`` is applied here).
+    names : sequence of str
+    start, lower, upper : ndarray, shape (p,)
+    log_scaled : sequence of bool
+        Fit ``log θ`` for these parameters (they must be positive).
+    measured : ndarray
+        The measured values the residuals refer to (for eq 35).
+    """
+    log_mask = np.asarray(log_scaled, dtype=bool)
+    start = np.asarray(start, dtype=float)
+
+    def to_u(theta):
+        return np.where(log_mask, np.log(np.where(log_mask, theta, 1.0)), theta)
+
+    def to_theta(u):
+        return np.where(log_mask, np.exp(u), u)
+
+    cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+    def evaluate(u):
+        key = u.tobytes()
+        if key not in cache:
+            cache.clear()
+            theta = to_theta(u)
+            r, jac = residual_and_jacobian(theta)
+            cache[key] = (r, jac * np.where(log_mask, theta, 1.0))  # d/d(log θ) = θ d/dθ
+        return cache[key]
+
+    lo, hi = to_u(np.asarray(lower, float)), to_u(np.asarray(upper, float))
+    u0 = np.clip(to_u(start), lo + 1e-12 * (hi - lo), hi - 1e-12 * (hi - lo))
+    sol = least_squares(lambda u: evaluate(u)[0], u0, jac=lambda u: evaluate(u)[1],
+                        bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-12,
+                        ftol=1e-12, gtol=1e-12, max_nfev=500)
+    theta = to_theta(sol.x)
+    r, jac_u = evaluate(sol.x)
+    n, p = jac_u.shape
+    cost = float(np.sum(r ** 2))
+    dof = max(n - p, 1)
+    cov_u = np.linalg.pinv(jac_u.T @ jac_u) * cost / dof
+    sd_u = np.sqrt(np.clip(np.diag(cov_u), 0.0, None))
+    std = np.where(log_mask, theta * sd_u, sd_u)  # first order: σ_θ = θ σ_logθ
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov_u / np.outer(sd_u, sd_u)
+    corr = np.nan_to_num(corr)
+    rms = float(np.sqrt(cost / n))
+    meas_rms = float(np.sqrt(np.mean(np.asarray(measured, float) ** 2)))
+    return FitResult(tuple(names), theta, std, corr, cost, rms,
+                     rms / meas_rms if meas_rms > 0 else float("inf"), n, int(sol.nfev))

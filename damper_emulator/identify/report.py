@@ -1,0 +1,109 @@
+"""Identification report: the figures a user checks a fit with (PNG).
+
+* ``quasi_static_fit.png`` — measured quasi-static force against stroke with the fitted
+  eq 37, and the residual;
+* ``valve_fit.png`` — the valve pressure drop against flow used by the chirp fit (hysteresis
+  filter, compressibility correction) with the fitted characteristic per direction, and the
+  residual against velocity;
+* ``chirp_residual.png`` — the incompressible model's residual on the whole chirp against
+  time, velocity and stroke.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from damper_emulator.dyno.measured import MeasuredData
+from damper_emulator.dyno.plots import _decorate, _new_figure, _save
+from damper_emulator.identify.pipeline import Identification, velocity_of
+from damper_emulator.identify.quasi_static import gas_force
+from damper_emulator.model.incompressible import incompressible_force
+from damper_emulator.model.valve import pressure_drop_array
+
+
+def _quasi_static(path: Path, ident: Identification, qs: MeasuredData) -> Path:
+    d = ident.config.damper
+    v = velocity_of(qs)
+    extra = ident.series.get("quasi_static_valve_force_n")
+    model = (gas_force(qs.displacement, d.gas_pressure_static_pa, d.gas_volume_static_m3,
+                       d.rod_area_m2, d.gas_gamma) + d.friction_force_n * np.sign(v)
+             + (extra if extra is not None else 0.0))
+    fig = _new_figure(11, 4.2)
+    ax1, ax2 = fig.subplots(1, 2)
+    x_mm = qs.displacement * 1e3
+    for sel, label, colour in ((v > 0, "extension", "tab:orange"),
+                               (v < 0, "compression", "tab:blue")):
+        ax1.plot(x_mm[sel], qs.force[sel], ".", ms=2, color=colour, label=f"measured, {label}")
+        order = np.argsort(x_mm[sel])
+        ax1.plot(x_mm[sel][order], model[sel][order], "k--", lw=1.2)
+    ax1.plot([], [], "k--", label="fitted eq 37 (+ valve force)")
+    ax1.set_title(f"Quasi-static fit: P_gas {d.gas_pressure_static_pa / 1e6:.4g} MPa, "
+                  f"V_gas {d.gas_volume_static_m3 * 1e6:.4g} cm³, "
+                  f"F_friction {d.friction_force_n:.3g} N", fontsize=9)
+    _decorate(ax1, "displacement [mm] (extension +)", "force [N] (rebound +)")
+    moving = v != 0
+    ax2.plot(x_mm[moving], (qs.force - model)[moving], ".", ms=2, color="tab:gray")
+    ax2.set_title(f"residual: r.m.s. {ident.quasi_static.rms:.2f} N (eq 34)", fontsize=9)
+    _decorate(ax2, "displacement [mm]", "measured − model [N]", legend=False)
+    return _save(fig, path)
+
+
+def _valves(path: Path, ident: Identification, chirp: MeasuredData) -> Path:
+    d = ident.config.damper
+    q, dp, masks = (ident.series[k] for k in ("flow_m3_s", "pressure_drop_pa", "masks"))
+    fig = _new_figure(11, 8)
+    axes = fig.subplots(2, 2)
+    v = velocity_of(chirp)
+    for col, side in enumerate(("rebound", "compression")):
+        m = masks[side]
+        fit = getattr(ident, side)
+        qa, dpa = np.abs(q[m]), np.abs(dp[m])
+        ax = axes[0, col]
+        ax.plot(qa * 1e6, dpa / 1e6, ".", ms=1.5, alpha=0.4, color="tab:gray",
+                label=f"chirp samples used ({m.sum()})")
+        grid = np.linspace(0, qa.max(), 400)
+        ax.plot(grid * 1e6, pressure_drop_array(grid, getattr(d, side),
+                                                d.oil_kinematic_viscosity_m2_s) / 1e6,
+                "k--", lw=1.5, label="fitted Δp(Q), eqs 8–29")
+        ax.set_title(f"{side} valve: r.m.s. {fit.rms:.2f} N, relative "
+                     f"{100 * fit.relative_rms:.2f} % (eqs 34–35)", fontsize=9)
+        _decorate(ax, "valve flow [cm³/s]", "pressure drop [MPa]")
+        model = pressure_drop_array(qa, getattr(d, side), d.oil_kinematic_viscosity_m2_s)
+        ax = axes[1, col]
+        ax.plot(v[m], d.annulus_area_m2 * (dpa - model), ".", ms=1.5, alpha=0.5,
+                color="tab:gray")
+        _decorate(ax, "velocity [m/s]", "residual force [N]", legend=False)
+    return _save(fig, path)
+
+
+def _chirp_residual(path: Path, ident: Identification, chirp: MeasuredData) -> Path:
+    v = velocity_of(chirp)
+    d = ident.config.damper
+    model = incompressible_force(v, ident.config) - d.static_force_n + gas_force(
+        chirp.displacement, d.gas_pressure_static_pa, d.gas_volume_static_m3, d.rod_area_m2,
+        d.gas_gamma)
+    r = chirp.force - model
+    fig = _new_figure(11, 7)
+    ax1 = fig.add_subplot(2, 1, 1)
+    ax1.plot(chirp.time, r, lw=0.4, color="tab:gray")
+    ax1.set_title("whole chirp: measured − incompressible model (hysteresis shows as the "
+                  f"residual; r.m.s. {np.sqrt(np.mean(r ** 2)):.1f} N)", fontsize=9)
+    _decorate(ax1, "time [s]", "residual [N]", legend=False)
+    ax2, ax3 = fig.add_subplot(2, 2, 3), fig.add_subplot(2, 2, 4)
+    ax2.plot(v, r, ",", color="tab:gray")
+    _decorate(ax2, "velocity [m/s]", "residual [N]", legend=False)
+    ax3.plot(chirp.displacement * 1e3, r, ",", color="tab:gray")
+    _decorate(ax3, "displacement [mm]", "residual [N]", legend=False)
+    return _save(fig, path)
+
+
+def write_report(out_dir: str | Path, ident: Identification, qs: MeasuredData,
+                 chirp: MeasuredData) -> list[Path]:
+    """Write the report figures into ``out_dir``; returns their paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    return [_quasi_static(out / "quasi_static_fit.png", ident, qs),
+            _valves(out / "valve_fit.png", ident, chirp),
+            _chirp_residual(out / "chirp_residual.png", ident, chirp)]

@@ -1,0 +1,120 @@
+"""Chirp fit of the valve parameters (Simms & Crolla §3, eqs 8–33).
+
+The incompressible model (eqs 30–32) is fitted per direction to chirp data after the
+paper's hysteresis filter: only samples where velocity and acceleration differ in sign
+(the decelerating part of each half cycle) are kept.  The gas force is that of the
+quasi-static fit at the measured stroke (eq 37; the paper holds it at the static value,
+which differs by ±16 N over the ±16 mm of the default chirp), and friction is the
+quasi-static friction.  The residual Jacobian is exact: complex-step differentiation of the
+compiled valve characteristic (:func:`damper_emulator.model.valve.pressure_drop_jacobian`).
+
+Start values come from the data: the measured pressure drop ``Δp = (F − F_gas − F_f sgn ẋ)
+/ (A_pt − A_rod)`` against flow ``Q = |ẋ| (A_pt − A_rod)``, binned, gives
+
+* ``K_leak + K_port`` from the low-flow bins (closed valve, eq 15: ``Δp = K ν^¼ Q^(7/4)``);
+* ``Δp0``, ``K_spring`` and ``K_port`` from a fit of ``Δp ≈ a + b Q + c Q^(7/4)`` to the
+  high-flow bins (open valve: the preload, the blow-off spring rate ``∂Δp/∂Q ≈
+  K_spring / √Δp`` from eq 10, and the port term of eq 27);
+* ``G = 1.5``, the middle of the usual range.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from damper_emulator.identify.fitting import FitResult, fit
+from damper_emulator.identify.quasi_static import IdentificationError
+from damper_emulator.model.valve import (FLOW_EXPONENT, pressure_drop_array,
+                                         pressure_drop_jacobian, pressure_drop_slope)
+
+NAMES = ("k_leak", "k_port", "k_spring", "preload_pa", "smoothing_g")
+#: Samples slower than this fraction of the direction's peak speed are left out: near a
+#: reversal friction switches and the pressure lag of the real (compressible) damper
+#: dominates.
+MIN_SPEED_FRACTION = 0.02
+#: Quantile bins of the start-value curve.
+START_BINS = 40
+#: Fraction of the bins (lowest flows) taken as the closed-valve regime for the start.
+CLOSED_FRACTION = 0.15
+#: Fraction of the bins (highest flows) taken as the open-valve regime for the start.
+OPEN_FRACTION = 0.5
+#: Start value of the smoothing exponent G (eq 28).
+G_START = 1.5
+#: Log-scaled bounds: each constant within this factor of its start; G in [G_MIN, G_MAX].
+K_BOUND_FACTOR = 1e3
+G_MIN, G_MAX = 0.5, 6.0
+
+
+def hysteresis_filter(velocity, acceleration):
+    """The paper's filter: keep samples where velocity and acceleration differ in sign."""
+    return np.asarray(velocity) * np.asarray(acceleration) < 0
+
+
+def start_values(q, dp, nu_m2_s):
+    """Valve start values ``(k_leak, k_port, k_spring, preload_pa, G)`` from measured
+    ``Δp(Q)`` of one direction (see the module docstring)."""
+    order = np.argsort(q)
+    q, dp = q[order], dp[order]
+    edges = np.linspace(0, q.size, START_BINS + 1).astype(int)
+    qb = np.array([np.median(q[a:b]) for a, b in zip(edges[:-1], edges[1:]) if b > a])
+    pb = np.array([np.median(dp[a:b]) for a, b in zip(edges[:-1], edges[1:]) if b > a])
+    ok = (qb > 0) & (pb > 0)
+    qb, pb = qb[ok], pb[ok]
+    if qb.size < 6:
+        raise IdentificationError("too few usable chirp samples in one direction to start "
+                                  "the valve fit (need flow and a positive pressure drop)")
+    nu4 = nu_m2_s ** 0.25
+    n_closed = max(2, int(CLOSED_FRACTION * qb.size))
+    k_total = float(np.median(pb[:n_closed] / (nu4 * qb[:n_closed] ** FLOW_EXPONENT)))
+    hi = slice(int((1 - OPEN_FRACTION) * qb.size), None)
+    basis = np.column_stack((np.ones(qb[hi].size), qb[hi], qb[hi] ** FLOW_EXPONENT))
+    a, b, c = np.linalg.lstsq(basis, pb[hi], rcond=None)[0]
+    preload = a if 0 < a < pb[-1] else 0.5 * float(np.median(pb[hi]))
+    k_port = c / nu4 if c > 0 else 1e-3 * k_total
+    k_port = min(k_port, 0.5 * k_total)
+    slope = b if b > 0 else float(np.ptp(pb[hi]) / max(np.ptp(qb[hi]), 1e-30))
+    k_spring = max(slope, 1e-30) * np.sqrt(float(np.median(pb[hi])))
+    return np.array([k_total - k_port, k_port, k_spring, preload, G_START])
+
+
+def effective_variance_weights(q, flow_sd_m3_s, force_sd_n, area_m2, valve, nu_m2_s,
+                               form="cardano"):
+    """Weights that account for noise in the flow as well as in the force.
+
+    The compressibility-corrected flow carries the noise of the pressure derivative
+    (standard deviation ``flow_sd_m3_s``); where ``Δp(Q)`` is steep (low flow) that noise
+    becomes a large pressure error.  Weighting each residual by ``σ_F / √(σ_F² + (A dΔp/dQ
+    σ_Q)²)`` (the effective-variance method for errors in both variables) keeps these
+    samples from biasing the fit.
+    """
+    slope = area_m2 * pressure_drop_slope(q, valve, nu_m2_s, form) * flow_sd_m3_s
+    return force_sd_n / np.sqrt(force_sd_n ** 2 + slope ** 2)
+
+
+def fit_valve(q, dp_measured, area_m2: float, nu_m2_s: float, form: str = "cardano",
+              start=None, weights=None) -> FitResult:
+    """Fit one valve direction's ``Δp(Q)`` to measured pressure drops.
+
+    The residual is in force units: ``(A_pt − A_rod)(Δp_model − Δp_measured)`` [N].
+
+    Parameters
+    ----------
+    q, dp_measured : ndarray
+        Flow magnitudes [m³/s] and pressure drop magnitudes [Pa] of one direction.
+    area_m2 : float
+        ``A_pt − A_rod``.
+    start : array_like, optional
+        Start values; by default :func:`start_values` of the data.
+    weights : array_like, optional
+        Per-sample weights of the residual (see :func:`effective_variance_weights`).
+    """
+    start = start_values(q, dp_measured, nu_m2_s) if start is None else np.asarray(start, float)
+    w = area_m2 * (np.ones_like(q) if weights is None else np.asarray(weights, float))
+
+    def residual(theta):
+        r = w * (pressure_drop_array(q, theta, nu_m2_s, form) - dp_measured)
+        return r, w[:, None] * pressure_drop_jacobian(q, theta, nu_m2_s, form)
+
+    lower = np.concatenate((start[:4] / K_BOUND_FACTOR, [G_MIN]))
+    upper = np.concatenate((start[:4] * K_BOUND_FACTOR, [G_MAX]))
+    return fit(residual, NAMES, start, (True,) * 5, lower, upper, area_m2 * dp_measured)

@@ -5,8 +5,8 @@
 * ``valve_fit.png`` — the valve pressure drop against flow used by the chirp fit (hysteresis
   filter, compressibility correction) with the fitted characteristic per direction, and the
   residual against velocity;
-* ``chirp_residual.png`` — the incompressible model's residual on the whole chirp against
-  time, velocity and stroke.
+* ``chirp_residual.png`` — the residual of the incompressible and of the compressible model
+  with the identified parameters on the whole chirp, against time, velocity and stroke.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.dyno.plots import _decorate, _new_figure, _save
 from damper_emulator.identify.pipeline import Identification, velocity_of
 from damper_emulator.identify.quasi_static import gas_force
+from damper_emulator.model.compressible import DamperModel, simulate
 from damper_emulator.model.incompressible import incompressible_force
 from damper_emulator.model.valve import pressure_drop_array
 
@@ -81,21 +82,25 @@ def _valves(path: Path, ident: Identification, chirp: MeasuredData) -> Path:
 def _chirp_residual(path: Path, ident: Identification, chirp: MeasuredData) -> Path:
     v = velocity_of(chirp)
     d = ident.config.damper
-    model = incompressible_force(v, ident.config) - d.static_force_n + gas_force(
+    rigid = incompressible_force(v, ident.config) - d.static_force_n + gas_force(
         chirp.displacement, d.gas_pressure_static_pa, d.gas_volume_static_m3, d.rod_area_m2,
         d.gas_gamma)
-    r = chirp.force - model
+    hysteretic = simulate(DamperModel(ident.config), chirp.time, chirp.displacement, v)
+    residuals = (("incompressible model (eqs 30–32)", chirp.force - rigid, "tab:gray"),
+                 ("compressible model (eqs 1–4)", chirp.force - hysteretic.force_n,
+                  "tab:blue"))
     fig = _new_figure(11, 7)
-    ax1 = fig.add_subplot(2, 1, 1)
-    ax1.plot(chirp.time, r, lw=0.4, color="tab:gray")
-    ax1.set_title("whole chirp: measured − incompressible model (hysteresis shows as the "
-                  f"residual; r.m.s. {np.sqrt(np.mean(r ** 2)):.1f} N)", fontsize=9)
-    _decorate(ax1, "time [s]", "residual [N]", legend=False)
-    ax2, ax3 = fig.add_subplot(2, 2, 3), fig.add_subplot(2, 2, 4)
-    ax2.plot(v, r, ",", color="tab:gray")
-    _decorate(ax2, "velocity [m/s]", "residual [N]", legend=False)
-    ax3.plot(chirp.displacement * 1e3, r, ",", color="tab:gray")
-    _decorate(ax3, "displacement [mm]", "residual [N]", legend=False)
+    axes = fig.subplot_mosaic([["t", "t"], ["v", "x"]])
+    for label, r, colour in residuals:
+        rms = float(np.sqrt(np.mean(r ** 2)))
+        axes["t"].plot(chirp.time, r, lw=0.4, color=colour, label=f"{label}: r.m.s. {rms:.1f} N")
+        axes["v"].plot(v, r, ",", color=colour)
+        axes["x"].plot(chirp.displacement * 1e3, r, ",", color=colour)
+    axes["t"].set_title("whole chirp, measured − model with the identified parameters "
+                        "(the hysteresis is what the incompressible model misses)", fontsize=9)
+    _decorate(axes["t"], "time [s]", "residual [N]")
+    _decorate(axes["v"], "velocity [m/s]", "residual [N]", legend=False)
+    _decorate(axes["x"], "displacement [mm]", "residual [N]", legend=False)
     return _save(fig, path)
 
 

@@ -10,6 +10,9 @@ import math
 
 import numpy as np
 
+#: Relative size of floating-point round-off in the analytic velocities.
+ROUND_OFF = 1e-12
+
 
 def _times(duration_s: float, rate_hz: float) -> np.ndarray:
     if not (duration_s > 0 and rate_hz > 0):
@@ -70,7 +73,11 @@ def sine(frequency_hz: float, amplitude_m: float, cycles: float = 3, rate_hz: fl
     lead = int(math.ceil(start_cycles * rate_hz / frequency_hz - 1e-9))
     t = np.arange(-lead, int(round(cycles * rate_hz / frequency_hz)) + 1) / rate_hz
     w = 2.0 * math.pi * frequency_hz
-    return t, amplitude_m * np.sin(w * t), amplitude_m * w * np.cos(w * t)
+    v = amplitude_m * w * np.cos(w * t)
+    # at the turning points cos() leaves round-off (±1e-16) whose sign would pick the
+    # friction direction at random: those samples are at rest
+    v[np.abs(v) < ROUND_OFF * amplitude_m * w] = 0.0
+    return t, amplitude_m * np.sin(w * t), v
 
 
 def fourteen_speed_frequencies(points: int = 14, amplitude_m: float = 0.025,

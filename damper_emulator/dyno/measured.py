@@ -69,7 +69,7 @@ class MeasuredData:
         return np.gradient(self.displacement, self.time)
 
 
-def _open_text(path: Path):
+def open_text(path: Path):
     """Text stream of a plain or gzip-compressed file."""
     with open(path, "rb") as fh:
         magic = fh.read(2)
@@ -78,7 +78,8 @@ def _open_text(path: Path):
     return open(path, encoding="utf-8-sig", newline="")
 
 
-def _plain(value: str) -> str:
+def short_text(value: str) -> str:
+    """A field's text cut to 40 characters for an error message."""
     return value if len(value) <= 40 else value[:37] + "..."
 
 
@@ -105,7 +106,7 @@ def read_measured_csv(path: str | Path) -> MeasuredData:
         return MeasuredDataError(f"{where}: row {row} (line {line}): {msg}")
 
     try:
-        stream = _open_text(path)
+        stream = open_text(path)
     except OSError as exc:
         raise fail(f"cannot read measured-data file: {exc.strerror or exc}") from None
     try:
@@ -145,7 +146,7 @@ def read_measured_csv(path: str | Path) -> MeasuredData:
                     try:
                         val = float(text)
                     except ValueError:
-                        what = "empty" if not text else f"'{_plain(text)}', not a number"
+                        what = "empty" if not text else f"'{short_text(text)}', not a number"
                         raise fail(f"{c} is {what}", row) from None
                     if not math.isfinite(val):
                         raise fail(f"{c} is {text} (must be a finite number)", row)

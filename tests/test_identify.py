@@ -4,13 +4,12 @@ malformed files."""
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from damper_emulator.dyno import protocols
-from damper_emulator.dyno.measured import MeasuredData, read_measured_csv
+from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.identify.pipeline import identify
 from damper_emulator.identify.quasi_static import fit_quasi_static, gas_force
 from damper_emulator.identify.valves import fit_valve

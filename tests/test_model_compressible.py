@@ -5,7 +5,6 @@ scipy's Radau integrator on eq 2 written out here, and a 100 kHz run for the ste
 convergence required by the real-time stepper.
 """
 
-import dataclasses
 import math
 
 import numpy as np

@@ -222,7 +222,6 @@ def gas_analysis(runs: list[dict]) -> dict:
     same = [r for r in runs if r["valves"] == "1_1_18_18"]
     points = []
     for r in same:
-        p = r["gas_psi"] * PSI_TO_PA
         est = r["s1_fit"]["F0_N"] if "s1_fit" in r else r["f_mid_avg_N"]
         points.append({"name": r["name"], "speed_code": r["speed_code"], "gas_psi": r["gas_psi"],
                        "estimator": "s1 fit F0" if "s1_fit" in r else "mid-stroke average",

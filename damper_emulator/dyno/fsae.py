@@ -42,7 +42,6 @@ energy, ``∮ F dx > 0`` on every cycle of every file, which then fixes the disp
 from __future__ import annotations
 
 import csv
-import math
 import re
 from dataclasses import dataclass
 from datetime import datetime
@@ -52,7 +51,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from damper_emulator.dyno.measured import (MeasuredData, MeasuredDataError, open_text,
-                                           short_text, write_measured_csv)
+                                           parse_number, short_text, write_measured_csv)
 
 #: load-cell slope, the same for every file [N/V] (SOURCE.md)
 FORCE_N_PER_V = 198.38
@@ -218,15 +217,7 @@ def read_fsae_ttx25(path: str | Path) -> MeasuredData:
                     raise fail(f"{TIME_COLUMN} is '{short_text(text)}', not an ISO date-time",
                                row) from None
                 for c in _USED[1:]:
-                    text = fields[index[c]].strip()
-                    try:
-                        val = float(text)
-                    except ValueError:
-                        what = "empty" if not text else f"'{short_text(text)}', not a number"
-                        raise fail(f"{c} is {what}", row) from None
-                    if not math.isfinite(val):
-                        raise fail(f"{c} is {text} (must be a finite number)", row)
-                    cols[c].append(val)
+                    cols[c].append(parse_number(fields[index[c]], c, row, fail))
     except MeasuredDataError:
         raise
     except UnicodeDecodeError:

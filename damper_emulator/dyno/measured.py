@@ -83,6 +83,20 @@ def short_text(value: str) -> str:
     return value if len(value) <= 40 else value[:37] + "..."
 
 
+def parse_number(text: str, column: str, row: int, fail) -> float:
+    """A finite number from one CSV field; otherwise the error ``fail(message, row)``
+    returns, naming the column and what the field holds."""
+    text = text.strip()
+    try:
+        val = float(text)
+    except ValueError:
+        what = "empty" if not text else f"'{short_text(text)}', not a number"
+        raise fail(f"{column} is {what}", row) from None
+    if not math.isfinite(val):
+        raise fail(f"{column} is {text} (must be a finite number)", row)
+    return val
+
+
 def read_measured_csv(path: str | Path) -> MeasuredData:
     """Read and check a measured-data CSV (or ``.csv.gz``).
 
@@ -142,15 +156,7 @@ def read_measured_csv(path: str | Path) -> MeasuredData:
                     absent = next(c for c in cols if index[c] >= len(fields_))
                     raise fail(f"{len(fields_)} fields, no value for column '{absent}'", row)
                 for c in cols:
-                    text = fields_[index[c]].strip()
-                    try:
-                        val = float(text)
-                    except ValueError:
-                        what = "empty" if not text else f"'{short_text(text)}', not a number"
-                        raise fail(f"{c} is {what}", row) from None
-                    if not math.isfinite(val):
-                        raise fail(f"{c} is {text} (must be a finite number)", row)
-                    values[c].append(val)
+                    values[c].append(parse_number(fields_[index[c]], c, row, fail))
     except MeasuredDataError:
         raise
     except UnicodeDecodeError:

@@ -102,7 +102,9 @@ def valve_flow_and_pressure_drop(t, x, v, force, damper, p_gas_pa, v_gas_m3, fri
     flow_noise_per_n = np.zeros_like(q)
     if correct_compressibility:
         dt = float(np.median(np.diff(t)))
-        window = max(5, int(round(PRESSURE_DERIVATIVE_WINDOW_S / dt)) | 1)
+        # odd, and long enough for the polynomial order at any sample rate
+        window = max(PRESSURE_DERIVATIVE_ORDER + 2,
+                     int(round(PRESSURE_DERIVATIVE_WINDOW_S / dt))) | 1
         if window >= t.size:
             raise IdentificationError("the chirp is too short to differentiate the pressure")
         dpdt = savgol_filter(p_reb, window, PRESSURE_DERIVATIVE_ORDER, deriv=1, delta=dt,

@@ -230,14 +230,14 @@ def plot_validation(path: str | Path, result: Mapping[str, Any],
                     title: str | None = None) -> Path:
     """Measured and simulated force–velocity and force–displacement loops overlaid, and
     the force error against time, as a PNG.  The title carries the r.m.s. error."""
-    from damper_emulator.dyno.plots import DENSE_SAMPLES, _decorate, _new_figure, _save
+    from damper_emulator.dyno.plots import DENSE_SAMPLES, decorate, new_figure, save
 
     s = result[SERIES_KEY]
     t, x, v = s["time"], s["displacement"], s["velocity"]
     fm, fs = s["force_measured"], s["force_simulated"]
     dense = t.size > DENSE_SAMPLES
     lw_m, lw_s = (0.3, 0.3) if dense else (1.6, 1.1)
-    fig = _new_figure(11.0, 7.4)
+    fig = new_figure(11.0, 7.4)
     gs = fig.add_gridspec(2, 2, height_ratios=[1.6, 0.75])
     ax_fv, ax_fx = fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1])
     ax_e = fig.add_subplot(gs[1, :])
@@ -255,7 +255,7 @@ def plot_validation(path: str | Path, result: Mapping[str, Any],
         ax_fv.plot(v, fs / 1e3, **sim)
     ax_fx.plot(x * 1e3, fm / 1e3, **meas)
     ax_fx.plot(x * 1e3, fs / 1e3, **sim)
-    _decorate(ax_fv, "velocity [m/s] (extension +)", "force [kN] (rebound +)")
+    decorate(ax_fv, "velocity [m/s] (extension +)", "force [kN] (rebound +)")
     legend = ax_fv.get_legend()
     if legend is not None:  # hair-lines and small dots are invisible in the legend
         for handle in legend.legend_handles:
@@ -264,7 +264,7 @@ def plot_validation(path: str | Path, result: Mapping[str, Any],
             if hasattr(handle, "set_markersize"):
                 handle.set_markersize(6.0)
     ax_fv.set_title("force–velocity")
-    _decorate(ax_fx, "displacement [mm] (extension +)", "force [kN] (rebound +)",
+    decorate(ax_fx, "displacement [mm] (extension +)", "force [kN] (rebound +)",
               legend=False)
     ax_fx.set_title("force–displacement")
     ax_e.plot(t, fs - fm, color="C2", linewidth=0.4 if dense else 0.9)
@@ -275,18 +275,18 @@ def plot_validation(path: str | Path, result: Mapping[str, Any],
     ax_e.grid(True, alpha=0.35)
     name = result.get("name") or "data"
     fig.suptitle(title or f"{name}: {rms_caption(result)}")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def plot_relative_rms_summary(path: str | Path, results: Mapping[str, Mapping[str, Any]],
                               title: str | None = None) -> Path:
     """Bar plot of the relative r.m.s. error [%] per file, each bar labelled with the
     r.m.s. error in newtons."""
-    from damper_emulator.dyno.plots import _new_figure, _save
+    from damper_emulator.dyno.plots import new_figure, save
 
     names = list(results)
     rel = [100.0 * (results[n].get("relative_rms") or 0.0) for n in names]
-    fig = _new_figure(max(6.0, 1.1 * len(names) + 3.0), 4.8)
+    fig = new_figure(max(6.0, 1.1 * len(names) + 3.0), 4.8)
     ax = fig.subplots()
     bars = ax.bar(range(len(names)), rel, color="C0")
     ax.bar_label(bars, labels=[f"{results[n]['rms_N']:.3g} N" for n in names],
@@ -297,7 +297,7 @@ def plot_relative_rms_summary(path: str | Path, results: Mapping[str, Mapping[st
     ax.set_ylim(0.0, max(rel + [1e-3]) * 1.18)
     ax.grid(True, axis="y", alpha=0.35)
     ax.set_title(title or "Validation: r.m.s. force error per file (label: newtons)")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def report_stem(name: str) -> str:

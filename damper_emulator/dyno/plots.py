@@ -44,13 +44,15 @@ def _arrays(data: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return tuple(np.asarray(a, dtype=float) for a in (t, x, v, f))  # type: ignore
 
 
-def _new_figure(width: float, height: float) -> Figure:
+def new_figure(width: float, height: float) -> Figure:
+    """A figure on the Agg canvas (no pyplot), size in inches, constrained layout."""
     fig = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
 
 
-def _save(fig: Figure, path: str | Path) -> Path:
+def save(fig: Figure, path: str | Path) -> Path:
+    """Write ``fig`` as PNG at the project's resolution; returns the path."""
     path = Path(path)
     fig.savefig(path, dpi=DPI)
     return path
@@ -72,7 +74,8 @@ def _model_curve(ax, cfg, v_lo: float, v_hi: float, label: str | None = None) ->
             label=label or f"incompressible model ({cfg.damper.name})", **_MODEL_STYLE)
 
 
-def _decorate(ax, xlabel: str, ylabel: str, legend: bool = True) -> None:
+def decorate(ax, xlabel: str, ylabel: str, legend: bool = True) -> None:
+    """Axis labels, grid, zero lines and (optionally) a legend, the project's style."""
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.35)
@@ -131,7 +134,7 @@ def plot_loops(path: str | Path, data: Any, title: str, cfg=None,
     if time_series is None:
         time_series = dense
     if time_series:
-        fig = _new_figure(11.0, 9.0)
+        fig = new_figure(11.0, 9.0)
         gs = fig.add_gridspec(3, 2, height_ratios=[0.55, 0.7, 1.6])
         ax_x = fig.add_subplot(gs[0, :])
         ax_t = fig.add_subplot(gs[1, :], sharex=ax_x)
@@ -147,7 +150,7 @@ def plot_loops(path: str | Path, data: Any, title: str, cfg=None,
         for ax in (ax_x, ax_t):
             ax.grid(True, alpha=0.35)
     else:
-        fig = _new_figure(11.0, 4.8)
+        fig = new_figure(11.0, 4.8)
         ax_fv, ax_fx = fig.subplots(1, 2)
     if dense:
         if velocity_points:
@@ -165,12 +168,12 @@ def plot_loops(path: str | Path, data: Any, title: str, cfg=None,
         ax_fx.plot(x * 1e3, f / 1e3, color="C0", label=label, linewidth=1.3)
     if cfg is not None:
         _model_curve(ax_fv, cfg, float(v.min()), float(v.max()))
-    _decorate(ax_fv, "velocity [m/s] (extension +)", "force [kN] (rebound +)")
+    decorate(ax_fv, "velocity [m/s] (extension +)", "force [kN] (rebound +)")
     ax_fv.set_title("force–velocity")
-    _decorate(ax_fx, "displacement [mm] (extension +)", "force [kN] (rebound +)")
+    decorate(ax_fx, "displacement [mm] (extension +)", "force [kN] (rebound +)")
     ax_fx.set_title("force–displacement")
     fig.suptitle(title)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def plot_sines_overlay(path: str | Path,
@@ -183,7 +186,7 @@ def plot_sines_overlay(path: str | Path,
     ``sines`` holds ``(label, displacement [m], velocity [m/s], force [N])`` tuples.
     """
     sines = list(sines)
-    fig = _new_figure(11.5, 5.0)
+    fig = new_figure(11.5, 5.0)
     ax_fv, ax_fx = fig.subplots(1, 2)
     v_lo = v_hi = 0.0
     for k, (label, x, v, f) in enumerate(sines):
@@ -193,14 +196,14 @@ def plot_sines_overlay(path: str | Path,
         v_lo, v_hi = min(v_lo, float(v.min())), max(v_hi, float(v.max()))
     if cfg is not None and sines:
         _model_curve(ax_fv, cfg, v_lo, v_hi, label="incompressible model (no hysteresis)")
-    _decorate(ax_fv, "velocity [m/s] (extension +)", "force [kN] (rebound +)")
+    decorate(ax_fv, "velocity [m/s] (extension +)", "force [kN] (rebound +)")
     ax_fv.set_title("force–velocity")
     # one legend (left) serves both panels: the colours are shared
-    _decorate(ax_fx, "displacement [mm] (extension +)", "force [kN] (rebound +)",
+    decorate(ax_fx, "displacement [mm] (extension +)", "force [kN] (rebound +)",
               legend=False)
     ax_fx.set_title("force–displacement")
     fig.suptitle(title)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def plot_fourteen_speed(path: str | Path, table: Mapping[str, Any], cfg=None,
@@ -216,7 +219,7 @@ def plot_fourteen_speed(path: str | Path, table: Mapping[str, Any], cfg=None,
     fr = np.asarray(table["peak_force_rebound_n"], dtype=float)
     vc = np.asarray(table["peak_velocity_compression_m_s"], dtype=float)
     fc = np.asarray(table["peak_force_compression_n"], dtype=float)
-    fig = _new_figure(8.0, 5.6)
+    fig = new_figure(8.0, 5.6)
     ax = fig.subplots()
     ax.plot(vr, fr / 1e3, "o-", color="C1", markersize=5, linewidth=1.2,
             label="rebound: max force vs max velocity")
@@ -224,6 +227,6 @@ def plot_fourteen_speed(path: str | Path, table: Mapping[str, Any], cfg=None,
             label="compression: min force vs min velocity")
     if cfg is not None:
         _model_curve(ax, cfg, float(vc.min()), float(vr.max()))
-    _decorate(ax, "peak velocity [m/s] (extension +)", "peak force [kN] (rebound +)")
+    decorate(ax, "peak velocity [m/s] (extension +)", "peak force [kN] (rebound +)")
     ax.set_title(title or f"{vr.size}-speed test: peak force vs peak velocity")
-    return _save(fig, path)
+    return save(fig, path)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from damper_emulator.dyno.measured import MeasuredData
-from damper_emulator.dyno.plots import _decorate, _new_figure, _save
+from damper_emulator.dyno.plots import decorate, new_figure, save
 from damper_emulator.identify.pipeline import Identification, velocity_of
 from damper_emulator.identify.quasi_static import gas_force
 from damper_emulator.model.compressible import DamperModel, simulate
@@ -31,7 +31,7 @@ def _quasi_static(path: Path, ident: Identification, qs: MeasuredData) -> Path:
     model = (gas_force(qs.displacement, d.gas_pressure_static_pa, d.gas_volume_static_m3,
                        d.rod_area_m2, d.gas_gamma) + d.friction_force_n * np.sign(v)
              + (extra if extra is not None else 0.0))
-    fig = _new_figure(11, 4.2)
+    fig = new_figure(11, 4.2)
     ax1, ax2 = fig.subplots(1, 2)
     x_mm = qs.displacement * 1e3
     for sel, label, colour in ((v > 0, "extension", "tab:orange"),
@@ -43,18 +43,18 @@ def _quasi_static(path: Path, ident: Identification, qs: MeasuredData) -> Path:
     ax1.set_title(f"Quasi-static fit: P_gas {d.gas_pressure_static_pa / 1e6:.4g} MPa, "
                   f"V_gas {d.gas_volume_static_m3 * 1e6:.4g} cm³, "
                   f"F_friction {d.friction_force_n:.3g} N", fontsize=9)
-    _decorate(ax1, "displacement [mm] (extension +)", "force [N] (rebound +)")
+    decorate(ax1, "displacement [mm] (extension +)", "force [N] (rebound +)")
     moving = v != 0
     ax2.plot(x_mm[moving], (qs.force - model)[moving], ".", ms=2, color="tab:gray")
     ax2.set_title(f"residual: r.m.s. {ident.quasi_static.rms:.2f} N (eq 34)", fontsize=9)
-    _decorate(ax2, "displacement [mm]", "measured − model [N]", legend=False)
-    return _save(fig, path)
+    decorate(ax2, "displacement [mm]", "measured − model [N]", legend=False)
+    return save(fig, path)
 
 
 def _valves(path: Path, ident: Identification, chirp: MeasuredData) -> Path:
     d = ident.config.damper
     q, dp, masks = (ident.series[k] for k in ("flow_m3_s", "pressure_drop_pa", "masks"))
-    fig = _new_figure(11, 8)
+    fig = new_figure(11, 8)
     axes = fig.subplots(2, 2)
     v = velocity_of(chirp)
     for col, side in enumerate(("rebound", "compression")):
@@ -70,13 +70,13 @@ def _valves(path: Path, ident: Identification, chirp: MeasuredData) -> Path:
                 "k--", lw=1.5, label="fitted Δp(Q), eqs 8–29")
         ax.set_title(f"{side} valve: r.m.s. {fit.rms:.2f} N, relative "
                      f"{100 * fit.relative_rms:.2f} % (eqs 34–35)", fontsize=9)
-        _decorate(ax, "valve flow [cm³/s]", "pressure drop [MPa]")
+        decorate(ax, "valve flow [cm³/s]", "pressure drop [MPa]")
         model = pressure_drop_array(qa, getattr(d, side), d.oil_kinematic_viscosity_m2_s)
         ax = axes[1, col]
         ax.plot(v[m], d.annulus_area_m2 * (dpa - model), ".", ms=1.5, alpha=0.5,
                 color="tab:gray")
-        _decorate(ax, "velocity [m/s]", "residual force [N]", legend=False)
-    return _save(fig, path)
+        decorate(ax, "velocity [m/s]", "residual force [N]", legend=False)
+    return save(fig, path)
 
 
 def _chirp_residual(path: Path, ident: Identification, chirp: MeasuredData) -> Path:
@@ -89,7 +89,7 @@ def _chirp_residual(path: Path, ident: Identification, chirp: MeasuredData) -> P
     residuals = (("incompressible model (eqs 30–32)", chirp.force - rigid, "tab:gray"),
                  ("compressible model (eqs 1–4)", chirp.force - hysteretic.force_n,
                   "tab:blue"))
-    fig = _new_figure(11, 7)
+    fig = new_figure(11, 7)
     axes = fig.subplot_mosaic([["t", "t"], ["v", "x"]])
     for label, r, colour in residuals:
         rms = float(np.sqrt(np.mean(r ** 2)))
@@ -98,10 +98,10 @@ def _chirp_residual(path: Path, ident: Identification, chirp: MeasuredData) -> P
         axes["x"].plot(chirp.displacement * 1e3, r, ",", color=colour)
     axes["t"].set_title("whole chirp, measured − model with the identified parameters "
                         "(the hysteresis is what the incompressible model misses)", fontsize=9)
-    _decorate(axes["t"], "time [s]", "residual [N]")
-    _decorate(axes["v"], "velocity [m/s]", "residual [N]", legend=False)
-    _decorate(axes["x"], "displacement [mm]", "residual [N]", legend=False)
-    return _save(fig, path)
+    decorate(axes["t"], "time [s]", "residual [N]")
+    decorate(axes["v"], "velocity [m/s]", "residual [N]", legend=False)
+    decorate(axes["x"], "displacement [mm]", "residual [N]", legend=False)
+    return save(fig, path)
 
 
 def write_report(out_dir: str | Path, ident: Identification, qs: MeasuredData,

@@ -214,9 +214,17 @@ def build_parser() -> argparse.ArgumentParser:
                     "--base (the data sheet).  Writes PARAMS.yaml (loadable by every command\n"
                     "and the emulator), a JSON with the fit statistics and a report.")
     ident.add_argument("--quasi-static", metavar="QS.csv", type=Path, required=True,
-                       help="quasi-static test (constant low velocity, both directions)")
-    ident.add_argument("--chirp", metavar="CHIRP.csv", type=Path, required=True,
-                       help="chirp test (swept sine with growing velocity amplitude)")
+                       nargs="+",
+                       help="quasi-static test (constant low velocity, both directions); "
+                            "several files are fitted together")
+    ident.add_argument("--chirp", metavar="CHIRP.csv", type=Path, required=True, nargs="+",
+                       help="chirp test (swept sine with growing velocity amplitude); "
+                            "several files (e.g. sines of different speeds) are fitted "
+                            "together, each file's flow worked out on its own")
+    ident.add_argument("--fix", metavar="[SIDE.]NAME=VALUE", action="append", default=[],
+                       help="hold a valve parameter at VALUE instead of fitting it; NAME is "
+                            "one of k_leak, k_port, k_spring, preload_pa, smoothing_g; SIDE "
+                            "(rebound or compression) defaults to both; repeatable")
     ident.add_argument("--out", metavar="PARAMS.yaml", type=Path, required=True,
                        help="identified parameter file to write (ROS 2 params YAML)")
     ident.add_argument("--base", metavar="BASE.yaml", type=Path, default=None,
@@ -226,9 +234,79 @@ def build_parser() -> argparse.ArgumentParser:
                        help="fit results as JSON (default: PARAMS.json beside --out)")
     ident.add_argument("--report", metavar="DIR", type=Path, default=None,
                        help="write the report figures (PNG) into DIR")
+    ident.add_argument("--fit-alpha", action="store_true",
+                       help="also fit the oil compressibility alpha (eq 1) to the chirp's "
+                            "hysteresis: a bounded search, each alpha with a complete "
+                            "identification, minimising the compressible model's r.m.s. "
+                            "force error over the whole chirp")
+    ident.add_argument("--alpha-bounds", metavar=("LO", "HI"), type=float, nargs=2,
+                       default=None,
+                       help="alpha search range [1/Pa] (default: 0.1x to 100x the base "
+                            "alpha)")
     ident.add_argument("--no-compressibility-correction", action="store_true",
                        help="use the rigid-oil valve flow |v|(A_pt − A_rod) as the paper does")
     ident.set_defaults(handler=cmd_identify)
+
+    # ---- ride-study --------------------------------------------------------------------
+    ride = sub.add_parser(
+        "ride-study", formatter_class=_Formatter,
+        help="quarter-car ride studies: the paper's figures 10 (random road), 11 (speed "
+             "sweep) and 13 (pothole)",
+        description="Quarter-car ride studies after Simms & Crolla (MODEL.md §5), for the\n"
+                    "damper representations linear (C_s = 2622 N s/m at the wheel), 14speed\n"
+                    "(14-speed test of the hysteretic model), nonlinear (the hysteretic model\n"
+                    "in the 1 kHz loop) and incompressible (extra column):\n"
+                    "  10  random minor road (eq 39), 500 m at 20 m/s, mean and spread over\n"
+                    "      road seeds; r.m.s. and peak SWS, Wk-weighted body acceleration and\n"
+                    "      dynamic tyre load beside the paper's values; the linear car's\n"
+                    "      frequency-domain prediction; the paper's DTL claim checked\n"
+                    "  11  weighted acceleration r.m.s. against speed (5..35 m/s) in a\n"
+                    "      process pool\n"
+                    "  13  the project's pothole at 10 m/s\n"
+                    "Road, band, seeds and pothole come from the config's 'road' group\n"
+                    "(config/quarter_car.yaml); the options below override them.  Results go\n"
+                    "to --json (per representation: sws_rms [m], accel_w_rms [m/s^2],\n"
+                    "accel_rms, dtl_rms [N], *_peak_pos / *_peak_neg, spread over seeds, the\n"
+                    "paper's values and ratios); a table is printed on stdout.  See\n"
+                    "docs/ride_study.md.",
+        epilog="examples:\n"
+               f"  {PROG} ride-study --figure 10 --json fig10.json --report docs/ride_study\n"
+               f"  {PROG} ride-study --figure 11 --seeds 5 --workers 2 --json fig11.json\n"
+               f"  {PROG} ride-study --figure 13 --speed 10 --json fig13.json")
+    ride.add_argument("--figure", required=True, type=int, choices=(10, 11, 13),
+                      help="which study: 10 random road, 11 speed sweep, 13 pothole")
+    ride.add_argument("--json", metavar="FILE", type=Path, required=True,
+                      help="results file (JSON; parent directories are created)")
+    ride.add_argument("--config", metavar="CONFIG.yaml", type=Path, default=None,
+                      help="quarter-car params file with an optional 'road' group "
+                           "(default: config/quarter_car.yaml)")
+    ride.add_argument("--seeds", metavar="N", type=_pos_int, default=None,
+                      help="[10, 11] road seeds 0..N-1, the same for every damper "
+                           "(default: road.seeds, 5)")
+    ride.add_argument("--length", metavar="M", type=_positive, default=None,
+                      help="[10, 11] length of random road evaluated [m] (default: 500)")
+    ride.add_argument("--speed", metavar="V", type=_positive, nargs="+", default=None,
+                      help="speed [m/s]: [10] one value (default 20), [13] one value "
+                           "(default 10), [11] the sweep's speeds (default 5 10 ... 35)")
+    ride.add_argument("--band", metavar=("NMIN", "NMAX"), type=_positive, nargs=2,
+                      default=None,
+                      help="[10, 11] synthesised road band [cycles/m] (default: 0.01 0.8, "
+                           "the band the paper's figure 10 implies)")
+    ride.add_argument("--band-scaling", choices=("temporal", "spatial"), default=None,
+                      help="[11] keep the band fixed in Hz as at 20 m/s (temporal, default) "
+                           "or in cycles/m (spatial)")
+    ride.add_argument("--amplitudes", choices=("deterministic", "random"), default=None,
+                      help="[10, 11] road synthesis: exact spectrum with random phases "
+                           "(deterministic, default) or random amplitudes too")
+    ride.add_argument("--workers", metavar="N", type=_pos_int, default=None,
+                      help="[11] worker processes (default: all cores)")
+    ride.add_argument("--report", metavar="DIR", type=Path, default=None,
+                      help="also write the figures (PNG) into DIR: [10] ride_sws_2s.png, "
+                           "ride_psd.png, ride_band_sensitivity.png; [11] "
+                           "ride_speed_sweep.png; [13] ride_pothole.png")
+    ride.set_defaults(handler=cmd_ride_study)
+    ride.error = lambda message: ride.exit(  # type: ignore[method-assign]
+        2, f"{ride.prog}: error: {_one_line(message)}\n")  # one line, no usage block
     return parser
 
 
@@ -414,6 +492,30 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fixed_valve_parameters(specs: Sequence[str]) -> dict[str, dict[str, float]]:
+    """``--fix`` options ``[SIDE.]NAME=VALUE`` → ``{side: {name: value}}``."""
+    from damper_emulator.identify.valves import NAMES
+
+    fixed: dict[str, dict[str, float]] = {}
+    for spec in specs:
+        key, sep, text = spec.partition("=")
+        side, dot, name = key.strip().rpartition(".")
+        sides = [side] if dot else ["rebound", "compression"]
+        if not sep or name not in NAMES or any(s not in ("rebound", "compression")
+                                                  for s in sides):
+            raise CliError(f"--fix {spec!r}: expected [rebound.|compression.]NAME=VALUE with "
+                           f"NAME one of {', '.join(NAMES)}")
+        try:
+            value = float(text)
+        except ValueError:
+            raise CliError(f"--fix {spec!r}: {text!r} is not a number") from None
+        if not (math.isfinite(value) and value > 0):
+            raise CliError(f"--fix {spec!r}: the value must be a positive number")
+        for one in sides:
+            fixed.setdefault(one, {})[name] = value
+    return fixed
+
+
 def cmd_identify(args: argparse.Namespace) -> int:
     from damper_emulator.dyno.measured import read_measured_csv
     from damper_emulator.identify.pipeline import identify
@@ -421,13 +523,17 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     base = load_config(args.base)
-    qs = read_measured_csv(args.quasi_static)
-    chirp = read_measured_csv(args.chirp)
-    print(f"identifying from {qs.name} ({len(qs)} samples) and {chirp.name} "
-          f"({len(chirp)} samples) ...", file=sys.stderr, flush=True)
+    fixed = _fixed_valve_parameters(args.fix)
+    qs = [read_measured_csv(p) for p in args.quasi_static]
+    chirp = [read_measured_csv(p) for p in args.chirp]
+    print(f"identifying from {', '.join(d.name for d in qs)} "
+          f"({sum(len(d) for d in qs)} samples) and {', '.join(d.name for d in chirp)} "
+          f"({sum(len(d) for d in chirp)} samples) ...", file=sys.stderr, flush=True)
     result = identify(qs, chirp, base, progress=lambda m: print(m, file=sys.stderr,
                                                                  flush=True),
-                      correct_compressibility=not args.no_compressibility_correction)
+                      correct_compressibility=not args.no_compressibility_correction,
+                      fixed=fixed, fit_alpha=args.fit_alpha,
+                      alpha_bounds_per_pa=args.alpha_bounds)
     cfg = result.config
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_config(cfg, args.out)
@@ -435,13 +541,15 @@ def cmd_identify(args: argparse.Namespace) -> int:
     json_path = args.json or args.out.with_suffix(".json")
     doc = {"params_file": str(args.out),
            "base_params_file": str(args.base or DEFAULT_PARAMS_FILE),
-           "quasi_static_file": str(args.quasi_static), "chirp_file": str(args.chirp),
+           "quasi_static_file": str(args.quasi_static[0]), "chirp_file": str(args.chirp[0]),
+           "quasi_static_files": [str(p) for p in args.quasi_static],
+           "chirp_files": [str(p) for p in args.chirp], "fixed": fixed,
            "compressibility_correction": not args.no_compressibility_correction,
            **result.as_dict()}
     if args.report is not None:
         from damper_emulator.identify.report import write_report
 
-        for path in write_report(args.report, result, qs, chirp):
+        for path in write_report(args.report, result):
             _progress(path)
         doc["report_dir"] = str(args.report)
     doc["elapsed_s"] = round(time.perf_counter() - started, 3)
@@ -449,6 +557,87 @@ def cmd_identify(args: argparse.Namespace) -> int:
     print(f"identified in {doc['elapsed_s']:.1f} s: quasi-static r.m.s. "
           f"{result.quasi_static.rms:.2f} N, rebound {result.rebound.rms:.2f} N, "
           f"compression {result.compression.rms:.2f} N", file=sys.stderr)
+    return 0
+
+
+#: ride-study options that do not apply to a figure: figure → option dests
+_RIDE_IGNORED = {13: ("seeds", "length", "band", "band_scaling", "amplitudes", "workers"),
+                 10: ("band_scaling", "workers"), 11: ()}
+
+
+def cmd_ride_study(args: argparse.Namespace) -> int:
+    fig = args.figure
+    if args.band is not None and not args.band[0] < args.band[1]:
+        raise CliError(f"--band {args.band[0]:g} {args.band[1]:g}: NMIN must be below NMAX")
+    if args.speed is not None and fig != 11 and len(args.speed) != 1:
+        raise CliError(f"--speed takes one value for --figure {fig} (a list only for 11)")
+    for dest in _RIDE_IGNORED[fig]:
+        if getattr(args, dest) is not None:
+            print(f"note: --{dest.replace('_', '-')} does not apply to --figure {fig}; "
+                  "ignored", file=sys.stderr)
+    from ride_sim import study
+    from ride_sim.params import load_ride_config
+
+    cfg = load_ride_config(args.config)
+    overrides: dict[str, Any] = {}
+    if fig != 13:
+        overrides.update(seeds=args.seeds, length_m=args.length,
+                         band_cycles_per_m=tuple(args.band) if args.band else None,
+                         amplitudes=args.amplitudes)
+    if fig == 11:
+        overrides.update(band_scaling=args.band_scaling,
+                         sweep_speeds_m_s=tuple(args.speed) if args.speed else None)
+    elif args.speed is not None:
+        overrides["speed_m_s" if fig == 10 else "pothole_speed_m_s"] = args.speed[0]
+    settings = study.StudySettings.from_config(cfg, **overrides)
+
+    def progress(message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+
+    if fig == 10:
+        result = study.figure10(settings, progress=progress)
+    elif fig == 11:
+        result = study.figure11(settings, workers=args.workers, progress=progress)
+    else:
+        result = study.figure13(settings, progress=progress)
+    doc = result.doc
+    if args.report is not None:
+        from ride_sim import plots
+
+        report: Path = args.report
+        report.mkdir(parents=True, exist_ok=True)
+        if fig == 10:
+            files = [plots.plot_sws_history(report / "ride_sws_2s.png", result),
+                     plots.plot_psds(report / "ride_psd.png", result, settings),
+                     plots.plot_band_sensitivity(report / "ride_band_sensitivity.png",
+                                                 settings)]
+        elif fig == 11:
+            files = [plots.plot_speed_sweep(report / "ride_speed_sweep.png", doc, settings)]
+        else:
+            files = [plots.plot_pothole(report / "ride_pothole.png", result)]
+        for path in files:
+            _progress(path)
+        doc["report_dir"] = str(report)
+        doc["report_files"] = [p.name for p in files]
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    _write_json(args.json, doc)
+    print(doc["title"])
+    if fig == 11:
+        print(study.sweep_table(doc))
+        for key in ("crossing_linear_nonlinear_m_s", "crossing_linear_14speed_m_s"):
+            if key in doc:
+                print(f"{key}: {', '.join(f'{v:.1f}' for v in doc[key]) or 'none'} "
+                      f"(paper: near {doc['paper_crossing_m_s']:g} m/s)")
+    else:
+        print(study.comparison_table(doc))
+        claim = doc.get("claim")
+        if claim:
+            print(f"claim (hysteretic vs 14-speed, {claim['seeds']} seeds): r.m.s. DTL "
+                  f"{100 * claim['dtl_rms_reduction']:.1f} % lower (paper ~6 %: "
+                  f"{claim['verdict']['dtl_rms']}), peak DTL "
+                  f"{100 * claim['dtl_peak_reduction']:.1f} % lower (paper ~10 %: "
+                  f"{claim['verdict']['dtl_peak_abs']})")
+    print(f"finished in {doc['elapsed_s']:.1f} s", file=sys.stderr)
     return 0
 
 

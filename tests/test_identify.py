@@ -122,9 +122,11 @@ def test_fits_supply_exact_jacobians(sport_cfg, monkeypatch):
     captured = {}
     real_fit = fitting.fit
 
-    def spy(fun, names, start, log_scaled, lower, upper, measured):
+    def spy(fun, names, start, log_scaled, lower, upper, measured, fixed=None,
+            penalty_rows=0):
         captured["fun"], captured["start"] = fun, np.asarray(start, float)
-        return real_fit(fun, names, start, log_scaled, lower, upper, measured)
+        return real_fit(fun, names, start, log_scaled, lower, upper, measured, fixed,
+                        penalty_rows)
 
     monkeypatch.setattr("damper_emulator.identify.valves.fit", spy)
     monkeypatch.setattr("damper_emulator.identify.quasi_static.fit", spy)
@@ -196,3 +198,114 @@ def test_compressibility_correction_at_a_low_sample_rate(sport_cfg, sport_model)
     # the correction removes most of the compressibility lag between rigid and true flow
     assert (np.sqrt(np.mean((q - q_model)[fast] ** 2))
             < 0.2 * np.sqrt(np.mean((rigid - q_model)[fast] ** 2)))
+
+
+# ---- held parameters, several files per test, the α search, invertibility -------------
+
+
+def test_held_parameter_stays_and_the_others_are_recovered(sport_cfg):
+    """Noise-free Δp(Q) of the sport rebound valve: with G held at its true value and the
+    other four started 30 % off, the fit returns G untouched and the rest exactly."""
+    d = sport_cfg.damper
+    nu = d.oil_kinematic_viscosity_m2_s
+    true = np.array(tuple(d.rebound), float)
+    q = np.linspace(2e-5, 1.5e-3, 300)
+    dp = pressure_drop_array(q, true, nu)
+    start = true * np.array([1.3, 0.7, 1.3, 0.7, 1.0])
+    start[4] = 3.0  # a wrong G that the held value must replace
+    fit = fit_valve(q, dp, d.annulus_area_m2, nu, start=start,
+                    fixed={"smoothing_g": true[4]})
+    assert fit.values[4] == true[4] and fit.std_errors[4] == 0.0
+    assert fit.fixed == ("smoothing_g",)
+    np.testing.assert_allclose(fit.values[:4], true[:4], rtol=1e-5)
+    assert fit.rms < 1e-6
+
+
+def test_a_valve_fit_on_a_linear_characteristic_stays_invertible(sport_cfg):
+    """Δp ∝ Q from zero (a laminar bleed, as on the FSAE damper) pulls the preload towards
+    zero, where the eq 29 extension makes eq 28 negative at low flow; the fit's penalty
+    keeps ρ = H1 B0 / H0 <= 1 and the result can be tabulated (inverted)."""
+    from damper_emulator.identify.valves import extension_intercept_excess
+    from damper_emulator.model.valve_table import build_valve_table
+
+    d = sport_cfg.damper
+    nu = d.oil_kinematic_viscosity_m2_s
+    q = np.linspace(1e-6, 5e-5, 200)
+    dp = 4e9 * q  # 200 kPa at 5e-5 m³/s
+    fit = fit_valve(q, dp, d.annulus_area_m2, nu, form="exact")
+    assert extension_intercept_excess(fit.values, nu)[0] <= 1e-9
+    table = build_valve_table(fit.values, d.annulus_area_m2, nu, "exact", 256, 1.0, "test")
+    assert table.max_flow_m3_s > q.max()
+    grid = np.concatenate(([0.0], np.geomspace(1e-12, 1e-3, 200)))
+    assert np.all(np.diff(pressure_drop_array(grid, fit.values, nu, "exact")) > 0)
+
+
+def test_intercept_penalty_gradient_matches_finite_differences(sport_cfg):
+    from damper_emulator.identify.valves import extension_intercept_excess
+
+    nu = sport_cfg.damper.oil_kinematic_viscosity_m2_s
+    theta = np.array([1.8e16, 4.9e7, 2.1e12, 3.7e3, 1.5])
+    value, grad = extension_intercept_excess(theta, nu)
+    for k in range(4):
+        up, down = theta.copy(), theta.copy()
+        up[k] *= 1 + 1e-4
+        down[k] *= 1 - 1e-4
+        fd = ((extension_intercept_excess(up, nu)[0] - extension_intercept_excess(down, nu)[0])
+              / (theta[k] * 2e-4))
+        assert grad[k] * theta[k] == pytest.approx(fd * theta[k], rel=1e-3, abs=1e-9)
+
+
+def test_a_test_split_into_two_files_gives_the_same_identification(sport_cfg, sport_model):
+    """Joining files: each keeps its own velocity and flow correction; the chirp cut in two
+    identifies the same damper as the whole chirp (differences from the samples at the cut
+    and from the speed threshold, which is relative to each file's peak)."""
+    qs, chirp = _virtual(sport_cfg, sport_model, 5)
+    whole = identify(qs, chirp, sport_cfg)
+    cut = chirp.time.size // 2
+    halves = [MeasuredData(chirp.time[s] - chirp.time[s][0], chirp.displacement[s],
+                           chirp.force[s], chirp.velocity[s])
+              for s in (slice(0, cut), slice(cut, None))]
+    split = identify(qs, halves, sport_cfg)
+    for side in ("rebound", "compression"):
+        np.testing.assert_allclose(tuple(getattr(split.config.damper, side)),
+                                   tuple(getattr(whole.config.damper, side)), rtol=0.02)
+
+
+def test_alpha_search_recovers_the_compressibility(sport_cfg):
+    """Data from a damper with 2.5× the sport α; identification from a base file with the
+    sport α and --fit-alpha finds the true α (a 20 s chirp keeps the search short)."""
+    import dataclasses
+
+    from damper_emulator.model.compressible import DamperModel
+
+    alpha_true = 2.5 * sport_cfg.damper.oil_compressibility_per_pa
+    truth = DamperModel(dataclasses.replace(sport_cfg, damper=dataclasses.replace(
+        sport_cfg.damper, oil_compressibility_per_pa=alpha_true)))
+    rng = np.random.default_rng(11)
+    data = []
+    for t, x, v in (protocols.quasi_static(), protocols.chirp(duration_s=20.0)):
+        data.append(MeasuredData(t, x, simulate(truth, t, x, v).force_n
+                                 + rng.normal(0, 4.0, t.size), v))
+    result = identify(data[0], data[1], sport_cfg, fit_alpha=True)
+    assert result.alpha_fit["alpha_per_pa"] == pytest.approx(alpha_true, rel=0.05)
+    assert not result.alpha_fit["at_bound"]
+    from damper_emulator.identify.pipeline import chirp_simulation_rms, join_tests
+
+    with_base_alpha = chirp_simulation_rms(identify(data[0], data[1], sport_cfg).config,
+                                           join_tests(data[1])[0])
+    assert result.alpha_fit["chirp_rms_N"] < 0.5 * with_base_alpha
+    assert result.config.damper.oil_compressibility_per_pa == result.alpha_fit["alpha_per_pa"]
+
+
+@pytest.mark.parametrize("spec, words", [
+    ("foo=1", "NAME one of"),
+    ("smoothing_g=-1", "positive"),
+    ("sideways.k_port=1e9", "NAME one of"),
+    ("k_port=abc", "not a number"),
+])
+def test_bad_fix_option_exits_2_with_one_line(tmp_path, spec, words):
+    proc = _run("identify", "--quasi-static", tmp_path / "qs.csv", "--chirp",
+                tmp_path / "c.csv", "--fix", spec, "--out", tmp_path / "P.yaml", check=False)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0], proc.stderr

@@ -48,6 +48,11 @@ class FitResult:
     relative_rms: float
     samples: int
     nfev: int
+    #: names of the parameters held at their start values
+    fixed: tuple[str, ...] = ()
+    #: names of the parameters that ended on a bound (not determined by the data; their
+    #: standard errors are then not meaningful)
+    at_bound: tuple[str, ...] = ()
 
     def as_dict(self) -> dict:
         return {
@@ -59,12 +64,15 @@ class FitResult:
             "correlation": np.round(self.correlation, 4).tolist(),
             "cost_N2": self.cost, "rms_N": self.rms, "relative_rms": self.relative_rms,
             "samples": self.samples, "evaluations": self.nfev,
+            "fixed": list(self.fixed),
+            "at_bound": list(self.at_bound),
         }
 
 
 def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
         names: Sequence[str], start: np.ndarray, log_scaled: Sequence[bool],
-        lower: np.ndarray, upper: np.ndarray, measured: np.ndarray) -> FitResult:
+        lower: np.ndarray, upper: np.ndarray, measured: np.ndarray,
+        fixed: Sequence[bool] | None = None, penalty_rows: int = 0) -> FitResult:
     """Minimise ``Σ r(θ)²`` from ``start`` within ``[lower, upper]`` (natural scale).
 
     Parameters
@@ -78,9 +86,22 @@ def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
         Fit ``log θ`` for these parameters (they must be positive).
     measured : ndarray
         The measured values the residuals refer to (for eq 35).
+    fixed : sequence of bool, optional
+        Hold these parameters at their start values (their standard errors and
+        correlations are reported as 0).
+    penalty_rows : int
+        The last ``penalty_rows`` residuals are constraint penalties (zero where the
+        constraint holds): minimised with the rest, left out of the fit statistics.
     """
-    log_mask = np.asarray(log_scaled, dtype=bool)
     start = np.asarray(start, dtype=float)
+    free = (np.ones(start.size, bool) if fixed is None
+            else ~np.asarray(fixed, dtype=bool))
+    if not free.any():
+        raise ValueError("every parameter is fixed: nothing to fit")
+    if not free.all():
+        return _fit_subset(residual_and_jacobian, names, start, log_scaled, lower, upper,
+                           measured, free, penalty_rows)
+    log_mask = np.asarray(log_scaled, dtype=bool)
 
     def to_u(theta):
         return np.where(log_mask, np.log(np.where(log_mask, theta, 1.0)), theta)
@@ -106,6 +127,8 @@ def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
                         ftol=1e-12, gtol=1e-12, max_nfev=500)
     theta = to_theta(sol.x)
     r, jac_u = evaluate(sol.x)
+    if penalty_rows:
+        r, jac_u = r[:-penalty_rows], jac_u[:-penalty_rows]
     n, p = jac_u.shape
     cost = float(np.sum(r ** 2))
     dof = max(n - p, 1)
@@ -117,5 +140,28 @@ def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     corr = np.nan_to_num(corr)
     rms = float(np.sqrt(cost / n))
     meas_rms = float(np.sqrt(np.mean(np.asarray(measured, float) ** 2)))
+    at_bound = tuple(name for name, a in zip(names, sol.active_mask) if a != 0)
     return FitResult(tuple(names), theta, std, corr, cost, rms,
-                     rms / meas_rms if meas_rms > 0 else float("inf"), n, int(sol.nfev))
+                     rms / meas_rms if meas_rms > 0 else float("inf"), n, int(sol.nfev),
+                     (), at_bound)
+
+
+def _fit_subset(residual_and_jacobian, names, start, log_scaled, lower, upper, measured,
+                free: np.ndarray, penalty_rows: int) -> FitResult:
+    """:func:`fit` over the free parameters only, reported over all of them."""
+    def residual(theta_free):
+        theta = start.copy()
+        theta[free] = theta_free
+        r, jac = residual_and_jacobian(theta)
+        return r, jac[:, free]
+
+    sub = fit(residual, [n for n, f in zip(names, free) if f], start[free],
+              np.asarray(log_scaled, bool)[free], np.asarray(lower, float)[free],
+              np.asarray(upper, float)[free], measured, None, penalty_rows)
+    values, std = start.copy(), np.zeros(start.size)
+    values[free], std[free] = sub.values, sub.std_errors
+    corr = np.zeros((start.size, start.size))
+    corr[np.ix_(free, free)] = sub.correlation
+    return FitResult(tuple(names), values, std, corr, sub.cost, sub.rms, sub.relative_rms,
+                     sub.samples, sub.nfev, tuple(n for n, f in zip(names, free) if not f),
+                     sub.at_bound)

@@ -10,10 +10,12 @@ sheet); the result is a complete, validated :class:`ModelConfig`.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Callable, Mapping, Optional, Sequence, Union
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from damper_emulator.dyno.measured import MeasuredData
@@ -21,6 +23,7 @@ from damper_emulator.identify.fitting import FitResult
 from damper_emulator.identify.quasi_static import IdentificationError, fit_quasi_static
 from damper_emulator.identify.valves import (MIN_SPEED_FRACTION, effective_variance_weights,
                                              fit_valve, hysteresis_filter, start_values)
+from damper_emulator.model.compressible import DamperModel, simulate
 from damper_emulator.model.gas import compression_chamber_pressure
 from damper_emulator.model.incompressible import valve_pressure_drop
 from damper_emulator.params import ModelConfig, ParameterError, ValveParams, validate
@@ -33,7 +36,18 @@ PRESSURE_DERIVATIVE_ORDER = 5
 #: The alternation stops when no parameter moves by more than this fraction.
 ROUND_TOLERANCE = 1e-4
 
+#: Default α search range of ``identify(fit_alpha=True)``: these factors × the base α.
+ALPHA_BOUND_FACTORS = (0.1, 100.0)
+#: The α search stops when log α is known to this (about 5 % in α).
+ALPHA_LOG_TOLERANCE = 0.05
+#: Score of an α whose identification fails (larger than any force error of interest) [N].
+ALPHA_FAILED_SCORE = 1e12
+#: Time between joined files [s]: longer than the model's settle gap, so the compressible
+#: simulation restarts from equilibrium at the start of every file.
+JOIN_GAP_S = 1.0
+
 Progress = Optional[Callable[[str], None]]
+Tests = Union[MeasuredData, Sequence[MeasuredData]]
 
 
 @dataclass(frozen=True)
@@ -49,6 +63,8 @@ class Identification:
     chirp_samples: dict
     #: the flow, pressure drop and sample masks of the last round (arrays, for plots)
     series: dict = dataclasses.field(default_factory=dict, repr=False)
+    #: the α search of :func:`identify` with ``fit_alpha`` (``None`` when α was fixed)
+    alpha_fit: Optional[dict] = None
 
     def as_dict(self) -> dict:
         d = self.config.damper
@@ -68,6 +84,7 @@ class Identification:
             "compression_fit": self.compression.as_dict(),
             "rounds": self.rounds,
             "chirp_samples": self.chirp_samples,
+            "alpha_fit": self.alpha_fit,
         }
 
 
@@ -78,6 +95,38 @@ def velocity_of(data: MeasuredData) -> np.ndarray:
     from damper_emulator.validation import estimate_velocity
 
     return estimate_velocity(data.time, data.displacement)[0]
+
+
+def join_tests(tests: Tests, gap_s: float = JOIN_GAP_S) -> tuple[MeasuredData, list[slice]]:
+    """Join one or more test files into one record on a continuous time axis.
+
+    Each file keeps its own velocity (its column, or the derivative of its own
+    displacement); file ``k + 1`` starts ``gap_s`` after the end of file ``k``.  Returns
+    the joined record and the slice of every file in it.
+    """
+    files = [tests] if isinstance(tests, MeasuredData) else list(tests)
+    if not files:
+        raise IdentificationError("no test file given")
+    if len(files) == 1:
+        one = files[0]
+        joined = dataclasses.replace(one, velocity=velocity_of(one))
+        return joined, [slice(0, len(one))]
+    times, slices, start, offset = [], [], 0, 0.0
+    for data in files:
+        times.append(data.time - data.time[0] + offset)
+        offset = times[-1][-1] + gap_s
+        slices.append(slice(start, start + len(data)))
+        start += len(data)
+
+    def cat(name):
+        parts = [getattr(d, name) for d in files]
+        return None if any(p is None for p in parts) else np.concatenate(parts)
+
+    joined = MeasuredData(np.concatenate(times), cat("displacement"), cat("force"),
+                          np.concatenate([velocity_of(d) for d in files]), cat("temperature"),
+                          name=" + ".join(d.name or "?" for d in files),
+                          path=" + ".join(d.path for d in files))
+    return joined, slices
 
 
 def valve_flow_and_pressure_drop(t, x, v, force, damper, p_gas_pa, v_gas_m3, friction_n,
@@ -127,26 +176,111 @@ def chirp_selection(t, v, q, dp, use_filter: bool = True) -> tuple[np.ndarray, n
     return reb, com
 
 
-def identify(quasi_static: MeasuredData, chirp: MeasuredData, base: ModelConfig,
+def chirp_simulation_rms(cfg: ModelConfig, chirp: MeasuredData) -> float:
+    """r.m.s. force error [N] of the compressible model over the whole (joined) chirp."""
+    res = simulate(DamperModel(cfg), chirp.time, chirp.displacement, chirp.velocity)
+    return float(np.sqrt(np.mean((res.force_n - chirp.force) ** 2)))
+
+
+def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
              progress: Progress = None, correct_compressibility: bool = True,
              hysteresis_filter_on: bool = True,
-             start_factors: Optional[dict] = None) -> Identification:
+             start_factors: Optional[dict] = None,
+             fixed: Optional[Mapping[str, Mapping[str, float]]] = None,
+             fit_alpha: bool = False,
+             alpha_bounds_per_pa: Optional[tuple[float, float]] = None) -> Identification:
     """Identify gas spring, friction and both valves (see the module docstring).
 
-    ``start_factors`` (``{"rebound": [5 factors], "compression": [...]}``) scales the
-    data-derived valve start values, to check that the optimum does not depend on them.
+    With ``fit_alpha`` the oil compressibility α (eq 1) is fitted too, as the paper
+    suggests ("adjusted slightly to absorb other compliances"): a bounded scalar search on
+    ``log α`` (``alpha_bounds_per_pa``, default ``ALPHA_BOUND_FACTORS`` × the base α)
+    minimising the compressible model's r.m.s. force error over the whole chirp, each α
+    with its own complete identification (the valve flow's compressibility correction
+    depends on α).  The search is recorded in :attr:`Identification.alpha_fit`.
+
+    ``quasi_static`` and ``chirp`` are one test file each or several (joined with
+    :func:`join_tests`; the valve flow and the hysteresis filter are worked out file by
+    file).  ``start_factors`` (``{"rebound": [5 factors], "compression": [...]}``) scales
+    the data-derived valve start values, to check that the optimum does not depend on them.
+    ``fixed`` (``{"rebound": {"smoothing_g": 1.5}, "compression": {...}}``) holds valve
+    parameters at given values where the data cannot determine them.
 
     Raises
     ------
     IdentificationError
         Data that cannot support the fit, or a fitted valve that is not invertible.
     """
+    if not fit_alpha:
+        return _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
+                              hysteresis_filter_on, start_factors, fixed)
+    return _identify_alpha(quasi_static, chirp, base, progress, alpha_bounds_per_pa,
+                           correct_compressibility, hysteresis_filter_on, start_factors, fixed)
+
+
+def _with_alpha(cfg: ModelConfig, alpha: float) -> ModelConfig:
+    return dataclasses.replace(cfg, damper=dataclasses.replace(
+        cfg.damper, oil_compressibility_per_pa=float(alpha)))
+
+
+def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Identification:
+    say = progress or (lambda msg: None)
+    alpha0 = base.damper.oil_compressibility_per_pa
+    lo, hi = bounds if bounds is not None else (alpha0 * ALPHA_BOUND_FACTORS[0],
+                                                 alpha0 * ALPHA_BOUND_FACTORS[1])
+    if not 0 < lo < hi:
+        raise IdentificationError(f"α bounds must satisfy 0 < lower < upper, got ({lo:g}, {hi:g})")
+    joined, _ = join_tests(chirp)
+    tried: dict[float, tuple[float, Optional[Identification]]] = {}
+
+    def score(log_alpha: float) -> float:
+        alpha = float(np.exp(log_alpha))
+        try:
+            ident = _identify_once(quasi_static, chirp, _with_alpha(base, alpha), None, *options)
+            rms = chirp_simulation_rms(ident.config, joined)
+        except IdentificationError as exc:
+            say(f"α {alpha:.4g} 1/Pa: no valid identification ({exc})")
+            tried[alpha] = (math.inf, None)
+            return ALPHA_FAILED_SCORE
+        tried[alpha] = (rms, ident)
+        say(f"α {alpha:.4g} 1/Pa: compressible model r.m.s. {rms:.2f} N over the chirp "
+            f"({len(tried)} tried)")
+        return rms
+
+    sol = minimize_scalar(score, bounds=(math.log(lo), math.log(hi)), method="bounded",
+                          options={"xatol": ALPHA_LOG_TOLERANCE})
+    best_alpha = min((a for a in tried if tried[a][1] is not None),
+                     key=lambda a: tried[a][0], default=None)
+    if best_alpha is None:
+        raise IdentificationError(f"no α in [{lo:.3g}, {hi:.3g}] 1/Pa gives a valid "
+                                  "identification")
+    rms, ident = tried[best_alpha]
+    at_bound = min(abs(math.log(best_alpha / lo)), abs(math.log(best_alpha / hi))) \
+        < 2 * ALPHA_LOG_TOLERANCE
+    say(f"α = {best_alpha:.4g} 1/Pa (chirp r.m.s. {rms:.2f} N, {len(tried)} identifications"
+        f"{', AT A BOUND of the search' if at_bound else ''})")
+    record = {"alpha_per_pa": best_alpha, "chirp_rms_N": rms, "bounds_per_pa": [lo, hi],
+              "at_bound": bool(at_bound), "converged": bool(sol.success),
+              "tried": [{"alpha_per_pa": a, "chirp_rms_N": (None if not math.isfinite(r)
+                                                             else r)}
+                        for a, (r, _) in sorted(tried.items())]}
+    return dataclasses.replace(ident, alpha_fit=record)
+
+
+def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
+                   hysteresis_filter_on, start_factors, fixed) -> Identification:
     say = progress or (lambda msg: None)
     d = base.damper
     a_rod, a_ann, gamma = d.rod_area_m2, d.annulus_area_m2, d.gas_gamma
     nu, form = d.oil_kinematic_viscosity_m2_s, base.numerics.valve_form
-    xq, vq, fq = quasi_static.displacement, velocity_of(quasi_static), quasi_static.force
-    tc, xc, vc, fc = chirp.time, chirp.displacement, velocity_of(chirp), chirp.force
+    quasi_static, _ = join_tests(quasi_static)
+    chirp, chirp_files = join_tests(chirp)
+    fixed = fixed or {}
+    unknown = set(fixed) - {"rebound", "compression"}
+    if unknown:
+        raise IdentificationError(f"fixed valve parameters for unknown side(s) {sorted(unknown)} "
+                                  "(rebound or compression)")
+    xq, vq, fq = quasi_static.displacement, quasi_static.velocity, quasi_static.force
+    tc, xc, vc, fc = chirp.time, chirp.displacement, chirp.velocity, chirp.force
     cfg = base
     fits: dict[str, FitResult] = {}
     previous = None
@@ -158,11 +292,15 @@ def identify(quasi_static: MeasuredData, chirp: MeasuredData, base: ModelConfig,
         p_gas, v_gas, friction = qs.values
         say(f"round {rounds}: quasi-static P_gas {p_gas / 1e6:.4f} MPa, V_gas "
             f"{v_gas * 1e6:.2f} cm³, friction {friction:.1f} N (r.m.s. {qs.rms:.2f} N)")
-        q_all, dp_all, q_noise = valve_flow_and_pressure_drop(
-            tc, xc, vc, fc, d, p_gas, v_gas, friction, correct_compressibility)
+        parts = [valve_flow_and_pressure_drop(tc[f], xc[f], vc[f], fc[f], d, p_gas, v_gas,
+                                              friction, correct_compressibility)
+                 for f in chirp_files]
+        q_all, dp_all, q_noise = (np.concatenate(a) for a in zip(*parts))
         force_sd = qs.rms  # the quasi-static residual: the force measurement's noise
-        masks = dict(zip(("rebound", "compression"),
-                         chirp_selection(tc, vc, q_all, dp_all, hysteresis_filter_on)))
+        selected = [chirp_selection(tc[f], vc[f], q_all[f], dp_all[f], hysteresis_filter_on)
+                    for f in chirp_files]
+        masks = {side: np.concatenate([sel[k] for sel in selected])
+                 for k, side in enumerate(("rebound", "compression"))}
         for side, m in masks.items():
             if m.sum() < 20:
                 raise IdentificationError(
@@ -181,7 +319,8 @@ def identify(quasi_static: MeasuredData, chirp: MeasuredData, base: ModelConfig,
             if correct_compressibility and start is not None:
                 weights = effective_variance_weights(qa, force_sd * q_noise[m], force_sd,
                                                      a_ann, start, nu, form)
-            fits[side] = fit_valve(qa, np.abs(dp_all[m]), a_ann, nu, form, start, weights)
+            fits[side] = fit_valve(qa, np.abs(dp_all[m]), a_ann, nu, form, start, weights,
+                                   fixed.get(side))
             say(f"round {rounds}: {side} valve r.m.s. {fits[side].rms:.2f} N "
                 f"({fits[side].samples} samples)")
         current = np.concatenate((qs.values, fits["rebound"].values,
@@ -199,6 +338,7 @@ def identify(quasi_static: MeasuredData, chirp: MeasuredData, base: ModelConfig,
             break
         previous = current
     series = {"flow_m3_s": q_all, "pressure_drop_pa": dp_all, "masks": masks,
-              "quasi_static_valve_force_n": valve_force}
+              "quasi_static_valve_force_n": valve_force, "quasi_static": quasi_static,
+              "chirp": chirp, "chirp_files": chirp_files}
     return Identification(cfg, qs, fits["rebound"], fits["compression"], rounds,
                           {k: int(m.sum()) for k, m in masks.items()}, series)

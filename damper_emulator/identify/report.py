@@ -104,9 +104,10 @@ def _chirp_residual(path: Path, ident: Identification, chirp: MeasuredData) -> P
     return save(fig, path)
 
 
-def write_report(out_dir: str | Path, ident: Identification, qs: MeasuredData,
-                 chirp: MeasuredData) -> list[Path]:
-    """Write the report figures into ``out_dir``; returns their paths."""
+def write_report(out_dir: str | Path, ident: Identification) -> list[Path]:
+    """Write the report figures into ``out_dir``; returns their paths.  The test data are
+    those :func:`identify` used (joined when several files were given)."""
+    qs, chirp = ident.series["quasi_static"], ident.series["chirp"]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     return [_quasi_static(out / "quasi_static_fit.png", ident, qs),

@@ -24,7 +24,8 @@ import numpy as np
 
 from damper_emulator.identify.fitting import FitResult, fit
 from damper_emulator.identify.quasi_static import IdentificationError
-from damper_emulator.model.valve import (FLOW_EXPONENT, pressure_drop_array,
+from damper_emulator.model.valve import (FLOW_EXPONENT, blow_off_coefficients,
+                                         pressure_drop_array,
                                          pressure_drop_jacobian, pressure_drop_slope)
 
 NAMES = ("k_leak", "k_port", "k_spring", "preload_pa", "smoothing_g")
@@ -38,11 +39,22 @@ START_BINS = 40
 CLOSED_FRACTION = 0.15
 #: Fraction of the bins (highest flows) taken as the open-valve regime for the start.
 OPEN_FRACTION = 0.5
+#: The preload starts at no less than this fraction of the largest binned pressure drop.
+START_MIN_PRELOAD_FRACTION = 0.05
 #: Start value of the smoothing exponent G (eq 28).
 G_START = 1.5
 #: Log-scaled bounds: each constant within this factor of its start; G in [G_MIN, G_MAX].
 K_BOUND_FACTOR = 1e3
 G_MIN, G_MAX = 0.5, 6.0
+#: The eq 29 extension of the open branch below the blow-off point, ``H0 + H1 (Q − B0)``,
+#: is negative at ``Q = 0`` when ``ρ = H1 B0 / H0 > 1`` (small preloads, soft springs);
+#: eq 28 then gives a negative pressure drop at low flow and the characteristic cannot be
+#: inverted.  The valve fit keeps ``ρ <= 1 − INTERCEPT_MARGIN`` with a penalty row of this
+#: weight (times the r.m.s. measured valve force).
+INTERCEPT_MARGIN = 1e-3
+MONOTONIC_PENALTY = 1e3
+#: Relative complex step of the penalty's gradient.
+COMPLEX_STEP = 1e-20
 
 
 def hysteresis_filter(velocity, acceleration):
@@ -70,11 +82,34 @@ def start_values(q, dp, nu_m2_s):
     basis = np.column_stack((np.ones(qb[hi].size), qb[hi], qb[hi] ** FLOW_EXPONENT))
     a, b, c = np.linalg.lstsq(basis, pb[hi], rcond=None)[0]
     preload = a if 0 < a < pb[-1] else 0.5 * float(np.median(pb[hi]))
+    # an intercept near zero (a characteristic linear from Q = 0) would confine the
+    # preload, bounded to a factor K_BOUND_FACTOR of its start, to a negligible value
+    preload = max(preload, START_MIN_PRELOAD_FRACTION * float(pb[-1]))
     k_port = c / nu4 if c > 0 else 1e-3 * k_total
     k_port = min(k_port, 0.5 * k_total)
     slope = b if b > 0 else float(np.ptp(pb[hi]) / max(np.ptp(qb[hi]), 1e-30))
     k_spring = max(slope, 1e-30) * np.sqrt(float(np.median(pb[hi])))
     return np.array([k_total - k_port, k_port, k_spring, preload, G_START])
+
+
+def extension_intercept_excess(theta, nu_m2_s) -> tuple[float, np.ndarray]:
+    """``ρ − (1 − INTERCEPT_MARGIN)`` with ``ρ = H1 B0 / H0 = (7/4)(K_leak/B1 + K_port) /
+    (K_leak + K_port)`` (eqs 29, 47 and the corrected eq 48), and its gradient with respect
+    to the five valve parameters (complex step)."""
+    def rho(th):
+        k_leak, k_port, k_spring, preload = th[0], th[1], th[2], th[3]
+        _b0, b1, _b2, _b3 = blow_off_coefficients(k_leak, k_spring, preload, nu_m2_s)
+        return FLOW_EXPONENT * (k_leak / b1 + k_port) / (k_leak + k_port)
+
+    theta = np.asarray(theta, dtype=float)
+    value = float(np.real(rho(theta)))
+    grad = np.zeros(theta.size)
+    for k in range(4):
+        h = COMPLEX_STEP * abs(theta[k])
+        th = theta.astype(complex)
+        th[k] += 1j * h
+        grad[k] = rho(th).imag / h
+    return value - (1.0 - INTERCEPT_MARGIN), grad
 
 
 def effective_variance_weights(q, flow_sd_m3_s, force_sd_n, area_m2, valve, nu_m2_s,
@@ -92,7 +127,7 @@ def effective_variance_weights(q, flow_sd_m3_s, force_sd_n, area_m2, valve, nu_m
 
 
 def fit_valve(q, dp_measured, area_m2: float, nu_m2_s: float, form: str = "cardano",
-              start=None, weights=None) -> FitResult:
+              start=None, weights=None, fixed=None) -> FitResult:
     """Fit one valve direction's ``Δp(Q)`` to measured pressure drops.
 
     The residual is in force units: ``(A_pt − A_rod)(Δp_model − Δp_measured)`` [N].
@@ -107,14 +142,38 @@ def fit_valve(q, dp_measured, area_m2: float, nu_m2_s: float, form: str = "carda
         Start values; by default :func:`start_values` of the data.
     weights : array_like, optional
         Per-sample weights of the residual (see :func:`effective_variance_weights`).
+    fixed : mapping of str to float, optional
+        Parameters (names of :data:`NAMES`) held at the given values instead of fitted,
+        for data that cannot determine them (e.g. ``{"smoothing_g": 1.5}``).
     """
     start = start_values(q, dp_measured, nu_m2_s) if start is None else np.asarray(start, float)
+    start = start.copy()
+    held = np.zeros(len(NAMES), bool)
+    for name, value in (fixed or {}).items():
+        if name not in NAMES:
+            raise IdentificationError(f"unknown valve parameter {name!r} to fix "
+                                      f"(one of {', '.join(NAMES)})")
+        value = float(value)
+        if not (np.isfinite(value) and value > 0):
+            raise IdentificationError(f"fixed valve parameter {name} must be a positive number, "
+                                      f"got {value!r}")
+        start[NAMES.index(name)] = value
+        held[NAMES.index(name)] = True
     w = area_m2 * (np.ones_like(q) if weights is None else np.asarray(weights, float))
+
+    scale_n = float(np.sqrt(np.mean((area_m2 * dp_measured) ** 2)))
 
     def residual(theta):
         r = w * (pressure_drop_array(q, theta, nu_m2_s, form) - dp_measured)
-        return r, w[:, None] * pressure_drop_jacobian(q, theta, nu_m2_s, form)
+        jac = w[:, None] * pressure_drop_jacobian(q, theta, nu_m2_s, form)
+        # penalty row: the eq 29 extension must not fall below zero at Q = 0
+        excess, grad = extension_intercept_excess(theta, nu_m2_s)
+        active = excess > 0
+        r_pen = MONOTONIC_PENALTY * scale_n * (excess if active else 0.0)
+        jac_pen = MONOTONIC_PENALTY * scale_n * (grad if active else np.zeros(grad.size))
+        return np.append(r, r_pen), np.vstack((jac, jac_pen))
 
     lower = np.concatenate((start[:4] / K_BOUND_FACTOR, [G_MIN]))
     upper = np.concatenate((start[:4] * K_BOUND_FACTOR, [G_MAX]))
-    return fit(residual, NAMES, start, (True,) * 5, lower, upper, area_m2 * dp_measured)
+    return fit(residual, NAMES, start, (True,) * 5, lower, upper, area_m2 * dp_measured,
+               held, 1)

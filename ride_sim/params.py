@@ -6,6 +6,10 @@ The file (default ``config/quarter_car.yaml``) has the layout of ``config/sport.
       ros__parameters:
         quarter_car: {sprung_mass_kg: ..., ...}
         simulation: {step_s: ..., ...}
+        road: {roughness: ..., ...}          # optional: the ride studies' roads
+
+``road`` (:class:`RoadParams`) defines the random road and the pothole of the ride studies
+(:mod:`ride_sim.study`, ``docs/ride_study.md``); every key has a default.
 
 (or the bare mapping inside ``ros__parameters``).  The quarter car is the two-mass model of
 Simms & Crolla eq 38 (``../shared/MODEL.md`` §5); its values are the paper's front corner
@@ -29,6 +33,10 @@ DEFAULT_QUARTER_CAR_FILE = Path(__file__).resolve().parent.parent / "config" / "
 
 #: Damper kinds understood by :func:`ride_sim.dampers.make_damper`.
 DAMPER_KINDS = ("linear", "14speed", "incompressible", "compressible", "nonlinear")
+#: How the synthesised band follows the speed in a speed sweep (:class:`RoadParams`).
+BAND_SCALINGS = ("spatial", "temporal")
+#: Random-road synthesis methods (:func:`ride_sim.road.random_road`).
+AMPLITUDE_METHODS = ("deterministic", "random")
 
 
 def _rule(rule: Any, doc: str, default: Any = dataclasses.MISSING) -> Any:
@@ -74,12 +82,61 @@ class SimulationParams:
 
 
 @dataclass(frozen=True)
+class RoadParams:
+    """Roads of the ride studies (:mod:`ride_sim.study`; ``docs/ride_study.md``).
+
+    The random road is eq 39, ``S(n) = G n^(-p)``, synthesised over ``band_cycles_per_m``;
+    the default band ``[0.01, 0.8]`` cycles/m is the one the paper's figure 10 implies (see
+    ``docs/ride_study.md``).  The pothole is the project's own (the paper's MIRA pothole is
+    not given): a sharp-edged rectangular hole seen through a rigid tyre of
+    ``tyre_radius_m`` (:func:`ride_sim.road.envelope`) averaged over ``contact_length_m``.
+    """
+
+    roughness: float = _rule("positive", "road roughness G of eq 39 [m^2 (cycles/m)^(p-1)]",
+                             5e-6)
+    waviness: float = _rule("positive", "road waviness p of eq 39 [-]", 2.5)
+    band_cycles_per_m: tuple = _rule("band", "synthesised spatial band [n_min, n_max] "
+                                             "[cycles/m]", (0.01, 0.8))
+    band_scaling: str = _rule(("choices", BAND_SCALINGS),
+                              "speed sweep: 'temporal' keeps the band in Hz as at speed_m_s, "
+                              "'spatial' keeps it in cycles/m (one road at every speed)",
+                              "temporal")
+    amplitudes: str = _rule(("choices", AMPLITUDE_METHODS),
+                            "random-road synthesis (ride_sim.road.random_road)",
+                            "deterministic")
+    speed_m_s: float = _rule("positive", "speed on the random road [m/s] (figure 10)", 20.0)
+    length_m: float = _rule("positive", "length of random road evaluated [m]", 500.0)
+    seeds: int = _rule(("int_range", 1, 10000), "road seeds per case (0 .. seeds-1)", 5)
+    lead_in_s: float = _rule("non-negative", "road driven before the evaluated length (the "
+                                             "same periodic road), discarded [s]", 3.0)
+    sweep_speeds_m_s: tuple = _rule("positive_list", "speeds of the speed sweep (figure 11) "
+                                                     "[m/s]",
+                                    (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0))
+    pothole_speed_m_s: float = _rule("positive", "speed over the pothole [m/s] (figure 13)",
+                                     10.0)
+    pothole_depth_m: float = _rule("positive", "pothole depth [m]", 0.06)
+    pothole_length_m: float = _rule("positive", "pothole length at the surface, edge to "
+                                                "edge [m]", 0.75)
+    tyre_radius_m: float = _rule("positive", "tyre radius of the enveloping model [m]", 0.3)
+    contact_length_m: float = _rule("non-negative", "tyre contact length the enveloped "
+                                                    "profile is averaged over [m] (0: none)",
+                                    0.10)
+    pothole_lead_in_m: float = _rule("positive", "flat road before the pothole [m]", 5.0)
+    pothole_lead_out_m: float = _rule("positive", "flat road after the pothole [m]", 20.0)
+    window_before_s: float = _rule("non-negative", "pothole r.m.s. window: start before "
+                                                   "the leading edge [s]", 0.0)
+    window_after_s: float = _rule("positive", "pothole r.m.s. window: end after the "
+                                              "leading edge [s]", 0.2)
+
+
+@dataclass(frozen=True)
 class RideConfig:
-    """A quarter car and its simulation settings."""
+    """A quarter car, its simulation settings and the ride studies' roads."""
 
     quarter_car: QuarterCarParams
     simulation: SimulationParams = SimulationParams()
     source: str = "<memory>"
+    road: RoadParams = RoadParams()
 
 
 def _check(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:
@@ -93,6 +150,8 @@ def _check(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:
             raise ParameterError(f"{where}: {key} = {value!r} must be one of "
                                  f"{', '.join(rule[1])}")
         return value
+    if kind in ("band", "positive_list"):
+        return _check_list(value, kind, key, where, doc)
     if kind == "int_range":
         if isinstance(value, bool) or not isinstance(value, int):
             raise ParameterError(f"{where}: {key} must be an integer, got {value!r}")
@@ -113,6 +172,31 @@ def _check(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:
         raise ParameterError(f"{where}: {key} = {value:g} must lie in "
                              f"({rule[1]:g}, {rule[2]:g}] ({doc})")
     return value
+
+
+def _check_list(value: Any, kind: str, key: str, where: str, doc: str) -> tuple:
+    """A list of positive numbers; for ``band`` exactly two, increasing."""
+    if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__iter__"):
+        raise ParameterError(f"{where}: {key} must be a list of numbers, got {value!r}")
+    items = list(value)
+    if kind == "band" and len(items) != 2:
+        raise ParameterError(f"{where}: {key} must be two numbers [low, high] ({doc}), "
+                             f"got {value!r}")
+    if not items:
+        raise ParameterError(f"{where}: {key} must not be empty ({doc})")
+    out = []
+    for item in items:
+        if isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise ParameterError(f"{where}: {key} must hold numbers, got {item!r}")
+        x = float(item)
+        if not (math.isfinite(x) and x > 0):
+            raise ParameterError(f"{where}: {key} holds {x:g}: every value must be positive "
+                                 f"and finite ({doc})")
+        out.append(x)
+    if kind == "band" and not out[0] < out[1]:
+        raise ParameterError(f"{where}: {key} = [{out[0]:g}, {out[1]:g}] must be increasing "
+                             f"({doc})")
+    return tuple(out)
 
 
 def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
@@ -164,7 +248,8 @@ def ride_config_from_mapping(doc: Any, source: str = "<memory>") -> RideConfig:
     body = _node_parameters(doc, source)
     car = _build(QuarterCarParams, body["quarter_car"], "quarter_car", source)
     sim = _build(SimulationParams, body.get("simulation"), "simulation", source)
-    return RideConfig(car, sim, source)
+    road = _build(RoadParams, body.get("road"), "road", source)
+    return RideConfig(car, sim, source, road)
 
 
 def load_ride_config(path: str | Path | None = None) -> RideConfig:

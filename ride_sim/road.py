@@ -138,6 +138,28 @@ class RoadError(ValueError):
 # Small validators
 
 
+
+def _checked_series(label: str, x, x_name: str, y, y_name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Two equal-length 1-D float arrays of at least ``MIN_PROFILE_POINTS`` finite samples,
+    ``x`` strictly increasing; a one-line :class:`RoadError` naming ``label`` otherwise."""
+    xa = _float_array(x, f"{label}: {x_name}")
+    ya = _float_array(y, f"{label}: {y_name}")
+    if xa.ndim != 1 or ya.shape != xa.shape:
+        raise RoadError(f"{label}: {x_name} and {y_name} must be 1-D with the same number "
+                        f"of samples, got shapes {xa.shape} and {ya.shape}")
+    if xa.size < MIN_PROFILE_POINTS:
+        raise RoadError(f"{label}: needs at least {MIN_PROFILE_POINTS} samples, got {xa.size}")
+    for arr, what in ((xa, x_name), (ya, y_name)):
+        bad = np.flatnonzero(~np.isfinite(arr))
+        if bad.size:
+            raise RoadError(f"{label}: {what}[{bad[0]}] = {arr[bad[0]]} is not finite")
+    steps = np.flatnonzero(np.diff(xa) <= 0.0)
+    if steps.size:
+        i = steps[0] + 1
+        raise RoadError(f"{label}: {x_name}[{i}] = {xa[i]} is not greater than "
+                        f"{x_name}[{i - 1}] = {xa[i - 1]}")
+    return xa, ya
+
 def _finite(value: float, what: str) -> float:
     try:
         x = float(value)
@@ -416,27 +438,8 @@ class RoadProfile:
     name: str = "road"
 
     def __post_init__(self) -> None:
-        label = f"road {self.name!r}"
-        d = _float_array(self.distance_m, f"{label}: distance_m")
-        h = _float_array(self.height_m, f"{label}: height_m")
-        if d.ndim != 1 or h.ndim != 1:
-            raise RoadError(f"{label}: distance_m and height_m must be 1-D, "
-                            f"got shapes {d.shape} and {h.shape}")
-        if d.shape != h.shape:
-            raise RoadError(f"{label}: distance_m has {d.size} samples but height_m has "
-                            f"{h.size}")
-        if d.size < MIN_PROFILE_POINTS:
-            raise RoadError(f"{label}: needs at least {MIN_PROFILE_POINTS} samples, "
-                            f"got {d.size}")
-        for arr, what in ((d, "distance_m"), (h, "height_m")):
-            bad = np.flatnonzero(~np.isfinite(arr))
-            if bad.size:
-                raise RoadError(f"{label}: {what}[{bad[0]}] = {arr[bad[0]]} is not finite")
-        steps = np.flatnonzero(np.diff(d) <= 0.0)
-        if steps.size:
-            i = steps[0] + 1
-            raise RoadError(f"{label}: distance_m[{i}] = {d[i]} is not greater than "
-                            f"distance_m[{i - 1}] = {d[i - 1]}")
+        d, h = _checked_series(f"road {self.name!r}", self.distance_m, "distance_m",
+                               self.height_m, "height_m")
         d.flags.writeable = False
         h.flags.writeable = False
         object.__setattr__(self, "distance_m", d)
@@ -927,23 +930,8 @@ class SpeedProfile:
     _distance_knots_m: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        t = _float_array(self.time_s, "speed profile: time_s")
-        v = _float_array(self.speed_m_s, "speed profile: speed_m_s")
-        if t.ndim != 1 or v.shape != t.shape:
-            raise RoadError(f"speed profile: time_s and speed_m_s must be 1-D of equal length, "
-                            f"got shapes {t.shape} and {v.shape}")
-        if t.size < MIN_PROFILE_POINTS:
-            raise RoadError(f"speed profile: needs at least {MIN_PROFILE_POINTS} points, "
-                            f"got {t.size}")
-        for arr, what in ((t, "time_s"), (v, "speed_m_s")):
-            bad = np.flatnonzero(~np.isfinite(arr))
-            if bad.size:
-                raise RoadError(f"speed profile: {what}[{bad[0]}] = {arr[bad[0]]} is not finite")
-        steps = np.flatnonzero(np.diff(t) <= 0.0)
-        if steps.size:
-            i = steps[0] + 1
-            raise RoadError(f"speed profile: time_s[{i}] = {t[i]} is not greater than "
-                            f"time_s[{i - 1}] = {t[i - 1]}")
+        t, v = _checked_series("speed profile", self.time_s, "time_s", self.speed_m_s,
+                               "speed_m_s")
         negative = np.flatnonzero(v < 0.0)
         if negative.size:
             raise RoadError(f"speed profile: speed_m_s[{negative[0]}] = {v[negative[0]]} "

@@ -23,6 +23,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/model_bench.py
 	$(BIN)/python benchmarks/identify_bench.py
+	$(BIN)/python benchmarks/ride_bench.py
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .hypothesis

@@ -21,7 +21,7 @@ from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel, simulate
 from damper_emulator.params import load_config
 
-from model_bench import _cpu_name  # noqa: E402  (same folder)
+from machine import cpu_name  # noqa: E402  (same folder)
 
 
 def main() -> None:
@@ -48,7 +48,7 @@ def main() -> None:
         errors += list(np.abs(np.array(tuple(getattr(d, side)))
                               / np.array(tuple(getattr(d0, side))) - 1))
     print(f"# damper-hil identification benchmark — {time.strftime('%Y-%m-%d')}, "
-          f"{_cpu_name()}")
+          f"{cpu_name()}")
     print()
     print("| measure | result | target |")
     print("|---|---|---|")

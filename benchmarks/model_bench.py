@@ -20,20 +20,11 @@ import time
 
 import numpy as np
 
+from machine import cpu_name
+
 from damper_emulator.dyno.protocols import chirp
 from damper_emulator.model.compressible import DamperModel, DamperStepper, simulate
 from damper_emulator.params import load_config
-
-
-def _cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def bench_step(model: DamperModel, calls: int) -> tuple[float, float, float]:
@@ -90,7 +81,7 @@ def main() -> None:
     batch_10k = bench_batch(model, max(1, args.repeats // 2), 10_000.0)
     load_ms = bench_load(args.repeats)
 
-    print(f"# damper-hil model benchmark — {time.strftime('%Y-%m-%d')}, {_cpu_name()}, "
+    print(f"# damper-hil model benchmark — {time.strftime('%Y-%m-%d')}, {cpu_name()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()}")
     print()
     print("| measure | result | target |")

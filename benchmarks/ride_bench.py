@@ -24,16 +24,7 @@ import time
 
 import numpy as np
 
-
-def _cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
+from machine import cpu_name
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -88,7 +79,7 @@ def main() -> None:
     study.figure10(settings, keep_traces=False)
     fig10_s = time.perf_counter() - t0
 
-    print(f"# damper-hil ride-study benchmark — {time.strftime('%Y-%m-%d')}, {_cpu_name()}, "
+    print(f"# damper-hil ride-study benchmark — {time.strftime('%Y-%m-%d')}, {cpu_name()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()}, numpy "
           f"{np.__version__}")
     print()

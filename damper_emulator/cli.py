@@ -1,7 +1,7 @@
 """The ``damper-hil`` command line (CONTRACT.md "Command line").
 
-Subcommands so far: ``dyno`` (virtual dyno), ``demo``, ``identify`` and ``validate``.  Every user error
-(bad parameter file, bad measured data, bad option value, an output that cannot be
+Subcommands so far: ``dyno`` (virtual dyno), ``demo``, ``identify``, ``validate`` and
+``ride-study``.  Every user error (bad parameter file, bad measured data, bad option value, an output that cannot be
 written) is one line ``damper-hil: error: <message>`` on stderr and exit status 2.
 """
 

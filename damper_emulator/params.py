@@ -19,7 +19,7 @@ import math
 import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import yaml
 
@@ -183,21 +183,36 @@ class ModelConfig:
 # Loading
 
 
-def _node_parameters(doc: Any, where: str) -> Mapping[str, Any]:
-    """The ``ros__parameters`` mapping of a ROS 2 params file, or the bare mapping."""
+def node_parameters(doc: Any, where: str, group: str = "damper") -> Mapping[str, Any]:
+    """The ``ros__parameters`` mapping of a ROS 2 params file that holds ``group``, or the
+    bare mapping when ``group`` is at its top level.
+
+    Raises
+    ------
+    ParameterError
+        One line: not a mapping, or no node's parameters hold ``group``.
+    """
     if not isinstance(doc, Mapping):
         raise ParameterError(f"{where}: expected a mapping at the top level")
-    if "damper" in doc:
+    if group in doc:
         return doc
-    for node, body in doc.items():
+    for body in doc.values():
         if isinstance(body, Mapping) and isinstance(body.get("ros__parameters"), Mapping):
-            if "damper" in body["ros__parameters"]:
+            if group in body["ros__parameters"]:
                 return body["ros__parameters"]
-    raise ParameterError(f"{where}: no 'damper' parameters found (expected "
-                         "'<node>: ros__parameters: damper: ...' or 'damper: ...')")
+    raise ParameterError(f"{where}: no '{group}' parameters found (expected "
+                         f"'<node>: ros__parameters: {group}: ...' or '{group}: ...')")
 
 
-def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
+def build_group(cls: type, data: Any, prefix: str, where: str,
+                convert: Callable[[Any, dataclasses.Field, str, str], Any]) -> Any:
+    """One parameter group: the dataclass ``cls`` from the mapping ``data``.
+
+    Unknown keys and missing keys without a default are refused (one-line
+    :class:`ParameterError` naming ``prefix.key`` and the file ``where``); every value goes
+    through ``convert(raw, field, "prefix.key", where)``, which checks it and returns the
+    value to store.
+    """
     if not isinstance(data, Mapping):
         raise ParameterError(f"{where}: {prefix} must be a mapping")
     names = {f.name for f in fields(cls)}
@@ -211,12 +226,18 @@ def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
             if f.default is dataclasses.MISSING:
                 raise ParameterError(f"{where}: missing parameter {key} ({f.metadata['doc']})")
             continue
-        raw = data[f.name]
-        if f.metadata["rule"] == "group":
-            values[f.name] = _build(ValveParams, raw, key, where)
-        else:
-            values[f.name] = _coerce(raw, f, key, where)
+        values[f.name] = convert(data[f.name], f, key, where)
     return cls(**values)
+
+
+def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
+    return build_group(cls, data, prefix, where, _convert)
+
+
+def _convert(raw: Any, f: dataclasses.Field, key: str, where: str) -> Any:
+    if f.metadata["rule"] == "group":
+        return _build(ValveParams, raw, key, where)
+    return _coerce(raw, f, key, where)
 
 
 def _coerce(raw: Any, f: dataclasses.Field, key: str, where: str) -> Any:
@@ -302,7 +323,7 @@ def validate(cfg: ModelConfig) -> None:
 
 def config_from_mapping(doc: Any, source: str = "<memory>") -> ModelConfig:
     """Build and validate a :class:`ModelConfig` from a parsed params-file mapping."""
-    body = _node_parameters(doc, source)
+    body = node_parameters(doc, source)
     damper = _build(DamperParams, body["damper"], "damper", source)
     numerics = _build(NumericsParams, body.get("numerics") or {}, "numerics", source)
     cfg = ModelConfig(damper=damper, numerics=numerics, source=source)

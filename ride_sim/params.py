@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Mapping
 
-from damper_emulator.params import ParameterError, read_yaml
+from damper_emulator.params import ParameterError, build_group, node_parameters, read_yaml
 
 #: Default parameter file: the paper's front quarter car.
 DEFAULT_QUARTER_CAR_FILE = Path(__file__).resolve().parent.parent / "config" / "quarter_car.yaml"
@@ -200,23 +200,7 @@ def _check_list(value: Any, kind: str, key: str, where: str, doc: str) -> tuple:
 
 
 def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
-    if data is None:
-        data = {}
-    if not isinstance(data, Mapping):
-        raise ParameterError(f"{where}: {prefix} must be a mapping")
-    names = {f.name for f in fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ParameterError(f"{where}: unknown parameter {prefix}.{unknown[0]}")
-    values = {}
-    for f in fields(cls):
-        key = f"{prefix}.{f.name}"
-        if f.name not in data:
-            if f.default is dataclasses.MISSING:
-                raise ParameterError(f"{where}: missing parameter {key} ({f.metadata['doc']})")
-            continue
-        values[f.name] = _check(data[f.name], f, key, where)
-    return cls(**values)
+    return build_group(cls, {} if data is None else data, prefix, where, _check)
 
 
 def validate_quarter_car(params: QuarterCarParams, where: str = "<memory>") -> QuarterCarParams:
@@ -226,26 +210,13 @@ def validate_quarter_car(params: QuarterCarParams, where: str = "<memory>") -> Q
     return params
 
 
-def _node_parameters(doc: Any, where: str) -> Mapping[str, Any]:
-    if not isinstance(doc, Mapping):
-        raise ParameterError(f"{where}: expected a mapping at the top level")
-    if "quarter_car" in doc:
-        return doc
-    for body in doc.values():
-        if isinstance(body, Mapping) and isinstance(body.get("ros__parameters"), Mapping):
-            if "quarter_car" in body["ros__parameters"]:
-                return body["ros__parameters"]
-    raise ParameterError(f"{where}: no 'quarter_car' parameters found (expected "
-                         "'<node>: ros__parameters: quarter_car: ...' or 'quarter_car: ...')")
-
-
 def ride_config_from_mapping(doc: Any, source: str = "<memory>") -> RideConfig:
     """Build and validate a :class:`RideConfig` from a parsed params-file mapping.
 
     Other groups in the same ``ros__parameters`` (e.g. ``damper``) are ignored, so one file
     can configure both the emulator and the vehicle.
     """
-    body = _node_parameters(doc, source)
+    body = node_parameters(doc, source, "quarter_car")
     car = _build(QuarterCarParams, body["quarter_car"], "quarter_car", source)
     sim = _build(SimulationParams, body.get("simulation"), "simulation", source)
     road = _build(RoadParams, body.get("road"), "road", source)

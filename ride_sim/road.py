@@ -639,6 +639,19 @@ def _flat_grid(feature_samples: int, lead_in_m: float, lead_out_m: float,
     return spacing_m * index, index - n_in
 
 
+def _feature_grid(length_m, lead_in_m, lead_out_m, spacing_m):
+    """Grid of a feature ``length_m`` long (a whole number, at least MIN_PROFILE_POINTS, of
+    samples) in a flat road: ``(distance, sample index from the feature start, samples in
+    the feature)``."""
+    spacing = _positive(spacing_m, "spacing_m")
+    n_feature = _whole_samples(_positive(length_m, "length_m"), spacing, "length_m")
+    if n_feature < MIN_PROFILE_POINTS:
+        raise RoadError(f"length_m = {length_m} m must be at least {MIN_PROFILE_POINTS} "
+                        f"samples of spacing_m = {spacing} m")
+    distance, j = _flat_grid(n_feature, lead_in_m, lead_out_m, spacing)
+    return distance, j, n_feature
+
+
 def pothole(depth_m: float = DEFAULT_POTHOLE_DEPTH_M,
             length_m: float = DEFAULT_POTHOLE_LENGTH_M, *,
             lead_in_m: float = DEFAULT_LEAD_IN_M, lead_out_m: float = DEFAULT_LEAD_OUT_M,
@@ -671,12 +684,7 @@ def pothole(depth_m: float = DEFAULT_POTHOLE_DEPTH_M,
     plausible urban pothole, to be tuned by a later study.
     """
     depth = _positive(depth_m, "depth_m")
-    spacing = _positive(spacing_m, "spacing_m")
-    n_feature = _whole_samples(_positive(length_m, "length_m"), spacing, "length_m")
-    if n_feature < MIN_PROFILE_POINTS:
-        raise RoadError(f"length_m = {length_m} m must be at least {MIN_PROFILE_POINTS} "
-                        f"samples of spacing_m = {spacing} m")
-    distance, j = _flat_grid(n_feature, lead_in_m, lead_out_m, spacing)
+    distance, j, n_feature = _feature_grid(length_m, lead_in_m, lead_out_m, spacing_m)
     height = np.where((j > 0) & (j < n_feature), -depth, 0.0)
     return RoadProfile(distance, height, f"pothole {depth:g} m deep, {length_m:g} m long")
 
@@ -705,12 +713,7 @@ def bump(height_m: float, length_m: float, *,
         raise RoadError("height_m must be non-zero")
     if shape not in BUMP_SHAPES:
         raise RoadError(f"shape must be one of {BUMP_SHAPES}, got {shape!r}")
-    spacing = _positive(spacing_m, "spacing_m")
-    n_feature = _whole_samples(_positive(length_m, "length_m"), spacing, "length_m")
-    if n_feature < MIN_PROFILE_POINTS:
-        raise RoadError(f"length_m = {length_m} m must be at least {MIN_PROFILE_POINTS} "
-                        f"samples of spacing_m = {spacing} m")
-    distance, j = _flat_grid(n_feature, lead_in_m, lead_out_m, spacing)
+    distance, j, n_feature = _feature_grid(length_m, lead_in_m, lead_out_m, spacing_m)
     fraction = np.clip(j / n_feature, 0.0, 1.0)
     if shape == "cosine":
         profile = 0.5 * (1.0 - np.cos(_TWO_PI * fraction))

@@ -206,7 +206,7 @@ def test_malformed_vendor_file_names_file_and_row(tmp_path, mutate, row, what):
 def test_vendor_file_missing_column_or_empty(tmp_path):
     p = tmp_path / "nocol.csv"
     p.write_text("Timestamp,Force (V),Temperature (C)\n2025-11-14 20:07:10,0.1,25\n")
-    with pytest.raises(MeasuredDataError, match=r"nocol\.csv: header: missing column "
+    with pytest.raises(MeasuredDataError, match=r"nocol\.csv: header: missing required column "
                                                 r"'Displacement \(V\)'"):
         read_fsae_ttx25(p)
     e = tmp_path / "empty.csv.gz"

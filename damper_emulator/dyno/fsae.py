@@ -41,7 +41,6 @@ energy, ``∮ F dx > 0`` on every cycle of every file, which then fixes the disp
 
 from __future__ import annotations
 
-import csv
 import re
 from dataclasses import dataclass
 from datetime import datetime
@@ -50,8 +49,8 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
-from damper_emulator.dyno.measured import (MeasuredData, MeasuredDataError, open_text,
-                                           parse_number, short_text, write_measured_csv)
+from damper_emulator.dyno.measured import (MeasuredData, read_csv_table, short_text,
+                                           write_measured_csv)
 
 #: load-cell slope, the same for every file [N/V] (SOURCE.md)
 FORCE_N_PER_V = 198.38
@@ -172,59 +171,10 @@ def read_fsae_ttx25(path: str | Path) -> MeasuredData:
         time not strictly increasing, fewer rows than the velocity filter needs.
     """
     path = Path(path)
-    where = str(path)
-
-    def fail(msg: str, row: int | None = None) -> MeasuredDataError:
-        if row is None:
-            return MeasuredDataError(f"{where}: {msg}")
-        return MeasuredDataError(f"{where}: row {row} (line {lines[row - 1]}): {msg}")
-
-    lines: list[int] = []
-    stamps: list[datetime] = []
-    cols: dict[str, list[float]] = {c: [] for c in _USED[1:]}
-    try:
-        stream = open_text(path)
-    except OSError as exc:
-        raise fail(f"cannot read FSAE dyno file: {exc.strerror or exc}") from None
-    try:
-        with stream:
-            rows = csv.reader(stream)
-            header = next(rows, None)
-            if header is None or not any(h.strip() for h in header):
-                raise fail("empty file: expected a header row with columns "
-                           + ", ".join(_USED))
-            names = [h.strip().lower() for h in header]
-            index = {}
-            for col in _USED:
-                if col.lower() not in names:
-                    raise fail(f"header: missing column '{col}' (have: "
-                               f"{', '.join(h.strip() for h in header if h.strip())})")
-                index[col] = names.index(col.lower())
-            need = max(index.values()) + 1
-            row = 0
-            for fields in rows:
-                if not fields or not any(f.strip() for f in fields):
-                    continue
-                row += 1
-                lines.append(rows.line_num)
-                if len(fields) < need:
-                    absent = next(c for c in _USED if index[c] >= len(fields))
-                    raise fail(f"{len(fields)} fields, no value for column '{absent}'", row)
-                text = fields[index[TIME_COLUMN]].strip()
-                try:
-                    stamps.append(datetime.fromisoformat(text))
-                except ValueError:
-                    raise fail(f"{TIME_COLUMN} is '{short_text(text)}', not an ISO date-time",
-                               row) from None
-                for c in _USED[1:]:
-                    cols[c].append(parse_number(fields[index[c]], c, row, fail))
-    except MeasuredDataError:
-        raise
-    except UnicodeDecodeError:
-        raise fail("not a text CSV file (cannot decode as UTF-8)") from None
-    except (OSError, EOFError, csv.Error) as exc:
-        raise fail(f"cannot read FSAE dyno file: {exc}") from None
-
+    table = read_csv_table(path, _USED, parsers={TIME_COLUMN: _parse_timestamp},
+                           kind="FSAE dyno file")
+    cols, fail = table.values, table.fail
+    stamps: list[datetime] = cols[TIME_COLUMN]
     n = len(stamps)
     if n < SAVGOL_WINDOW:
         raise fail(f"{n} data rows; need at least {SAVGOL_WINDOW} for the velocity filter")
@@ -249,6 +199,15 @@ def read_fsae_ttx25(path: str | Path) -> MeasuredData:
     return MeasuredData(time=t, displacement=x, force=force, velocity=v,
                         temperature=np.asarray(cols[TEMPERATURE_COLUMN]),
                         name=path.name, path=str(path))
+
+
+def _parse_timestamp(text: str, column: str, row: int, fail) -> datetime:
+    """An ISO date-time from one CSV field (a :func:`read_csv_table` parser)."""
+    text = text.strip()
+    try:
+        return datetime.fromisoformat(text)
+    except ValueError:
+        raise fail(f"{column} is '{short_text(text)}', not an ISO date-time", row) from None
 
 
 def _derivative(x: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -97,6 +98,94 @@ def parse_number(text: str, column: str, row: int, fail) -> float:
     return val
 
 
+@dataclass(frozen=True)
+class CsvTable:
+    """The columns of a CSV file read by :func:`read_csv_table`."""
+
+    #: parsed values per column present in the file, in the order of the column spec
+    values: dict[str, list]
+    #: number of data rows (blank lines not counted)
+    rows: int
+    #: ``fail(message, row=None)`` → a one-line :class:`MeasuredDataError` naming the file
+    #: and, with ``row`` (1-based data row), the row and its line in the file
+    fail: Callable[..., MeasuredDataError]
+
+
+def read_csv_table(path: str | Path, required: Sequence[str], optional: Sequence[str] = (),
+                   parsers: Mapping[str, Callable] | None = None,
+                   kind: str = "measured-data file") -> CsvTable:
+    """Read the named columns of a CSV file (or ``.csv.gz``) with a header row.
+
+    Column names are matched case-insensitively after stripping blanks; other columns
+    are ignored.  Each field is parsed by ``parsers[column](text, column, row, fail)``
+    (default :func:`parse_number`).
+
+    Raises
+    ------
+    MeasuredDataError
+        One line naming the file (``kind`` says what it is) and, where it applies, the
+        data row and file line: unreadable or empty file, a column missing or given twice,
+        a row without a value for a column, a field its parser refuses.
+    """
+    path = Path(path)
+    where = str(path)
+    parsers = parsers or {}
+    lines: list[int] = []  # file line of each data row
+
+    def fail(msg: str, row: int | None = None) -> MeasuredDataError:
+        if row is None:
+            return MeasuredDataError(f"{where}: {msg}")
+        line = lines[row - 1] if row <= len(lines) else row + 1
+        return MeasuredDataError(f"{where}: row {row} (line {line}): {msg}")
+
+    try:
+        stream = open_text(path)
+    except OSError as exc:
+        raise fail(f"cannot read {kind}: {exc.strerror or exc}") from None
+    try:
+        with stream:
+            rows = csv.reader(stream)
+            header = next(rows, None)
+            if header is None or not any(h.strip() for h in header):
+                raise fail("empty file: expected a header row with columns "
+                           + ", ".join(required))
+            names = [h.strip().lower() for h in header]
+            index: dict[str, int] = {}
+            for col in (*required, *optional):
+                hits = [i for i, n in enumerate(names) if n == col.lower()]
+                if len(hits) > 1:
+                    raise fail(f"header: column '{col}' appears {len(hits)} times")
+                if hits:
+                    index[col] = hits[0]
+            missing = [c for c in required if c not in index]
+            if missing:
+                raise fail(f"header: missing required column '{missing[0]}' (have: "
+                           f"{', '.join(h.strip() for h in header if h.strip()) or 'none'}; "
+                           f"need {', '.join(required)})")
+            cols = list(index)
+            values: dict[str, list] = {c: [] for c in cols}
+            need = max(index.values()) + 1
+            row = 0
+            for fields_ in rows:
+                if not fields_ or not any(f.strip() for f in fields_):
+                    continue  # blank line
+                row += 1
+                lines.append(rows.line_num)
+                if len(fields_) < need:
+                    absent = next(c for c in cols if index[c] >= len(fields_))
+                    raise fail(f"{len(fields_)} fields, no value for column '{absent}'", row)
+                for c in cols:
+                    values[c].append(parsers.get(c, parse_number)(fields_[index[c]], c, row,
+                                                                  fail))
+    except MeasuredDataError:
+        raise
+    except UnicodeDecodeError:
+        raise fail("not a text CSV file (cannot decode as UTF-8)") from None
+    except (OSError, EOFError, csv.Error) as exc:
+        raise fail(f"cannot read {kind}: {exc}") from None
+    return CsvTable(values, row, fail)
+
+
 def read_measured_csv(path: str | Path) -> MeasuredData:
     """Read and check a measured-data CSV (or ``.csv.gz``).
 
@@ -109,61 +198,8 @@ def read_measured_csv(path: str | Path) -> MeasuredData:
         fewer than 2 data rows.  The one-line message names the file and the data row.
     """
     path = Path(path)
-    where = str(path)
-
-    lines: list[int] = []  # file line of each data row
-
-    def fail(msg: str, row: int | None = None) -> MeasuredDataError:
-        if row is None:
-            return MeasuredDataError(f"{where}: {msg}")
-        line = lines[row - 1] if row <= len(lines) else row + 1
-        return MeasuredDataError(f"{where}: row {row} (line {line}): {msg}")
-
-    try:
-        stream = open_text(path)
-    except OSError as exc:
-        raise fail(f"cannot read measured-data file: {exc.strerror or exc}") from None
-    try:
-        with stream:
-            rows = csv.reader(stream)
-            header = next(rows, None)
-            if header is None or not any(h.strip() for h in header):
-                raise fail("empty file: expected a header row with columns "
-                           + ", ".join(REQUIRED_COLUMNS))
-            names = [h.strip().lower() for h in header]
-            index: dict[str, int] = {}
-            for col in REQUIRED_COLUMNS + OPTIONAL_COLUMNS:
-                hits = [i for i, n in enumerate(names) if n == col]
-                if len(hits) > 1:
-                    raise fail(f"header: column '{col}' appears {len(hits)} times")
-                if hits:
-                    index[col] = hits[0]
-            missing = [c for c in REQUIRED_COLUMNS if c not in index]
-            if missing:
-                raise fail(f"header: missing required column '{missing[0]}' (have: "
-                           f"{', '.join(n for n in names if n) or 'none'}; need "
-                           f"{', '.join(REQUIRED_COLUMNS)})")
-            cols = list(index)
-            values: dict[str, list[float]] = {c: [] for c in cols}
-            need = max(index.values()) + 1
-            row = 0
-            for fields_ in rows:
-                if not fields_ or not any(f.strip() for f in fields_):
-                    continue  # blank line
-                row += 1
-                lines.append(rows.line_num)
-                if len(fields_) < need:
-                    absent = next(c for c in cols if index[c] >= len(fields_))
-                    raise fail(f"{len(fields_)} fields, no value for column '{absent}'", row)
-                for c in cols:
-                    values[c].append(parse_number(fields_[index[c]], c, row, fail))
-    except MeasuredDataError:
-        raise
-    except UnicodeDecodeError:
-        raise fail("not a text CSV file (cannot decode as UTF-8)") from None
-    except (OSError, EOFError, csv.Error) as exc:
-        raise fail(f"cannot read measured-data file: {exc}") from None
-
+    table = read_csv_table(path, REQUIRED_COLUMNS, OPTIONAL_COLUMNS)
+    row, values, fail = table.rows, table.values, table.fail
     if row < 2:
         raise fail(f"{row} data row{'s' if row != 1 else ''}; need at least 2")
     arrays = {c: np.asarray(v, dtype=float) for c, v in values.items()}

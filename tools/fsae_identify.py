@@ -19,7 +19,6 @@ Usage: ``.venv/bin/python tools/fsae_identify.py [--data DIR] [--keep DIR]``
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import tempfile
@@ -62,10 +61,9 @@ def run_cli(args: list[str]) -> None:
 def params_at_charge(params: Path, psi: float, out: Path) -> Path:
     """The identified parameters with the gas pressure scaled to another charge (gauge)."""
     cfg = load_config(params)
-    d = cfg.damper
-    scaled = dataclasses.replace(d, gas_pressure_static_pa=d.gas_pressure_static_pa
-                                 * psi / FIT_CHARGE_PSI)
-    save_config(dataclasses.replace(cfg, damper=scaled), out)
+    scaled = cfg.replace_damper(gas_pressure_static_pa=cfg.damper.gas_pressure_static_pa
+                                * psi / FIT_CHARGE_PSI)
+    save_config(scaled, out)
     return out
 
 

@@ -217,11 +217,6 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
                            correct_compressibility, hysteresis_filter_on, start_factors, fixed)
 
 
-def _with_alpha(cfg: ModelConfig, alpha: float) -> ModelConfig:
-    return dataclasses.replace(cfg, damper=dataclasses.replace(
-        cfg.damper, oil_compressibility_per_pa=float(alpha)))
-
-
 def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Identification:
     say = progress or (lambda msg: None)
     alpha0 = base.damper.oil_compressibility_per_pa
@@ -235,7 +230,9 @@ def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Id
     def score(log_alpha: float) -> float:
         alpha = float(np.exp(log_alpha))
         try:
-            ident = _identify_once(quasi_static, chirp, _with_alpha(base, alpha), None, *options)
+            ident = _identify_once(quasi_static, chirp,
+                                   base.replace_damper(oil_compressibility_per_pa=alpha),
+                                   None, *options)
             rms = chirp_simulation_rms(ident.config, joined)
         except IdentificationError as exc:
             say(f"α {alpha:.4g} 1/Pa: no valid identification ({exc})")

@@ -356,3 +356,84 @@ def save_config(cfg: ModelConfig, path: str | Path, node: str = "/**") -> None:
     _Dumper.add_representer(float, _float)
     Path(path).write_text(yaml.dump(config_to_mapping(cfg, node), Dumper=_Dumper,
                                     sort_keys=False))
+
+
+# --------------------------------------------------------------------------------------
+# Rule-checked parameter groups of the nodes and the ride simulation (one checker for
+# every group that is not the damper's own).
+
+
+def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field checked by :func:`check_value`: ``rule`` is ``"positive"``,
+    ``"non-negative"``, ``"bool"``, ``"text"``, ``("range", lo, hi)`` (lo exclusive),
+    ``("int_range", lo, hi)``, ``("choices", names)``, ``"band"`` or ``"positive_list"``;
+    ``doc`` says what the value is, with its unit."""
+    return field(default=default, metadata={"rule": kind, "doc": doc})
+
+
+def check_value(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:
+    """Coerce and check one value; raise a one-line :class:`ParameterError`."""
+    rule, doc = f.metadata["rule"], f.metadata["doc"]
+    kind = rule[0] if isinstance(rule, tuple) else rule
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ParameterError(f"{where}: {key} must be true or false, got {value!r}")
+        return value
+    if kind == "text":
+        if not isinstance(value, str):
+            raise ParameterError(f"{where}: {key} must be a string, got {value!r}")
+        return value
+    if kind == "choices":
+        if not isinstance(value, str):
+            raise ParameterError(f"{where}: {key} must be a string, got {value!r}")
+        if value not in rule[1]:
+            raise ParameterError(f"{where}: {key} = {value!r} must be one of "
+                                 f"{', '.join(rule[1])}")
+        return value
+    if kind in ("band", "positive_list"):
+        return check_list(value, kind, key, where, doc)
+    if kind == "int_range":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ParameterError(f"{where}: {key} must be an integer, got {value!r}")
+        if not rule[1] <= value <= rule[2]:
+            raise ParameterError(f"{where}: {key} = {value} must lie in "
+                                 f"[{rule[1]}, {rule[2]}] ({doc})")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(f"{where}: {key} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ParameterError(f"{where}: {key} = {value} must be finite ({doc})")
+    if kind == "positive" and not value > 0:
+        raise ParameterError(f"{where}: {key} = {value:g} must be positive ({doc})")
+    if kind == "non-negative" and not value >= 0:
+        raise ParameterError(f"{where}: {key} = {value:g} must not be negative ({doc})")
+    if kind == "range" and not rule[1] < value <= rule[2]:
+        raise ParameterError(f"{where}: {key} = {value:g} must lie in "
+                             f"({rule[1]:g}, {rule[2]:g}] ({doc})")
+    return value
+
+
+def check_list(value: Any, kind: str, key: str, where: str, doc: str) -> tuple:
+    """A list of positive numbers; for ``band`` exactly two, increasing."""
+    if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__iter__"):
+        raise ParameterError(f"{where}: {key} must be a list of numbers, got {value!r}")
+    items = list(value)
+    if kind == "band" and len(items) != 2:
+        raise ParameterError(f"{where}: {key} must be two numbers [low, high] ({doc}), "
+                             f"got {value!r}")
+    if not items:
+        raise ParameterError(f"{where}: {key} must not be empty ({doc})")
+    out = []
+    for item in items:
+        if isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise ParameterError(f"{where}: {key} must hold numbers, got {item!r}")
+        x = float(item)
+        if not (math.isfinite(x) and x > 0):
+            raise ParameterError(f"{where}: {key} holds {x:g}: every value must be positive "
+                                 f"and finite ({doc})")
+        out.append(x)
+    if kind == "band" and not out[0] < out[1]:
+        raise ParameterError(f"{where}: {key} = [{out[0]:g}, {out[1]:g}] must be increasing "
+                             f"({doc})")
+    return tuple(out)

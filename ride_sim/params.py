@@ -20,13 +20,12 @@ the key and the rule that was broken.
 
 from __future__ import annotations
 
-import dataclasses
-import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
-from damper_emulator.params import ParameterError, build_group, node_parameters, read_yaml
+from damper_emulator.params import (build_group, check_value as _check, node_parameters,
+                                    read_yaml, rule as _rule)
 
 #: Default parameter file: the paper's front quarter car.
 DEFAULT_QUARTER_CAR_FILE = Path(__file__).resolve().parent.parent / "config" / "quarter_car.yaml"
@@ -37,10 +36,6 @@ DAMPER_KINDS = ("linear", "14speed", "incompressible", "compressible", "nonlinea
 BAND_SCALINGS = ("spatial", "temporal")
 #: Random-road synthesis methods (:func:`ride_sim.road.random_road`).
 AMPLITUDE_METHODS = ("deterministic", "random")
-
-
-def _rule(rule: Any, doc: str, default: Any = dataclasses.MISSING) -> Any:
-    return field(default=default, metadata={"rule": rule, "doc": doc})
 
 
 @dataclass(frozen=True)
@@ -137,66 +132,6 @@ class RideConfig:
     simulation: SimulationParams = SimulationParams()
     source: str = "<memory>"
     road: RoadParams = RoadParams()
-
-
-def _check(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:
-    """Coerce and check one value; raise a one-line :class:`ParameterError`."""
-    rule, doc = f.metadata["rule"], f.metadata["doc"]
-    kind = rule[0] if isinstance(rule, tuple) else rule
-    if kind == "choices":
-        if not isinstance(value, str):
-            raise ParameterError(f"{where}: {key} must be a string, got {value!r}")
-        if value not in rule[1]:
-            raise ParameterError(f"{where}: {key} = {value!r} must be one of "
-                                 f"{', '.join(rule[1])}")
-        return value
-    if kind in ("band", "positive_list"):
-        return _check_list(value, kind, key, where, doc)
-    if kind == "int_range":
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ParameterError(f"{where}: {key} must be an integer, got {value!r}")
-        if not rule[1] <= value <= rule[2]:
-            raise ParameterError(f"{where}: {key} = {value} must lie in "
-                                 f"[{rule[1]}, {rule[2]}] ({doc})")
-        return value
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(f"{where}: {key} must be a number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ParameterError(f"{where}: {key} = {value} must be finite ({doc})")
-    if kind == "positive" and not value > 0:
-        raise ParameterError(f"{where}: {key} = {value:g} must be positive ({doc})")
-    if kind == "non-negative" and not value >= 0:
-        raise ParameterError(f"{where}: {key} = {value:g} must not be negative ({doc})")
-    if kind == "range" and not rule[1] < value <= rule[2]:
-        raise ParameterError(f"{where}: {key} = {value:g} must lie in "
-                             f"({rule[1]:g}, {rule[2]:g}] ({doc})")
-    return value
-
-
-def _check_list(value: Any, kind: str, key: str, where: str, doc: str) -> tuple:
-    """A list of positive numbers; for ``band`` exactly two, increasing."""
-    if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__iter__"):
-        raise ParameterError(f"{where}: {key} must be a list of numbers, got {value!r}")
-    items = list(value)
-    if kind == "band" and len(items) != 2:
-        raise ParameterError(f"{where}: {key} must be two numbers [low, high] ({doc}), "
-                             f"got {value!r}")
-    if not items:
-        raise ParameterError(f"{where}: {key} must not be empty ({doc})")
-    out = []
-    for item in items:
-        if isinstance(item, bool) or not isinstance(item, (int, float)):
-            raise ParameterError(f"{where}: {key} must hold numbers, got {item!r}")
-        x = float(item)
-        if not (math.isfinite(x) and x > 0):
-            raise ParameterError(f"{where}: {key} holds {x:g}: every value must be positive "
-                                 f"and finite ({doc})")
-        out.append(x)
-    if kind == "band" and not out[0] < out[1]:
-        raise ParameterError(f"{where}: {key} = [{out[0]:g}, {out[1]:g}] must be increasing "
-                             f"({doc})")
-    return tuple(out)
 
 
 def _build(cls: type, data: Any, prefix: str, where: str) -> Any:

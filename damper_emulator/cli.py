@@ -161,6 +161,16 @@ def build_parser() -> argparse.ArgumentParser:
                       help="output directory (created if missing; default: demo_out)")
     demo.set_defaults(handler=cmd_demo)
 
+    # ---- ROS 2 nodes -----------------------------------------------------------------
+    emulate = sub.add_parser(
+        "emulate", formatter_class=_Formatter,
+        help="run the damper_emulator ROS 2 node (/damper/state in, /damper/force out)",
+        description="Run the damper_emulator ROS 2 node until SIGINT/SIGTERM.\n\n"
+                    "Parameters: groups 'emulator' (defaults: config/emulator.yaml),\n"
+                    "'damper' and 'numerics' (defaults: config/sport.yaml), set with\n"
+                    "  --ros-args --params-file FILE [-p emulator.rate_hz:=2000.0] ...")
+    emulate.set_defaults(handler=cmd_emulate, takes_ros_args=True)
+
     # ---- validate --------------------------------------------------------------------
     validate = sub.add_parser(
         "validate", formatter_class=_Formatter,
@@ -439,6 +449,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from damper_emulator.ros.common import spin_node
+    from damper_emulator.ros.emulator import EmulatorNode
+
+    return spin_node(EmulatorNode, args.ros_args)
+
+
 def cmd_validate(args: argparse.Namespace) -> int:
     paths: list[Path] = args.data
     seen: dict[str, Path] = {}
@@ -652,7 +669,15 @@ def _one_line(text: str) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for any user error)."""
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list[str] = []
+    if "--ros-args" in argv:  # rclpy's own arguments, for the node subcommands
+        i = argv.index("--ros-args")
+        argv, ros_args = argv[:i], argv[i + 1:]
     args = parser.parse_args(argv)  # usage errors: argparse prints usage, exits 2
+    args.ros_args = ros_args
+    if ros_args and not getattr(args, "takes_ros_args", False):
+        parser.error(f"{args.command} does not take --ros-args")
     try:
         return args.handler(args)
     except CliError as exc:

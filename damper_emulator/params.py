@@ -366,6 +366,7 @@ def save_config(cfg: ModelConfig, path: str | Path, node: str = "/**") -> None:
 def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING) -> Any:
     """A dataclass field checked by :func:`check_value`: ``rule`` is ``"positive"``,
     ``"non-negative"``, ``"bool"``, ``"text"``, ``("range", lo, hi)`` (lo exclusive),
+    ``("closed", lo, hi)``,
     ``("int_range", lo, hi)``, ``("choices", names)``, ``"band"`` or ``"positive_list"``;
     ``doc`` says what the value is, with its unit."""
     return field(default=default, metadata={"rule": kind, "doc": doc})
@@ -411,6 +412,9 @@ def check_value(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:
     if kind == "range" and not rule[1] < value <= rule[2]:
         raise ParameterError(f"{where}: {key} = {value:g} must lie in "
                              f"({rule[1]:g}, {rule[2]:g}] ({doc})")
+    if kind == "closed" and not rule[1] <= value <= rule[2]:
+        raise ParameterError(f"{where}: {key} = {value:g} must lie in "
+                             f"[{rule[1]:g}, {rule[2]:g}] ({doc})")
     return value
 
 

@@ -1,0 +1,204 @@
+"""The emulator's per-sample logic, free of ROS: input checks, hold / extrapolation between
+input samples, input timeout and fault output, around one
+:class:`~damper_emulator.model.compressible.DamperStepper`.
+
+The ROS node (:mod:`damper_emulator.ros.emulator`) calls :meth:`EmulatorCore.submit` from
+its subscription and :meth:`EmulatorCore.tick` from its fixed-rate loop (``trigger:
+timer``), or :meth:`EmulatorCore.evaluate` once per input sample (``trigger: input``, used
+by the lockstep simulation); the offline replay (:mod:`damper_emulator.replay`) drives the
+same methods from a recorded bag, so node and replay compute the same forces.
+
+Threading: :meth:`submit` (one writer) and :meth:`tick` (another thread) share only the
+latest accepted sample, published as one tuple (an atomic store in CPython).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+from damper_emulator.model.compressible import DamperModel, DamperStepper
+from damper_emulator.realtime.settings import EmulatorParams
+
+
+class Status(enum.IntFlag):
+    """Emulator status bits (also sent in the CAN ``DAMPER_FORCE`` status)."""
+
+    OK = 0
+    NO_INPUT = 1        # no valid input sample yet
+    TIMEOUT = 2         # latest valid input older than input_timeout_s: fault output
+    REJECTED = 4        # the latest input sample was rejected (non-finite, out of range)
+    MODEL = 8           # the model flagged this step (clamped stroke/velocity, solver, ...)
+
+    @property
+    def fault(self) -> bool:
+        """True when the output is a fault output rather than the model's force."""
+        return bool(self & (Status.NO_INPUT | Status.TIMEOUT))
+
+
+@dataclass(frozen=True)
+class Output:
+    """One evaluation: the force and the input sample it used."""
+
+    force_n: float          # rebound +
+    stroke_m: float         # stroke used (after hold / extrapolation)
+    velocity_m_s: float
+    stamp_ns: int           # stamp of the input sample used (0: none)
+    input_age_s: float      # age of that sample at evaluation (nan: none)
+    status: Status
+    model_fault: int        # Fault bits of the model step (0 when not stepped)
+
+
+@dataclass
+class Counters:
+    """Input and fault counters since start."""
+
+    accepted: int = 0
+    rejected_non_finite: int = 0
+    rejected_range: int = 0
+    rejected_stamp: int = 0
+    timeouts: int = 0           # transitions into TIMEOUT
+    fault_ticks: int = 0        # outputs that were fault outputs
+    model_faults: int = 0       # steps with model Fault bits
+    last_rejection: str = ""
+
+    @property
+    def rejected(self) -> int:
+        return self.rejected_non_finite + self.rejected_range + self.rejected_stamp
+
+
+class EmulatorCore:
+    """Compressible damper model behind input checks and a timeout.
+
+    Parameters
+    ----------
+    model : DamperModel
+    params : EmulatorParams
+    """
+
+    def __init__(self, model: DamperModel, params: EmulatorParams):
+        self.model = model
+        self.params = params
+        self.stepper = DamperStepper(model)
+        #: force at rest at the static position (eq 30's gas force), the passive baseline
+        self.static_force_n = self.stepper.force_n
+        lo, hi = model.stroke_limits_m
+        self._stroke_range = (lo, hi)
+        self.counters = Counters()
+        self.valve_command = params.valve_command
+        self._latest: tuple[int, int, float, float] | None = None  # recv, stamp, x, v
+        self._last_step_ns: int | None = None   # time base of the last model step
+        self._last_force = self.static_force_n
+        self._last_velocity = 0.0
+        self._in_timeout = False
+        self._rejected_flag = False
+
+    # ---- input ------------------------------------------------------------------------
+
+    def check_input(self, stroke_m: float, velocity_m_s: float) -> str | None:
+        """Why this sample is rejected, or None.  Counts the rejection."""
+        c = self.counters
+        if not (math.isfinite(stroke_m) and math.isfinite(velocity_m_s)):
+            c.rejected_non_finite += 1
+            c.last_rejection = f"non-finite input (stroke {stroke_m}, velocity {velocity_m_s})"
+            return c.last_rejection
+        lo, hi = self._stroke_range
+        tol = self.params.stroke_tolerance_m
+        if not lo - tol <= stroke_m <= hi + tol:
+            c.rejected_range += 1
+            c.last_rejection = (f"stroke {stroke_m:.4g} m outside the travel "
+                                f"[{lo:.4g}, {hi:.4g}] m")
+            return c.last_rejection
+        if abs(velocity_m_s) > self.params.max_velocity_m_s:
+            c.rejected_range += 1
+            c.last_rejection = (f"|velocity| {abs(velocity_m_s):.4g} m/s above "
+                                f"{self.params.max_velocity_m_s:g} m/s")
+            return c.last_rejection
+        return None
+
+    def submit(self, stamp_ns: int, stroke_m: float, velocity_m_s: float,
+               now_ns: int) -> str | None:
+        """Offer an input sample received at ``now_ns`` (``trigger: timer``).
+
+        Returns the rejection reason, or None when the sample was accepted (it becomes the
+        sample the next :meth:`tick` uses).
+        """
+        reason = self.check_input(stroke_m, velocity_m_s)
+        self._rejected_flag = reason is not None
+        if reason is None:
+            self.counters.accepted += 1
+            self._latest = (int(now_ns), int(stamp_ns), float(stroke_m), float(velocity_m_s))
+        return reason
+
+    def set_valve_command(self, value: float) -> str | None:
+        """Accept a valve command in [0, 1]; returns the rejection reason or None."""
+        if not (math.isfinite(value) and 0.0 <= value <= 1.0):
+            return f"valve command {value} outside [0, 1]"
+        self.valve_command = float(value)
+        return None
+
+    # ---- output -----------------------------------------------------------------------
+
+    def fault_force(self) -> float:
+        """The output while the input is missing or stale (``fault_mode``)."""
+        mode = self.params.fault_mode
+        if mode == "zero":
+            return 0.0
+        if mode == "passive":
+            return self.static_force_n + self.params.passive_rate_ns_m * self._last_velocity
+        return self._last_force
+
+    def tick(self, now_ns: int) -> Output:
+        """Evaluate at ``now_ns`` from the latest accepted sample (``trigger: timer``)."""
+        sample = self._latest
+        flag = Status.REJECTED if self._rejected_flag else Status.OK
+        if sample is None:
+            self.counters.fault_ticks += 1
+            return Output(self.fault_force(), math.nan, math.nan, 0, math.nan,
+                          Status.NO_INPUT | flag, 0)
+        recv_ns, stamp_ns, x, v = sample
+        age_s = (now_ns - recv_ns) * 1e-9
+        if age_s > self.params.input_timeout_s:
+            if not self._in_timeout:
+                self.counters.timeouts += 1
+                self._in_timeout = True
+            self.counters.fault_ticks += 1
+            return Output(self.fault_force(), x, v, stamp_ns, age_s,
+                          Status.TIMEOUT | flag, 0)
+        self._in_timeout = False
+        if self.params.input_mode == "extrapolate":
+            x = x + v * min(max(age_s, 0.0), self.params.max_extrapolation_s)
+        return self._step(now_ns, x, v, stamp_ns, age_s, flag)
+
+    def evaluate(self, stamp_ns: int, stroke_m: float, velocity_m_s: float) -> Output | None:
+        """One force for one input sample (``trigger: input``): the model is advanced by the
+        difference of the samples' stamps.  Returns None for a rejected sample (counted;
+        the reason is in ``counters.last_rejection``)."""
+        if self.check_input(stroke_m, velocity_m_s) is not None:
+            return None
+        if self._last_step_ns is not None and stamp_ns <= self._last_step_ns:
+            c = self.counters
+            c.rejected_stamp += 1
+            c.last_rejection = (f"input stamp {stamp_ns} ns not after the previous one "
+                                f"{self._last_step_ns} ns")
+            return None
+        self.counters.accepted += 1
+        return self._step(int(stamp_ns), float(stroke_m), float(velocity_m_s), int(stamp_ns),
+                          0.0, Status.OK)
+
+    def _step(self, time_ns: int, x: float, v: float, stamp_ns: int, age_s: float,
+              flag: Status) -> Output:
+        if self._last_step_ns is None:
+            self.stepper.reset(x, v)
+            force, fault = self.stepper.force_n, 0
+        else:
+            force, fault = self.stepper.step(x, v, (time_ns - self._last_step_ns) * 1e-9)
+        self._last_step_ns = time_ns
+        status = flag
+        if fault:
+            status |= Status.MODEL
+            self.counters.model_faults += 1
+        self._last_force = force
+        self._last_velocity = v
+        return Output(force, x, v, stamp_ns, age_s, status, int(fault))

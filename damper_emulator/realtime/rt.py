@@ -1,0 +1,89 @@
+"""Operating-system real-time settings for a loop thread: ``SCHED_FIFO``, ``mlockall``, CPU
+affinity and timer slack, each applied when permitted and reported when not.
+
+Linux applies scheduling policy, affinity and timer slack per thread: call
+:func:`apply_realtime` from the loop thread itself.  ``mlockall`` is per process.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+from dataclasses import dataclass, field
+
+#: ``mlockall`` flags (``<sys/mman.h>``): lock current and future pages.
+_MCL_CURRENT, _MCL_FUTURE = 1, 2
+#: ``prctl`` option to set the calling thread's timer slack [ns] (``<linux/prctl.h>``).
+_PR_SET_TIMERSLACK = 29
+
+
+@dataclass(frozen=True)
+class RealtimeRequest:
+    """What the loop thread asks for."""
+
+    sched_fifo: bool = True          # SCHED_FIFO at ``priority``
+    priority: int = 80               # 1 (lowest) .. 99
+    lock_memory: bool = True         # mlockall(MCL_CURRENT | MCL_FUTURE)
+    cpu: int = -1                    # pin to this CPU; -1: leave the affinity alone
+    timer_slack_ns: int = 1          # the thread's timer slack (Linux default 50 µs)
+
+
+@dataclass
+class RealtimeReport:
+    """What was applied, and why the rest was not (one line each)."""
+
+    applied: list[str] = field(default_factory=list)
+    refused: list[str] = field(default_factory=list)
+
+    @property
+    def sched_fifo(self) -> bool:
+        return any(a.startswith("SCHED_FIFO") for a in self.applied)
+
+    def summary(self) -> str:
+        parts = []
+        if self.applied:
+            parts.append("applied: " + ", ".join(self.applied))
+        if self.refused:
+            parts.append("not applied: " + "; ".join(self.refused))
+        return "; ".join(parts) or "no real-time settings requested"
+
+
+def _libc():
+    name = ctypes.util.find_library("c")
+    return ctypes.CDLL(name, use_errno=True) if name else None
+
+
+def apply_realtime(request: RealtimeRequest) -> RealtimeReport:
+    """Apply ``request`` to the calling thread (and ``mlockall`` to the process).
+
+    Never raises for a refusal (no privilege, no such CPU, not Linux): each is recorded in
+    :attr:`RealtimeReport.refused` so that the caller can warn once and carry on.
+    """
+    report = RealtimeReport()
+    libc = _libc()
+    if request.lock_memory:
+        if libc is None:
+            report.refused.append("mlockall: no C library found")
+        elif libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) != 0:
+            err = ctypes.get_errno()
+            report.refused.append(f"mlockall: {os.strerror(err)}")
+        else:
+            report.applied.append("mlockall")
+    if request.cpu >= 0:
+        try:
+            os.sched_setaffinity(0, {request.cpu})
+            report.applied.append(f"CPU {request.cpu}")
+        except (OSError, AttributeError, ValueError) as exc:
+            report.refused.append(f"affinity to CPU {request.cpu}: "
+                                  f"{getattr(exc, 'strerror', None) or exc}")
+    if request.sched_fifo:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(request.priority))
+            report.applied.append(f"SCHED_FIFO priority {request.priority}")
+        except (OSError, AttributeError) as exc:
+            report.refused.append(f"SCHED_FIFO: {getattr(exc, 'strerror', None) or exc}")
+    if request.timer_slack_ns > 0 and libc is not None:
+        if libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(request.timer_slack_ns), 0, 0, 0) == 0:
+            report.applied.append(f"timer slack {request.timer_slack_ns} ns")
+    return report

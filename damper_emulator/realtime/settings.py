@@ -1,0 +1,103 @@
+"""Typed parameters of the ``damper_emulator`` node (group ``emulator``).
+
+Defaults live in ``config/emulator.yaml``; a node started with ``--ros-args --params-file
+FILE`` takes them from there.  Every value is checked with the project's one rule checker
+(:func:`damper_emulator.params.check_value`); a bad value gives a one-line
+:class:`~damper_emulator.params.ParameterError`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Mapping
+
+from damper_emulator.params import ParameterError, build_group, check_value, read_yaml, rule
+from damper_emulator.realtime.rt import RealtimeRequest
+
+#: Default emulator node parameters.
+DEFAULT_EMULATOR_FILE = Path(__file__).resolve().parents[2] / "config" / "emulator.yaml"
+
+TRIGGERS = ("timer", "input")
+INPUT_MODES = ("hold", "extrapolate")
+FAULT_MODES = ("hold", "zero", "passive")
+
+
+@dataclass(frozen=True)
+class EmulatorParams:
+    """How the emulator node turns ``/damper/state`` into ``/damper/force``."""
+
+    name: str = rule("text", "the damper's name, name[0] of the messages (REP-144)", "damper")
+    rate_hz: float = rule(("range", 0.0, 20000.0), "output rate of the fixed-rate loop [Hz]",
+                          1000.0)
+    trigger: str = rule(("choices", TRIGGERS),
+                        "timer: fixed-rate loop at rate_hz (hardware in the loop); input: one "
+                        "force per input sample, the model advanced by the difference of the "
+                        "samples' stamps (lockstep simulation, replay)", "timer")
+    input_mode: str = rule(("choices", INPUT_MODES),
+                           "between input samples: hold the stroke, or extrapolate it with "
+                           "the sample's velocity (at most max_extrapolation_s)", "hold")
+    max_extrapolation_s: float = rule("non-negative",
+                                      "longest extrapolation of the stroke [s]", 5e-3)
+    input_timeout_s: float = rule(("range", 0.0, 10.0),
+                                  "input older than this is a fault (fault_mode applies) [s]",
+                                  0.02)
+    fault_mode: str = rule(("choices", FAULT_MODES),
+                           "output while the input is stale: hold the last force, zero, or "
+                           "passive (static gas force + passive_rate_ns_m × last velocity)",
+                           "hold")
+    passive_rate_ns_m: float = rule("non-negative",
+                                    "linear rate of the passive fault output, damper side "
+                                    "[N s/m]", 5899.5)
+    max_velocity_m_s: float = rule("positive",
+                                   "input with a larger |velocity| is rejected [m/s]", 10.0)
+    stroke_tolerance_m: float = rule("non-negative",
+                                     "input stroke this far beyond the damper's travel is "
+                                     "rejected [m] (within it, the model clamps and flags)",
+                                     5e-3)
+    valve_command: float = rule(("closed", 0.0, 1.0),
+                                "initial valve command, 0 softest .. 1 firmest ('sport')",
+                                1.0)
+    sched_fifo: bool = rule("bool", "run the loop thread under SCHED_FIFO when permitted",
+                            True)
+    priority: int = rule(("int_range", 1, 99), "SCHED_FIFO priority of the loop thread", 80)
+    lock_memory: bool = rule("bool", "mlockall the process when permitted", True)
+    cpu_affinity: int = rule(("int_range", -1, 1023),
+                             "pin the loop thread to this CPU (-1: no pinning)", -1)
+    diagnostics_period_s: float = rule(("range", 0.0, 60.0),
+                                       "period of /diagnostics [s]", 1.0)
+    stats_window_s: float = rule(("range", 0.0, 3600.0),
+                                 "loop periods kept for the statistics [s]", 120.0)
+    stats_file: str = rule("text", "write the loop periods and counters here (.npz) at "
+                                   "shutdown ('' = do not)", "")
+
+    def realtime_request(self) -> RealtimeRequest:
+        return RealtimeRequest(sched_fifo=self.sched_fifo, priority=self.priority,
+                               lock_memory=self.lock_memory, cpu=self.cpu_affinity)
+
+
+#: Parameters that may change while the node runs; the others need a restart.
+RUNTIME_PARAMETERS = ("input_mode", "max_extrapolation_s", "input_timeout_s", "fault_mode",
+                      "passive_rate_ns_m", "max_velocity_m_s", "stroke_tolerance_m",
+                      "diagnostics_period_s")
+
+
+def emulator_params_from_mapping(data: Mapping[str, Any] | None,
+                                 where: str = "<memory>") -> EmulatorParams:
+    """Build and check :class:`EmulatorParams` from the ``emulator`` group's mapping."""
+    return build_group(EmulatorParams, {} if data is None else data, "emulator", where,
+                       check_value)
+
+
+def default_emulator_mapping() -> dict[str, Any]:
+    """The ``emulator`` group of ``config/emulator.yaml`` (the defaults)."""
+    doc = read_yaml(DEFAULT_EMULATOR_FILE)
+    try:
+        return dict(doc["/**"]["ros__parameters"]["emulator"])
+    except (KeyError, TypeError):
+        raise ParameterError(f"{DEFAULT_EMULATOR_FILE}: no '/**: ros__parameters: emulator' "
+                             f"group") from None
+
+
+def field_names() -> tuple[str, ...]:
+    return tuple(f.name for f in fields(EmulatorParams))

@@ -1,0 +1,146 @@
+"""Shared rclpy plumbing: parameters from params files, message helpers, and running a node
+until SIGINT / SIGTERM with one-line errors."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any, Callable, Iterable, Mapping
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from damper_emulator.params import ParameterError
+
+PROG = "damper-hil"
+
+
+def control_qos(depth: int) -> QoSProfile:
+    """Reliable, volatile, keep-last ``depth``: the project's topics."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+# --------------------------------------------------------------------------------------
+# parameters
+
+
+def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` → ``{"a.b": 1}`` (ROS 2 parameter names)."""
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """Inverse of :func:`flatten`."""
+    out: dict[str, Any] = {}
+    for name, value in flat.items():
+        parts = name.split(".")
+        d = out
+        for p in parts[:-1]:
+            d = d.setdefault(p, {})
+        d[parts[-1]] = value
+    return out
+
+
+def declare_parameters(node: Node, defaults: Mapping[str, Any],
+                       groups: Iterable[str]) -> dict[str, Any]:
+    """Declare every parameter of ``defaults`` (nested mapping) on ``node``, taking the value
+    of a ``--params-file`` override where one is given, and return the nested mapping of
+    the values in effect.
+
+    Overrides in ``groups`` that match no known parameter are refused
+    (:class:`ParameterError`, one line naming the parameter); other groups belong to other
+    nodes sharing the file and are ignored.
+    """
+    flat = flatten(defaults)
+    overrides = getattr(node, "_parameter_overrides", {})
+    prefixes = tuple(f"{g}." for g in groups)
+    unknown = sorted(n for n in overrides if n.startswith(prefixes) and n not in flat)
+    if unknown:
+        raise ParameterError(f"node {node.get_name()}: unknown parameter {unknown[0]}")
+    values: dict[str, Any] = {}
+    for name, default in flat.items():
+        descriptor = ParameterDescriptor(dynamic_typing=True)
+        param = node.declare_parameter(name, _ros_value(default), descriptor)
+        values[name] = _plain(param.value)
+    return unflatten(values)
+
+
+def _ros_value(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return list(value)
+    return value
+
+
+def _plain(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return value
+
+
+# --------------------------------------------------------------------------------------
+# messages
+
+
+def stamp_ns(stamp) -> int:
+    """``builtin_interfaces/Time`` → integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def set_stamp(stamp, ns: int) -> None:
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    stamp.sec = sec
+    stamp.nanosec = nsec
+
+
+# --------------------------------------------------------------------------------------
+# running a node
+
+
+def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
+    """Initialise rclpy with ``ros_args``, build the node, spin until SIGINT / SIGTERM or
+    until the node calls ``rclpy.try_shutdown`` (a node with a ``run(executor)`` method
+    drives the executor itself), then call its ``close()`` (if any) and tear down.  Returns the node's ``exit_status`` (default 0).
+
+    A :class:`ParameterError` or ``ValueError`` while building is one line on stderr and
+    exit status 2.
+    """
+    rclpy.init(args=["--ros-args", *ros_args] if ros_args else None)
+    node = None
+    status = 0
+    try:
+        try:
+            node = build()
+        except (ParameterError, ValueError) as exc:
+            print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+            return 2
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        run = getattr(node, "run", None)
+        try:
+            if run is not None:
+                run(executor)       # the node drives the executor itself
+            else:
+                executor.spin()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        status = int(getattr(node, "exit_status", 0))
+    finally:
+        if node is not None:
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return status

@@ -1,0 +1,247 @@
+"""The ``damper_emulator`` node (``damper-hil emulate``): ``/damper/state`` in,
+``/damper/force`` out, from :class:`~damper_emulator.realtime.core.EmulatorCore`.
+
+``trigger: timer`` (default)
+    A dedicated loop thread (:class:`~damper_emulator.realtime.loop.PeriodicLoop`, absolute
+    deadlines, ``SCHED_FIFO`` / ``mlockall`` / CPU affinity when permitted) evaluates the
+    model at ``rate_hz`` from the latest accepted input sample (held or extrapolated) and
+    publishes every force.  The subscription runs on the executor thread.
+``trigger: input``
+    One force per input sample, published from the subscription callback with the input's
+    stamp; the model advances by the difference of the input stamps.  This is the lockstep
+    clock of the ride simulation.
+
+``/damper/force`` carries, besides the contract's ``name[0]`` / ``position[0]`` /
+``velocity[0]`` / ``effort[0]``, a second entry ``name[1] = "<name>/status"`` whose
+``effort[1]`` is the :class:`~damper_emulator.realtime.core.Status` bits of that output and
+``position[1]`` the input age [s] (so a recording tells fault outputs from model outputs).
+``/diagnostics`` reports loop timing, input age, rejected inputs and faults every
+``diagnostics_period_s``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+
+from damper_emulator.model.compressible import DamperModel
+from damper_emulator.params import (DEFAULT_PARAMS_FILE, ParameterError, config_from_mapping,
+                                    node_parameters, read_yaml)
+from damper_emulator.realtime.core import EmulatorCore, Output, Status
+from damper_emulator.realtime.loop import PeriodicLoop
+from damper_emulator.realtime.settings import (RUNTIME_PARAMETERS, default_emulator_mapping,
+                                               emulator_params_from_mapping)
+from damper_emulator.ros import topics
+from damper_emulator.ros.common import control_qos, declare_parameters, set_stamp, stamp_ns
+
+NODE_NAME = "damper_emulator"
+
+
+def _damper_defaults() -> dict:
+    body = node_parameters(read_yaml(DEFAULT_PARAMS_FILE), str(DEFAULT_PARAMS_FILE))
+    return {"damper": body["damper"], "numerics": body["numerics"]}
+
+
+def load_node_model(node: Node, extra: dict | None = None) -> tuple[dict, DamperModel]:
+    """Declare the damper (``damper``, ``numerics``) and ``extra`` parameter groups on
+    ``node``; returns ``(values, model)``."""
+    defaults = {**_damper_defaults(), **(extra or {})}
+    values = declare_parameters(node, defaults, defaults.keys())
+    cfg = config_from_mapping({"damper": values["damper"], "numerics": values["numerics"]},
+                              f"node {node.get_name()} parameters")
+    return values, DamperModel(cfg)
+
+
+def input_sample(msg: JointState, name: str) -> tuple[float, float] | str:
+    """``(stroke, velocity)`` of the damper ``name`` in a JointState (the entry of that
+    name, else entry 0), or why there is none."""
+    i = list(msg.name).index(name) if name in msg.name else 0
+    if len(msg.position) <= i or len(msg.velocity) <= i:
+        return "JointState without position[0] and velocity[0]"
+    return float(msg.position[i]), float(msg.velocity[i])
+
+
+class EmulatorNode(Node):
+    """See the module docstring.  Parameters: groups ``emulator`` (config/emulator.yaml),
+    ``damper`` and ``numerics`` (config/sport.yaml)."""
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        values, model = load_node_model(self, {"emulator": default_emulator_mapping()})
+        self.params = emulator_params_from_mapping(values["emulator"],
+                                                   f"node {NODE_NAME} parameters")
+        self.core = EmulatorCore(model, self.params)
+        self.exit_status = 0
+        p = self.params
+        self._status_name = f"{p.name}/status"
+        self._force_pub = self.create_publisher(JointState, topics.FORCE,
+                                                control_qos(topics.CONTROL_DEPTH))
+        self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.create_subscription(JointState, topics.STATE, self._on_state,
+                                 control_qos(topics.CONTROL_DEPTH))
+        self.create_subscription(Float64, topics.VALVE_COMMAND, self._on_valve,
+                                 control_qos(topics.CONTROL_DEPTH))
+        self._diag_timer = self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._last: Output | None = None
+        self._warned_rejection = False
+        self._loop: PeriodicLoop | None = None
+        self.get_logger().info(
+            f"damper '{model.cfg.damper.name}', trigger {p.trigger}"
+            + (f" at {p.rate_hz:g} Hz" if p.trigger == "timer" else "")
+            + f", input timeout {p.input_timeout_s * 1e3:g} ms, fault mode {p.fault_mode}")
+
+    # ---- lifecycle --------------------------------------------------------------------
+
+    def run(self, executor) -> None:
+        p = self.params
+        if p.trigger == "timer":
+            capacity = max(4096, int(p.rate_hz * p.stats_window_s))
+            self._loop = PeriodicLoop(1.0 / p.rate_hz, self._tick,
+                                      realtime=p.realtime_request(), capacity=capacity,
+                                      name="emulator-loop")
+            self._loop.start()
+            report = self._loop.report
+            if report.refused:
+                self.get_logger().warning(f"real-time settings: {report.summary()}")
+            else:
+                self.get_logger().info(f"real-time settings: {report.summary()}")
+        executor.spin()
+
+    def close(self) -> None:
+        if self._loop is not None:
+            self._loop.stop()
+            if self.params.stats_file:
+                s = self._loop.stats
+                np.savez(self.params.stats_file, periods_ns=s.periods_ns(),
+                         period_ns=s.period_ns, ticks=s.ticks, overruns=s.overruns,
+                         skipped=s.skipped, realtime=self._loop.report.summary())
+
+    # ---- callbacks --------------------------------------------------------------------
+
+    def _on_state(self, msg: JointState) -> None:
+        sample = input_sample(msg, self.params.name)
+        if isinstance(sample, str):
+            c = self.core.counters
+            c.rejected_range += 1
+            c.last_rejection = sample
+            return
+        x, v = sample
+        stamp = stamp_ns(msg.header.stamp)
+        if self.params.trigger == "input":
+            out = self.core.evaluate(stamp, x, v)
+            if out is not None:
+                self._publish(out, stamp)
+        else:
+            self.core.submit(stamp, x, v, time.monotonic_ns())
+
+    def _on_valve(self, msg: Float64) -> None:
+        reason = self.core.set_valve_command(float(msg.data))
+        if reason:
+            self.get_logger().warning(f"valve command refused: {reason}")
+
+    def _tick(self, now_ns: int) -> None:
+        out = self.core.tick(now_ns)
+        self._publish(out, time.time_ns())
+
+    def _publish(self, out: Output, stamp: int) -> None:
+        self._last = out
+        msg = JointState()
+        set_stamp(msg.header.stamp, stamp)
+        msg.name = [self.params.name, self._status_name]
+        x = out.stroke_m if math.isfinite(out.stroke_m) else 0.0
+        v = out.velocity_m_s if math.isfinite(out.velocity_m_s) else 0.0
+        age = out.input_age_s if math.isfinite(out.input_age_s) else -1.0
+        msg.position = [x, age]
+        msg.velocity = [v, 0.0]
+        msg.effort = [out.force_n, float(int(out.status))]
+        self._force_pub.publish(msg)
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        changes = {}
+        for p in params:
+            key = p.name.removeprefix("emulator.")
+            if key == p.name or key not in RUNTIME_PARAMETERS:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"{p.name} is read-only while the node runs (restart it with a "
+                           f"new params file); changeable: "
+                           + ", ".join(f"emulator.{k}" for k in RUNTIME_PARAMETERS))
+            changes[key] = p.value
+        try:
+            new = emulator_params_from_mapping(
+                {**dataclasses.asdict(self.core.params), **changes}, "parameter change")
+        except ParameterError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.core.params = new
+        self.params = new
+        return SetParametersResult(successful=True)
+
+    # ---- diagnostics ------------------------------------------------------------------
+
+    def _publish_diagnostics(self) -> None:
+        loop = self._loop
+        if loop is not None and loop.error is not None and self.exit_status == 0:
+            self.get_logger().error(f"emulator loop stopped: {loop.error!r}")
+            self.exit_status = 1
+            rclpy.try_shutdown()
+            return
+        c = self.core.counters
+        last = self._last
+        status_bits = last.status if last is not None else Status.NO_INPUT
+        values = {
+            "trigger": self.params.trigger,
+            "rate_hz_nominal": f"{self.params.rate_hz:g}",
+            "status_bits": str(int(status_bits)),
+            "force_n": f"{last.force_n:.3f}" if last else "nan",
+            "input_age_ms": (f"{last.input_age_s * 1e3:.3f}"
+                             if last and math.isfinite(last.input_age_s) else "nan"),
+            "inputs_accepted": str(c.accepted),
+            "inputs_rejected": str(c.rejected),
+            "rejected_non_finite": str(c.rejected_non_finite),
+            "rejected_out_of_range": str(c.rejected_range),
+            "rejected_stamp": str(c.rejected_stamp),
+            "last_rejection": c.last_rejection,
+            "timeouts": str(c.timeouts),
+            "fault_outputs": str(c.fault_ticks),
+            "model_faults": str(c.model_faults),
+            "fault_mode": self.params.fault_mode,
+            "valve_command": f"{self.core.valve_command:g}",
+        }
+        level, message = DiagnosticStatus.OK, "ok"
+        if loop is not None:
+            s = loop.stats.summary()
+            values.update({
+                "ticks": str(s.ticks),
+                "achieved_rate_hz": f"{s.achieved_rate_hz:.2f}",
+                "period_p50_us": f"{s.period_p50_us:.1f}",
+                "period_p99_us": f"{s.period_p99_us:.1f}",
+                "period_max_us": f"{s.period_max_us:.1f}",
+                "period_error_p99_us": f"{s.error_p99_us:.1f}",
+                "overruns": str(s.overruns),
+                "skipped_deadlines": str(s.skipped),
+                "realtime": loop.report.summary(),
+            })
+            if s.overruns:
+                level, message = DiagnosticStatus.WARN, f"{s.overruns} loop overruns"
+        if c.rejected:
+            level, message = DiagnosticStatus.WARN, f"{c.rejected} inputs rejected"
+        if status_bits & Status.TIMEOUT:
+            level, message = DiagnosticStatus.ERROR, "input timeout: fault output"
+        elif status_bits & Status.NO_INPUT:
+            level, message = DiagnosticStatus.WARN, "no input yet"
+        status = DiagnosticStatus(level=level, name=f"{NODE_NAME}: {self.params.name}",
+                                  message=message, hardware_id=self.params.name,
+                                  values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)

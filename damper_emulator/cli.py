@@ -170,6 +170,16 @@ def build_parser() -> argparse.ArgumentParser:
                     "'damper' and 'numerics' (defaults: config/sport.yaml), set with\n"
                     "  --ros-args --params-file FILE [-p emulator.rate_hz:=2000.0] ...")
     emulate.set_defaults(handler=cmd_emulate, takes_ros_args=True)
+    ride_node = sub.add_parser(
+        "ride", formatter_class=_Formatter,
+        help="run the ride_sim ROS 2 node (quarter car closed over /damper/state, "
+             "/damper/force)",
+        description="Run the ride_sim ROS 2 node: one closed-loop ride against a running\n"
+                    "emulator, then exit.  Parameters: groups 'quarter_car', 'simulation',\n"
+                    "'road', 'ride' (defaults: config/quarter_car.yaml) and the damper's\n"
+                    "'damper'/'numerics' (config/sport.yaml), set with\n"
+                    "  --ros-args --params-file FILE [-p ride.clock:=lockstep] ...")
+    ride_node.set_defaults(handler=cmd_ride_node, takes_ros_args=True)
 
     # ---- validate --------------------------------------------------------------------
     validate = sub.add_parser(
@@ -454,6 +464,13 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from damper_emulator.ros.emulator import EmulatorNode
 
     return spin_node(EmulatorNode, args.ros_args)
+
+
+def cmd_ride_node(args: argparse.Namespace) -> int:
+    from damper_emulator.ros.common import spin_node
+    from damper_emulator.ros.ride import RideNode
+
+    return spin_node(RideNode, args.ros_args)
 
 
 def cmd_validate(args: argparse.Namespace) -> int:

@@ -124,6 +124,40 @@ class RoadParams:
                                               "leading edge [s]", 0.2)
 
 
+CLOCKS = ("realtime", "lockstep")
+
+
+@dataclass(frozen=True)
+class RideRunParams:
+    """One closed-loop run of the ``ride_sim`` node (``damper-hil ride``; group ``ride``).
+
+    The road is the random road of :class:`RoadParams` (eq 39, the minor road by default)
+    synthesised over ``speed_m_s × duration_s``, driven after a ``lead_in_s`` taken from
+    its end (periodic wrap) that the metrics leave out.
+    """
+
+    clock: str = _rule(("choices", CLOCKS),
+                       "realtime: paced by the wall clock, the latest force held (HIL); "
+                       "lockstep: as fast as possible, each sample waits for its force "
+                       "(deterministic)", "realtime")
+    duration_s: float = _rule("positive", "evaluated road time [s]", 20.0)
+    speed_m_s: float = _rule("positive", "vehicle speed [m/s]", 20.0)
+    seed: int = _rule(("int_range", 0, 2 ** 31 - 1), "random-road seed", 0)
+    lead_in_s: float = _rule("non-negative", "road driven before the evaluated part [s]",
+                             1.0)
+    force_timeout_s: float = _rule(("range", 0.0, 600.0),
+                                   "no force from the emulator for this long aborts the run "
+                                   "[s]", 2.0)
+    wait_for_emulator_s: float = _rule(("range", 0.0, 600.0),
+                                       "wait this long for the emulator to appear [s]", 30.0)
+    publish_ride_state: bool = _rule("bool", "publish /ride/state every sample", True)
+    sched_fifo: bool = _rule("bool", "realtime clock: SCHED_FIFO for the loop thread when "
+                                     "permitted", True)
+    priority: int = _rule(("int_range", 1, 99), "SCHED_FIFO priority of the loop thread", 70)
+    metrics_file: str = _rule("text", "write the run's metrics here (JSON) at the end "
+                                      "('' = do not)", "")
+
+
 @dataclass(frozen=True)
 class RideConfig:
     """A quarter car, its simulation settings and the ride studies' roads."""
@@ -132,6 +166,7 @@ class RideConfig:
     simulation: SimulationParams = SimulationParams()
     source: str = "<memory>"
     road: RoadParams = RoadParams()
+    ride: RideRunParams = RideRunParams()
 
 
 def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
@@ -155,7 +190,8 @@ def ride_config_from_mapping(doc: Any, source: str = "<memory>") -> RideConfig:
     car = _build(QuarterCarParams, body["quarter_car"], "quarter_car", source)
     sim = _build(SimulationParams, body.get("simulation"), "simulation", source)
     road = _build(RoadParams, body.get("road"), "road", source)
-    return RideConfig(car, sim, source, road)
+    ride = _build(RideRunParams, body.get("ride"), "ride", source)
+    return RideConfig(car, sim, source, road, ride)
 
 
 def load_ride_config(path: str | Path | None = None) -> RideConfig:

@@ -15,6 +15,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from damper_emulator.params import ParameterError
 
 PROG = "damper-hil"
+#: Python's GIL switch interval in the node processes [s].
+GIL_SWITCH_INTERVAL_S = 1e-4
 
 
 def control_qos(depth: int) -> QoSProfile:
@@ -115,6 +117,9 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     A :class:`ParameterError` or ``ValueError`` while building is one line on stderr and
     exit status 2.
     """
+    # A loop thread waiting for the GIL waits at most this long for a Python thread that
+    # holds it (default 5 ms, several loop periods).
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     rclpy.init(args=["--ros-args", *ros_args] if ros_args else None)
     node = None
     status = 0

@@ -1,0 +1,261 @@
+"""The ``ride_sim`` node (``damper-hil ride``): the quarter car of :mod:`ride_sim` closed over
+ROS.  It publishes ``/damper/state`` from the suspension motion (through the motion ratio)
+and applies ``/damper/force`` (zero-order hold), on the run's random road
+(:class:`~ride_sim.session.RideSession`).
+
+``ride.clock: realtime``
+    A loop thread at ``simulation.step_s`` (absolute deadlines) advances the car with the
+    latest force received (the emulator's static force before the first): hardware in the
+    loop, transport delays included.
+``ride.clock: lockstep``
+    Each sample publishes the state stamped with the simulation time and waits for the
+    force carrying that stamp (the emulator runs ``trigger: input``); as fast as the loop
+    goes, deterministic, and equal to :func:`ride_sim.session.offline_run`.
+
+``/ride/state`` (``sensor_msgs/JointState``, every sample): ``name = [wheel, body, road]``;
+``position`` their heights [m] (deviations from static equilibrium, up +); ``velocity``
+their rates [m/s]; ``effort = [dynamic tyre load N, body vertical force M_b·z2'' N, damper
+force N]``.  At the end the node logs the ride metrics and writes them to
+``ride.metrics_file`` (JSON) when set, then exits.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from damper_emulator.params import read_yaml
+from damper_emulator.realtime.loop import PeriodicLoop
+from damper_emulator.realtime.rt import RealtimeRequest
+from damper_emulator.ros import topics
+from damper_emulator.ros.common import control_qos, set_stamp, stamp_ns
+from damper_emulator.ros.emulator import load_node_model
+from damper_emulator.model.compressible import DamperStepper
+from ride_sim import quarter_car as qc
+from ride_sim.params import DEFAULT_QUARTER_CAR_FILE, ride_config_from_mapping
+from ride_sim.session import RideSession
+
+NODE_NAME = "ride_sim"
+GROUPS = ("quarter_car", "simulation", "road", "ride")
+
+
+def _ride_defaults() -> dict:
+    doc = read_yaml(DEFAULT_QUARTER_CAR_FILE)
+    body = doc["/**"]["ros__parameters"]
+    return {g: body[g] for g in GROUPS}
+
+
+class RideNode(Node):
+    """See the module docstring.  Parameters: ``quarter_car``, ``simulation``, ``road``,
+    ``ride`` (config/quarter_car.yaml) and the damper's ``damper`` / ``numerics`` (its
+    static force, carried by the spring)."""
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        values, model = load_node_model(self, _ride_defaults())
+        cfg = ride_config_from_mapping({g: values[g] for g in GROUPS},
+                                       f"node {NODE_NAME} parameters")
+        self.cfg = cfg
+        self.run_params = cfg.ride
+        static = DamperStepper(model).force_n
+        self.session = RideSession(cfg.quarter_car, cfg.road, cfg.ride, cfg.simulation.step_s,
+                                   static)
+        self.static_force_n = static
+        self.exit_status = 0
+        self.damper_name = "damper"
+        qos = control_qos(topics.CONTROL_DEPTH)
+        self._state_pub = self.create_publisher(JointState, topics.STATE, qos)
+        self._ride_pub = (self.create_publisher(JointState, topics.RIDE_STATE, qos)
+                          if cfg.ride.publish_ride_state else None)
+        self.create_subscription(JointState, topics.FORCE, self._on_force, qos)
+        self._forces: dict[int, tuple[float, int]] = {}     # lockstep: stamp → force
+        self._latest: tuple[int, float, int] | None = None   # realtime: recv, force, status
+        self._loop: PeriodicLoop | None = None
+        self._done = threading.Event()
+        self._started_ns = 0
+        self.faults = 0
+        self.late_forces = 0
+        self.get_logger().info(
+            f"{cfg.ride.clock} run: {cfg.ride.duration_s:g} s (+{cfg.ride.lead_in_s:g} s "
+            f"lead-in) at {cfg.ride.speed_m_s:g} m/s, {self.session.n} samples of "
+            f"{cfg.simulation.step_s * 1e3:g} ms, road seed {cfg.ride.seed}")
+
+    # ---- messages ---------------------------------------------------------------------
+
+    def _on_force(self, msg: JointState) -> None:
+        if not msg.effort:
+            return
+        force = float(msg.effort[0])
+        status = int(msg.effort[1]) if len(msg.effort) > 1 and math.isfinite(msg.effort[1]) else 0
+        if not math.isfinite(force):
+            self.faults |= 1 << 16
+            return
+        if self.run_params.clock == "lockstep":
+            self._forces[stamp_ns(msg.header.stamp)] = (force, status)
+        else:
+            self._latest = (time.monotonic_ns(), force, status)
+
+    def _publish_state(self, stamp: int, x: float, v: float) -> None:
+        msg = JointState()
+        set_stamp(msg.header.stamp, stamp)
+        msg.name = [self.damper_name]
+        msg.position = [x]
+        msg.velocity = [v]
+        self._state_pub.publish(msg)
+
+    def _publish_ride(self, stamp: int) -> None:
+        if self._ride_pub is None:
+            return
+        row = self.session.last()
+        k = self.session.k - 1
+        msg = JointState()
+        set_stamp(msg.header.stamp, stamp)
+        msg.name = ["wheel", "body", "road"]
+        h = self.session.heights
+        u1 = h[k + 1] if k + 1 < h.size else h[k]
+        msg.position = [row[qc.O_Z1], row[qc.O_Z2], float(h[k])]
+        msg.velocity = [row[qc.O_Z1D], row[qc.O_Z2D], float(u1 - h[k]) / self.session.dt_s]
+        msg.effort = [row[qc.O_DTL], row[qc.O_ACC] * self.cfg.quarter_car.sprung_mass_kg,
+                      row[qc.O_F]]
+        self._ride_pub.publish(msg)
+
+    # ---- running ----------------------------------------------------------------------
+
+    def _wait_for_emulator(self, executor) -> bool:
+        deadline = time.monotonic() + self.run_params.wait_for_emulator_s
+        while time.monotonic() < deadline and rclpy.ok():
+            if (self.count_subscribers(topics.STATE) > 0
+                    and self.count_publishers(topics.FORCE) > 0):
+                return True
+            executor.spin_once(timeout_sec=0.05)
+        self.get_logger().error(
+            f"no emulator: nothing subscribes to {topics.STATE} and publishes "
+            f"{topics.FORCE} after {self.run_params.wait_for_emulator_s:g} s")
+        self.exit_status = 1
+        return False
+
+    def run(self, executor) -> None:
+        if not self._wait_for_emulator(executor):
+            return
+        self._started_ns = time.monotonic_ns()
+        if self.run_params.clock == "lockstep":
+            self._run_lockstep(executor)
+        else:
+            self._run_realtime(executor)
+        if self.exit_status == 0:
+            self._finish()
+
+    def _run_lockstep(self, executor) -> None:
+        s = self.session
+        timeout = self.run_params.force_timeout_s
+        while not s.done and rclpy.ok():
+            stamp = s.time_ns()
+            x, v = s.motion()
+            self._publish_state(stamp, x, v)
+            deadline = time.monotonic() + timeout
+            while stamp not in self._forces:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not rclpy.ok():
+                    self.get_logger().error(
+                        f"no force for sample {s.k} (t = {stamp * 1e-9:.3f} s) within "
+                        f"{timeout:g} s: is the emulator running with "
+                        f"emulator.trigger: input?")
+                    self.exit_status = 1
+                    return
+                executor.spin_once(timeout_sec=remaining)
+            force, status = self._forces.pop(stamp)
+            self._forces.clear()
+            self.faults |= status
+            s.apply(force, status)
+            self._publish_ride(stamp)
+
+    def _run_realtime(self, executor) -> None:
+        s = self.session
+        p = self.run_params
+        timeout_ns = int(p.force_timeout_s * 1e9)
+
+        def tick(now_ns: int) -> None:
+            if s.done:
+                self._done.set()
+                raise StopIteration
+            latest = self._latest
+            if latest is None:
+                force, status = self.static_force_n, 0
+                if now_ns - self._started_ns > timeout_ns:
+                    raise TimeoutError(f"no force from the emulator within "
+                                       f"{p.force_timeout_s:g} s of the start")
+            else:
+                recv, force, status = latest
+                if now_ns - recv > timeout_ns:
+                    raise TimeoutError(f"no force from the emulator for "
+                                       f"{(now_ns - recv) * 1e-9:.3f} s")
+            stamp = time.time_ns()
+            x, v = s.motion()
+            self._publish_state(stamp, x, v)
+            self.faults |= status
+            s.apply(force, status)
+            self._publish_ride(stamp)
+
+        self._loop = PeriodicLoop(s.dt_s, tick, name="ride-loop",
+                                  realtime=RealtimeRequest(sched_fifo=p.sched_fifo,
+                                                           priority=p.priority,
+                                                           lock_memory=False),
+                                  capacity=s.n + 16)
+        self._loop.start()
+        while rclpy.ok() and self._loop.running:
+            executor.spin_once(timeout_sec=0.05)
+        self._loop.stop()
+        err = self._loop.error
+        if err is not None and not isinstance(err, StopIteration):
+            self.get_logger().error(f"ride aborted at sample {s.k}: {err}")
+            self.exit_status = 1
+
+    def _finish(self) -> None:
+        s = self.session
+        try:
+            m = s.metrics()
+        except ValueError as exc:
+            self.get_logger().error(str(exc))
+            self.exit_status = 1
+            return
+        elapsed = (time.monotonic_ns() - self._started_ns) * 1e-9
+        doc = {
+            "clock": self.run_params.clock,
+            "samples": s.k,
+            "lead_in_samples": s.n_lead,
+            "step_s": s.dt_s,
+            "speed_m_s": self.run_params.speed_m_s,
+            "duration_s": self.run_params.duration_s,
+            "seed": self.run_params.seed,
+            "elapsed_s": round(elapsed, 3),
+            "real_time_factor": round(s.k * s.dt_s / elapsed, 3) if elapsed > 0 else None,
+            "damper_fault_bits": int(self.faults),
+            "static_force_n": self.static_force_n,
+            "metrics": m,
+        }
+        if self._loop is not None:
+            st = self._loop.stats.summary()
+            doc["loop"] = {"period_p50_us": st.period_p50_us, "period_p99_us": st.period_p99_us,
+                           "period_max_us": st.period_max_us, "overruns": st.overruns,
+                           "skipped": st.skipped, "realtime": self._loop.report.summary()}
+        self.get_logger().info(
+            f"ride done: {s.k} samples in {elapsed:.1f} s; SWS r.m.s. "
+            f"{m['sws_rms'] * 1e3:.2f} mm, weighted body acceleration r.m.s. "
+            f"{m['accel_w_rms']:.3f} m/s², DTL r.m.s. {m['dtl_rms']:.0f} N")
+        if self.run_params.metrics_file:
+            path = Path(self.run_params.metrics_file)
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(json.dumps(doc, indent=2) + "\n")
+            except OSError as exc:
+                self.get_logger().error(f"cannot write {path}: {exc.strerror}")
+                self.exit_status = 1
+        self.result_doc = doc
+

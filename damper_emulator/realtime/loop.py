@@ -54,16 +54,21 @@ class LoopStats:
         if period_ns > 2 * self.period_ns:
             self.overruns += 1
 
-    def periods_ns(self) -> np.ndarray:
-        """The recorded periods in tick order (the latest ``capacity`` of them)."""
+    def periods_ns(self, last: int | None = None) -> np.ndarray:
+        """The recorded periods in tick order: the latest ``last`` of them (default: all the
+        ring holds)."""
         n = min(self.recorded, self._ring.size)
-        if self.recorded <= self._ring.size:
-            return self._ring[:n].copy()
-        i = self.recorded % self._ring.size
-        return np.concatenate([self._ring[i:], self._ring[:i]])
+        if last is not None:
+            n = min(n, int(last))
+        end = self.recorded % self._ring.size
+        idx = np.arange(end - n, end) % self._ring.size
+        return self._ring[idx]
 
-    def summary(self) -> LoopSummary:
-        p = self.periods_ns()
+    def summary(self, last: int | None = None) -> LoopSummary:
+        """Statistics of the latest ``last`` periods (default: all the ring holds); the
+        counters are since start.  Keep ``last`` small on a thread that shares the GIL with
+        the loop: the percentiles of a long record take milliseconds."""
+        p = self.periods_ns(last)
         if p.size == 0:
             nan = float("nan")
             return LoopSummary(self.ticks, nan, nan, nan, nan, nan, self.overruns,

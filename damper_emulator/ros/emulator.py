@@ -22,6 +22,7 @@
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
 import time
 
@@ -86,8 +87,19 @@ class EmulatorNode(Node):
         self._force_pub = self.create_publisher(JointState, topics.FORCE,
                                                 control_qos(topics.CONTROL_DEPTH))
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_subscription(JointState, topics.STATE, self._on_state,
-                                 control_qos(topics.CONTROL_DEPTH))
+        if p.trigger == "input":
+            self.create_subscription(JointState, topics.STATE, self._on_state,
+                                     control_qos(topics.CONTROL_DEPTH))
+            self._io_node = None
+        else:
+            # The loop thread takes the input itself at each tick (no executor thread
+            # competing for the GIL at the input rate): a subscription on a second node of
+            # the same context that no executor spins.
+            self._io_node = rclpy.create_node(f"{NODE_NAME}_input",
+                                              context=self.context)
+            self._state_sub = self._io_node.create_subscription(
+                JointState, topics.STATE, lambda _msg: None,
+                control_qos(topics.CONTROL_DEPTH))
         self.create_subscription(Float64, topics.VALVE_COMMAND, self._on_valve,
                                  control_qos(topics.CONTROL_DEPTH))
         self._diag_timer = self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
@@ -104,6 +116,9 @@ class EmulatorNode(Node):
 
     def run(self, executor) -> None:
         p = self.params
+        # everything built so far is long-lived: keep the cyclic collector off it
+        gc.collect()
+        gc.freeze()
         if p.trigger == "timer":
             capacity = max(4096, int(p.rate_hz * p.stats_window_s))
             self._loop = PeriodicLoop(1.0 / p.rate_hz, self._tick,
@@ -120,6 +135,10 @@ class EmulatorNode(Node):
     def close(self) -> None:
         if self._loop is not None:
             self._loop.stop()
+        if self._io_node is not None:
+            self._io_node.destroy_node()
+            self._io_node = None
+        if self._loop is not None:
             if self.params.stats_file:
                 s = self._loop.stats
                 np.savez(self.params.stats_file, periods_ns=s.periods_ns(),
@@ -128,7 +147,7 @@ class EmulatorNode(Node):
 
     # ---- callbacks --------------------------------------------------------------------
 
-    def _on_state(self, msg: JointState) -> None:
+    def _on_state(self, msg: JointState, received_ns: int | None = None) -> None:
         sample = input_sample(msg, self.params.name)
         if isinstance(sample, str):
             c = self.core.counters
@@ -142,14 +161,30 @@ class EmulatorNode(Node):
             if out is not None:
                 self._publish(out, stamp)
         else:
-            self.core.submit(stamp, x, v, time.monotonic_ns())
+            self.core.submit(stamp, x, v,
+                             time.monotonic_ns() if received_ns is None else received_ns)
 
     def _on_valve(self, msg: Float64) -> None:
         reason = self.core.set_valve_command(float(msg.data))
         if reason:
             self.get_logger().warning(f"valve command refused: {reason}")
 
+    def _take_inputs(self, now_ns: int) -> None:
+        """Every sample that arrived since the last tick, oldest first; each is received
+        at its DDS reception time (mapped onto the monotonic clock)."""
+        sub = self._state_sub
+        while True:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is None:
+                return
+            msg, info = taken
+            received = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
+            delay = time.time_ns() - received if received else 0
+            self._on_state(msg, now_ns - max(0, delay))
+
     def _tick(self, now_ns: int) -> None:
+        self._take_inputs(now_ns)
         out = self.core.tick(now_ns)
         self._publish(out, time.time_ns())
 
@@ -219,10 +254,12 @@ class EmulatorNode(Node):
         }
         level, message = DiagnosticStatus.OK, "ok"
         if loop is not None:
-            s = loop.stats.summary()
+            s = loop.stats.summary(
+                last=int(self.params.rate_hz * self.params.diagnostics_period_s) + 1)
             values.update({
                 "ticks": str(s.ticks),
                 "achieved_rate_hz": f"{s.achieved_rate_hz:.2f}",
+                "window_ticks": str(int(self.params.rate_hz * self.params.diagnostics_period_s)),
                 "period_p50_us": f"{s.period_p50_us:.1f}",
                 "period_p99_us": f"{s.period_p99_us:.1f}",
                 "period_max_us": f"{s.period_max_us:.1f}",

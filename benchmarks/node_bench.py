@@ -1,0 +1,201 @@
+#!/usr/bin/env python3
+"""Benchmark of the damper_emulator node over real DDS; prints a markdown table.
+
+For each case the emulator runs in its own process (``damper-hil emulate``, ``trigger:
+timer``); this process publishes ``/damper/state`` at 1 kHz from its own fixed-rate loop
+thread, each sample tagged by a unique velocity, and receives ``/damper/force``.
+
+* achieved rate and loop period p50 / p99 / max, p99 of |period − nominal|, overruns
+  (periods > 2 nominal) — from the emulator's own record of every period
+  (``emulator.stats_file``);
+* state → force latency p50 / p99: from publishing a sample to receiving the first force
+  computed from it, measured in this (separate) process.
+
+Cases: 1 kHz with SCHED_FIFO, 1 kHz without (``sched_fifo: false``, ``lock_memory:
+false``), 2 kHz with SCHED_FIFO.  Targets (issue 5) at 1 kHz with SCHED_FIFO: p99 period
+error <= 100 us, overruns <= 0.1 % over 60 s, latency p99 <= 2 ms.
+
+Usage: ``python benchmarks/node_bench.py [--duration S] [--json FILE]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from machine import cpu_name
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment  # noqa: E402
+
+CASES = (
+    ("1 kHz, SCHED_FIFO", 1000.0, True),
+    ("1 kHz, no SCHED_FIFO", 1000.0, False),
+    ("2 kHz, SCHED_FIFO", 2000.0, True),
+)
+INPUT_RATE_HZ = 1000.0
+VELOCITY_TAG = 1e-6          # sample k carries velocity k * VELOCITY_TAG [m/s]
+
+
+def receive(domain: int, n_max: int, duration_s: float, out: str, ready) -> None:
+    """Child process: record when each tagged force arrives (CLOCK_MONOTONIC is shared by
+    all processes of the machine)."""
+    os.environ.update({"ROS_DOMAIN_ID": str(domain),
+                       "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    from damper_emulator.ros import topics
+    from damper_emulator.ros.common import control_qos
+
+    sys.setswitchinterval(1e-4)
+    rclpy.init()
+    node = rclpy.create_node("node_bench_receiver")
+    received = np.zeros(n_max, dtype=np.int64)
+
+    def on_force(msg: JointState) -> None:
+        now = time.monotonic_ns()
+        k = int(round(msg.velocity[0] / VELOCITY_TAG))
+        if 0 < k < n_max and received[k] == 0:
+            received[k] = now
+
+    node.create_subscription(JointState, topics.FORCE, on_force,
+                             control_qos(topics.CONTROL_DEPTH))
+    while node.count_publishers(topics.FORCE) == 0:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    ready.set()
+    end = time.monotonic() + duration_s + 5.0
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    np.save(out, received)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def measure(rate_hz: float, fifo: bool, duration_s: float, workdir: Path, domain: int
+            ) -> dict:
+    import multiprocessing
+
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    from damper_emulator.realtime.loop import PeriodicLoop
+    from damper_emulator.realtime.rt import RealtimeRequest
+    from damper_emulator.ros import topics
+    from damper_emulator.ros.common import control_qos
+
+    stats_file = workdir / f"stats_{int(rate_hz)}_{int(fifo)}.npz"
+    recv_file = workdir / f"recv_{int(rate_hz)}_{int(fifo)}.npy"
+    env = ros_environment(domain)
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+    emu = NodeProcess("emulator", node_command("emulate", {
+        "emulator.rate_hz": rate_hz, "emulator.sched_fifo": fifo,
+        "emulator.lock_memory": fifo, "emulator.stats_file": str(stats_file),
+        "emulator.input_timeout_s": 1.0}), env, workdir)
+    n_max = int(duration_s * INPUT_RATE_HZ) + 10
+    ctx = multiprocessing.get_context("spawn")
+    ready = ctx.Event()
+    receiver = ctx.Process(target=receive, args=(domain, n_max, duration_s, str(recv_file),
+                                                 ready))
+    receiver.start()
+    rclpy.init()
+    node = rclpy.create_node("node_bench_sender")
+    pub = node.create_publisher(JointState, topics.STATE, control_qos(topics.CONTROL_DEPTH))
+    deadline = time.monotonic() + 60
+    while node.count_subscribers(topics.STATE) == 0 or not ready.is_set():
+        time.sleep(0.05)
+        if time.monotonic() > deadline or emu.poll() is not None:
+            raise SystemExit(f"emulator or receiver did not start:\n{emu.log_tail()}")
+    time.sleep(1.0)                       # let the emulator's loop reach steady state
+    sent = np.zeros(n_max, dtype=np.int64)
+    counter = [0]
+    msg = JointState()
+    msg.name = ["damper"]
+
+    def tick(now: int) -> None:
+        k = counter[0] = counter[0] + 1
+        if k >= n_max - 1:
+            raise StopIteration
+        msg.position = [0.0]
+        msg.velocity = [k * VELOCITY_TAG]
+        sent[k] = time.monotonic_ns()
+        pub.publish(msg)
+
+    loop = PeriodicLoop(1.0 / INPUT_RATE_HZ, tick, name="bench-input",
+                        realtime=RealtimeRequest(sched_fifo=fifo, priority=60,
+                                                 lock_memory=False))
+    loop.start()
+    time.sleep(duration_s)
+    loop.stop()
+    receiver.join(duration_s + 30)
+    node.destroy_node()
+    rclpy.shutdown()
+    emu.stop()
+    received = np.load(recv_file)
+    z = np.load(stats_file)
+    p_us = z["periods_ns"] / 1e3
+    nominal_us = 1e6 / rate_hz
+    ok = (sent > 0) & (received > 0)
+    lat_us = (received[ok] - sent[ok]) / 1e3
+    lost = int(((sent > 0) & (received == 0)).sum())
+    return {
+        "rate_hz": rate_hz, "sched_fifo": fifo, "realtime": str(z["realtime"]),
+        "ticks": int(z["ticks"]), "achieved_rate_hz": float(1e6 / p_us.mean()),
+        "period_p50_us": float(np.percentile(p_us, 50)),
+        "period_p99_us": float(np.percentile(p_us, 99)),
+        "period_max_us": float(p_us.max()),
+        "error_p99_us": float(np.percentile(np.abs(p_us - nominal_us), 99)),
+        "overruns": int(z["overruns"]), "overrun_percent": 100.0 * int(z["overruns"]) / p_us.size,
+        "skipped": int(z["skipped"]),
+        "latency_p50_us": float(np.percentile(lat_us, 50)) if lat_us.size else float("nan"),
+        "latency_p99_us": float(np.percentile(lat_us, 99)) if lat_us.size else float("nan"),
+        "samples_without_force": lost, "samples": int((sent > 0).sum()),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds per case")
+    ap.add_argument("--json", type=Path, help="also write the results here")
+    ap.add_argument("--case", type=int, action="append",
+                    help="run only these cases (0-based; default all)")
+    args = ap.parse_args()
+    cases = [CASES[i] for i in args.case] if args.case else list(CASES)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, (label, rate, fifo) in enumerate(cases):
+            print(f"[{i + 1}/{len(cases)}] {label}, {args.duration:g} s ...", file=sys.stderr,
+                  flush=True)
+            r = measure(rate, fifo, args.duration, Path(tmp), 60 + i)
+            r["case"] = label
+            rows.append(r)
+    print(f"\nemulator node, {args.duration:g} s per case, input at {INPUT_RATE_HZ:g} Hz from "
+          f"a separate process; {cpu_name()}, {os.cpu_count()} cores, "
+          f"Python {platform.python_version()}, {time.strftime('%Y-%m-%d')}\n")
+    print("| case | achieved rate | period p50 / p99 / max | p99 period error | overruns "
+          "(> 2 periods) | state→force latency p50 / p99 | input samples superseded before a tick |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['case']} | {r['achieved_rate_hz']:.2f} Hz | {r['period_p50_us']:.0f} / "
+              f"{r['period_p99_us']:.0f} / {r['period_max_us']:.0f} µs | "
+              f"{r['error_p99_us']:.0f} µs | {r['overruns']} ({r['overrun_percent']:.3f} %) | "
+              f"{r['latency_p50_us']:.0f} / {r['latency_p99_us']:.0f} µs | "
+              f"{r['samples_without_force']} of {r['samples']} |")
+    for r in rows:
+        print(f"\n{r['case']}: real-time settings {r['realtime']}")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -12,6 +12,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from damper_emulator.bag import BagError
 from damper_emulator.params import ParameterError
 
 PROG = "damper-hil"
@@ -109,6 +110,14 @@ def set_stamp(stamp, ns: int) -> None:
 # running a node
 
 
+def log_info(node: Node, text: str) -> None:
+    """Log through rclpy while the context is up, else to stderr (at shutdown)."""
+    if node.context.ok():
+        node.get_logger().info(text)
+    else:
+        print(f"[{node.get_name()}] {text}", file=sys.stderr)
+
+
 def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     """Initialise rclpy with ``ros_args``, build the node, spin until SIGINT / SIGTERM or
     until the node calls ``rclpy.try_shutdown`` (a node with a ``run(executor)`` method
@@ -126,7 +135,7 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     try:
         try:
             node = build()
-        except (ParameterError, ValueError) as exc:
+        except (ParameterError, ValueError, BagError) as exc:
             print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
             return 2
         executor = SingleThreadedExecutor()

@@ -21,3 +21,13 @@ TYPES = {
 CONTROL_DEPTH = 10
 #: Depth of the recorder's subscriptions (absorbs bursts while it writes).
 RECORDER_DEPTH = 1000
+
+
+def message_classes() -> dict:
+    """topic → message class (rclpy), for subscriptions."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    classes = {"sensor_msgs/msg/JointState": JointState, "std_msgs/msg/Float64": Float64,
+               "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}
+    return {topic: classes[t] for topic, t in TYPES.items()}

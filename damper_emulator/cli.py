@@ -147,19 +147,33 @@ def build_parser() -> argparse.ArgumentParser:
     # ---- demo ------------------------------------------------------------------------
     demo = sub.add_parser(
         "demo", formatter_class=_Formatter,
-        help="demonstration run (for now: the virtual dyno on the sport damper)",
-        description="Demonstration run.\n\n"
-                    "For now this runs the virtual dyno on the 'sport' damper\n"
-                    "(config/sport.yaml): the quasi-static test, the chirp, the paper's\n"
-                    "validation sines (1 Hz / 0.05 m, 3 Hz / 0.05 m, 12 Hz / 0.005 m) with\n"
-                    "an overlay plot (paper_sines.png) and the 14-speed test, and writes\n"
-                    "demo.json.  The closed-loop ROS 2 demo (emulator + ride simulation +\n"
-                    "CAN bridge, recorded as a rosbag2 bag) replaces this later.")
-    demo.add_argument("--duration", metavar="S", type=_positive, default=60.0,
-                      help="chirp duration [s] (default: 60)")
+        help="closed-loop HIL demo: emulator + ride simulation over ROS 2, recorded",
+        description="Closed-loop hardware-in-the-loop demo on this machine.\n\n"
+                    "Starts the damper_emulator node (1 kHz), the ride_sim node (quarter car\n"
+                    "on the minor road at 20 m/s) and the recorder as separate ROS 2\n"
+                    "processes (localhost only, own ROS_DOMAIN_ID), runs DURATION seconds of\n"
+                    "road, and writes under DIR: bag/ (rosbag2, MCAP), ride_metrics.json,\n"
+                    "demo.json, report.md, ride.png, damper.png, loop.png and logs/.")
+    demo.add_argument("--duration", metavar="S", type=_positive, default=20.0,
+                      help="road time [s] (default: 20; at least 5 at 20 m/s)")
+    demo.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
+                      help="ride clock (default: realtime)")
     demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
                       help="output directory (created if missing; default: demo_out)")
     demo.set_defaults(handler=cmd_demo)
+
+    dyno_demo = sub.add_parser(
+        "dyno-demo", formatter_class=_Formatter,
+        help="virtual-dyno demonstration (the paper's tests on the sport damper)",
+        description="Virtual-dyno demonstration on the 'sport' damper (config/sport.yaml):\n"
+                    "the quasi-static test, the chirp, the paper's validation sines\n"
+                    "(1 Hz / 0.05 m, 3 Hz / 0.05 m, 12 Hz / 0.005 m) with an overlay plot\n"
+                    "(paper_sines.png) and the 14-speed test; writes demo.json.")
+    dyno_demo.add_argument("--duration", metavar="S", type=_positive, default=60.0,
+                           help="chirp duration [s] (default: 60)")
+    dyno_demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
+                           help="output directory (created if missing; default: demo_out)")
+    dyno_demo.set_defaults(handler=cmd_dyno_demo)
 
     # ---- ROS 2 nodes -----------------------------------------------------------------
     emulate = sub.add_parser(
@@ -414,6 +428,25 @@ def cmd_dyno(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from damper_emulator.hil_demo import DemoError, run_demo
+
+    def progress(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    try:
+        summary = run_demo(args.out, args.duration, clock=args.clock, progress=progress)
+    except DemoError as exc:
+        raise CliError(str(exc)) from None
+    m = summary["ride"]["metrics"]
+    loop = summary["emulator_loop"] or {}
+    print(f"demo finished in {summary['elapsed_s']:.0f} s: SWS r.m.s. {m['sws_rms'] * 1e3:.2f} "
+          f"mm, Wk body acceleration r.m.s. {m['accel_w_rms']:.3f} m/s², DTL r.m.s. "
+          f"{m['dtl_rms']:.0f} N; emulator loop p99 {loop.get('period_p99_us', float('nan')):.0f}"
+          f" µs; bag and report in {args.out}", file=sys.stderr)
+    return 0
+
+
+def cmd_dyno_demo(args: argparse.Namespace) -> int:
     from damper_emulator.dyno import plots, runner
     from damper_emulator.dyno.measured import read_measured_csv
 

@@ -158,7 +158,7 @@ def test_chirp_with_noise_is_reproducible(tmp_path, capsys):
 
 
 def test_demo_writes_everything(tmp_path, capsys):
-    assert main(["demo", "--duration", "2", "--out", str(tmp_path)]) == 0
+    assert main(["dyno-demo", "--duration", "2", "--out", str(tmp_path)]) == 0
     err = capsys.readouterr().err
     assert "[1/7]" in err and "[7/7]" in err
     doc = json.loads((tmp_path / "demo.json").read_text())

@@ -1,0 +1,96 @@
+"""The closed-loop HIL demo (``damper-hil demo``, ``make demo``): the emulator, the ride
+simulation and the recorder as separate ROS 2 processes on this machine
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, own ``ROS_DOMAIN_ID``), then a report from the
+recorded bag (:mod:`damper_emulator.hil_report`).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+from typing import Callable
+
+from damper_emulator.hil_report import write_report
+from damper_emulator.recording import read_recording
+from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
+from ride_sim.params import load_ride_config
+
+#: Seconds allowed beyond the ride's own length for start-up and shut-down.
+START_STOP_ALLOWANCE_S = 120.0
+
+
+class DemoError(RuntimeError):
+    """The demo could not complete (one line, with the failing node's log)."""
+
+
+def _clear_bag(bag: Path) -> None:
+    """Remove a previous demo's bag; refuse anything that is not one."""
+    if not bag.exists():
+        return
+    if not bag.is_dir() or not ((bag / "metadata.yaml").is_file() or not any(bag.iterdir())):
+        raise DemoError(f"{bag} exists and is not a bag from an earlier demo; not removing it")
+    shutil.rmtree(bag)
+
+
+def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
+             domain_id: int | None = None,
+             progress: Callable[[str], None] = print) -> dict:
+    """Run the demo into ``out`` and return its summary (also ``out/demo.json``)."""
+    started = time.monotonic()
+    out.mkdir(parents=True, exist_ok=True)
+    bag = out / "bag"
+    _clear_bag(bag)
+    logs = out / "logs"
+    stats = out / "emulator_loop.npz"
+    metrics = out / "ride_metrics.json"
+    for f in (stats, metrics):
+        f.unlink(missing_ok=True)
+    env = ros_environment(domain_id)
+    emulator_params = {"emulator.stats_file": str(stats)}
+    if clock == "lockstep":
+        emulator_params["emulator.trigger"] = "input"
+    progress(f"[1/4] starting recorder and emulator (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, "
+             f"localhost only; logs in {logs})")
+    rec = NodeProcess("recorder", node_command("record", extra=["--out", str(bag)]), env, logs)
+    emu = NodeProcess("emulator", node_command("emulate", emulator_params), env, logs)
+    ride = None
+    try:
+        progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
+        ride = NodeProcess("ride", node_command("ride", {
+            "ride.duration_s": float(duration_s), "ride.clock": clock,
+            "ride.metrics_file": str(metrics)}), env, logs)
+        limit = time.monotonic() + duration_s + START_STOP_ALLOWANCE_S
+        last = time.monotonic()
+        while ride.poll() is None:
+            for node in (rec, emu):
+                if node.poll() is not None:
+                    raise DemoError(f"the {node.name} stopped (exit {node.poll()}): "
+                                    f"{node.log_tail(1)}")
+            if time.monotonic() > limit:
+                raise DemoError(f"the ride did not finish within {duration_s:g} s + "
+                                f"{START_STOP_ALLOWANCE_S:g} s: {ride.log_tail(1)}")
+            if time.monotonic() - last >= 5.0:
+                last = time.monotonic()
+                progress(f"      ... {last - started:.0f} s")
+            time.sleep(0.2)
+        if ride.poll() != 0:
+            raise DemoError(f"the ride node failed (exit {ride.poll()}): {ride.log_tail(1)}")
+    finally:
+        progress("[3/4] stopping emulator and recorder")
+        if ride is not None:
+            ride.stop()
+        emu.stop()
+        rec.stop()
+    progress("[4/4] report from the bag")
+    ride_doc = json.loads(metrics.read_text())
+    recording = read_recording(bag)
+    car = load_ride_config().quarter_car
+    return write_report(out, recording, ride_doc, stats, car.sprung_mass_kg, {
+        "mode": "closed-loop HIL over ROS 2",
+        "duration_s": duration_s,
+        "clock": clock,
+        "ros_domain_id": int(env["ROS_DOMAIN_ID"]),
+        "elapsed_s": round(time.monotonic() - started, 1),
+    })

@@ -1,0 +1,151 @@
+"""Report of a closed-loop HIL run (``damper-hil demo``): plots and a summary from the
+recorded bag, the ride node's metrics and the emulator's loop record.  No rclpy."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from damper_emulator.dyno.plots import decorate, new_figure, save
+from damper_emulator.realtime.core import Status
+from damper_emulator.recording import Recording
+
+
+def plot_ride(path: Path, rec: Recording, sprung_mass_kg: float) -> Path:
+    """Road, body and wheel heights, body acceleration, dynamic tyre load and damper force
+    against time."""
+    r = rec.ride
+    t = (r.log_ns - r.log_ns[0]) * 1e-9
+    fig = new_figure(10, 9)
+    axes = fig.subplots(4, 1, sharex=True)
+    axes[0].plot(t, r.road_m * 1e3, lw=0.6, label="road")
+    axes[0].plot(t, r.wheel_m * 1e3, lw=0.6, label="wheel")
+    axes[0].plot(t, r.body_m * 1e3, lw=0.9, label="body")
+    decorate(axes[0], "", "height [mm]")
+    axes[1].plot(t, r.body_force_n / sprung_mass_kg, lw=0.6)
+    decorate(axes[1], "", "body accel. [m/s²]", legend=False)
+    axes[2].plot(t, r.dtl_n / 1e3, lw=0.6)
+    decorate(axes[2], "", "dynamic tyre load [kN]", legend=False)
+    axes[3].plot(t, r.damper_force_n / 1e3, lw=0.6)
+    decorate(axes[3], "time since the first sample [s]", "damper force [kN]", legend=False)
+    fig.suptitle("Closed loop over ROS 2: quarter car on the minor road, emulated damper")
+    return save(fig, path)
+
+
+def plot_damper(path: Path, rec: Recording) -> Path:
+    """The emulated damper's force against velocity and stroke (model outputs only)."""
+    f = rec.force
+    ok = (f.status & int(Status.NO_INPUT | Status.TIMEOUT)) == 0
+    fig = new_figure(10, 4.5)
+    ax1, ax2 = fig.subplots(1, 2)
+    ax1.plot(f.velocity_m_s[ok], f.force_n[ok] / 1e3, lw=0.3)
+    decorate(ax1, "damper velocity [m/s] (extension +)", "force [kN] (rebound +)",
+             legend=False)
+    ax2.plot(f.stroke_m[ok] * 1e3, f.force_n[ok] / 1e3, lw=0.3)
+    decorate(ax2, "stroke [mm] (extension +)", "force [kN] (rebound +)", legend=False)
+    fig.suptitle(f"/damper/force: {int(ok.sum())} model outputs "
+                 f"({int((~ok).sum())} fault outputs left out)")
+    return save(fig, path)
+
+
+def loop_summary(stats_file: Path) -> dict[str, Any] | None:
+    """Period statistics of the emulator's loop record (``emulator.stats_file``)."""
+    if not stats_file.is_file():
+        return None
+    z = np.load(stats_file)
+    p = z["periods_ns"] / 1e3
+    if p.size == 0:
+        return None
+    nominal = float(z["period_ns"]) / 1e3
+    return {"ticks": int(z["ticks"]), "achieved_rate_hz": float(1e6 / p.mean()),
+            "period_p50_us": float(np.percentile(p, 50)),
+            "period_p99_us": float(np.percentile(p, 99)), "period_max_us": float(p.max()),
+            "period_error_p99_us": float(np.percentile(np.abs(p - nominal), 99)),
+            "overruns": int(z["overruns"]), "skipped": int(z["skipped"]),
+            "realtime": str(z["realtime"])}
+
+
+def plot_loop(path: Path, stats_file: Path) -> Path | None:
+    if not stats_file.is_file():
+        return None
+    z = np.load(stats_file)
+    p = z["periods_ns"] / 1e3
+    if p.size == 0:
+        return None
+    fig = new_figure(10, 4)
+    ax1, ax2 = fig.subplots(1, 2)
+    ax1.plot(np.arange(p.size) / (1e6 / p.mean()), p, lw=0.4)
+    decorate(ax1, "time [s]", "loop period [µs]", legend=False)
+    ax2.hist(p, bins=np.linspace(0, 3 * float(z["period_ns"]) / 1e3, 121), log=True)
+    decorate(ax2, "loop period [µs]", "ticks", legend=False)
+    fig.suptitle(f"Emulator loop: {p.size} periods, p99 {np.percentile(p, 99):.0f} µs, "
+                 f"max {p.max():.0f} µs, {int(z['overruns'])} overruns (> 2 periods)")
+    return save(fig, path)
+
+
+def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
+                 stats_file: Path, sprung_mass_kg: float, extra: dict[str, Any]
+                 ) -> dict[str, Any]:
+    """Plots, ``demo.json`` and ``report.md`` under ``out``; returns the summary."""
+    files = []
+    if rec.ride is not None:
+        files.append(plot_ride(out / "ride.png", rec, sprung_mass_kg).name)
+    if rec.force is not None:
+        files.append(plot_damper(out / "damper.png", rec).name)
+    loop_png = plot_loop(out / "loop.png", stats_file)
+    if loop_png is not None:
+        files.append(loop_png.name)
+    faults = 0
+    if rec.force is not None:
+        faults = int(((rec.force.status & int(Status.NO_INPUT | Status.TIMEOUT)) != 0).sum())
+    summary = {
+        **extra,
+        "bag": str(rec.path),
+        "topics": rec.counts,
+        "fault_outputs": faults,
+        "ride": ride_doc,
+        "emulator_loop": loop_summary(stats_file),
+        "emulator_diagnostics": rec.last_diagnostics,
+        "files": files + ["demo.json", "report.md"],
+    }
+    (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n")
+    m = ride_doc.get("metrics", {})
+    loop = summary["emulator_loop"] or {}
+    lines = [
+        "# Closed-loop HIL demo",
+        "",
+        f"Quarter car (config/quarter_car.yaml) on the minor road at "
+        f"{ride_doc.get('speed_m_s', float('nan')):g} m/s for "
+        f"{ride_doc.get('duration_s', float('nan')):g} s, clock `{ride_doc.get('clock')}`, "
+        f"against the emulated 'sport' damper over ROS 2; recorded to `{rec.path.name}/`.",
+        "",
+        "| ride metric | value |",
+        "|---|---|",
+        f"| SWS r.m.s. | {m.get('sws_rms', float('nan')) * 1e3:.2f} mm |",
+        f"| weighted body acceleration (Wk) r.m.s. | {m.get('accel_w_rms', float('nan')):.3f} "
+        f"m/s² |",
+        f"| dynamic tyre load r.m.s. | {m.get('dtl_rms', float('nan')):.0f} N |",
+        f"| real-time factor of the ride loop | {ride_doc.get('real_time_factor')} |",
+        "",
+        "| emulator loop | value |",
+        "|---|---|",
+        f"| achieved rate | {loop.get('achieved_rate_hz', float('nan')):.2f} Hz |",
+        f"| period p50 / p99 / max | {loop.get('period_p50_us', float('nan')):.0f} / "
+        f"{loop.get('period_p99_us', float('nan')):.0f} / "
+        f"{loop.get('period_max_us', float('nan')):.0f} µs |",
+        f"| overruns (> 2 periods) | {loop.get('overruns')} |",
+        f"| real-time settings | {loop.get('realtime', '')} |",
+        f"| fault outputs (no input yet / stale input) | {faults} |",
+        "",
+        "| topic | messages |",
+        "|---|---|",
+        *[f"| `{k}` | {v} |" for k, v in sorted(rec.counts.items())],
+        "",
+        *[f"![{f}]({f})" for f in files],
+        "",
+    ]
+    (out / "report.md").write_text("\n".join(lines))
+    return summary

@@ -60,7 +60,8 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         ride = NodeProcess("ride", node_command("ride", {
             "ride.duration_s": float(duration_s), "ride.clock": clock,
-            "ride.metrics_file": str(metrics)}), env, logs)
+            "ride.metrics_file": str(metrics),
+            "ride.state_subscribers": 2}), env, logs)   # the emulator and the recorder
         limit = time.monotonic() + duration_s + START_STOP_ALLOWANCE_S
         last = time.monotonic()
         while ride.poll() is None:

@@ -150,6 +150,10 @@ class RideRunParams:
                                    "[s]", 2.0)
     wait_for_emulator_s: float = _rule(("range", 0.0, 600.0),
                                        "wait this long for the emulator to appear [s]", 30.0)
+    state_subscribers: int = _rule(("int_range", 1, 100),
+                                   "start once this many subscribe to /damper/state (the "
+                                   "emulator, plus a recorder that must not miss the start)",
+                                   1)
     publish_ride_state: bool = _rule("bool", "publish /ride/state every sample", True)
     sched_fifo: bool = _rule("bool", "realtime clock: SCHED_FIFO for the loop thread when "
                                      "permitted", True)

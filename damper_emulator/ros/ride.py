@@ -74,7 +74,15 @@ class RideNode(Node):
         self._state_pub = self.create_publisher(JointState, topics.STATE, qos)
         self._ride_pub = (self.create_publisher(JointState, topics.RIDE_STATE, qos)
                           if cfg.ride.publish_ride_state else None)
-        self.create_subscription(JointState, topics.FORCE, self._on_force, qos)
+        if cfg.ride.clock == "lockstep":
+            self.create_subscription(JointState, topics.FORCE, self._on_force, qos)
+            self._io_node = None
+        else:
+            # the loop thread takes the forces itself (no executor thread holding the GIL
+            # at 1 kHz while the loop thread waits for it)
+            self._io_node = rclpy.create_node(f"{NODE_NAME}_input", context=self.context)
+            self._force_sub = self._io_node.create_subscription(
+                JointState, topics.FORCE, lambda _msg: None, qos)
         self._forces: dict[int, tuple[float, int]] = {}     # lockstep: stamp → force
         self._latest: tuple[int, float, int] | None = None   # realtime: recv, force, status
         self._loop: PeriodicLoop | None = None
@@ -131,13 +139,15 @@ class RideNode(Node):
     def _wait_for_emulator(self, executor) -> bool:
         deadline = time.monotonic() + self.run_params.wait_for_emulator_s
         while time.monotonic() < deadline and rclpy.ok():
-            if (self.count_subscribers(topics.STATE) > 0
+            if (self.count_subscribers(topics.STATE) >= self.run_params.state_subscribers
                     and self.count_publishers(topics.FORCE) > 0):
                 return True
             executor.spin_once(timeout_sec=0.05)
         self.get_logger().error(
-            f"no emulator: nothing subscribes to {topics.STATE} and publishes "
-            f"{topics.FORCE} after {self.run_params.wait_for_emulator_s:g} s")
+            f"no emulator: {self.count_subscribers(topics.STATE)} of "
+            f"{self.run_params.state_subscribers} subscribers to {topics.STATE} and "
+            f"{self.count_publishers(topics.FORCE)} publishers of {topics.FORCE} after "
+            f"{self.run_params.wait_for_emulator_s:g} s")
         self.exit_status = 1
         return False
 
@@ -181,10 +191,18 @@ class RideNode(Node):
         p = self.run_params
         timeout_ns = int(p.force_timeout_s * 1e9)
 
+        sub = self._force_sub
+
         def tick(now_ns: int) -> None:
             if s.done:
                 self._done.set()
                 raise StopIteration
+            while True:
+                with sub.handle:
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                if taken is None:
+                    break
+                self._on_force(taken[0])
             latest = self._latest
             if latest is None:
                 force, status = self.static_force_n, 0
@@ -212,6 +230,8 @@ class RideNode(Node):
         while rclpy.ok() and self._loop.running:
             executor.spin_once(timeout_sec=0.05)
         self._loop.stop()
+        self._io_node.destroy_node()
+        self._io_node = None
         err = self._loop.error
         if err is not None and not isinstance(err, StopIteration):
             self.get_logger().error(f"ride aborted at sample {s.k}: {err}")

@@ -17,8 +17,9 @@ TYPES = {
     RIDE_STATE: "sensor_msgs/msg/JointState",
 }
 
-#: Depth of the control topics' keep-last queues (reliable, volatile).
-CONTROL_DEPTH = 10
+#: Depth of the control topics' keep-last queues (reliable, volatile): 0.1 s at 1 kHz, so
+#: that a recorder that falls behind for a moment is served from the publisher's history.
+CONTROL_DEPTH = 100
 #: Depth of the recorder's subscriptions (absorbs bursts while it writes).
 RECORDER_DEPTH = 1000
 

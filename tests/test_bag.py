@@ -185,7 +185,8 @@ def test_round_trip_three_topics(tmp_path):
             w.write(c_f, t + 1, messages.float64(i * 0.1))
             expected.setdefault("/damper/force", []).append((t + 1, i))
             if i % 10 == 0:
-                w.write(c_d, t + 2, messages.diagnostic_array(t + 2, [(i % 4, "damper", f"m{i}", "hw", [("i", str(i))])]))
+                status = (i % 4, "damper", f"m{i}", "hw", [("i", str(i))])
+                w.write(c_d, t + 2, messages.diagnostic_array(t + 2, [status]))
                 expected.setdefault("/diagnostics", []).append((t + 2, i))
             if i % 700 == 0:
                 w.flush()
@@ -196,7 +197,8 @@ def test_round_trip_three_topics(tmp_path):
             names, pos, vel, eff = js_values(i)
             assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == ts
             assert list(msg.name) == names
-            assert msg.position.tolist() == pos and msg.velocity.tolist() == vel and msg.effort.tolist() == eff
+            assert msg.position.tolist() == pos and msg.velocity.tolist() == vel
+            assert msg.effort.tolist() == eff
         elif topic == "/damper/force":
             assert msg.data == i * 0.1
         else:

@@ -54,10 +54,10 @@ the PAD), as ``tests/test_bag.py`` checks, but a strict reader (the ``mcap``
 package's stream reader, the C++ fallback scan used by ``ros2 bag play``)
 reports a truncated record after the last message. The other order (tail
 first) would leave the old magic inside the data section, where rosbags reads
-it as a record length of ~2.8e15 and its seek fails. At the demo's ~400 kB/s a reserve lasts 10 s, 20 s, 40 s, 80 s,
-then 160 s (64 MiB) each: 7 growths in the first 10 minutes, then one every
-~160 s, so a SIGKILL at a random moment hits the window with probability of
-about 10 µs / 160 s = 6e-8.
+it as a record length of ~2.8e15 and its seek fails. At the demo's ~400 kB/s
+a reserve lasts 10 s, 20 s, 40 s, 80 s, then 160 s (64 MiB) each: 7 growths
+in the first 10 minutes, then one every ~160 s, so a SIGKILL at a random
+moment hits the window with probability of about 10 µs / 160 s = 6e-8.
 
 Closing writes the ``rosbag2`` Metadata record (as a block), then the final
 tail ``DataEnd, summary (schemas, channels, chunk indexes, metadata index,
@@ -137,7 +137,7 @@ _DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 _RELIABILITY = ("system_default", "reliable", "best_effort", "best_available")
 _DURABILITY = ("system_default", "transient_local", "volatile", "best_available")
 _HISTORY = ("system_default", "keep_last", "keep_all")
-_LIVELINESS = ("system_default", "automatic", "manual_by_topic", "best_available")
+_LIVELINESS = ("system_default", "automatic", "manual_by_node", "manual_by_topic", "best_available")
 
 
 def _tail_position(offset: int) -> int:
@@ -169,7 +169,8 @@ class Qos:
     deadline_ns, lifespan_ns, liveliness_lease_duration_ns : int
         Durations in ns; the default ``2**63 - 1`` is ROS' "infinite".
     liveliness : str
-        ``"automatic"``, ``"manual_by_topic"``, ``"system_default"`` or ``"best_available"``.
+        ``"automatic"``, ``"manual_by_topic"``, ``"manual_by_node"`` (deprecated in ROS 2),
+        ``"system_default"`` or ``"best_available"``.
     avoid_ros_namespace_conventions : bool
         As in rclpy.
     """
@@ -286,8 +287,10 @@ class BagWriter:
     -----
     Thread safe. :meth:`write` costs about a microsecond and never does I/O;
     :meth:`add_topic`, :meth:`flush` and :meth:`close` do. :meth:`flush` writes
-    everything queued, without the background flush's 50 ms hold-back. See the module
-    docstring for the file layout and the crash-safety argument.
+    everything queued, without the background flush's 50 ms hold-back. Always
+    :meth:`close` (or use ``with``): an unclosed writer's thread keeps flushing
+    until the process ends, and the file stays an unclosed (scan-only) bag.
+    See the module docstring for the file layout and the crash-safety argument.
     """
 
     def __init__(
@@ -350,7 +353,9 @@ class BagWriter:
                 self.path / self.mcap_name, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644
             )
         except OSError as exc:
-            raise BagError(f"bag {self.path}: cannot create {self.mcap_name}: {exc.strerror or exc}") from None
+            raise BagError(
+                f"bag {self.path}: cannot create {self.mcap_name}: {exc.strerror or exc}"
+            ) from None
         try:
             head = rec.MAGIC + rec.header("ros2", _LIBRARY)
             self._pos = len(head)
@@ -745,7 +750,8 @@ class BagWriter:
                 "<QQ", summary_start, summary_offset_start
             )
             crc = zlib.crc32(bytes(summary) + footer_head)
-            tail = rec.data_end() + bytes(summary) + rec.footer(summary_start, summary_offset_start, crc) + rec.MAGIC
+            footer = rec.footer(summary_start, summary_offset_start, crc)
+            tail = rec.data_end() + bytes(summary) + footer + rec.MAGIC
             if self._pos + len(tail) > self._reserve_end:
                 self._grow(len(tail) + rec.RECORD_HEADER_SIZE)
             self._pwrite(tail[rec.RECORD_HEADER_SIZE :], self._pos + rec.RECORD_HEADER_SIZE)

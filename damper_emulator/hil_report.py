@@ -51,14 +51,22 @@ def plot_damper(path: Path, rec: Recording) -> Path:
     return save(fig, path)
 
 
-def loop_summary(stats_file: Path) -> dict[str, Any] | None:
-    """Period statistics of the emulator's loop record (``emulator.stats_file``)."""
+def _loop_record(stats_file: Path):
+    """``(record, periods [µs])`` of the emulator's loop record (``emulator.stats_file``),
+    or None when there is none or it is empty."""
     if not stats_file.is_file():
         return None
     z = np.load(stats_file)
     p = z["periods_ns"] / 1e3
-    if p.size == 0:
+    return (z, p) if p.size else None
+
+
+def loop_summary(stats_file: Path) -> dict[str, Any] | None:
+    """Period statistics of the emulator's loop record."""
+    record = _loop_record(stats_file)
+    if record is None:
         return None
+    z, p = record
     nominal = float(z["period_ns"]) / 1e3
     return {"ticks": int(z["ticks"]), "achieved_rate_hz": float(1e6 / p.mean()),
             "period_p50_us": float(np.percentile(p, 50)),
@@ -69,12 +77,11 @@ def loop_summary(stats_file: Path) -> dict[str, Any] | None:
 
 
 def plot_loop(path: Path, stats_file: Path) -> Path | None:
-    if not stats_file.is_file():
+    """The loop periods against time and their histogram."""
+    record = _loop_record(stats_file)
+    if record is None:
         return None
-    z = np.load(stats_file)
-    p = z["periods_ns"] / 1e3
-    if p.size == 0:
-        return None
+    z, p = record
     fig = new_figure(10, 4)
     ax1, ax2 = fig.subplots(1, 2)
     ax1.plot(np.arange(p.size) / (1e6 / p.mean()), p, lw=0.4)

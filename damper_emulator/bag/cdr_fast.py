@@ -8,8 +8,9 @@ Three parts, used by the offline replay (:mod:`damper_emulator.replay`):
     times (in log-time order, as :meth:`damper_emulator.bag.Bag.raw_messages` yields them).
     Bags with one uncompressed MCAP file (this project's :class:`~damper_emulator.bag.BagWriter`,
     closed or killed, and ``ros2 bag record -s mcap`` without compression) are scanned
-    directly: a compiled walk over the chunks' records, about 10 ns per message.  Anything
-    else (compressed chunks, several files, other storage) goes through
+    directly (the whole file is read into memory): a compiled walk over the chunks'
+    records, some tens of ns per record.  Anything else (compressed chunks, several files,
+    other storage) goes through
     :func:`~damper_emulator.bag.open_bag`, which also gives the one-line
     :class:`~damper_emulator.bag.BagError` for a path that is not a readable bag.
 :func:`decode_joint_states`
@@ -56,12 +57,12 @@ __all__ = [
     "encode_joint_states",
     "read_raw",
     "rows_to_bytes",
+    "warm_up",
 ]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 _FIELDS = ("position", "velocity", "effort")
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-_MIN_MESSAGE_RECORD = rec.RECORD_HEADER_SIZE + 22
 
 
 # ------------------------------------------------------------------------------------------
@@ -440,9 +441,8 @@ class RawTopic:
 
     def all_data(self) -> list[bytes]:
         """Every message's bytes, in order."""
-        raw = self.buf.data
-        return [bytes(raw[int(o):int(o) + int(k)])
-                for o, k in zip(self.offsets.tolist(), self.lengths.tolist())]
+        raw = self.buf.base if isinstance(self.buf.base, bytes) else self.buf.tobytes()
+        return [raw[o:o + k] for o, k in zip(self.offsets.tolist(), self.lengths.tolist())]
 
 
 class _Unsupported(Exception):
@@ -450,32 +450,55 @@ class _Unsupported(Exception):
 
 
 @njit(cache=True)
-def _walk_chunks(buf, starts, ends, opcode, content, length, bound):  # pragma: no cover - compiled
+def _walk_chunks(buf, starts, ends, opcode, content, length, channel,
+                 log_ns):  # pragma: no cover - compiled
     """Records inside the chunks' record areas ``[starts[j], ends[j])``: opcode, content
-    offset and content length of each; returns how many, or -1 for a record that overruns
-    its chunk."""
+    offset and content length of each, and for a Message record its channel id and log
+    time; returns how many, or -1 for a record that overruns its chunk."""
     k = 0
+    bound = opcode.size
     for j in range(starts.size):
         pos = starts[j]
         end = ends[j]
         while pos < end:
             if pos + 9 > end or k >= bound:
                 return -1
-            n = 0
+            n = np.int64(0)
             for b in range(8):
                 n |= np.int64(buf[pos + 1 + b]) << (8 * b)
             if n < 0 or pos + 9 + n > end:
                 return -1
-            opcode[k] = buf[pos]
+            op = buf[pos]
+            opcode[k] = op
             content[k] = pos + 9
             length[k] = n
+            if op == 0x05 and n >= 22:
+                channel[k] = np.int64(buf[pos + 9]) | (np.int64(buf[pos + 10]) << 8)
+                t = np.int64(0)
+                for b in range(8):
+                    t |= np.int64(buf[pos + 15 + b]) << (8 * b)
+                log_ns[k] = t
+            else:
+                channel[k] = -1
+                log_ns[k] = 0
             k += 1
             pos += 9 + n
     return k
 
 
+def warm_up() -> None:
+    """Load the compiled helpers (from numba's on-disk cache, or compile them): a start-up
+    cost, paid here rather than in the first read."""
+    z = np.zeros(1, dtype=np.int64)
+    for buf in (np.zeros(1, dtype=np.uint8), np.frombuffer(b"\0", dtype=np.uint8)):
+        # writable and read-only buffers are two specialisations
+        _walk_chunks(buf, z[:0], z[:0], np.zeros(1, dtype=np.uint8), z.copy(), z.copy(),
+                     z.copy(), z.copy())
+        _gather_rows(buf, z[:0], np.zeros((0, 1), dtype=np.uint8))
+
+
 def _u16(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return (buf[at].astype(np.int64) | (buf[at + 1].astype(np.int64) << 8))
+    return buf[at].astype(np.int64) | (buf[at + 1].astype(np.int64) << 8)
 
 
 def _u64(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -540,13 +563,15 @@ def _scan_mcap(path: Path, wanted: set[str]) -> tuple[np.ndarray, dict[str, tupl
     opcode = np.empty(bound, dtype=np.uint8)
     content = np.empty(bound, dtype=np.int64)
     length = np.empty(bound, dtype=np.int64)
-    k = _walk_chunks(buf, starts, ends, opcode, content, length, bound)
+    channel = np.empty(bound, dtype=np.int64)
+    log_ns = np.empty(bound, dtype=np.int64)
+    k = _walk_chunks(buf, starts, ends, opcode, content, length, channel, log_ns)
     if k < 0:
         raise _Unsupported("a record overruns its chunk")
     opcode, content, length = opcode[:k], content[:k], length[:k]
-    for op, at, n in [(int(o), int(c), int(m)) for o, c, m in
-                      zip(opcode, content, length) if o in (rec.OP_SCHEMA, rec.OP_CHANNEL)]:
-        loose.append((op, at, n))
+    channel, log_ns = channel[:k], log_ns[:k]
+    defs = np.flatnonzero((opcode == rec.OP_SCHEMA) | (opcode == rec.OP_CHANNEL))
+    loose += zip(opcode[defs].tolist(), content[defs].tolist(), length[defs].tolist())
     for op, at, n in loose:
         end = at + n
         if op == rec.OP_SCHEMA:
@@ -562,15 +587,19 @@ def _scan_mcap(path: Path, wanted: set[str]) -> tuple[np.ndarray, dict[str, tupl
             encoding, _ = _string(mv, p, end)
             channels[cid] = (topic, sid, encoding)
     msg = opcode == rec.OP_MESSAGE
-    m_at, m_len = content[msg], length[msg]
-    loose_msgs = [(at, n) for op, at, n in loose if op == rec.OP_MESSAGE]
-    if loose_msgs:
-        m_at = np.concatenate([m_at, np.array([a for a, _ in loose_msgs], dtype=np.int64)])
-        m_len = np.concatenate([m_len, np.array([b for _, b in loose_msgs], dtype=np.int64)])
-    if (m_len < _MIN_MESSAGE_RECORD - 9).any():
+    m_at, m_len, chan, log = content[msg], length[msg], channel[msg], log_ns[msg]
+    loose_msgs = np.array([(at, n) for op, at, n in loose if op == rec.OP_MESSAGE],
+                          dtype=np.int64).reshape(-1, 2)
+    if loose_msgs.size:     # messages outside chunks (allowed by MCAP, rare)
+        if (loose_msgs[:, 1] < 22).any():
+            raise _Unsupported("short message record")
+        at = loose_msgs[:, 0]
+        m_at = np.concatenate([m_at, at])
+        m_len = np.concatenate([m_len, loose_msgs[:, 1]])
+        chan = np.concatenate([chan, _u16(buf, at)])
+        log = np.concatenate([log, _u64(buf, at + 6).astype(np.int64)])
+    if (m_len < 22).any():
         raise _Unsupported("short message record")
-    chan = _u16(buf, m_at)
-    log = _u64(buf, m_at + 6).astype(np.int64)
     out: dict[str, tuple] = {}
     for cid, (topic, sid, encoding) in channels.items():
         if topic not in wanted:

@@ -105,7 +105,7 @@ from damper_emulator.bag import BagError, BagWriter, cdr_fast
 from damper_emulator.bag.cdr_fast import JointStates, RawTopic
 from damper_emulator.model.compressible import S_SIZE, DamperModel, DamperStepper, _simulate
 from damper_emulator.params import node_parameters, read_yaml
-from damper_emulator.realtime.core import Status
+from damper_emulator.realtime.core import Status, fault_output, input_ok, stroke_window
 from damper_emulator.realtime.settings import (DEFAULT_EMULATOR_FILE, EmulatorParams,
                                                default_emulator_mapping,
                                                emulator_params_from_mapping)
@@ -239,11 +239,10 @@ def _accepted_inputs(state: JointStates, params: EmulatorParams, model: DamperMo
     present = state.has("position", idx) & state.has("velocity", idx)
     x = state.entry("position", idx)
     v = state.entry("velocity", idx)
-    lo, hi = model.stroke_limits_m
-    tol = params.stroke_tolerance_m
     with np.errstate(invalid="ignore"):
-        ok = (present & np.isfinite(x) & np.isfinite(v) & (x >= lo - tol) & (x <= hi + tol)
-              & (np.abs(v) <= params.max_velocity_m_s))
+        ok = present & input_ok(x, v, stroke_window(model.stroke_limits_m,
+                                                     params.stroke_tolerance_m),
+                                params.max_velocity_m_s)
     return ok, x, v
 
 
@@ -393,13 +392,10 @@ def _emulate_timer(data: BagData, model: DamperModel, params: EmulatorParams) ->
     faults = np.flatnonzero(fault)
     prev = last[faults]
     has_prev = prev >= 0
-    if params.fault_mode == "zero":
-        force[faults] = 0.0
-    elif params.fault_mode == "passive":
-        last_v = np.where(has_prev, velocity[np.maximum(prev, 0)], 0.0)
-        force[faults] = static + params.passive_rate_ns_m * last_v
-    else:
-        force[faults] = np.where(has_prev, force[np.maximum(prev, 0)], static)
+    force[faults] = fault_output(
+        params.fault_mode, np.where(has_prev, force[np.maximum(prev, 0)], static),
+        np.where(has_prev, velocity[np.maximum(prev, 0)], 0.0), static,
+        params.passive_rate_ns_m)
     counts = {"ticks": n, "model_ticks": int(ticks.size), "fault_ticks": int(faults.size),
               **counts}
     return Replayed("timer", data.force_raw.log_ns.copy(), f.stamp_ns.copy(), stroke,

@@ -22,6 +22,34 @@ from damper_emulator.model.compressible import DamperModel, DamperStepper
 from damper_emulator.realtime.settings import EmulatorParams
 
 
+def stroke_window(stroke_limits_m: tuple[float, float], tolerance_m: float
+                  ) -> tuple[float, float]:
+    """Accepted input strokes: the damper's travel widened by ``tolerance_m`` on each side."""
+    lo, hi = stroke_limits_m
+    return lo - tolerance_m, hi + tolerance_m
+
+
+def input_ok(stroke_m, velocity_m_s, stroke_window_m: tuple[float, float],
+             max_velocity_m_s: float):
+    """The emulator's input rule, for a sample or for arrays of them (numpy): the stroke
+    inside ``stroke_window_m`` and ``|velocity| <= max_velocity_m_s``.  NaN and infinite
+    values fail it (every comparison with NaN is false, infinity is outside any window)."""
+    lo, hi = stroke_window_m
+    return (lo <= stroke_m) & (stroke_m <= hi) & (abs(velocity_m_s) <= max_velocity_m_s)
+
+
+def fault_output(mode: str, last_force_n, last_velocity_m_s, static_force_n: float,
+                 passive_rate_ns_m: float):
+    """The output while the input is missing or stale (``fault_mode``), for one tick or
+    arrays of them: ``hold`` the last force, ``zero``, or ``passive`` (static gas force +
+    ``passive_rate_ns_m`` × the last velocity)."""
+    if mode == "zero":
+        return last_force_n * 0.0
+    if mode == "passive":
+        return static_force_n + passive_rate_ns_m * last_velocity_m_s
+    return last_force_n
+
+
 class Status(enum.IntFlag):
     """Emulator status bits (also sent in the CAN ``DAMPER_FORCE`` status)."""
 
@@ -67,6 +95,13 @@ class Counters:
     def rejected(self) -> int:
         return self.rejected_non_finite + self.rejected_range + self.rejected_stamp
 
+    def reject(self, kind: str, reason: str) -> str:
+        """Count a rejected input of ``kind`` (``non_finite``, ``range``, ``stamp``);
+        returns ``reason``."""
+        setattr(self, f"rejected_{kind}", getattr(self, f"rejected_{kind}") + 1)
+        self.last_rejection = reason
+        return reason
+
 
 class EmulatorCore:
     """Compressible damper model behind input checks and a timeout.
@@ -83,8 +118,7 @@ class EmulatorCore:
         self.stepper = DamperStepper(model)
         #: force at rest at the static position (eq 30's gas force), the passive baseline
         self.static_force_n = self.stepper.force_n
-        lo, hi = model.stroke_limits_m
-        self._stroke_range = (lo, hi)
+        self._stroke_range = model.stroke_limits_m
         self.counters = Counters()
         self.valve_command = params.valve_command
         self._latest: tuple[int, int, float, float] | None = None  # recv, stamp, x, v
@@ -96,26 +130,25 @@ class EmulatorCore:
 
     # ---- input ------------------------------------------------------------------------
 
+    @property
+    def stroke_window_m(self) -> tuple[float, float]:
+        """Accepted input strokes: the travel widened by ``stroke_tolerance_m``."""
+        return stroke_window(self._stroke_range, self.params.stroke_tolerance_m)
+
     def check_input(self, stroke_m: float, velocity_m_s: float) -> str | None:
-        """Why this sample is rejected, or None.  Counts the rejection."""
+        """Why this sample is rejected (:func:`input_ok`), or None.  Counts the rejection."""
+        vmax = self.params.max_velocity_m_s
+        if input_ok(stroke_m, velocity_m_s, self.stroke_window_m, vmax):
+            return None
         c = self.counters
         if not (math.isfinite(stroke_m) and math.isfinite(velocity_m_s)):
-            c.rejected_non_finite += 1
-            c.last_rejection = f"non-finite input (stroke {stroke_m}, velocity {velocity_m_s})"
-            return c.last_rejection
-        lo, hi = self._stroke_range
-        tol = self.params.stroke_tolerance_m
-        if not lo - tol <= stroke_m <= hi + tol:
-            c.rejected_range += 1
-            c.last_rejection = (f"stroke {stroke_m:.4g} m outside the travel "
-                                f"[{lo:.4g}, {hi:.4g}] m")
-            return c.last_rejection
-        if abs(velocity_m_s) > self.params.max_velocity_m_s:
-            c.rejected_range += 1
-            c.last_rejection = (f"|velocity| {abs(velocity_m_s):.4g} m/s above "
-                                f"{self.params.max_velocity_m_s:g} m/s")
-            return c.last_rejection
-        return None
+            return c.reject("non_finite", f"non-finite input (stroke {stroke_m}, velocity "
+                                          f"{velocity_m_s})")
+        if abs(velocity_m_s) <= vmax:
+            lo, hi = self._stroke_range
+            return c.reject("range", f"stroke {stroke_m:.4g} m outside the travel "
+                                     f"[{lo:.4g}, {hi:.4g}] m")
+        return c.reject("range", f"|velocity| {abs(velocity_m_s):.4g} m/s above {vmax:g} m/s")
 
     def submit(self, stamp_ns: int, stroke_m: float, velocity_m_s: float,
                now_ns: int) -> str | None:
@@ -141,13 +174,10 @@ class EmulatorCore:
     # ---- output -----------------------------------------------------------------------
 
     def fault_force(self) -> float:
-        """The output while the input is missing or stale (``fault_mode``)."""
-        mode = self.params.fault_mode
-        if mode == "zero":
-            return 0.0
-        if mode == "passive":
-            return self.static_force_n + self.params.passive_rate_ns_m * self._last_velocity
-        return self._last_force
+        """The output while the input is missing or stale (:func:`fault_output`)."""
+        p = self.params
+        return fault_output(p.fault_mode, self._last_force, self._last_velocity,
+                            self.static_force_n, p.passive_rate_ns_m)
 
     def tick(self, now_ns: int) -> Output:
         """Evaluate at ``now_ns`` from the latest accepted sample (``trigger: timer``)."""
@@ -178,10 +208,8 @@ class EmulatorCore:
         if self.check_input(stroke_m, velocity_m_s) is not None:
             return None
         if self._last_step_ns is not None and stamp_ns <= self._last_step_ns:
-            c = self.counters
-            c.rejected_stamp += 1
-            c.last_rejection = (f"input stamp {stamp_ns} ns not after the previous one "
-                                f"{self._last_step_ns} ns")
+            self.counters.reject("stamp", f"input stamp {stamp_ns} ns not after the previous "
+                                          f"one {self._last_step_ns} ns")
             return None
         self.counters.accepted += 1
         return self._step(int(stamp_ns), float(stroke_m), float(velocity_m_s), int(stamp_ns),

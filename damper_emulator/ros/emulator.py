@@ -150,9 +150,7 @@ class EmulatorNode(Node):
     def _on_state(self, msg: JointState, received_ns: int | None = None) -> None:
         sample = input_sample(msg, self.params.name)
         if isinstance(sample, str):
-            c = self.core.counters
-            c.rejected_range += 1
-            c.last_rejection = sample
+            self.core.counters.reject("range", sample)
             return
         x, v = sample
         stamp = stamp_ns(msg.header.stamp)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 import math
-import threading
 import time
 from pathlib import Path
 
@@ -43,6 +42,9 @@ from ride_sim.params import DEFAULT_QUARTER_CAR_FILE, ride_config_from_mapping
 from ride_sim.session import RideSession
 
 NODE_NAME = "ride_sim"
+#: Bit of ``damper_fault_bits`` (beside the emulator's Status bits) set when a force message
+#: carried a non-finite force, which the ride ignores (the previous force stays held).
+NON_FINITE_FORCE = 1 << 16
 GROUPS = ("quarter_car", "simulation", "road", "ride")
 
 
@@ -86,10 +88,8 @@ class RideNode(Node):
         self._forces: dict[int, tuple[float, int]] = {}     # lockstep: stamp → force
         self._latest: tuple[int, float, int] | None = None   # realtime: recv, force, status
         self._loop: PeriodicLoop | None = None
-        self._done = threading.Event()
         self._started_ns = 0
         self.faults = 0
-        self.late_forces = 0
         self.get_logger().info(
             f"{cfg.ride.clock} run: {cfg.ride.duration_s:g} s (+{cfg.ride.lead_in_s:g} s "
             f"lead-in) at {cfg.ride.speed_m_s:g} m/s, {self.session.n} samples of "
@@ -103,7 +103,7 @@ class RideNode(Node):
         force = float(msg.effort[0])
         status = int(msg.effort[1]) if len(msg.effort) > 1 and math.isfinite(msg.effort[1]) else 0
         if not math.isfinite(force):
-            self.faults |= 1 << 16
+            self.faults |= NON_FINITE_FORCE
             return
         if self.run_params.clock == "lockstep":
             self._forces[stamp_ns(msg.header.stamp)] = (force, status)
@@ -126,10 +126,9 @@ class RideNode(Node):
         msg = JointState()
         set_stamp(msg.header.stamp, stamp)
         msg.name = ["wheel", "body", "road"]
-        h = self.session.heights
-        u1 = h[k + 1] if k + 1 < h.size else h[k]
-        msg.position = [row[qc.O_Z1], row[qc.O_Z2], float(h[k])]
-        msg.velocity = [row[qc.O_Z1D], row[qc.O_Z2D], float(u1 - h[k]) / self.session.dt_s]
+        u0, u1 = qc._road_pair(self.session.heights, k)   # the road over the step
+        msg.position = [row[qc.O_Z1], row[qc.O_Z2], float(u0)]
+        msg.velocity = [row[qc.O_Z1D], row[qc.O_Z2D], float(u1 - u0) / self.session.dt_s]
         msg.effort = [row[qc.O_DTL], row[qc.O_ACC] * self.cfg.quarter_car.sprung_mass_kg,
                       row[qc.O_F]]
         self._ride_pub.publish(msg)
@@ -195,7 +194,6 @@ class RideNode(Node):
 
         def tick(now_ns: int) -> None:
             if s.done:
-                self._done.set()
                 raise StopIteration
             while True:
                 with sub.handle:
@@ -277,5 +275,4 @@ class RideNode(Node):
             except OSError as exc:
                 self.get_logger().error(f"cannot write {path}: {exc.strerror}")
                 self.exit_status = 1
-        self.result_doc = doc
 

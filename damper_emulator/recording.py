@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from damper_emulator.bag import BagError, open_bag
+from damper_emulator.bag import BagError, cdr_fast, open_bag
 
 STATE = "/damper/state"
 FORCE = "/damper/force"
@@ -68,16 +68,17 @@ class Recording:
     last_diagnostics: dict[str, str]
 
 
-def _stamp(msg) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-
-
-def _at(values, i: int, default: float) -> float:
-    return float(values[i]) if len(values) > i else default
+def _lacking(path: Path, topic: str, raw, ok: np.ndarray, what: str) -> None:
+    if not ok.all():
+        i = int(np.argmax(~ok))
+        raise BagError(f"bag {path}: {topic} at {int(raw.log_ns[i])} ns lacks {what}")
 
 
 def read_recording(path: str | Path) -> Recording:
     """Read the damper and ride topics of a bag into arrays.
+
+    The JointState topics are decoded in bulk (:mod:`damper_emulator.bag.cdr_fast`, as the
+    replay reads them), ``/diagnostics`` by rosbags.
 
     Raises
     ------
@@ -86,50 +87,41 @@ def read_recording(path: str | Path) -> Recording:
         requires (``position[0]``, ``velocity[0]``; ``effort[0]`` on ``/damper/force``).
     """
     path = Path(path)
-    rows: dict[str, list] = {STATE: [], FORCE: [], RIDE_STATE: []}
     diagnostics: dict[str, str] = {}
     with open_bag(path) as bag:
         counts = {name: info.count for name, info in bag.topics.items()}
-        wanted = [t for t in (STATE, FORCE, RIDE_STATE, DIAGNOSTICS) if t in bag.topics]
-        for topic, log_ns, msg in bag.messages(wanted):
-            if topic == DIAGNOSTICS:
+        if DIAGNOSTICS in bag.topics:
+            for _topic, _log_ns, msg in bag.messages([DIAGNOSTICS]):
                 for status in msg.status:
                     if status.name.startswith("damper_emulator"):
                         diagnostics = {kv.key: kv.value for kv in status.values}
                         diagnostics["message"] = status.message
-                continue
-            if topic == RIDE_STATE:
-                if len(msg.position) < 3 or len(msg.effort) < 3:
-                    raise BagError(f"bag {path}: {topic} at {log_ns} ns lacks wheel/body/road")
-                rows[topic].append((log_ns, _stamp(msg), msg.position[0], msg.position[1],
-                                    msg.position[2], msg.effort[0], msg.effort[1],
-                                    msg.effort[2]))
-                continue
-            if len(msg.position) < 1 or len(msg.velocity) < 1 or (
-                    topic == FORCE and len(msg.effort) < 1):
-                raise BagError(f"bag {path}: {topic} at {log_ns} ns lacks position[0], "
-                               f"velocity[0]" + (" or effort[0]" if topic == FORCE else ""))
-            if topic == STATE:
-                rows[topic].append((log_ns, _stamp(msg), msg.position[0], msg.velocity[0]))
-            else:
-                rows[topic].append((log_ns, _stamp(msg), msg.position[0], msg.velocity[0],
-                                    msg.effort[0], _at(msg.effort, 1, 0.0),
-                                    _at(msg.position, 1, -1.0)))
+    present = [t for t in (STATE, FORCE, RIDE_STATE) if counts.get(t)]
+    raw = cdr_fast.read_raw(path, present) if present else {}
+    js = {t: cdr_fast.decode_joint_states(r.buf, r.offsets, r.lengths,
+                                          where=f"bag {path}: {t}")
+          for t, r in raw.items()}
 
-    def columns(topic: str, n: int) -> list[np.ndarray] | None:
-        if not rows[topic]:
-            return None
-        a = np.array(rows[topic], dtype=object)
-        cols = [np.asarray(a[:, 0], dtype=np.int64), np.asarray(a[:, 1], dtype=np.int64)]
-        cols += [np.asarray(a[:, j], dtype=float) for j in range(2, n)]
-        return cols
-
-    s = columns(STATE, 4)
-    f = columns(FORCE, 7)
-    r = columns(RIDE_STATE, 8)
-    force = None
-    if f is not None:
-        f[5] = f[5].astype(np.int64)
-        force = DamperOutput(*f)
-    return Recording(path, counts, DamperInput(*s) if s else None, force,
-                     RideState(*r) if r else None, diagnostics)
+    state = force = ride = None
+    if STATE in js:
+        m = js[STATE]
+        _lacking(path, STATE, raw[STATE], m.has("position", 0) & m.has("velocity", 0),
+                 "position[0], velocity[0]")
+        state = DamperInput(raw[STATE].log_ns, m.stamp_ns, m.position[:, 0],
+                            m.velocity[:, 0])
+    if FORCE in js:
+        m = js[FORCE]
+        _lacking(path, FORCE, raw[FORCE], m.has("position", 0) & m.has("velocity", 0)
+                 & m.has("effort", 0), "position[0], velocity[0] or effort[0]")
+        status = np.nan_to_num(m.entry("effort", 1), nan=0.0).astype(np.int64)
+        age = np.nan_to_num(m.entry("position", 1), nan=-1.0)
+        force = DamperOutput(raw[FORCE].log_ns, m.stamp_ns, m.position[:, 0],
+                             m.velocity[:, 0], m.effort[:, 0], status, age)
+    if RIDE_STATE in js:
+        m = js[RIDE_STATE]
+        _lacking(path, RIDE_STATE, raw[RIDE_STATE], m.has("position", 2) & m.has("effort", 2),
+                 "wheel/body/road")
+        ride = RideState(raw[RIDE_STATE].log_ns, m.stamp_ns, m.position[:, 0],
+                         m.position[:, 1], m.position[:, 2], m.effort[:, 0], m.effort[:, 1],
+                         m.effort[:, 2])
+    return Recording(path, counts, state, force, ride, diagnostics)

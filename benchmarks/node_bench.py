@@ -36,6 +36,7 @@ from machine import cpu_name
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from damper_emulator.realtime.loop import summarise  # noqa: E402
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment  # noqa: E402
 
 CASES = (
@@ -143,20 +144,18 @@ def measure(rate_hz: float, fifo: bool, duration_s: float, workdir: Path, domain
     emu.stop()
     received = np.load(recv_file)
     z = np.load(stats_file)
-    p_us = z["periods_ns"] / 1e3
-    nominal_us = 1e6 / rate_hz
+    s = summarise(z["periods_ns"], int(z["period_ns"]), int(z["ticks"]), int(z["overruns"]),
+                  int(z["skipped"]))
     ok = (sent > 0) & (received > 0)
     lat_us = (received[ok] - sent[ok]) / 1e3
     lost = int(((sent > 0) & (received == 0)).sum())
     return {
         "rate_hz": rate_hz, "sched_fifo": fifo, "realtime": str(z["realtime"]),
-        "ticks": int(z["ticks"]), "achieved_rate_hz": float(1e6 / p_us.mean()),
-        "period_p50_us": float(np.percentile(p_us, 50)),
-        "period_p99_us": float(np.percentile(p_us, 99)),
-        "period_max_us": float(p_us.max()),
-        "error_p99_us": float(np.percentile(np.abs(p_us - nominal_us), 99)),
-        "overruns": int(z["overruns"]), "overrun_percent": 100.0 * int(z["overruns"]) / p_us.size,
-        "skipped": int(z["skipped"]),
+        "ticks": s.ticks, "achieved_rate_hz": s.achieved_rate_hz,
+        "period_p50_us": s.period_p50_us, "period_p99_us": s.period_p99_us,
+        "period_max_us": s.period_max_us, "error_p99_us": s.error_p99_us,
+        "overruns": s.overruns, "overrun_percent": 100.0 * s.overruns / z["periods_ns"].size,
+        "skipped": s.skipped,
         "latency_p50_us": float(np.percentile(lat_us, 50)) if lat_us.size else float("nan"),
         "latency_p99_us": float(np.percentile(lat_us, 99)) if lat_us.size else float("nan"),
         "samples_without_force": lost, "samples": int((sent > 0).sum()),

@@ -11,6 +11,7 @@ import numpy as np
 
 from damper_emulator.dyno.plots import decorate, new_figure, save
 from damper_emulator.realtime.core import Status
+from damper_emulator.realtime.loop import summarise
 from damper_emulator.recording import Recording
 
 
@@ -66,14 +67,13 @@ def loop_summary(stats_file: Path) -> dict[str, Any] | None:
     record = _loop_record(stats_file)
     if record is None:
         return None
-    z, p = record
-    nominal = float(z["period_ns"]) / 1e3
-    return {"ticks": int(z["ticks"]), "achieved_rate_hz": float(1e6 / p.mean()),
-            "period_p50_us": float(np.percentile(p, 50)),
-            "period_p99_us": float(np.percentile(p, 99)), "period_max_us": float(p.max()),
-            "period_error_p99_us": float(np.percentile(np.abs(p - nominal), 99)),
-            "overruns": int(z["overruns"]), "skipped": int(z["skipped"]),
-            "realtime": str(z["realtime"])}
+    z, _ = record
+    s = summarise(z["periods_ns"], int(z["period_ns"]), int(z["ticks"]), int(z["overruns"]),
+                  int(z["skipped"]))
+    return {"ticks": s.ticks, "achieved_rate_hz": s.achieved_rate_hz,
+            "period_p50_us": s.period_p50_us, "period_p99_us": s.period_p99_us,
+            "period_max_us": s.period_max_us, "period_error_p99_us": s.error_p99_us,
+            "overruns": s.overruns, "skipped": s.skipped, "realtime": str(z["realtime"])}
 
 
 def plot_loop(path: Path, stats_file: Path) -> Path | None:

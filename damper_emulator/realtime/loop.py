@@ -33,6 +33,20 @@ class LoopSummary:
     skipped: int               # deadlines skipped after falling behind, since start
 
 
+def summarise(periods_ns: np.ndarray, period_ns: int, ticks: int, overruns: int,
+              skipped: int) -> LoopSummary:
+    """:class:`LoopSummary` of recorded periods [ns] around the nominal ``period_ns``."""
+    p = np.asarray(periods_ns)
+    if p.size == 0:
+        nan = float("nan")
+        return LoopSummary(ticks, nan, nan, nan, nan, nan, overruns, skipped)
+    us = p / 1e3
+    err = np.abs(p - period_ns) / 1e3
+    return LoopSummary(ticks, float(1e9 / p.mean()), float(np.percentile(us, 50)),
+                       float(np.percentile(us, 99)), float(us.max()),
+                       float(np.percentile(err, 99)), overruns, skipped)
+
+
 class LoopStats:
     """Ring buffer of tick periods [ns] and counters, written by the loop thread only.
 
@@ -68,16 +82,8 @@ class LoopStats:
         """Statistics of the latest ``last`` periods (default: all the ring holds); the
         counters are since start.  Keep ``last`` small on a thread that shares the GIL with
         the loop: the percentiles of a long record take milliseconds."""
-        p = self.periods_ns(last)
-        if p.size == 0:
-            nan = float("nan")
-            return LoopSummary(self.ticks, nan, nan, nan, nan, nan, self.overruns,
-                               self.skipped)
-        us = p / 1e3
-        err = np.abs(p - self.period_ns) / 1e3
-        return LoopSummary(self.ticks, float(1e9 / p.mean()), float(np.percentile(us, 50)),
-                           float(np.percentile(us, 99)), float(us.max()),
-                           float(np.percentile(err, 99)), self.overruns, self.skipped)
+        return summarise(self.periods_ns(last), self.period_ns, self.ticks, self.overruns,
+                         self.skipped)
 
 
 class PeriodicLoop:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping
 
-from damper_emulator.params import ParameterError, build_group, check_value, read_yaml, rule
+from damper_emulator.params import build_group, check_value, node_parameters, read_yaml, rule
 from damper_emulator.realtime.rt import RealtimeRequest
 
 #: Default emulator node parameters.
@@ -91,12 +91,8 @@ def emulator_params_from_mapping(data: Mapping[str, Any] | None,
 
 def default_emulator_mapping() -> dict[str, Any]:
     """The ``emulator`` group of ``config/emulator.yaml`` (the defaults)."""
-    doc = read_yaml(DEFAULT_EMULATOR_FILE)
-    try:
-        return dict(doc["/**"]["ros__parameters"]["emulator"])
-    except (KeyError, TypeError):
-        raise ParameterError(f"{DEFAULT_EMULATOR_FILE}: no '/**: ros__parameters: emulator' "
-                             f"group") from None
+    where = str(DEFAULT_EMULATOR_FILE)
+    return dict(node_parameters(read_yaml(DEFAULT_EMULATOR_FILE), where, "emulator")["emulator"])
 
 
 def field_names() -> tuple[str, ...]:

@@ -30,7 +30,7 @@ import rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from damper_emulator.params import read_yaml
+from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
 from damper_emulator.ros import topics
@@ -49,8 +49,8 @@ GROUPS = ("quarter_car", "simulation", "road", "ride")
 
 
 def _ride_defaults() -> dict:
-    doc = read_yaml(DEFAULT_QUARTER_CAR_FILE)
-    body = doc["/**"]["ros__parameters"]
+    body = node_parameters(read_yaml(DEFAULT_QUARTER_CAR_FILE), str(DEFAULT_QUARTER_CAR_FILE),
+                           "quarter_car")
     return {g: body[g] for g in GROUPS}
 
 

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -45,6 +46,8 @@ NODE_NAME = "ride_sim"
 #: Bit of ``damper_fault_bits`` (beside the emulator's Status bits) set when a force message
 #: carried a non-finite force, which the ride ignores (the previous force stays held).
 NON_FINITE_FORCE = 1 << 16
+#: How long the ride waits at the end for its subscribers to acknowledge the last samples [s].
+ACK_TIMEOUT_S = 2.0
 GROUPS = ("quarter_car", "simulation", "road", "ride")
 
 
@@ -158,6 +161,13 @@ class RideNode(Node):
             self._run_lockstep(executor)
         else:
             self._run_realtime(executor)
+        # reliable delivery needs the publisher alive: let every subscriber (a recorder)
+        # acknowledge the last samples before the process exits
+        for pub in (self._state_pub, self._ride_pub):
+            if pub is not None and not pub.wait_for_all_acked(
+                    Duration(seconds=ACK_TIMEOUT_S)):
+                self.get_logger().warning(f"{pub.topic_name}: not every subscriber "
+                                          f"acknowledged the last samples")
         if self.exit_status == 0:
             self._finish()
 

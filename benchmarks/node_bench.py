@@ -11,8 +11,9 @@ thread, each sample tagged by a unique velocity, and receives ``/damper/force``.
 * state → force latency p50 / p99: from publishing a sample to receiving the first force
   computed from it, measured in this (separate) process.
 
-Cases: 1 kHz with SCHED_FIFO, 1 kHz without (``sched_fifo: false``, ``lock_memory:
-false``), 2 kHz with SCHED_FIFO.  Targets (issue 5) at 1 kHz with SCHED_FIFO: p99 period
+Cases: 1 kHz with the node's default real-time settings (SCHED_FIFO, mlockall, CPU wake-up
+latency request ``cpu_dma_latency_us: 0``), 1 kHz without SCHED_FIFO and mlockall, 1 kHz
+with none of them, 2 kHz with all of them.  Targets (issue 5) at 1 kHz with SCHED_FIFO: p99 period
 error <= 100 us, overruns <= 0.1 % over 60 s, latency p99 <= 2 ms.
 
 Usage: ``python benchmarks/node_bench.py [--duration S] [--json FILE]``
@@ -36,13 +37,15 @@ from machine import cpu_name
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from damper_emulator.realtime.loop import summarise  # noqa: E402
+from damper_emulator.realtime.loop import load_record  # noqa: E402
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment  # noqa: E402
 
+#: (label, rate [Hz], SCHED_FIFO + mlockall, CPU wake-up latency request [µs] or -1)
 CASES = (
-    ("1 kHz, SCHED_FIFO", 1000.0, True),
-    ("1 kHz, no SCHED_FIFO", 1000.0, False),
-    ("2 kHz, SCHED_FIFO", 2000.0, True),
+    ("1 kHz, SCHED_FIFO", 1000.0, True, 0),
+    ("1 kHz, no SCHED_FIFO", 1000.0, False, 0),
+    ("1 kHz, no real-time settings", 1000.0, False, -1),
+    ("2 kHz, SCHED_FIFO", 2000.0, True, 0),
 )
 INPUT_RATE_HZ = 1000.0
 VELOCITY_TAG = 1e-6          # sample k carries velocity k * VELOCITY_TAG [m/s]
@@ -83,8 +86,8 @@ def receive(domain: int, n_max: int, duration_s: float, out: str, ready) -> None
     rclpy.shutdown()
 
 
-def measure(rate_hz: float, fifo: bool, duration_s: float, workdir: Path, domain: int
-            ) -> dict:
+def measure(rate_hz: float, fifo: bool, latency_us: int, duration_s: float, workdir: Path,
+            domain: int) -> dict:
     import multiprocessing
 
     import rclpy
@@ -95,13 +98,15 @@ def measure(rate_hz: float, fifo: bool, duration_s: float, workdir: Path, domain
     from damper_emulator.ros import topics
     from damper_emulator.ros.common import control_qos
 
-    stats_file = workdir / f"stats_{int(rate_hz)}_{int(fifo)}.npz"
-    recv_file = workdir / f"recv_{int(rate_hz)}_{int(fifo)}.npy"
+    tag = f"{int(rate_hz)}_{int(fifo)}_{latency_us}"
+    stats_file = workdir / f"stats_{tag}.npz"
+    recv_file = workdir / f"recv_{tag}.npy"
     env = ros_environment(domain)
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     emu = NodeProcess("emulator", node_command("emulate", {
         "emulator.rate_hz": rate_hz, "emulator.sched_fifo": fifo,
-        "emulator.lock_memory": fifo, "emulator.stats_file": str(stats_file),
+        "emulator.lock_memory": fifo, "emulator.cpu_dma_latency_us": latency_us,
+        "emulator.stats_file": str(stats_file),
         "emulator.input_timeout_s": 1.0}), env, workdir)
     n_max = int(duration_s * INPUT_RATE_HZ) + 10
     ctx = multiprocessing.get_context("spawn")
@@ -143,9 +148,7 @@ def measure(rate_hz: float, fifo: bool, duration_s: float, workdir: Path, domain
     rclpy.shutdown()
     emu.stop()
     received = np.load(recv_file)
-    z = np.load(stats_file)
-    s = summarise(z["periods_ns"], int(z["period_ns"]), int(z["ticks"]), int(z["overruns"]),
-                  int(z["skipped"]))
+    z, s = load_record(stats_file)
     ok = (sent > 0) & (received > 0)
     lat_us = (received[ok] - sent[ok]) / 1e3
     lost = int(((sent > 0) & (received == 0)).sum())
@@ -154,6 +157,8 @@ def measure(rate_hz: float, fifo: bool, duration_s: float, workdir: Path, domain
         "ticks": s.ticks, "achieved_rate_hz": s.achieved_rate_hz,
         "period_p50_us": s.period_p50_us, "period_p99_us": s.period_p99_us,
         "period_max_us": s.period_max_us, "error_p99_us": s.error_p99_us,
+        "wake_p50_us": s.wake_p50_us, "wake_p99_us": s.wake_p99_us,
+        "work_p99_us": s.work_p99_us, "work_max_us": s.work_max_us,
         "overruns": s.overruns, "overrun_percent": 100.0 * s.overruns / z["periods_ns"].size,
         "skipped": s.skipped,
         "latency_p50_us": float(np.percentile(lat_us, 50)) if lat_us.size else float("nan"),
@@ -172,22 +177,25 @@ def main() -> None:
     cases = [CASES[i] for i in args.case] if args.case else list(CASES)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (label, rate, fifo) in enumerate(cases):
+        for i, (label, rate, fifo, latency_us) in enumerate(cases):
             print(f"[{i + 1}/{len(cases)}] {label}, {args.duration:g} s ...", file=sys.stderr,
                   flush=True)
-            r = measure(rate, fifo, args.duration, Path(tmp), 60 + i)
+            r = measure(rate, fifo, latency_us, args.duration, Path(tmp), 60 + i)
             r["case"] = label
             rows.append(r)
     print(f"\nemulator node, {args.duration:g} s per case, input at {INPUT_RATE_HZ:g} Hz from "
           f"a separate process; {cpu_name()}, {os.cpu_count()} cores, "
           f"Python {platform.python_version()}, {time.strftime('%Y-%m-%d')}\n")
     print("| case | achieved rate | period p50 / p99 / max | p99 period error | overruns "
-          "(> 2 periods) | state→force latency p50 / p99 | input samples superseded before a tick |")
-    print("|---|---|---|---|---|---|---|")
+          "(> 2 periods) | wake-up latency p50 / p99 | tick work p99 / max | state→force latency "
+          "p50 / p99 | input samples superseded before a tick |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['case']} | {r['achieved_rate_hz']:.2f} Hz | {r['period_p50_us']:.0f} / "
               f"{r['period_p99_us']:.0f} / {r['period_max_us']:.0f} µs | "
               f"{r['error_p99_us']:.0f} µs | {r['overruns']} ({r['overrun_percent']:.3f} %) | "
+              f"{r['wake_p50_us']:.0f} / {r['wake_p99_us']:.0f} µs | "
+              f"{r['work_p99_us']:.0f} / {r['work_max_us']:.0f} µs | "
               f"{r['latency_p50_us']:.0f} / {r['latency_p99_us']:.0f} µs | "
               f"{r['samples_without_force']} of {r['samples']} |")
     for r in rows:

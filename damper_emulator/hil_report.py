@@ -11,7 +11,7 @@ import numpy as np
 
 from damper_emulator.dyno.plots import decorate, new_figure, save
 from damper_emulator.realtime.core import Status
-from damper_emulator.realtime.loop import summarise
+from damper_emulator.realtime.loop import load_record
 from damper_emulator.recording import Recording
 
 
@@ -53,13 +53,12 @@ def plot_damper(path: Path, rec: Recording) -> Path:
 
 
 def _loop_record(stats_file: Path):
-    """``(record, periods [µs])`` of the emulator's loop record (``emulator.stats_file``),
-    or None when there is none or it is empty."""
+    """``(arrays, summary)`` of the emulator's loop record (``emulator.stats_file``), or None
+    when there is none or it is empty."""
     if not stats_file.is_file():
         return None
-    z = np.load(stats_file)
-    p = z["periods_ns"] / 1e3
-    return (z, p) if p.size else None
+    z, s = load_record(stats_file)
+    return (z, s) if z["periods_ns"].size else None
 
 
 def loop_summary(stats_file: Path) -> dict[str, Any] | None:
@@ -67,12 +66,11 @@ def loop_summary(stats_file: Path) -> dict[str, Any] | None:
     record = _loop_record(stats_file)
     if record is None:
         return None
-    z, _ = record
-    s = summarise(z["periods_ns"], int(z["period_ns"]), int(z["ticks"]), int(z["overruns"]),
-                  int(z["skipped"]))
+    z, s = record
     return {"ticks": s.ticks, "achieved_rate_hz": s.achieved_rate_hz,
             "period_p50_us": s.period_p50_us, "period_p99_us": s.period_p99_us,
             "period_max_us": s.period_max_us, "period_error_p99_us": s.error_p99_us,
+            "wake_latency_p99_us": s.wake_p99_us, "tick_work_p99_us": s.work_p99_us,
             "overruns": s.overruns, "skipped": s.skipped, "realtime": str(z["realtime"])}
 
 
@@ -81,7 +79,8 @@ def plot_loop(path: Path, stats_file: Path) -> Path | None:
     record = _loop_record(stats_file)
     if record is None:
         return None
-    z, p = record
+    z, _ = record
+    p = z["periods_ns"] / 1e3
     fig = new_figure(10, 4)
     ax1, ax2 = fig.subplots(1, 2)
     ax1.plot(np.arange(p.size) / (1e6 / p.mean()), p, lw=0.4)

@@ -3,6 +3,8 @@ outputs, and the fixed-rate loop's deadline statistics."""
 
 import dataclasses
 import math
+import os
+import struct
 import time
 
 import numpy as np
@@ -11,7 +13,8 @@ import pytest
 from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.core import EmulatorCore, Status
-from damper_emulator.realtime.loop import LoopStats, PeriodicLoop
+from damper_emulator.realtime.loop import LoopStats, PeriodicLoop, load_record
+from damper_emulator.realtime import rt
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
 from damper_emulator.realtime.settings import (default_emulator_mapping,
                                                emulator_params_from_mapping)
@@ -141,6 +144,23 @@ def test_loop_stats_percentiles_and_overruns():
     assert summary.achieved_rate_hz == pytest.approx(1e9 / np.mean(p))
 
 
+def test_loop_stats_wake_and_work_rings_and_saved_record(tmp_path):
+    s = LoopStats(period_ns=1000, capacity=4)
+    for k in range(6):
+        s.record_tick(wake_ns=10 * k, work_ns=100 * k)
+    assert s.ticks == 6
+    assert s.wake_ns().tolist() == [20, 30, 40, 50]         # latest 4, in order
+    assert s.work_ns(last=2).tolist() == [400, 500]
+    for p in (1000, 1200, 800):
+        s.record(p)
+    s.save(tmp_path / "loop.npz", realtime="none")
+    data, summary = load_record(tmp_path / "loop.npz")
+    assert str(data["realtime"]) == "none" and data["periods_ns"].tolist() == [1000, 1200, 800]
+    assert summary.wake_p50_us == pytest.approx(np.percentile([20, 30, 40, 50], 50) / 1e3)
+    assert summary.work_max_us == pytest.approx(0.5)
+    assert summary.error_p99_us == pytest.approx(np.percentile([0, 200, 200], 99) / 1e3)
+
+
 def test_periodic_loop_keeps_its_rate_and_counts_skips():
     ticks = []
     loop = PeriodicLoop(2e-3, lambda now: ticks.append(now), capacity=1000)
@@ -152,6 +172,8 @@ def test_periodic_loop_keeps_its_rate_and_counts_skips():
     assert 120 <= n <= 151                      # 0.3 s at 500 Hz, absolute deadlines
     intervals = np.diff(ticks)
     assert abs(np.median(intervals) - 2e6) < 2e5
+    # every tick's wake-up is at or after its deadline and is recorded with its work
+    assert loop.stats.ticks == n and (loop.stats.wake_ns() >= 0).all()
     # a tick that takes 3 periods: the missed deadlines are skipped, not burst
     slow = PeriodicLoop(2e-3, lambda now: time.sleep(6.5e-3), capacity=100)
     slow.start()
@@ -165,3 +187,36 @@ def test_realtime_request_reports_instead_of_raising():
                                             timer_slack_ns=0))
     assert report.refused and "CPU 100000" in report.refused[0]
     assert not report.sched_fifo
+
+
+def _effective_latency_us() -> int:
+    fd = os.open(rt.CPU_DMA_LATENCY_DEVICE, os.O_RDONLY)
+    try:
+        return struct.unpack("i", os.read(fd, 4))[0]
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.skipif(not os.access(rt.CPU_DMA_LATENCY_DEVICE, os.W_OK),
+                    reason="no writable /dev/cpu_dma_latency here")
+def test_latency_request_holds_until_released():
+    """The PM QoS request is in force (the kernel's effective value reads back) while the
+    report holds it, and withdrawn by release()."""
+    before = _effective_latency_us()
+    report = apply_realtime(RealtimeRequest(sched_fifo=False, lock_memory=False,
+                                            timer_slack_ns=0, cpu_dma_latency_us=7))
+    try:
+        assert any("wake-up latency" in a for a in report.applied)
+        assert _effective_latency_us() == min(before, 7)
+    finally:
+        report.release()
+    assert _effective_latency_us() == before
+    assert report.held_fds == []
+
+
+def test_latency_request_refused_without_the_device(monkeypatch, tmp_path):
+    monkeypatch.setattr(rt, "CPU_DMA_LATENCY_DEVICE", str(tmp_path / "missing"))
+    report = apply_realtime(RealtimeRequest(sched_fifo=False, lock_memory=False,
+                                            timer_slack_ns=0, cpu_dma_latency_us=0))
+    assert len(report.refused) == 1 and "wake-up latency" in report.refused[0]
+    assert report.held_fds == []

@@ -16,12 +16,13 @@ from typing import Callable
 
 import numpy as np
 
-from damper_emulator.realtime.rt import RealtimeReport, RealtimeRequest, apply_realtime
+from damper_emulator.realtime.rt import (RealtimeReport, RealtimeRequest, apply_realtime,
+                                         set_thread_name)
 
 
 @dataclass(frozen=True)
 class LoopSummary:
-    """Period statistics of the latest ticks (at most the ring's capacity)."""
+    """Statistics of the latest ticks (at most the ring's capacity)."""
 
     ticks: int                 # ticks run since start
     achieved_rate_hz: float    # over the ticks in the ring
@@ -31,24 +32,38 @@ class LoopSummary:
     error_p99_us: float        # 99th percentile of |period − nominal|
     overruns: int              # periods longer than twice the nominal one, since start
     skipped: int               # deadlines skipped after falling behind, since start
+    wake_p50_us: float = float("nan")   # wake-up after the deadline (latency)
+    wake_p99_us: float = float("nan")
+    work_p99_us: float = float("nan")   # time spent in tick()
+    work_max_us: float = float("nan")
+
+
+def _p(x_us: np.ndarray, q: float) -> float:
+    return float(np.percentile(x_us, q)) if x_us.size else float("nan")
 
 
 def summarise(periods_ns: np.ndarray, period_ns: int, ticks: int, overruns: int,
-              skipped: int) -> LoopSummary:
-    """:class:`LoopSummary` of recorded periods [ns] around the nominal ``period_ns``."""
+              skipped: int, wake_ns: np.ndarray | None = None,
+              work_ns: np.ndarray | None = None) -> LoopSummary:
+    """:class:`LoopSummary` of recorded periods [ns] around the nominal ``period_ns``, and of
+    the wake-up latencies and tick durations [ns] when given."""
     p = np.asarray(periods_ns)
+    wake = np.asarray(wake_ns if wake_ns is not None else [], dtype=float) / 1e3
+    work = np.asarray(work_ns if work_ns is not None else [], dtype=float) / 1e3
+    timing = dict(wake_p50_us=_p(wake, 50), wake_p99_us=_p(wake, 99), work_p99_us=_p(work, 99),
+                  work_max_us=float(work.max()) if work.size else float("nan"))
     if p.size == 0:
         nan = float("nan")
-        return LoopSummary(ticks, nan, nan, nan, nan, nan, overruns, skipped)
+        return LoopSummary(ticks, nan, nan, nan, nan, nan, overruns, skipped, **timing)
     us = p / 1e3
     err = np.abs(p - period_ns) / 1e3
-    return LoopSummary(ticks, float(1e9 / p.mean()), float(np.percentile(us, 50)),
-                       float(np.percentile(us, 99)), float(us.max()),
-                       float(np.percentile(err, 99)), overruns, skipped)
+    return LoopSummary(ticks, float(1e9 / p.mean()), _p(us, 50), _p(us, 99), float(us.max()),
+                       _p(err, 99), overruns, skipped, **timing)
 
 
 class LoopStats:
-    """Ring buffer of tick periods [ns] and counters, written by the loop thread only.
+    """Ring buffers of tick periods, wake-up latencies and tick durations [ns], and counters,
+    written by the loop thread only.
 
     Readers take :meth:`summary` or :meth:`periods_ns` at any time; a reading may mix two
     consecutive ticks, which does not matter for statistics.
@@ -57,7 +72,9 @@ class LoopStats:
     def __init__(self, period_ns: int, capacity: int = 1 << 17):
         self.period_ns = int(period_ns)
         self._ring = np.zeros(int(capacity), dtype=np.int64)
-        self.ticks = 0          # ticks run
+        self._wake = np.zeros(int(capacity), dtype=np.int64)
+        self._work = np.zeros(int(capacity), dtype=np.int64)
+        self.ticks = 0          # ticks run (= wake-ups and durations recorded)
         self.recorded = 0       # periods recorded (ticks − 1)
         self.overruns = 0
         self.skipped = 0
@@ -68,22 +85,57 @@ class LoopStats:
         if period_ns > 2 * self.period_ns:
             self.overruns += 1
 
+    def record_tick(self, wake_ns: int, work_ns: int) -> None:
+        """One tick's wake-up after its deadline and time spent in it [ns]."""
+        i = self.ticks % self._wake.size
+        self._wake[i] = wake_ns
+        self._work[i] = work_ns
+        self.ticks += 1
+
+    @staticmethod
+    def _latest(ring: np.ndarray, count: int, last: int | None) -> np.ndarray:
+        n = min(count, ring.size)
+        if last is not None:
+            n = min(n, int(last))
+        end = count % ring.size
+        return ring[np.arange(end - n, end) % ring.size]
+
     def periods_ns(self, last: int | None = None) -> np.ndarray:
         """The recorded periods in tick order: the latest ``last`` of them (default: all the
         ring holds)."""
-        n = min(self.recorded, self._ring.size)
-        if last is not None:
-            n = min(n, int(last))
-        end = self.recorded % self._ring.size
-        idx = np.arange(end - n, end) % self._ring.size
-        return self._ring[idx]
+        return self._latest(self._ring, self.recorded, last)
+
+    def wake_ns(self, last: int | None = None) -> np.ndarray:
+        """Wake-up latencies (wake-up − deadline) in tick order, like :meth:`periods_ns`."""
+        return self._latest(self._wake, self.ticks, last)
+
+    def work_ns(self, last: int | None = None) -> np.ndarray:
+        """Time spent in each tick, like :meth:`periods_ns`."""
+        return self._latest(self._work, self.ticks, last)
 
     def summary(self, last: int | None = None) -> LoopSummary:
-        """Statistics of the latest ``last`` periods (default: all the ring holds); the
+        """Statistics of the latest ``last`` ticks (default: all the ring holds); the
         counters are since start.  Keep ``last`` small on a thread that shares the GIL with
         the loop: the percentiles of a long record take milliseconds."""
         return summarise(self.periods_ns(last), self.period_ns, self.ticks, self.overruns,
-                         self.skipped)
+                         self.skipped, self.wake_ns(last), self.work_ns(last))
+
+    def save(self, path, **extra) -> None:
+        """Write the record (:func:`load_record` reads it) as ``.npz``, with ``extra``."""
+        np.savez(path, periods_ns=self.periods_ns(), wake_ns=self.wake_ns(),
+                 work_ns=self.work_ns(), period_ns=self.period_ns, ticks=self.ticks,
+                 overruns=self.overruns, skipped=self.skipped, **extra)
+
+
+def load_record(path) -> tuple[dict, LoopSummary]:
+    """``(arrays, summary)`` of a record written by :meth:`LoopStats.save` (records written
+    before wake-up and work times were kept read too)."""
+    with np.load(path) as z:
+        data = {k: z[k] for k in z.files}
+    s = summarise(data["periods_ns"], int(data["period_ns"]), int(data["ticks"]),
+                  int(data["overruns"]), int(data["skipped"]), data.get("wake_ns"),
+                  data.get("work_ns"))
+    return data, s
 
 
 class PeriodicLoop:
@@ -130,6 +182,7 @@ class PeriodicLoop:
         return self._thread.is_alive() and not self._stop.is_set()
 
     def _run(self) -> None:
+        set_thread_name(self._thread.name)
         if self._request is not None:
             self.report = apply_realtime(self._request)
         self._started.set()
@@ -148,8 +201,8 @@ class PeriodicLoop:
                 if previous:
                     stats.record(now - previous)
                 previous = now
-                stats.ticks += 1
                 self._tick(now)
+                stats.record_tick(now - deadline, clock() - now)
                 deadline += period
                 behind = clock() - deadline
                 if behind > period:
@@ -159,3 +212,5 @@ class PeriodicLoop:
         except BaseException as exc:  # noqa: BLE001 - reported to the owner
             self.error = exc
             self._stop.set()
+        finally:
+            self.report.release()

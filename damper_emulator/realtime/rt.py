@@ -1,8 +1,14 @@
 """Operating-system real-time settings for a loop thread: ``SCHED_FIFO``, ``mlockall``, CPU
-affinity and timer slack, each applied when permitted and reported when not.
+affinity, timer slack and a CPU wake-up latency request, each applied when permitted and
+reported when not.
 
 Linux applies scheduling policy, affinity and timer slack per thread: call
-:func:`apply_realtime` from the loop thread itself.  ``mlockall`` is per process.
+:func:`apply_realtime` from the loop thread itself.  ``mlockall`` is per process.  The wake-up
+latency request (PM QoS, ``/dev/cpu_dma_latency``, as ``cyclictest`` makes it) is
+system-wide and lasts while its file stays open: :meth:`RealtimeReport.release` closes it.
+On a virtual machine whose idle CPUs halt, it is what brings the wake-up latency of a sleeping
+loop from about 60 µs (p99 several hundred µs) down to about 30 µs (p99 about 50 µs); the
+price is idle CPUs that poll instead of halting.
 """
 
 from __future__ import annotations
@@ -10,12 +16,18 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import os
+import struct
 from dataclasses import dataclass, field
 
 #: ``mlockall`` flags (``<sys/mman.h>``): lock current and future pages.
 _MCL_CURRENT, _MCL_FUTURE = 1, 2
 #: ``prctl`` option to set the calling thread's timer slack [ns] (``<linux/prctl.h>``).
 _PR_SET_TIMERSLACK = 29
+#: ``prctl`` option to name the calling thread (``comm``, 15 bytes; ``top -H`` shows it).
+_PR_SET_NAME = 15
+#: PM QoS device: an int32 written to it caps the CPUs' idle-state exit latency [µs] while
+#: the file stays open (``Documentation/power/pm_qos_interface.rst``).
+CPU_DMA_LATENCY_DEVICE = "/dev/cpu_dma_latency"
 
 
 @dataclass(frozen=True)
@@ -27,6 +39,7 @@ class RealtimeRequest:
     lock_memory: bool = True         # mlockall(MCL_CURRENT | MCL_FUTURE)
     cpu: int = -1                    # pin to this CPU; -1: leave the affinity alone
     timer_slack_ns: int = 1          # the thread's timer slack (Linux default 50 µs)
+    cpu_dma_latency_us: int = -1     # cap on CPU wake-up latency [µs]; -1: no request
 
 
 @dataclass
@@ -35,6 +48,15 @@ class RealtimeReport:
 
     applied: list[str] = field(default_factory=list)
     refused: list[str] = field(default_factory=list)
+    held_fds: list[int] = field(default_factory=list, repr=False)   # released by release()
+
+    def release(self) -> None:
+        """Withdraw the requests that last while a file is open (the latency request)."""
+        while self.held_fds:
+            try:
+                os.close(self.held_fds.pop())
+            except OSError:
+                pass
 
     @property
     def sched_fifo(self) -> bool:
@@ -52,6 +74,14 @@ class RealtimeReport:
 def _libc():
     name = ctypes.util.find_library("c")
     return ctypes.CDLL(name, use_errno=True) if name else None
+
+
+def set_thread_name(name: str) -> None:
+    """Name the calling OS thread (first 15 bytes), so that ``top -H``, ``ps -L`` and
+    ``perf sched`` show the loop; nothing happens where ``prctl`` is missing."""
+    libc = _libc()
+    if libc is not None and hasattr(libc, "prctl"):
+        libc.prctl(_PR_SET_NAME, ctypes.c_char_p(name.encode()[:15]), 0, 0, 0)
 
 
 def apply_realtime(request: RealtimeRequest) -> RealtimeReport:
@@ -83,7 +113,25 @@ def apply_realtime(request: RealtimeRequest) -> RealtimeReport:
             report.applied.append(f"SCHED_FIFO priority {request.priority}")
         except (OSError, AttributeError) as exc:
             report.refused.append(f"SCHED_FIFO: {getattr(exc, 'strerror', None) or exc}")
+    if request.cpu_dma_latency_us >= 0:
+        _request_latency(request.cpu_dma_latency_us, report)
     if request.timer_slack_ns > 0 and libc is not None:
         if libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(request.timer_slack_ns), 0, 0, 0) == 0:
             report.applied.append(f"timer slack {request.timer_slack_ns} ns")
     return report
+
+
+def _request_latency(latency_us: int, report: RealtimeReport) -> None:
+    try:
+        fd = os.open(CPU_DMA_LATENCY_DEVICE, os.O_WRONLY)
+    except OSError as exc:
+        report.refused.append(f"CPU wake-up latency {latency_us} µs: {exc.strerror}")
+        return
+    try:
+        os.write(fd, struct.pack("i", int(latency_us)))
+    except OSError as exc:
+        os.close(fd)
+        report.refused.append(f"CPU wake-up latency {latency_us} µs: {exc.strerror}")
+        return
+    report.held_fds.append(fd)
+    report.applied.append(f"CPU wake-up latency ≤ {latency_us} µs")

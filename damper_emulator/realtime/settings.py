@@ -64,6 +64,10 @@ class EmulatorParams:
     lock_memory: bool = rule("bool", "mlockall the process when permitted", True)
     cpu_affinity: int = rule(("int_range", -1, 1023),
                              "pin the loop thread to this CPU (-1: no pinning)", -1)
+    cpu_dma_latency_us: int = rule(("int_range", -1, 100000),
+                                   "while the loop runs, cap the CPUs' wake-up latency [µs] "
+                                   "through /dev/cpu_dma_latency when permitted (0: idle CPUs "
+                                   "poll; -1: no request)", 0)
     diagnostics_period_s: float = rule(("range", 0.0, 60.0),
                                        "period of /diagnostics [s]", 1.0)
     stats_window_s: float = rule(("range", 0.0, 3600.0),
@@ -73,7 +77,8 @@ class EmulatorParams:
 
     def realtime_request(self) -> RealtimeRequest:
         return RealtimeRequest(sched_fifo=self.sched_fifo, priority=self.priority,
-                               lock_memory=self.lock_memory, cpu=self.cpu_affinity)
+                               lock_memory=self.lock_memory, cpu=self.cpu_affinity,
+                               cpu_dma_latency_us=self.cpu_dma_latency_us)
 
 
 #: Parameters that may change while the node runs; the others need a restart.

@@ -26,7 +26,6 @@ import gc
 import math
 import time
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
@@ -140,10 +139,8 @@ class EmulatorNode(Node):
             self._io_node = None
         if self._loop is not None:
             if self.params.stats_file:
-                s = self._loop.stats
-                np.savez(self.params.stats_file, periods_ns=s.periods_ns(),
-                         period_ns=s.period_ns, ticks=s.ticks, overruns=s.overruns,
-                         skipped=s.skipped, realtime=self._loop.report.summary())
+                self._loop.stats.save(self.params.stats_file,
+                                      realtime=self._loop.report.summary())
 
     # ---- callbacks --------------------------------------------------------------------
 
@@ -262,6 +259,9 @@ class EmulatorNode(Node):
                 "period_p99_us": f"{s.period_p99_us:.1f}",
                 "period_max_us": f"{s.period_max_us:.1f}",
                 "period_error_p99_us": f"{s.error_p99_us:.1f}",
+                "wake_latency_p99_us": f"{s.wake_p99_us:.1f}",
+                "tick_work_p99_us": f"{s.work_p99_us:.1f}",
+                "tick_work_max_us": f"{s.work_max_us:.1f}",
                 "overruns": str(s.overruns),
                 "skipped_deadlines": str(s.skipped),
                 "realtime": loop.report.summary(),

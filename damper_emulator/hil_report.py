@@ -142,6 +142,10 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
         f"| period p50 / p99 / max | {loop.get('period_p50_us', float('nan')):.0f} / "
         f"{loop.get('period_p99_us', float('nan')):.0f} / "
         f"{loop.get('period_max_us', float('nan')):.0f} µs |",
+        f"| p99 period error | {loop.get('period_error_p99_us', float('nan')):.0f} µs |",
+        f"| wake-up latency p99 / tick work p99 | "
+        f"{loop.get('wake_latency_p99_us', float('nan')):.0f} / "
+        f"{loop.get('tick_work_p99_us', float('nan')):.0f} µs |",
         f"| overruns (> 2 periods) | {loop.get('overruns')} |",
         f"| real-time settings | {loop.get('realtime', '')} |",
         f"| fault outputs (no input yet / stale input) | {faults} |",

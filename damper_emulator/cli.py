@@ -142,6 +142,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="[14-speed] lowest peak velocity [m/s] (default: 0.025)")
     g.add_argument("--v-max", metavar="M/S", type=_positive,
                    help="[14-speed] highest peak velocity [m/s] (default: 1.5)")
+    c = dyno.add_argument_group(
+        "loopback dyno over CAN (the protocol in real time against emulator + bridge)")
+    c.add_argument("--over-can", action="store_true",
+                   help="send the samples as DAMPER_STATE frames at the protocol's rate and "
+                        "take the forces from DAMPER_FORCE frames; starts the emulator "
+                        "(trigger: input) and the bridge (mode dyno) unless --external; "
+                        "dyno.json gets the comparison with the offline model")
+    c.add_argument("--can-interface", metavar="NAME", default=None,
+                   help="python-can interface (default: socketcan where the kernel has it, "
+                        "else udp_multicast)")
+    c.add_argument("--can-channel", metavar="CHANNEL", default=None,
+                   help="channel (default: vcan0 for socketcan; for udp_multicast a group "
+                        "and port private to this run, e.g. [ff11::d4:1]:43000)")
+    c.add_argument("--external", action="store_true",
+                   help="the emulator (emulator.trigger: input) and a bridge in dyno mode "
+                        "already run on the bus: start nothing")
     dyno.set_defaults(handler=cmd_dyno)
 
     # ---- demo ------------------------------------------------------------------------
@@ -206,6 +222,23 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--topics", metavar="TOPIC", nargs="+",
                         help="record only these topics")
     record.set_defaults(handler=cmd_record, takes_ros_args=True)
+    bridge = sub.add_parser(
+        "bridge", formatter_class=_Formatter,
+        help="run the can_bridge ROS 2 node (CAN frames of config/damper.dbc <-> topics)",
+        description="Run the can_bridge ROS 2 node until SIGINT/SIGTERM.\n\n"
+                    "mode dyno: DAMPER_STATE frames -> /damper/state, /damper/force ->\n"
+                    "DAMPER_FORCE frames.  mode controller: VALVE_COMMAND frames ->\n"
+                    "/damper/valve_command, /ride/state -> VEHICLE_MOTION frames,\n"
+                    "/damper/force -> DAMPER_FORCE frames (status).  Frames with a wrong\n"
+                    "length, checksum or counter are dropped and counted; silence puts a\n"
+                    "fault status into DAMPER_FORCE and /diagnostics; a failed bus is\n"
+                    "reopened with backoff.  Parameters (no group; defaults:\n"
+                    "config/bridge.yaml): can_interface, can_channel, bitrate, mode, ...",
+        epilog="examples:\n"
+               f"  {PROG} bridge --ros-args -p can_interface:=socketcan -p can_channel:=vcan0\n"
+               f"  {PROG} bridge --ros-args -p can_interface:=udp_multicast "
+               "-p can_channel:=ff11::d4:1 -p mode:=controller")
+    bridge.set_defaults(handler=cmd_bridge, takes_ros_args=True)
     replay = sub.add_parser(
         "replay", formatter_class=_Formatter,
         help="offline replay of a recorded bag through the emulator's model (no ROS)",
@@ -429,10 +462,47 @@ def _protocol_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def cmd_dyno(args: argparse.Namespace) -> int:
     opts = _protocol_options(args)  # before the heavy imports: a typo fails fast
+    model, params_file = _load_model(args.params)
+    if args.over_can:
+        return _dyno_over_can(args, opts, model, params_file)
+    return _run_dyno(args, opts, model, params_file)
+
+
+def _dyno_over_can(args: argparse.Namespace, opts: dict, model, params_file) -> int:
+    from can_bridge.dyno_client import OverCanError
+    from can_bridge.loopback import Loopback, default_bus
+
+    try:
+        bus = default_bus(args.can_interface, args.can_channel)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    if args.noise_std:
+        raise CliError("--noise-std does not apply with --over-can (the forces are measured)")
+    lb = Loopback(bus, args.out, Path(params_file) if args.params else None,
+                  start_nodes=not args.external,
+                  progress=lambda text: print(text, file=sys.stderr, flush=True))
+    try:
+        with lb:
+            status = _run_dyno(args, opts, model, params_file, engine=lb.engine,
+                               extra={"over_can": {"interface": bus.interface,
+                                                   "channel": bus.channel,
+                                                   "nodes_started": not args.external,
+                                                   "runs": lb.comparisons}})
+    except OverCanError as exc:
+        raise CliError(str(exc)) from None
+    worst = max(r["relative_rms_vs_offline_quantised"] for r in lb.comparisons)
+    p99 = max(r["round_trip_p99_ms"] or 0.0 for r in lb.comparisons)
+    print(f"over CAN: {len(lb.comparisons)} run(s), force r.m.s. difference from the offline "
+          f"model ≤ {worst * 100:.3f} %, round trip p99 ≤ {p99:.2f} ms "
+          f"(details in {args.out / 'dyno.json'})", file=sys.stderr)
+    return status
+
+
+def _run_dyno(args: argparse.Namespace, opts: dict, model, params_file, engine=None,
+              extra: dict | None = None) -> int:
     from damper_emulator.dyno import runner
 
-    model, params_file = _load_model(args.params)
-    common = dict(noise_std=args.noise_std, seed=args.seed, progress=_progress)
+    common = dict(noise_std=args.noise_std, seed=args.seed, progress=_progress, engine=engine)
     out: Path = args.out
     if args.protocol == "sine":
         summary = runner.run_sine(model, out, opts["frequency"], opts["amplitude"],
@@ -456,6 +526,7 @@ def cmd_dyno(args: argparse.Namespace) -> int:
         "damper": model.cfg.damper.name,
         "files": summary["files"] + ["dyno.json"],
         "summary": summary,
+        **(extra or {}),
     })
     return 0
 
@@ -549,6 +620,13 @@ def cmd_ride_node(args: argparse.Namespace) -> int:
     from damper_emulator.ros.ride import RideNode
 
     return spin_node(RideNode, args.ros_args)
+
+
+def cmd_bridge(args: argparse.Namespace) -> int:
+    from can_bridge.node import BridgeNode
+    from damper_emulator.ros.common import spin_node
+
+    return spin_node(BridgeNode, args.ros_args)
 
 
 def cmd_record(args: argparse.Namespace) -> int:

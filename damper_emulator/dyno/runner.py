@@ -7,6 +7,7 @@ returns a small JSON-ready summary: ``files`` (names written, relative to ``out_
 peak forces [N], peak velocities [m/s] and, for sines, the dissipated energy per cycle [J].
 
 ``progress``, when given, is called with the path of every file as soon as it is written.
+``engine``, when given, replaces the offline model as the source of the forces (:data:`Engine`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,10 @@ from damper_emulator.dyno.measured import write_measured_csv
 from damper_emulator.model.compressible import DamperModel, Fault, simulate
 
 Progress = Optional[Callable[[Path], None]]
+#: What produces the forces of a protocol: ``engine(model, t, x, v)`` → an object with
+#: ``force_n`` and ``faults`` arrays (default :func:`simulate`, the offline model; the
+#: loopback dyno passes one that runs the samples over CAN, :mod:`can_bridge.loopback`).
+Engine = Optional[Callable[..., Any]]
 
 #: columns of ``14speed.csv``
 FOURTEEN_SPEED_COLUMNS = ("frequency_hz", "peak_velocity_rebound_m_s", "peak_force_rebound_n",
@@ -109,7 +114,7 @@ def _force_summary(v: np.ndarray, f: np.ndarray) -> dict[str, float]:
 
 
 def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles: int = 3,
-                  rate: float = 1000.0, settle_cycles: int = 1):
+                  rate: float = 1000.0, settle_cycles: int = 1, engine: Engine = None):
     """Simulate ``x = A sin(2π f t)`` for ``settle_cycles + cycles`` periods and return the
     recorded part ``(t, x, v, F, faults)``, ``t`` starting at exactly 0.
 
@@ -126,7 +131,7 @@ def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles
                          "(need more than 4 samples per period)")
     t, x, v = protocols.sine(frequency, amplitude, cycles, rate, start_cycles=settle_cycles)
     _check_travel(model, x, f"sine amplitude {amplitude:g} m")
-    res = simulate(model, t, x, v)
+    res = (engine or simulate)(model, t, x, v)
     k = int(np.searchsorted(t, 0.0))  # protocols.sine puts a sample on t = 0
     return (t[k:], x[k:], v[k:], res.force_n[k:], res.faults[k:])
 
@@ -134,7 +139,7 @@ def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles
 def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitude: float,
              cycles: int = 3, rate: float = 1000.0, settle_cycles: int = 1,
              noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
-             ) -> dict[str, Any]:
+             engine: Engine = None) -> dict[str, Any]:
     """Sine test ``x = A sin(2π f t)``: writes ``sine_<f>hz.csv`` and ``sine_<f>hz.png``.
 
     ``settle_cycles`` lead-in periods are simulated but not recorded; the file's time
@@ -144,7 +149,7 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
     rng = _rng(noise_std, seed)
     out = _out(out_dir)
     t, x, v, f, faults = simulate_sine(model, frequency, amplitude, cycles, rate,
-                                       settle_cycles)
+                                       settle_cycles, engine)
     f = _add_noise(f, noise_std, rng)
     name = sine_file_name(frequency)
     csv_path = _write(out, name, progress, t, x, v, f)
@@ -163,7 +168,7 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
 def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 0.004,
                      amplitude: float = 0.075, cycles: int = 2, rate: float = 50.0,
                      noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
-                     ) -> dict[str, Any]:
+                     engine: Engine = None) -> dict[str, Any]:
     """Quasi-static test (constant-velocity triangle, MODEL.md §3): writes
     ``quasi_static.csv`` and ``quasi_static.png``.
 
@@ -179,7 +184,7 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 
     out = _out(out_dir)
     t, x, v = protocols.quasi_static(velocity, amplitude, cycles, rate)
     _check_travel(model, x, f"quasi-static amplitude {amplitude:g} m")
-    res = simulate(model, t, x, v)
+    res = (engine or simulate)(model, t, x, v)
     f = _add_noise(res.force_n, noise_std, rng)
     csv_path = _write(out, "quasi_static.csv", progress, t, x, v, f)
     png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
@@ -198,7 +203,8 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 
 def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
               f_end: float = 16.0, duration: float = 60.0, v_start: float = 0.05,
               v_end: float = 1.5, rate: float = 1000.0, noise_std: float = 0.0,
-              seed: int | None = 0, progress: Progress = None) -> dict[str, Any]:
+              seed: int | None = 0, progress: Progress = None,
+              engine: Engine = None) -> dict[str, Any]:
     """Exponential sine chirp with growing velocity amplitude (MODEL.md §3): writes
     ``chirp.csv`` and ``chirp.png``."""
     rng = _rng(noise_std, seed)
@@ -213,7 +219,7 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
     out = _out(out_dir)
     t, x, v = protocols.chirp(f_start, f_end, duration, v_start, v_end, rate)
     _check_travel(model, x, "chirp displacement")
-    res = simulate(model, t, x, v)
+    res = (engine or simulate)(model, t, x, v)
     f = _add_noise(res.force_n, noise_std, rng)
     csv_path = _write(out, "chirp.csv", progress, t, x, v, f)
     png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
@@ -231,7 +237,7 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
 def fourteen_speed_table(model: DamperModel, points: int = 14, amplitude: float = 0.025,
                          v_min: float = 0.025, v_max: float = 1.5, cycles: int = 2,
                          rate: float = 1000.0, noise_std: float = 0.0,
-                         rng: np.random.Generator | None = None,
+                         rng: np.random.Generator | None = None, engine: Engine = None,
                          ) -> tuple[dict[str, np.ndarray], list[str]]:
     """Simulate an N-speed test (MODEL.md §4) and return its table (columns
     :data:`FOURTEEN_SPEED_COLUMNS`) and the fault names seen.
@@ -247,7 +253,8 @@ def fourteen_speed_table(model: DamperModel, points: int = 14, amplitude: float 
     rows = []
     faults = np.zeros(0, dtype=np.int64)
     for freq in freqs:
-        t, x, v, f, flt = simulate_sine(model, float(freq), amplitude, cycles, rate, 1)
+        t, x, v, f, flt = simulate_sine(model, float(freq), amplitude, cycles, rate, 1,
+                                        engine)
         f = _add_noise(f, noise_std, rng)
         rows.append((freq, v.max(), f.max(), v.min(), f.min()))
         faults = np.concatenate([faults, flt])
@@ -259,7 +266,8 @@ def fourteen_speed_table(model: DamperModel, points: int = 14, amplitude: float 
 def run_fourteen_speed(model: DamperModel, out_dir: str | Path, points: int = 14,
                        amplitude: float = 0.025, v_min: float = 0.025, v_max: float = 1.5,
                        cycles: int = 2, rate: float = 1000.0, noise_std: float = 0.0,
-                       seed: int | None = 0, progress: Progress = None) -> dict[str, Any]:
+                       seed: int | None = 0, progress: Progress = None,
+                       engine: Engine = None) -> dict[str, Any]:
     """N-speed test ('14-speed', MODEL.md §4): writes ``14speed.csv`` (columns
     :data:`FOURTEEN_SPEED_COLUMNS`) and ``14speed.png``."""
     rng = _rng(noise_std, seed)
@@ -267,7 +275,7 @@ def run_fourteen_speed(model: DamperModel, out_dir: str | Path, points: int = 14
         raise ValueError(f"N-speed points must be an integer >= 2, got {points!r}")
     out = _out(out_dir)
     table, faults = fourteen_speed_table(model, points, amplitude, v_min, v_max, cycles, rate,
-                                         noise_std, rng)
+                                         noise_std, rng, engine)
     csv_path = out / "14speed.csv"
     np.savetxt(csv_path, np.column_stack([table[c] for c in FOURTEEN_SPEED_COLUMNS]),
                fmt="%.9g", delimiter=",", header=",".join(FOURTEEN_SPEED_COLUMNS),

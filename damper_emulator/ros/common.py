@@ -10,6 +10,7 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from damper_emulator.bag import BagError
@@ -129,7 +130,11 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     # A loop thread waiting for the GIL waits at most this long for a Python thread that
     # holds it (default 5 ms, several loop periods).
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    rclpy.init(args=["--ros-args", *ros_args] if ros_args else None)
+    try:
+        rclpy.init(args=["--ros-args", *ros_args] if ros_args else None)
+    except _rclpy_impl.RCLError as exc:   # a malformed --ros-args: one line
+        print(f"{PROG}: error: --ros-args: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
     node = None
     status = 0
     try:

@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Mapping, Sequence
 
+import yaml
+
 #: Default domain range for runs that were not given one: 40 .. 89 by process id.
 _DOMAIN_BASE, _DOMAIN_SPAN = 40, 50
 
@@ -55,7 +57,11 @@ def _yaml_scalar(value: object) -> str:
         text = repr(value)
         return text if any(c in text for c in ".en") else text + ".0"
     if isinstance(value, str):
-        return "''" if value == "" else value
+        try:
+            plain = yaml.safe_load(value) == value
+        except yaml.YAMLError:
+            plain = False
+        return value if plain and value else "'" + value.replace("'", "''") + "'"
     return str(value)
 
 

@@ -1,0 +1,282 @@
+"""The project's CAN database (``config/damper.dbc``): loading, checks and bus load.
+
+The database is read with :mod:`cantools`; this module adds the project's requirements
+(the messages the bridge needs, each with an alive ``Counter`` and a byte-aligned 8-bit
+``Checksum``), the messages' cycle times and the worst-case bus load of the periodic
+messages.
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import cantools
+from cantools.database.can import Database, Message, Signal
+
+__all__ = [
+    "DEFAULT_DBC",
+    "REQUIRED_SIGNALS",
+    "COUNTER_SIGNAL",
+    "CHECKSUM_SIGNAL",
+    "ForceStatus",
+    "DbcError",
+    "load_database",
+    "check_message",
+    "checksum_byte",
+    "messages_for",
+    "cycle_time_s",
+    "frame_bits",
+    "bus_load",
+]
+
+#: The project's CAN database.
+DEFAULT_DBC = Path(__file__).resolve().parents[1] / "config" / "damper.dbc"
+
+COUNTER_SIGNAL = "Counter"
+CHECKSUM_SIGNAL = "Checksum"
+
+#: Messages the bridge needs and their data signals (each also has Counter and Checksum).
+REQUIRED_SIGNALS: Mapping[str, tuple[str, ...]] = {
+    "DAMPER_STATE": ("Stroke", "Velocity"),
+    "DAMPER_FORCE": ("Force", "Status", "InputAge", "StrokeUsed"),
+    "VALVE_COMMAND": ("Command",),
+    "VEHICLE_MOTION": ("BodyVelocity", "WheelVelocity", "DamperVelocity"),
+}
+
+
+class ForceStatus(enum.IntFlag):
+    """Bits of ``DAMPER_FORCE.Status`` (see the signal's comment in the DBC).
+
+    Bits 1..8 are the emulator's (:class:`damper_emulator.realtime.core.Status`), bits
+    16..128 the CAN bridge's.
+    """
+
+    OK = 0
+    NO_INPUT = 1            # emulator: no valid input sample yet
+    INPUT_TIMEOUT = 2       # emulator: latest input too old, fault output
+    INPUT_REJECTED = 4      # emulator: latest input sample rejected
+    MODEL = 8               # emulator: the model flagged the step
+    CAN_STATE_TIMEOUT = 16  # bridge: no DAMPER_STATE frame within the timeout
+    FORCE_TIMEOUT = 32      # bridge: no /damper/force within the timeout
+    CAN_RX_ERRORS = 64      # bridge: CAN receive errors since the last DAMPER_FORCE frame
+    FORCE_SATURATED = 128   # bridge: Force saturated to the signal range
+
+
+class DbcError(ValueError):
+    """The CAN database cannot be read or lacks what the project needs (one line)."""
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
+def checksum_byte(signal: Signal) -> int | None:
+    """Index of the payload byte that holds ``signal``, if it is a byte-aligned 8-bit signal.
+
+    Parameters
+    ----------
+    signal : cantools.database.can.Signal
+
+    Returns
+    -------
+    int or None
+        The byte index, or None when the signal is not exactly one whole byte.
+    """
+    if signal.length != 8 or signal.is_float:
+        return None
+    # cantools keeps the DBC start bit: the LSB for Intel, the MSB for Motorola signals.
+    aligned = signal.start % 8 == (0 if signal.byte_order == "little_endian" else 7)
+    return signal.start // 8 if aligned else None
+
+
+def check_message(message: Message, data_signals: Iterable[str] = ()) -> None:
+    """Check that ``message`` carries the project's counter and checksum (and data signals).
+
+    Parameters
+    ----------
+    message : cantools.database.can.Message
+    data_signals : iterable of str
+        Further signals the message must have.
+
+    Raises
+    ------
+    ValueError
+        One line naming the message and what is wrong.
+    """
+    names = {s.name for s in message.signals}
+    missing = [n for n in (*data_signals, COUNTER_SIGNAL, CHECKSUM_SIGNAL) if n not in names]
+    if missing:
+        raise ValueError(f"message {message.name} lacks signal(s) {', '.join(missing)}")
+    if message.is_container or message.is_multiplexed():
+        raise ValueError(f"message {message.name}: containers and multiplexing are not "
+                         "supported")
+    counter = message.get_signal_by_name(COUNTER_SIGNAL)
+    if counter.length != 4 or counter.is_signed or counter.is_float:
+        raise ValueError(f"message {message.name}: {COUNTER_SIGNAL} must be a 4-bit unsigned "
+                         f"integer, not {counter.length} bits"
+                         f"{' signed' if counter.is_signed else ''}")
+    checksum = message.get_signal_by_name(CHECKSUM_SIGNAL)
+    index = checksum_byte(checksum)
+    if index is None or checksum.is_signed or index >= message.length:
+        raise ValueError(f"message {message.name}: {CHECKSUM_SIGNAL} must be a byte-aligned "
+                         f"unsigned 8-bit signal (start bit {checksum.start}, "
+                         f"{checksum.length} bits)")
+
+
+def load_database(path: str | os.PathLike[str] | None = None, *,
+                  required: Mapping[str, Iterable[str]] | None = None) -> Database:
+    """Read and check a CAN database.
+
+    Parameters
+    ----------
+    path : path-like, optional
+        The DBC file; :data:`DEFAULT_DBC` when None.
+    required : mapping of str to iterable of str, optional
+        Message name → data signals it must have (besides ``Counter`` and ``Checksum``);
+        :data:`REQUIRED_SIGNALS` when None.
+
+    Returns
+    -------
+    cantools.database.can.Database
+
+    Raises
+    ------
+    DbcError
+        One line naming the file: missing file, parse error, a required message or signal
+        missing, or a counter/checksum of the wrong shape.
+    """
+    path = Path(DEFAULT_DBC if path is None else path)
+    required = REQUIRED_SIGNALS if required is None else required
+    if not path.is_file():
+        raise DbcError(f"{path}: no such CAN database file")
+    try:
+        db = cantools.database.load_file(path, database_format="dbc", strict=True)
+    except Exception as exc:  # cantools/textparser raise several unrelated types
+        raise DbcError(f"{path}: cannot read the DBC: {_one_line(exc)}") from exc
+    for name, signals in required.items():
+        try:
+            message = db.get_message_by_name(name)
+        except KeyError:
+            raise DbcError(f"{path}: message {name} missing") from None
+        try:
+            check_message(message, signals)
+        except ValueError as exc:
+            raise DbcError(f"{path}: {exc}") from None
+    return db
+
+
+def messages_for(db: Database, *, sender: str | None = None,
+                 receiver: str | None = None) -> list[str]:
+    """Names of the messages a node sends or receives.
+
+    Parameters
+    ----------
+    db : cantools.database.can.Database
+    sender, receiver : str, optional
+        Node name (``DYNO``, ``EMULATOR``, ``CONTROLLER``); each given one must match.
+
+    Returns
+    -------
+    list of str
+        Message names in the database's order.
+    """
+    out = []
+    for message in db.messages:
+        if sender is not None and sender not in message.senders:
+            continue
+        if receiver is not None and receiver not in message.receivers:
+            continue
+        out.append(message.name)
+    return out
+
+
+def cycle_time_s(message: Message) -> float | None:
+    """Cycle time of a periodic message (DBC attribute ``GenMsgCycleTime``, ms).
+
+    Returns
+    -------
+    float or None
+        Seconds; None when the message has no (or a zero) cycle time.
+    """
+    ms = message.cycle_time
+    return ms / 1000.0 if ms else None
+
+
+def frame_bits(dlc: int, extended: bool = False) -> int:
+    """Worst-case length on the wire of a classic CAN data frame, in bits.
+
+    Counts the frame with the worst-case bit stuffing and the 3-bit interframe space.
+    A standard (11-bit) data frame has 34 + 8·dlc stuffable bits (SOF 1, identifier 11, RTR 1,
+    IDE 1, r0 1, DLC 4, data 8·dlc, CRC 15) and 13 fixed-form bits (CRC delimiter 1, ACK 2,
+    EOF 7, interframe space 3): 47 + 8·dlc bits.  An extended (29-bit) frame has
+    54 + 8·dlc stuffable bits (SOF 1, base identifier 11, SRR 1, IDE 1, identifier extension
+    18, RTR 1, r1 1, r0 1, DLC 4, data, CRC 15): 67 + 8·dlc bits.  A stuff bit follows five
+    equal bits, and a stuff bit starts the next run, so at most one stuff bit is added for the
+    first 5 bits and one per 4 bits after that: ⌊(n − 1)/4⌋ for n stuffable bits.  Hence
+
+        standard:  47 + 8·dlc + ⌊(34 + 8·dlc − 1)/4⌋   (135 bits at dlc 8)
+        extended:  67 + 8·dlc + ⌊(54 + 8·dlc − 1)/4⌋   (160 bits at dlc 8)
+
+    Parameters
+    ----------
+    dlc : int
+        Data length, 0..8 bytes.
+    extended : bool
+        29-bit identifier.
+
+    Returns
+    -------
+    int
+    """
+    if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 8:
+        raise ValueError(f"dlc must be an integer 0..8 (classic CAN), got {dlc!r}")
+    stuffable = (54 if extended else 34) + 8 * dlc
+    fixed = 13
+    return stuffable + fixed + (stuffable - 1) // 4
+
+
+def bus_load(db: Database, bitrate_bps: float,
+             messages: Iterable[str] | None = None) -> float:
+    """Worst-case fraction of the bus used by periodic messages.
+
+    ``Σ frame_bits(length) / cycle_time / bitrate`` over the messages.
+
+    Parameters
+    ----------
+    db : cantools.database.can.Database
+    bitrate_bps : float
+        Nominal bit rate [bit/s], e.g. 500_000 or 1_000_000.
+    messages : iterable of str, optional
+        Message names; every message with a cycle time when None.
+
+    Returns
+    -------
+    float
+        Bus load, 1.0 = the whole bus.
+
+    Raises
+    ------
+    ValueError
+        A named message without a cycle time, a CAN FD message, or a non-positive bit rate.
+    KeyError
+        A named message not in the database.
+    """
+    if not bitrate_bps > 0:
+        raise ValueError(f"bitrate_bps must be positive, got {bitrate_bps!r}")
+    if messages is None:
+        chosen = [m for m in db.messages if cycle_time_s(m)]
+    else:
+        chosen = [db.get_message_by_name(n) for n in messages]
+    bits_per_s = 0.0
+    for message in chosen:
+        period = cycle_time_s(message)
+        if period is None:
+            raise ValueError(f"message {message.name} has no cycle time (GenMsgCycleTime)")
+        if message.is_fd or message.length > 8:
+            raise ValueError(f"message {message.name}: CAN FD frames are not supported")
+        bits_per_s += frame_bits(message.length, message.is_extended_frame) / period
+    return bits_per_s / bitrate_bps

@@ -1,0 +1,82 @@
+"""Typed parameters of the ``can_bridge`` node (``damper-hil bridge``).
+
+Defaults live in ``config/bridge.yaml``.  The names are the node's own, without a group
+(CONTRACT.md: ``can_interface``, ``can_channel``, ``mode``); every value is checked by the
+project's one rule checker (:func:`damper_emulator.params.check_value`) and a bad one gives a
+one-line :class:`~damper_emulator.params.ParameterError`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Mapping
+
+from damper_emulator.params import ParameterError, build_group, check_value, read_yaml, rule
+
+#: Default bridge parameters.
+DEFAULT_BRIDGE_FILE = Path(__file__).resolve().parents[1] / "config" / "bridge.yaml"
+#: The node's name, and the key of its parameters in ``config/bridge.yaml``.
+NODE_NAME = "can_bridge"
+MODES = ("dyno", "controller")
+
+
+@dataclass(frozen=True)
+class BridgeParams:
+    """How the bridge maps CAN frames (config/damper.dbc) to ROS 2 topics."""
+
+    can_interface: str = rule("text", "python-can interface (socketcan, udp_multicast, "
+                                      "virtual, pcan, ...)", "socketcan")
+    can_channel: str = rule("text", "python-can channel (vcan0, can0, an ff11:: group, ...)",
+                            "vcan0")
+    bitrate: int = rule(("int_range", 10000, 8000000), "bus bit rate [bit/s]", 500000)
+    mode: str = rule(("choices", MODES),
+                     "dyno: DAMPER_STATE → /damper/state, /damper/force → DAMPER_FORCE; "
+                     "controller: VALVE_COMMAND → /damper/valve_command, /ride/state → "
+                     "VEHICLE_MOTION, /damper/force → DAMPER_FORCE", "dyno")
+    dbc_file: str = rule("text", "CAN database ('' = config/damper.dbc)", "")
+    damper_name: str = rule("text", "name[0] of /damper/state (REP-144)", "damper")
+    state_timeout_s: float = rule(("range", 0.0, 10.0),
+                                  "dyno: no DAMPER_STATE frame this long sets status bit 16 "
+                                  "[s]", 0.02)
+    force_timeout_s: float = rule(("range", 0.0, 10.0),
+                                  "no /damper/force this long: DAMPER_FORCE frames with "
+                                  "status bit 32 at the DBC cycle [s]", 0.02)
+    command_timeout_s: float = rule(("range", 0.0, 60.0),
+                                    "controller: no VALVE_COMMAND frame this long applies "
+                                    "fail_safe_command [s]", 0.1)
+    fail_safe_command: float = rule(("closed", 0.0, 1.0),
+                                    "controller: valve command while the controller is "
+                                    "silent (0 comfort .. 1 sport)", 1.0)
+    backoff_initial_s: float = rule("positive", "first wait before reopening a failed bus "
+                                                "[s]", 0.1)
+    backoff_max_s: float = rule("positive", "longest wait between reopen attempts [s]", 5.0)
+    diagnostics_period_s: float = rule(("range", 0.0, 60.0), "period of /diagnostics [s]", 1.0)
+    sched_fifo: bool = rule("bool", "SCHED_FIFO for the receive thread when permitted", True)
+    priority: int = rule(("int_range", 1, 99), "SCHED_FIFO priority of the receive thread",
+                         75)
+
+
+def bridge_params_from_mapping(data: Mapping[str, Any] | None,
+                               where: str = "<memory>") -> BridgeParams:
+    """Build and check :class:`BridgeParams` from a mapping of its parameters."""
+    params = build_group(BridgeParams, {} if data is None else data, NODE_NAME, where,
+                         check_value)
+    if params.backoff_max_s < params.backoff_initial_s:
+        raise ParameterError(f"{where}: {NODE_NAME}.backoff_max_s ({params.backoff_max_s:g}) "
+                             f"must be >= backoff_initial_s ({params.backoff_initial_s:g})")
+    return params
+
+
+def default_bridge_mapping() -> dict[str, Any]:
+    """The parameters of ``config/bridge.yaml`` (the defaults)."""
+    where = str(DEFAULT_BRIDGE_FILE)
+    doc = read_yaml(DEFAULT_BRIDGE_FILE)
+    try:
+        return dict(doc[NODE_NAME]["ros__parameters"])
+    except (KeyError, TypeError):
+        raise ParameterError(f"{where}: expected '{NODE_NAME}: ros__parameters: ...'") from None
+
+
+def field_names() -> tuple[str, ...]:
+    return tuple(f.name for f in fields(BridgeParams))

@@ -152,7 +152,8 @@ class BridgeCore:
 
     def _encode_force(self, force_n: float, bits: int, input_age_s: float,
                       stroke_m: float) -> bytes:
-        force = force_n if math.isfinite(force_n) else 0.0
+        # NaN: no force to send (0 N); ±inf is beyond the range: saturated and flagged
+        force = 0.0 if math.isnan(force_n) else force_n
         if not self._force_lo <= force <= self._force_hi:
             self.counters.saturated += 1
             bits |= int(ForceStatus.FORCE_SATURATED)

@@ -166,14 +166,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="closed-loop HIL demo: emulator + ride simulation over ROS 2, recorded",
         description="Closed-loop hardware-in-the-loop demo on this machine.\n\n"
                     "Starts the damper_emulator node (1 kHz), the ride_sim node (quarter car\n"
-                    "on the minor road at 20 m/s) and the recorder as separate ROS 2\n"
-                    "processes (localhost only, own ROS_DOMAIN_ID), runs DURATION seconds of\n"
-                    "road, and writes under DIR: bag/ (rosbag2, MCAP), ride_metrics.json,\n"
-                    "demo.json, report.md, ride.png, damper.png, loop.png and logs/.")
+                    "on the minor road at 20 m/s), the CAN bridge (controller mode), the\n"
+                    "skyhook controller (a process on the CAN bus) and the recorder as\n"
+                    "separate processes (localhost only, own ROS_DOMAIN_ID; CAN: socketcan\n"
+                    "vcan0 where the kernel has it, else a private udp_multicast group), runs\n"
+                    "DURATION seconds of road, and writes under DIR: bag/ (rosbag2, MCAP),\n"
+                    "ride_metrics.json, skyhook.json, demo.json, report.md, ride.png,\n"
+                    "damper.png, control.png, loop.png and logs/.")
     demo.add_argument("--duration", metavar="S", type=_positive, default=20.0,
                       help="road time [s] (default: 20; at least 5 at 20 m/s)")
     demo.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
                       help="ride clock (default: realtime)")
+    demo.add_argument("--control", choices=("skyhook", "passive"), default="skyhook",
+                      help="skyhook: the reference skyhook controller commands the adaptive "
+                           "damper over CAN; passive: the damper stays at sport (the bridge "
+                           "still runs; default: skyhook)")
     demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
                       help="output directory (created if missing; default: demo_out)")
     demo.set_defaults(handler=cmd_demo)
@@ -239,6 +246,33 @@ def build_parser() -> argparse.ArgumentParser:
                f"  {PROG} bridge --ros-args -p can_interface:=udp_multicast "
                "-p can_channel:=ff11::d4:1 -p mode:=controller")
     bridge.set_defaults(handler=cmd_bridge, takes_ros_args=True)
+    sky = sub.add_parser(
+        "skyhook", formatter_class=_Formatter,
+        help="run the reference skyhook controller on the CAN bus (VEHICLE_MOTION in, "
+             "VALVE_COMMAND out)",
+        description="Run the continuous semi-active skyhook controller (ride_sim/skyhook.py)\n"
+                    "as an adaptive-damper ECU would: on the CAN bus only, no ROS.  It\n"
+                    "reads VEHICLE_MOTION frames (from a bridge in controller mode) and sends\n"
+                    "VALVE_COMMAND frames at skyhook.rate_hz until SIGINT/SIGTERM or\n"
+                    "--duration; while VEHICLE_MOTION is silent it sends nothing (the bridge\n"
+                    "then applies its fail-safe command).",
+        epilog="example:\n"
+               f"  {PROG} skyhook --can-interface udp_multicast --can-channel "
+               "'[ff11::d4:1]:43000'")
+    sky.add_argument("--params", metavar="FILE", type=Path, default=None,
+                     help="skyhook params file (default: config/skyhook.yaml)")
+    sky.add_argument("--damper-params", metavar="FILE", type=Path, default=None,
+                     help="damper whose comfort/sport rates the law uses (rates_from: model; "
+                          "default: config/sport.yaml)")
+    sky.add_argument("--can-interface", metavar="NAME", default="socketcan",
+                     help="python-can interface (default: socketcan)")
+    sky.add_argument("--can-channel", metavar="CHANNEL", default="vcan0",
+                     help="channel (default: vcan0)")
+    sky.add_argument("--duration", metavar="S", type=_positive, default=None,
+                     help="stop after S seconds (default: until SIGINT/SIGTERM)")
+    sky.add_argument("--json", metavar="FILE", type=Path, default=None,
+                     help="write the controller's statistics here at the end")
+    sky.set_defaults(handler=cmd_skyhook)
     replay = sub.add_parser(
         "replay", formatter_class=_Formatter,
         help="offline replay of a recorded bag through the emulator's model (no ROS)",
@@ -363,7 +397,7 @@ def build_parser() -> argparse.ArgumentParser:
     ride = sub.add_parser(
         "ride-study", formatter_class=_Formatter,
         help="quarter-car ride studies: the paper's figures 10 (random road), 11 (speed "
-             "sweep) and 13 (pothole)",
+             "sweep) and 13 (pothole); the adaptive damper (passive vs skyhook)",
         description="Quarter-car ride studies after Simms & Crolla (MODEL.md §5), for the\n"
                     "damper representations linear (C_s = 2622 N s/m at the wheel), 14speed\n"
                     "(14-speed test of the hysteretic model), nonlinear (the hysteretic model\n"
@@ -375,6 +409,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "  11  weighted acceleration r.m.s. against speed (5..35 m/s) in a\n"
                     "      process pool\n"
                     "  13  the project's pothole at 10 m/s\n"
+                    "  adaptive  the adaptive damper (MODEL.md §6) on the figure-10 road:\n"
+                    "      passive sport (valve command 1), passive comfort (0) and the\n"
+                    "      skyhook law (--skyhook, config/skyhook.yaml; command held at its\n"
+                    "      rate, solenoid lag in the model); SWS, Wk-weighted acceleration and\n"
+                    "      DTL r.m.s., mean ± std over seeds, per seed, ratios to sport\n"
                     "Road, band, seeds and pothole come from the config's 'road' group\n"
                     "(config/quarter_car.yaml); the options below override them.  Results go\n"
                     "to --json (per representation: sws_rms [m], accel_w_rms [m/s^2],\n"
@@ -384,38 +423,46 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n"
                f"  {PROG} ride-study --figure 10 --json fig10.json --report docs/ride_study\n"
                f"  {PROG} ride-study --figure 11 --seeds 5 --workers 2 --json fig11.json\n"
-               f"  {PROG} ride-study --figure 13 --speed 10 --json fig13.json")
-    ride.add_argument("--figure", required=True, type=int, choices=(10, 11, 13),
-                      help="which study: 10 random road, 11 speed sweep, 13 pothole")
+               f"  {PROG} ride-study --figure 13 --speed 10 --json fig13.json\n"
+               f"  {PROG} ride-study --figure adaptive --json adaptive.json --out "
+               "docs/ride_study")
+    ride.add_argument("--figure", required=True, choices=("10", "11", "13", "adaptive"),
+                      help="which study: 10 random road, 11 speed sweep, 13 pothole, "
+                           "adaptive (passive sport / comfort vs skyhook)")
     ride.add_argument("--json", metavar="FILE", type=Path, required=True,
                       help="results file (JSON; parent directories are created)")
     ride.add_argument("--config", metavar="CONFIG.yaml", type=Path, default=None,
                       help="quarter-car params file with an optional 'road' group "
                            "(default: config/quarter_car.yaml)")
     ride.add_argument("--seeds", metavar="N", type=_pos_int, default=None,
-                      help="[10, 11] road seeds 0..N-1, the same for every damper "
-                           "(default: road.seeds, 5)")
+                      help="[10, 11, adaptive] road seeds 0..N-1, the same for every "
+                           "damper (default: road.seeds, 5)")
     ride.add_argument("--length", metavar="M", type=_positive, default=None,
-                      help="[10, 11] length of random road evaluated [m] (default: 500)")
+                      help="[10, 11, adaptive] length of random road evaluated [m] "
+                           "(default: 500)")
     ride.add_argument("--speed", metavar="V", type=_positive, nargs="+", default=None,
-                      help="speed [m/s]: [10] one value (default 20), [13] one value "
-                           "(default 10), [11] the sweep's speeds (default 5 10 ... 35)")
+                      help="speed [m/s]: [10, adaptive] one value (default 20), [13] one "
+                           "value (default 10), [11] the sweep's speeds (default 5 10 ... 35)")
     ride.add_argument("--band", metavar=("NMIN", "NMAX"), type=_positive, nargs=2,
                       default=None,
-                      help="[10, 11] synthesised road band [cycles/m] (default: 0.01 0.8, "
-                           "the band the paper's figure 10 implies)")
+                      help="[10, 11, adaptive] synthesised road band [cycles/m] (default: "
+                           "0.01 0.8, the band the paper's figure 10 implies)")
     ride.add_argument("--band-scaling", choices=("temporal", "spatial"), default=None,
                       help="[11] keep the band fixed in Hz as at 20 m/s (temporal, default) "
                            "or in cycles/m (spatial)")
     ride.add_argument("--amplitudes", choices=("deterministic", "random"), default=None,
-                      help="[10, 11] road synthesis: exact spectrum with random phases "
-                           "(deterministic, default) or random amplitudes too")
+                      help="[10, 11, adaptive] road synthesis: exact spectrum with random "
+                           "phases (deterministic, default) or random amplitudes too")
     ride.add_argument("--workers", metavar="N", type=_pos_int, default=None,
                       help="[11] worker processes (default: all cores)")
-    ride.add_argument("--report", metavar="DIR", type=Path, default=None,
+    ride.add_argument("--report", "--out", metavar="DIR", dest="report", type=Path,
+                      default=None,
                       help="also write the figures (PNG) into DIR: [10] ride_sws_2s.png, "
                            "ride_psd.png, ride_band_sensitivity.png; [11] "
-                           "ride_speed_sweep.png; [13] ride_pothole.png")
+                           "ride_speed_sweep.png; [13] ride_pothole.png; [adaptive] "
+                           "ride_adaptive_bars.png, ride_adaptive_history.png")
+    ride.add_argument("--skyhook", metavar="SKYHOOK.yaml", type=Path, default=None,
+                      help="[adaptive] skyhook params file (default: config/skyhook.yaml)")
     ride.set_defaults(handler=cmd_ride_study)
     ride.error = lambda message: ride.exit(  # type: ignore[method-assign]
         2, f"{ride.prog}: error: {_one_line(message)}\n")  # one line, no usage block
@@ -538,7 +585,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(text, file=sys.stderr, flush=True)
 
     try:
-        summary = run_demo(args.out, args.duration, clock=args.clock, progress=progress)
+        summary = run_demo(args.out, args.duration, clock=args.clock, control=args.control,
+                           progress=progress)
     except DemoError as exc:
         raise CliError(str(exc)) from None
     m = summary["ride"]["metrics"]
@@ -627,6 +675,45 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     from damper_emulator.ros.common import spin_node
 
     return spin_node(BridgeNode, args.ros_args)
+
+
+def cmd_skyhook(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from can_bridge.bus import BusConfig, CanBusError, open_bus
+    from can_bridge.dbc import load_database
+    from can_bridge.skyhook_controller import run_skyhook
+    from ride_sim.skyhook import load_skyhook, resolve_rates
+
+    params = load_skyhook(args.params)
+    model = _load_model(args.damper_params)[0] if params.rates_from == "model" \
+        else None
+    rates = resolve_rates(params, model)
+    try:
+        bus = BusConfig(interface=args.can_interface, channel=args.can_channel)
+        open_bus(bus).shutdown()
+    except (ValueError, CanBusError) as exc:
+        raise CliError(str(exc)) from None
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    if args.duration:
+        threading.Timer(args.duration, stop.set).start()
+
+    def log(text: str) -> None:
+        print(f"[skyhook] {text}", file=sys.stderr, flush=True)
+
+    log(f"on {bus.interface} {bus.channel}: c_sky {params.c_sky_ns_m:g} N s/m at "
+        f"{params.rate_hz:g} Hz; rates soft/firm rebound {rates.soft_rebound:.0f}/"
+        f"{rates.firm_rebound:.0f}, compression {rates.soft_compression:.0f}/"
+        f"{rates.firm_compression:.0f} N s/m")
+    stats = run_skyhook(bus, load_database(), params, rates, stop, log=log)
+    log(f"stopped: {stats.motion_frames} VEHICLE_MOTION frames in, {stats.commands_sent} "
+        f"VALVE_COMMAND frames out")
+    if args.json:
+        _write_json(args.json, stats.as_dict())
+    return 0
 
 
 def cmd_record(args: argparse.Namespace) -> int:
@@ -781,12 +868,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 
 #: ride-study options that do not apply to a figure: figure → option dests
-_RIDE_IGNORED = {13: ("seeds", "length", "band", "band_scaling", "amplitudes", "workers"),
-                 10: ("band_scaling", "workers"), 11: ()}
+_RIDE_IGNORED = {13: ("seeds", "length", "band", "band_scaling", "amplitudes", "workers",
+                      "skyhook"),
+                 10: ("band_scaling", "workers", "skyhook"), 11: ("skyhook",),
+                 "adaptive": ("band_scaling", "workers")}
 
 
 def cmd_ride_study(args: argparse.Namespace) -> int:
-    fig = args.figure
+    fig = int(args.figure) if args.figure.isdigit() else args.figure
     if args.band is not None and not args.band[0] < args.band[1]:
         raise CliError(f"--band {args.band[0]:g} {args.band[1]:g}: NMIN must be below NMAX")
     if args.speed is not None and fig != 11 and len(args.speed) != 1:
@@ -808,8 +897,12 @@ def cmd_ride_study(args: argparse.Namespace) -> int:
         overrides.update(band_scaling=args.band_scaling,
                          sweep_speeds_m_s=tuple(args.speed) if args.speed else None)
     elif args.speed is not None:
-        overrides["speed_m_s" if fig == 10 else "pothole_speed_m_s"] = args.speed[0]
+        overrides["pothole_speed_m_s" if fig == 13 else "speed_m_s"] = args.speed[0]
     settings = study.StudySettings.from_config(cfg, **overrides)
+    if fig == "adaptive":
+        from ride_sim.skyhook import load_skyhook
+
+        skyhook = load_skyhook(args.skyhook)
 
     def progress(message: str) -> None:
         print(message, file=sys.stderr, flush=True)
@@ -818,6 +911,8 @@ def cmd_ride_study(args: argparse.Namespace) -> int:
         result = study.figure10(settings, progress=progress)
     elif fig == 11:
         result = study.figure11(settings, workers=args.workers, progress=progress)
+    elif fig == "adaptive":
+        result = study.adaptive_study(settings, skyhook, progress=progress)
     else:
         result = study.figure13(settings, progress=progress)
     doc = result.doc
@@ -833,6 +928,10 @@ def cmd_ride_study(args: argparse.Namespace) -> int:
                                                  settings)]
         elif fig == 11:
             files = [plots.plot_speed_sweep(report / "ride_speed_sweep.png", doc, settings)]
+        elif fig == "adaptive":
+            files = [plots.plot_adaptive_bars(report / "ride_adaptive_bars.png", doc),
+                     plots.plot_adaptive_history(report / "ride_adaptive_history.png",
+                                                 result)]
         else:
             files = [plots.plot_pothole(report / "ride_pothole.png", result)]
         for path in files:
@@ -848,6 +947,8 @@ def cmd_ride_study(args: argparse.Namespace) -> int:
             if key in doc:
                 print(f"{key}: {', '.join(f'{v:.1f}' for v in doc[key]) or 'none'} "
                       f"(paper: near {doc['paper_crossing_m_s']:g} m/s)")
+    elif fig == "adaptive":
+        print(study.adaptive_table(doc))
     else:
         print(study.comparison_table(doc))
         claim = doc.get("claim")

@@ -1,7 +1,15 @@
 """The closed-loop HIL demo (``damper-hil demo``, ``make demo``): the emulator, the ride
-simulation and the recorder as separate ROS 2 processes on this machine
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, own ``ROS_DOMAIN_ID``), then a report from the
-recorded bag (:mod:`damper_emulator.hil_report`).
+simulation, the CAN bridge and the recorder as separate ROS 2 processes on this machine
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, own ``ROS_DOMAIN_ID``), with the skyhook
+controller as its own process on the CAN bus, then a report from the recorded bag
+(:mod:`damper_emulator.hil_report`).
+
+The control loop of ``control: skyhook``: ride_sim → ``/ride/state`` → bridge (controller
+mode) → ``VEHICLE_MOTION`` frames → skyhook process → ``VALVE_COMMAND`` frames → bridge →
+``/damper/valve_command`` → emulator (solenoid lag, bypass).  ``control: passive`` starts the
+bridge but no controller, so the damper stays at the bridge's fail-safe command (sport).
+The bus is ``socketcan`` on ``vcan0`` where the kernel has it, else ``udp_multicast`` on an
+interface-local group and port private to the run.
 """
 
 from __future__ import annotations
@@ -12,6 +20,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
+from can_bridge.loopback import default_bus
 from damper_emulator.hil_report import write_report
 from damper_emulator.recording import read_recording
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
@@ -34,8 +43,11 @@ def _clear_bag(bag: Path) -> None:
     shutil.rmtree(bag)
 
 
+CONTROLS = ("skyhook", "passive")
+
+
 def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
-             domain_id: int | None = None,
+             control: str = "skyhook", domain_id: int | None = None,
              progress: Callable[[str], None] = print) -> dict:
     """Run the demo into ``out`` and return its summary (also ``out/demo.json``)."""
     started = time.monotonic()
@@ -45,8 +57,12 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
     logs = out / "logs"
     stats = out / "emulator_loop.npz"
     metrics = out / "ride_metrics.json"
-    for f in (stats, metrics):
+    sky_json = out / "skyhook.json"
+    for f in (stats, metrics, sky_json):
         f.unlink(missing_ok=True)
+    if control not in CONTROLS:
+        raise DemoError(f"control must be one of {', '.join(CONTROLS)}, got {control!r}")
+    bus = default_bus()
     env = ros_environment(domain_id)
     emulator_params = {"emulator.stats_file": str(stats)}
     if clock == "lockstep":
@@ -55,17 +71,27 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
              f"localhost only; logs in {logs})")
     rec = NodeProcess("recorder", node_command("record", extra=["--out", str(bag)]), env, logs)
     emu = NodeProcess("emulator", node_command("emulate", emulator_params), env, logs)
+    helpers = [rec, emu]
     ride = None
     try:
+        progress(f"      CAN bridge (controller mode) on {bus.interface} {bus.channel}"
+                 + (", skyhook controller on the bus" if control == "skyhook" else ""))
+        helpers.append(NodeProcess("bridge", node_command("bridge", {
+            "can_interface": bus.interface, "can_channel": bus.channel,
+            "mode": "controller"}), env, logs))
+        if control == "skyhook":
+            helpers.append(NodeProcess("skyhook", node_command("skyhook", extra=[
+                "--can-interface", bus.interface, "--can-channel", bus.channel,
+                "--json", str(sky_json)]), env, logs))
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         ride = NodeProcess("ride", node_command("ride", {
             "ride.duration_s": float(duration_s), "ride.clock": clock,
             "ride.metrics_file": str(metrics),
-            "ride.state_subscribers": 2}), env, logs)   # the emulator and the recorder
+            "ride.state_subscribers": 3}), env, logs)   # emulator, recorder and bridge
         limit = time.monotonic() + duration_s + START_STOP_ALLOWANCE_S
         last = time.monotonic()
         while ride.poll() is None:
-            for node in (rec, emu):
+            for node in helpers:
                 if node.poll() is not None:
                     raise DemoError(f"the {node.name} stopped (exit {node.poll()}): "
                                     f"{node.log_tail(1)}")
@@ -79,11 +105,11 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         if ride.poll() != 0:
             raise DemoError(f"the ride node failed (exit {ride.poll()}): {ride.log_tail(1)}")
     finally:
-        progress("[3/4] stopping emulator and recorder")
+        progress("[3/4] stopping the controller, bridge, emulator and recorder")
         if ride is not None:
             ride.stop()
-        emu.stop()
-        rec.stop()
+        for node in reversed(helpers):
+            node.stop()
     progress("[4/4] report from the bag")
     ride_doc = json.loads(metrics.read_text())
     recording = read_recording(bag)
@@ -92,6 +118,9 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         "mode": "closed-loop HIL over ROS 2",
         "duration_s": duration_s,
         "clock": clock,
+        "control": control,
+        "can_bus": f"{bus.interface} {bus.channel}",
+        "skyhook": json.loads(sky_json.read_text()) if sky_json.is_file() else None,
         "ros_domain_id": int(env["ROS_DOMAIN_ID"]),
         "elapsed_s": round(time.monotonic() - started, 1),
     })

@@ -52,6 +52,26 @@ def plot_damper(path: Path, rec: Recording) -> Path:
     return save(fig, path)
 
 
+def plot_control(path: Path, rec: Recording) -> Path | None:
+    """The valve command against time, with the body velocity the controller saw."""
+    if rec.valve_command is None:
+        return None
+    log_ns, command = rec.valve_command
+    t0 = rec.ride.log_ns[0] if rec.ride is not None else log_ns[0]
+    fig = new_figure(10, 5)
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
+    ax1.step((log_ns - t0) * 1e-9, command, where="post", lw=0.6)
+    ax1.set_ylim(-0.05, 1.05)
+    decorate(ax1, "", "valve command\n0 comfort … 1 sport", legend=False)
+    if rec.ride is not None and rec.ride.body_rate_m_s is not None:
+        r = rec.ride
+        ax2.plot((r.log_ns - t0) * 1e-9, r.body_rate_m_s, lw=0.6)
+    decorate(ax2, "time since the first ride sample [s]", "body velocity [m/s]", legend=False)
+    fig.suptitle(f"/damper/valve_command over CAN: {command.size} commands, mean "
+                 f"{command.mean():.2f}")
+    return save(fig, path)
+
+
 def _loop_record(stats_file: Path):
     """``(arrays, summary)`` of the emulator's loop record (``emulator.stats_file``), or None
     when there is none or it is empty."""
@@ -92,6 +112,27 @@ def plot_loop(path: Path, stats_file: Path) -> Path | None:
     return save(fig, path)
 
 
+def _control_lines(summary: dict[str, Any]) -> list[str]:
+    """The control-over-CAN rows of the report (none when no bridge ran)."""
+    bridge = summary.get("bridge_diagnostics")
+    valve = summary.get("valve_command")
+    if not bridge and not valve:
+        return []
+    lines = ["| control over CAN | value |", "|---|---|",
+             f"| control | {summary.get('control', '')} on {summary.get('can_bus', '')} |"]
+    if valve:
+        lines.append(f"| /damper/valve_command | {valve['count']} commands, mean "
+                     f"{valve['mean']:.3f}, range {valve['min']:.3f} … {valve['max']:.3f} |")
+    if bridge:
+        lines.append(f"| bridge | {bridge.get('message', '')}: {bridge.get('commands_in')} "
+                     f"VALVE_COMMAND in, {bridge.get('motion_out')} VEHICLE_MOTION and "
+                     f"{bridge.get('forces_out')} DAMPER_FORCE out; dropped (length / "
+                     f"checksum / counter) {bridge.get('dropped_length')} / "
+                     f"{bridge.get('dropped_checksum')} / {bridge.get('dropped_counter')}, "
+                     f"lost {bridge.get('lost_frames')} |")
+    return lines + [""]
+
+
 def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
                  stats_file: Path, sprung_mass_kg: float, extra: dict[str, Any]
                  ) -> dict[str, Any]:
@@ -101,6 +142,9 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
         files.append(plot_ride(out / "ride.png", rec, sprung_mass_kg).name)
     if rec.force is not None:
         files.append(plot_damper(out / "damper.png", rec).name)
+    control_png = plot_control(out / "control.png", rec)
+    if control_png is not None:
+        files.append(control_png.name)
     loop_png = plot_loop(out / "loop.png", stats_file)
     if loop_png is not None:
         files.append(loop_png.name)
@@ -115,6 +159,12 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
         "ride": ride_doc,
         "emulator_loop": loop_summary(stats_file),
         "emulator_diagnostics": rec.last_diagnostics,
+        "bridge_diagnostics": rec.bridge_diagnostics or None,
+        "valve_command": None if rec.valve_command is None else {
+            "count": int(rec.valve_command[1].size),
+            "mean": float(rec.valve_command[1].mean()),
+            "min": float(rec.valve_command[1].min()),
+            "max": float(rec.valve_command[1].max())},
         "files": files + ["demo.json", "report.md"],
     }
     (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n")
@@ -150,6 +200,7 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
         f"| real-time settings | {loop.get('realtime', '')} |",
         f"| fault outputs (no input yet / stale input) | {faults} |",
         "",
+        *_control_lines(summary),
         "| topic | messages |",
         "|---|---|",
         *[f"| `{k}` | {v} |" for k, v in sorted(rec.counts.items())],

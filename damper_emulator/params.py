@@ -4,7 +4,10 @@ A parameter file is a ROS 2 params file (``<node or /**>: ros__parameters: {...}
 bare mapping inside it.  Two groups are read:
 
 ``damper``
-    the physical parameters of Simms & Crolla (MODEL.md §2.3), SI units named in each key;
+    the physical parameters of Simms & Crolla (MODEL.md §2.3), SI units named in each key,
+    with the optional sub-group ``damper.adaptive`` (the solenoid bypass of the softer
+    settings, MODEL.md §6, :class:`AdaptiveParams`; without it there is no bypass and the
+    valve command has no effect);
 ``numerics``
     the settings of the numerical implementation (valve look-up table, implicit solver).
 
@@ -76,6 +79,46 @@ def _pos(doc: str) -> Any:
     return field(metadata={"rule": "positive", "doc": doc})
 
 
+def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field checked by :func:`check_value`: ``rule`` is ``"positive"``,
+    ``"non-negative"``, ``"bool"``, ``"text"``, ``("range", lo, hi)`` (lo exclusive),
+    ``("closed", lo, hi)``,
+    ``("int_range", lo, hi)``, ``("choices", names)``, ``"band"`` or ``"positive_list"``;
+    ``doc`` says what the value is, with its unit."""
+    return field(default=default, metadata={"rule": kind, "doc": doc})
+
+
+@dataclass(frozen=True)
+class AdaptiveParams:
+    """The solenoid bypass of the adaptive damper's softer settings (MODEL.md §6;
+    :mod:`damper_emulator.model.adaptive`): a short bore in parallel with the piston valve,
+    ``Δp = (8πρνL Q + ρ/(2C_d²) Q|Q|)/A²``, open ``A_comfort`` at command 0, ``A_normal`` at
+    0.5 and closed at 1 ('sport'), behind a first-order solenoid lag.  The oil viscosity is
+    the damper's ``oil_kinematic_viscosity_m2_s``; the initial command is the emulator's
+    ``emulator.valve_command``."""
+
+    oil_density_kg_m3: float = rule("positive", "oil density ρ [kg/m³]")
+    bypass_discharge_coefficient: float = rule(
+        ("range", 0.0, 1.0), "discharge coefficient C_d of the bypass orifice [-]")
+    bypass_length_m: float = rule("positive", "length L of the bypass bore [m] (its "
+                                              "laminar, Hagen-Poiseuille loss)")
+    comfort_bypass_diameter_m: float = rule(
+        "non-negative", "bypass diameter open at command 0, 'comfort' [m]")
+    normal_bypass_diameter_m: float = rule(
+        "non-negative", "bypass diameter open at command 0.5, 'normal' [m]")
+    solenoid_t63_s: float = rule(
+        "non-negative", "solenoid time constant: 63 % of a command step after it [s] "
+                        "(0: no lag)")
+
+    @property
+    def comfort_area_m2(self) -> float:
+        return math.pi / 4.0 * self.comfort_bypass_diameter_m ** 2
+
+    @property
+    def normal_area_m2(self) -> float:
+        return math.pi / 4.0 * self.normal_bypass_diameter_m ** 2
+
+
 @dataclass(frozen=True)
 class ValveParams:
     """One direction of the piston valve (eqs 8–10, 28)."""
@@ -110,6 +153,9 @@ class DamperParams:
     compression: ValveParams = field(metadata={"rule": "group",
                                                "doc": "compression valve (Δp < 0)"})
     name: str = field(default="damper", metadata={"rule": "name", "doc": "damper name"})
+    adaptive: AdaptiveParams | None = field(default=None, metadata={
+        "rule": "adaptive", "doc": "solenoid bypass of the softer settings (MODEL.md §6); "
+                                   "None: no bypass, the valve command has no effect"})
 
     @property
     def rod_area_m2(self) -> float:
@@ -237,6 +283,8 @@ def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
 def _convert(raw: Any, f: dataclasses.Field, key: str, where: str) -> Any:
     if f.metadata["rule"] == "group":
         return _build(ValveParams, raw, key, where)
+    if f.metadata["rule"] == "adaptive":
+        return build_group(AdaptiveParams, raw, key, where, check_value)
     return _coerce(raw, f, key, where)
 
 
@@ -312,6 +360,8 @@ def validate(cfg: ModelConfig) -> None:
         raise ParameterError(
             f"{where}: damper.oil_compressibility_per_pa × gas_pressure_static_pa must be "
             "below 1 (eq 1: the oil volume would vanish)")
+    if d.adaptive is not None:
+        _check_adaptive(d, where)
     # The inverse valve table checks monotonicity of both characteristics.
     from damper_emulator.model.valve_table import ValveTableError, build_valve_tables
 
@@ -319,6 +369,29 @@ def validate(cfg: ModelConfig) -> None:
         build_valve_tables(cfg)
     except ValveTableError as exc:
         raise ParameterError(f"{where}: {exc}") from None
+
+
+def _check_adaptive(d: DamperParams, where: str) -> None:
+    """The rules of ``damper.adaptive`` (one-line :class:`ParameterError` naming the key):
+    each value's own rule, comfort the softest setting (its bypass at least as wide as
+    normal's) and the bypass narrower than the piston."""
+    a = d.adaptive
+    if not isinstance(a, AdaptiveParams):
+        raise ParameterError(f"{where}: damper.adaptive must be a mapping of "
+                             f"{', '.join(f.name for f in fields(AdaptiveParams))}")
+    for f in fields(AdaptiveParams):
+        check_value(getattr(a, f.name), f, f"damper.adaptive.{f.name}", where)
+    if not a.normal_bypass_diameter_m <= a.comfort_bypass_diameter_m:
+        raise ParameterError(
+            f"{where}: damper.adaptive.normal_bypass_diameter_m = "
+            f"{a.normal_bypass_diameter_m:g} must not exceed "
+            f"damper.adaptive.comfort_bypass_diameter_m = {a.comfort_bypass_diameter_m:g} "
+            "(comfort is the softest setting)")
+    if not a.comfort_bypass_diameter_m < d.piston_diameter_m:
+        raise ParameterError(
+            f"{where}: damper.adaptive.comfort_bypass_diameter_m = "
+            f"{a.comfort_bypass_diameter_m:g} must be smaller than damper.piston_diameter_m "
+            f"= {d.piston_diameter_m:g}")
 
 
 def config_from_mapping(doc: Any, source: str = "<memory>") -> ModelConfig:
@@ -339,7 +412,10 @@ def load_config(path: str | Path | None = None) -> ModelConfig:
 
 def config_to_mapping(cfg: ModelConfig, node: str = "/**") -> dict[str, Any]:
     """The params-file mapping of a configuration (inverse of :func:`config_from_mapping`)."""
-    return {node: {"ros__parameters": {"damper": dataclasses.asdict(cfg.damper),
+    damper = dataclasses.asdict(cfg.damper)
+    if damper.get("adaptive") is None:
+        damper.pop("adaptive", None)
+    return {node: {"ros__parameters": {"damper": damper,
                                        "numerics": dataclasses.asdict(cfg.numerics)}}}
 
 
@@ -361,15 +437,6 @@ def save_config(cfg: ModelConfig, path: str | Path, node: str = "/**") -> None:
 # --------------------------------------------------------------------------------------
 # Rule-checked parameter groups of the nodes and the ride simulation (one checker for
 # every group that is not the damper's own).
-
-
-def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING) -> Any:
-    """A dataclass field checked by :func:`check_value`: ``rule`` is ``"positive"``,
-    ``"non-negative"``, ``"bool"``, ``"text"``, ``("range", lo, hi)`` (lo exclusive),
-    ``("closed", lo, hi)``,
-    ``("int_range", lo, hi)``, ``("choices", names)``, ``"band"`` or ``"positive_list"``;
-    ``doc`` says what the value is, with its unit."""
-    return field(default=default, metadata={"rule": kind, "doc": doc})
 
 
 def check_value(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:

@@ -17,6 +17,7 @@ STATE = "/damper/state"
 FORCE = "/damper/force"
 RIDE_STATE = "/ride/state"
 DIAGNOSTICS = "/diagnostics"
+VALVE_COMMAND = "/damper/valve_command"
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,8 @@ class RideState:
     dtl_n: np.ndarray
     body_force_n: np.ndarray
     damper_force_n: np.ndarray
+    wheel_rate_m_s: np.ndarray | None = None   # velocity[0], [1] (None in older bags)
+    body_rate_m_s: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -65,7 +68,11 @@ class Recording:
     state: DamperInput | None
     force: DamperOutput | None
     ride: RideState | None
-    last_diagnostics: dict[str, str]
+    last_diagnostics: dict[str, str]                  # the emulator's last /diagnostics
+    #: ``(log_ns, command)`` of ``/damper/valve_command`` (None when not recorded)
+    valve_command: tuple[np.ndarray, np.ndarray] | None = None
+    #: the CAN bridge's last /diagnostics (empty when no bridge ran)
+    bridge_diagnostics: dict[str, str] | None = None
 
 
 def _lacking(path: Path, topic: str, raw, ok: np.ndarray, what: str) -> None:
@@ -87,15 +94,22 @@ def read_recording(path: str | Path) -> Recording:
         requires (``position[0]``, ``velocity[0]``; ``effort[0]`` on ``/damper/force``).
     """
     path = Path(path)
-    diagnostics: dict[str, str] = {}
+    last: dict[str, dict[str, str]] = {"damper_emulator": {}, "can_bridge": {}}
+    valve = None
     with open_bag(path) as bag:
         counts = {name: info.count for name, info in bag.topics.items()}
         if DIAGNOSTICS in bag.topics:
             for _topic, _log_ns, msg in bag.messages([DIAGNOSTICS]):
                 for status in msg.status:
-                    if status.name.startswith("damper_emulator"):
-                        diagnostics = {kv.key: kv.value for kv in status.values}
-                        diagnostics["message"] = status.message
+                    node = status.name.split(":", 1)[0]
+                    if node in last:
+                        last[node] = {kv.key: kv.value for kv in status.values}
+                        last[node]["message"] = status.message
+        if counts.get(VALVE_COMMAND):
+            rows = [(log_ns, float(msg.data))
+                    for _t, log_ns, msg in bag.messages([VALVE_COMMAND])]
+            valve = (np.array([r[0] for r in rows], dtype=np.int64),
+                     np.array([r[1] for r in rows]))
     present = [t for t in (STATE, FORCE, RIDE_STATE) if counts.get(t)]
     raw = cdr_fast.read_raw(path, present) if present else {}
     js = {t: cdr_fast.decode_joint_states(r.buf, r.offsets, r.lengths,
@@ -121,7 +135,10 @@ def read_recording(path: str | Path) -> Recording:
         m = js[RIDE_STATE]
         _lacking(path, RIDE_STATE, raw[RIDE_STATE], m.has("position", 2) & m.has("effort", 2),
                  "wheel/body/road")
+        rates = m.has("velocity", 1).all()
         ride = RideState(raw[RIDE_STATE].log_ns, m.stamp_ns, m.position[:, 0],
                          m.position[:, 1], m.position[:, 2], m.effort[:, 0], m.effort[:, 1],
-                         m.effort[:, 2])
-    return Recording(path, counts, state, force, ride, diagnostics)
+                         m.effort[:, 2], m.velocity[:, 0] if rates else None,
+                         m.velocity[:, 1] if rates else None)
+    return Recording(path, counts, state, force, ride, last["damper_emulator"], valve,
+                     last["can_bridge"])

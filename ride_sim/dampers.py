@@ -23,7 +23,10 @@ Adapters over the project's existing representations (nothing is re-implemented)
 - :class:`IncompressiblePlugin` — the incompressible curve, eqs 30–32
   (:func:`~damper_emulator.model.incompressible.incompressible_force`) tabulated once;
 - :class:`CompressiblePlugin` — the hysteretic model, eqs 1–4, stepped by
-  :class:`~damper_emulator.model.compressible.DamperStepper` with the real ``dt``.
+  :class:`~damper_emulator.model.compressible.DamperStepper` with the real ``dt``; for the
+  adaptive damper (MODEL.md §6) at a valve command (0 comfort .. 1 sport) that
+  :meth:`CompressiblePlugin.set_valve_command` may change between samples (the compiled
+  loop keeps the command the plug-in holds when it starts).
 
 Each built-in plug-in also describes itself to the compiled ride loop
 (:attr:`kernel_spec`), so :func:`ride_sim.quarter_car.simulate` runs it without a Python
@@ -253,12 +256,15 @@ class CompressiblePlugin:
     Every sample advances the pressure state by the real ``dt_s``.  The Fault bits of the
     latest sample are in :attr:`last_fault`, their OR since the latest reset in
     :attr:`faults` (clamped stroke or velocity, extrapolated valve table, solver).
+    ``valve_command`` (0 comfort .. 1 sport, default) sets the adaptive damper's bypass
+    (MODEL.md §6); :meth:`reset` settles the solenoid at the commanded value.
     """
 
-    def __init__(self, model: DamperModel | None = None, name: str = "compressible"):
+    def __init__(self, model: DamperModel | None = None, name: str = "compressible",
+                 valve_command: float = 1.0):
         self.model = model if model is not None else DamperModel()
         self.name = name
-        self.stepper = DamperStepper(self.model)
+        self.stepper = DamperStepper(self.model, valve_command=valve_command)
         # the kernel's own force at rest at the static position: eq 30's −A_rod P_gas,static
         # up to rounding, taken from the kernel so that rest is an exact equilibrium
         self._static_force_n = self.stepper.force_n
@@ -287,6 +293,21 @@ class CompressiblePlugin:
         self.faults |= self.last_fault
         return float(force)
 
+    def set_valve_command(self, command: float) -> None:
+        """Command the bypass (0 comfort .. 1 sport); the solenoid lag acts from the next
+        :meth:`force` on.  ``ValueError`` outside [0, 1]."""
+        self.stepper.set_valve_command(command)
+
+    @property
+    def valve_command(self) -> float:
+        """The commanded valve command."""
+        return self.stepper.valve_command
+
+    @property
+    def effective_valve_command(self) -> float:
+        """The valve command the bypass is at (after the solenoid lag)."""
+        return self.stepper.effective_valve_command
+
     @property
     def fault_flags(self) -> Fault:
         """:attr:`faults` as :class:`~damper_emulator.model.compressible.Fault`."""
@@ -297,7 +318,8 @@ class CompressiblePlugin:
 
 
 def make_damper(kind: str, model: DamperModel | None = None, *, car=None,
-                rate_ns_m: float | None = None, points: int = 14) -> DamperPlugin:
+                rate_ns_m: float | None = None, points: int = 14,
+                valve_command: float = 1.0) -> DamperPlugin:
     """A damper plug-in by kind.
 
     Parameters
@@ -314,6 +336,9 @@ def make_damper(kind: str, model: DamperModel | None = None, *, car=None,
         Damper-side linear rate [N s/m] for ``linear``.
     points : int
         N of the N-speed test for ``14speed`` (the paper uses 14 and 28).
+    valve_command : float
+        For ``compressible``/``nonlinear``: the adaptive damper's valve command, 0 comfort
+        .. 0.5 normal .. 1 sport (default; MODEL.md §6).
     """
     kinds = ("linear", "14speed", "incompressible", "compressible", "nonlinear")
     if kind not in kinds:
@@ -332,5 +357,5 @@ def make_damper(kind: str, model: DamperModel | None = None, *, car=None,
                            name=f"{points}-speed")
     if kind == "incompressible":
         return IncompressiblePlugin(model.cfg)
-    return CompressiblePlugin(model, name=kind)
+    return CompressiblePlugin(model, name=kind, valve_command=valve_command)
 

@@ -266,3 +266,100 @@ def plot_pothole(path: str | Path, result: StudyResult,
                  f"tyre R = {p['tyre_radius_m']:g} m, contact {p['contact_length_m']:g} m, "
                  f"{speed:g} m/s (grey: r.m.s. window)", fontsize="medium")
     return _save(fig, path)
+
+
+# --------------------------------------------------------------------------------------
+# the adaptive damper (ride_sim.study.adaptive_study)
+
+ADAPTIVE_COLOURS = {"sport": "C3", "comfort": "C0", "skyhook": "C2"}
+
+
+def plot_adaptive_bars(path: str | Path, doc: Mapping[str, Any]) -> Path:
+    """SWS, Wk-weighted body acceleration and DTL r.m.s. per case of an adaptive study:
+    mean over seeds (bar), ± std (error bar), each seed (dots), ratio to passive sport."""
+    from ride_sim.study import ADAPTIVE_KEYS
+
+    cases = list(doc["cases"])
+    panels = {"sws_rms": ("SWS r.m.s. [mm]", 1e3), "accel_w_rms":
+              ("Wk-weighted body accel r.m.s. [m/s²]", 1.0), "dtl_rms": ("DTL r.m.s. [kN]", 1e-3)}
+    fig = new_figure(11.0, 4.4)
+    axes = fig.subplots(1, len(ADAPTIVE_KEYS))
+    x = np.arange(len(cases))
+    for ax, key in zip(axes, ADAPTIVE_KEYS):
+        label, scale = panels[key]
+        means = np.array([doc[c][key] for c in cases]) * scale
+        stds = np.array([doc[c]["spread"][key]["std"] for c in cases]) * scale
+        ax.bar(x, means, yerr=stds, capsize=5, width=0.6, alpha=0.85,
+               color=[ADAPTIVE_COLOURS.get(c, "0.5") for c in cases], edgecolor="k",
+               linewidth=0.6, error_kw={"linewidth": 1.2})
+        for i, c in enumerate(cases):
+            seeds = np.array([m[key] for m in doc[c]["per_seed"]]) * scale
+            ax.plot(np.full(seeds.size, i) + np.linspace(-0.15, 0.15, seeds.size), seeds,
+                    linestyle="", marker="o", markersize=3, color="k", alpha=0.6)
+            ratio = doc.get("ratio_to_sport", {}).get(c, {}).get(key)
+            text = "1" if c == "sport" else f"×{ratio['mean']:.3f}"
+            ax.annotate(text, (i, means[i] + stds[i]), xytext=(0, 4),
+                        textcoords="offset points", ha="center", fontsize="small")
+        ax.set_xticks(x, [doc["labels"][c].replace(" (", "\n(") for c in cases],
+                      fontsize="small")
+        ax.set_ylabel(label)
+        ax.set_ylim(0, 1.15 * float(np.max(means + stds)))
+        ax.grid(True, axis="y", alpha=0.35)
+    seeds = doc[cases[0]]["seeds"]
+    fig.suptitle(f"{doc['title']}\nbars: mean ± std over {seeds} seeds; dots: each seed; "
+                 f"×: mean per-seed ratio to passive sport", fontsize="medium")
+    return _save(fig, path)
+
+
+def plot_adaptive_history(path: str | Path, result: StudyResult, start_s: float = 5.0,
+                          seconds: float = 3.0) -> Path:
+    """A segment of seed 0 (``start_s`` into the evaluated road, ``seconds`` long):
+    Wk-weighted body acceleration of the three cases, the skyhook run's body and damper
+    velocities, and its valve command (commanded, held at the controller rate, and
+    effective after the solenoid lag)."""
+    tr = result.traces
+    i0, i1 = tr["window"]
+    sky = tr["skyhook"]
+    dt = sky.result.dt_s
+    a = i0 + int(round(start_s / dt))
+    b = min(i1, a + int(round(seconds / dt)))
+    sl = slice(a, b)
+    t = sky.result.time_s[sl] - sky.result.time_s[i0]
+    fig = new_figure(10.0, 8.0)
+    ax_a, ax_v, ax_c = fig.subplots(3, 1, sharex=True, height_ratios=[1.3, 1, 0.9])
+    for case in result.doc["cases"]:
+        r = tr[case].result
+        aw = weight_signal("Wk", r.body_accel_m_s2, 1.0 / r.dt_s)
+        rms = result.doc[case]["per_seed"][0]["accel_w_rms"]
+        ax_a.plot(t, aw[sl], color=ADAPTIVE_COLOURS.get(case, "0.5"),
+                  linewidth=1.4 if case == "skyhook" else 1.0,
+                  label=f"{result.doc['labels'][case]}: r.m.s. {rms:.2f} m/s²")
+    decorate(ax_a, "", "Wk-weighted body accel [m/s²]")
+    lo, hi = ax_a.get_ylim()
+    ax_a.set_ylim(lo, hi + 0.3 * (hi - lo))           # room for the legend
+    ax_a.legend(loc="upper center", fontsize="small", ncol=3)
+    r = sky.result
+    ax_v.plot(t, r.body_velocity_m_s[sl], color="k", linewidth=1.0,
+              label="body velocity z2' (up +)")
+    ax_v.plot(t, r.damper_velocity_m_s[sl], color="C1", linewidth=1.0,
+              label="damper velocity (extension +)")
+    both = r.body_velocity_m_s[sl] * r.damper_velocity_m_s[sl] > 0
+    ax_v.fill_between(t, 0, 1, where=both, color="C2", alpha=0.12, linewidth=0,
+                      transform=ax_v.get_xaxis_transform(),
+                      label="same sign: skyhook force achievable")
+    decorate(ax_v, "", "skyhook run [m/s]")
+    lo, hi = ax_v.get_ylim()
+    ax_v.set_ylim(lo, hi + 0.35 * (hi - lo))
+    ax_v.legend(loc="upper center", fontsize="small", ncol=3)
+    ax_c.step(t, tr["skyhook"].command[sl], where="post", color="0.5", linewidth=0.9,
+              label=f"commanded ({result.doc['controller']['update_rate_hz']:g} Hz, held)")
+    ax_c.plot(t, tr["skyhook"].effective_command[sl], color="C2", linewidth=1.4,
+              label="effective (solenoid lag)")
+    decorate(ax_c, "time from the start of the evaluated road [s]",
+             "valve command\n(0 comfort, 1 sport)")
+    ax_c.set_ylim(-0.05, 1.35)
+    ax_c.legend(loc="upper center", fontsize="small", ncol=2)
+    ax_c.set_xlim(t[0], t[-1])
+    fig.suptitle(f"Skyhook vs passive, {seconds:g} s of seed 0\n{result.doc['title']}",
+                 fontsize="medium")
+    return _save(fig, path)

@@ -10,16 +10,22 @@ the run's random road and records every sample; whoever supplies the damper forc
 
 so a lockstep run over ROS and :func:`offline_run` compute the same thing: the
 zero-order-hold sampled coupling of :mod:`ride_sim.quarter_car`.
+
+:func:`semi_active_run` drives a session with the adaptive damper (MODEL.md §6) and a
+controller that sets its valve command from the body and damper velocities at a fixed
+rate (the skyhook ride study, :func:`ride_sim.study.adaptive_study`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from ride_sim.params import QuarterCarParams, RideRunParams, RoadParams
-from ride_sim.quarter_car import (O_SIZE, QuarterCar, RideResult, _record, _result,
+from ride_sim.quarter_car import (O_SIZE, Z2D, QuarterCar, RideResult, _record, _result,
                                   _road_pair, simulate)
 from ride_sim.study import _start_state, metrics, random_road_input
 
@@ -48,7 +54,12 @@ class RideSession:
 
     def __init__(self, car: QuarterCarParams, road: RoadParams, run: RideRunParams,
                  dt_s: float, static_force_n: float):
-        self.heights, self.n_lead = run_road(road, run, dt_s)
+        heights, n_lead = run_road(road, run, dt_s)
+        self._setup(car, heights, n_lead, dt_s, static_force_n)
+
+    def _setup(self, car: QuarterCarParams, heights: np.ndarray, n_lead: int, dt_s: float,
+               static_force_n: float) -> None:
+        self.heights, self.n_lead = heights, n_lead
         self.n = self.heights.size
         self.car = QuarterCar(car, dt_s, static_force_n)
         self.car.reset(_start_state(self.heights, dt_s))
@@ -56,6 +67,22 @@ class RideSession:
         self._out = np.empty((O_SIZE, self.n))
         self._faults = np.zeros(self.n, dtype=np.int64)
         self.k = 0
+
+    @classmethod
+    def on_road(cls, car: QuarterCarParams, heights: np.ndarray, n_lead: int, dt_s: float,
+                static_force_n: float) -> "RideSession":
+        """A session on given road heights (one per sample, e.g.
+        :func:`ride_sim.study.random_road_input`) whose first ``n_lead`` samples are the
+        lead-in the metrics leave out."""
+        heights = np.ascontiguousarray(heights, dtype=float)
+        if heights.ndim != 1 or heights.size < 2 or not np.isfinite(heights).all():
+            raise ValueError("road heights must be a finite 1-D array of at least 2 samples")
+        if not 0 <= n_lead < heights.size:
+            raise ValueError(f"lead-in of {n_lead} samples must be shorter than the road "
+                             f"({heights.size} samples)")
+        self = cls.__new__(cls)
+        self._setup(car, heights, int(n_lead), dt_s, static_force_n)
+        return self
 
     @property
     def done(self) -> bool:
@@ -68,6 +95,11 @@ class RideSession:
     def motion(self) -> tuple[float, float]:
         """Damper ``(stroke [m], velocity [m/s])`` at the current sample."""
         return self.car.damper_motion()
+
+    def body_velocity(self) -> float:
+        """Body (sprung mass) absolute vertical velocity ``z2'`` [m/s, up +] at the current
+        sample (a deviation from rest, the road's own rate included)."""
+        return float(self.car._s[Z2D])
 
     def apply(self, force_n: float, fault: int = 0) -> None:
         """Record the current sample with ``force_n`` (full damper force, rebound +) held
@@ -108,3 +140,55 @@ def offline_run(car: QuarterCarParams, road: RoadParams, run: RideRunParams, dt_
     heights, n_lead = run_road(road, run, dt_s)
     result = simulate(car, damper, heights, dt_s, initial_state=_start_state(heights, dt_s))
     return result, metrics(result, n_lead, heights.size)
+
+
+@dataclass(frozen=True)
+class SemiActiveRun:
+    """Output of :func:`semi_active_run`: the ride, its metrics and the valve command
+    commanded and in effect (after the solenoid lag) at every sample."""
+
+    result: RideResult
+    metrics: dict[str, float]
+    command: np.ndarray
+    effective_command: np.ndarray
+    update_period_samples: int
+
+
+def semi_active_run(car: QuarterCarParams, heights: np.ndarray, n_lead: int, dt_s: float,
+                    damper, controller: Callable[[float, float], float],
+                    update_period_samples: int) -> SemiActiveRun:
+    """A ride with the adaptive damper under a valve-command controller.
+
+    Sample ``k`` (as :func:`ride_sim.quarter_car.simulate`): the damper is stepped to the
+    car's stroke and velocity at ``t_k`` (its solenoid lag driven by the command held since
+    ``t_(k−1)``); every ``update_period_samples`` samples (from ``k = 0``) the controller
+    is called with the body velocity ``z2'`` [m/s, up +] and the damper velocity [m/s,
+    extension +] at ``t_k`` and its command (0 comfort .. 1 sport) holds until the next
+    update (zero-order hold); the force is held over the step.  ``damper`` is a
+    :class:`~ride_sim.dampers.CompressiblePlugin` (anything with ``reset``, ``force``,
+    ``set_valve_command``, ``valve_command``, ``effective_valve_command``, ``last_fault``,
+    ``static_force_n``); it starts settled at its current command.
+    """
+    period = int(update_period_samples)
+    if period < 1:
+        raise ValueError(f"update period must be at least one sample, got {period}")
+    session = RideSession.on_road(car, heights, n_lead, dt_s, damper.static_force_n)
+    n = session.n
+    command = np.empty(n)
+    effective = np.empty(n)
+    x, v = session.motion()
+    force = float(damper.reset(x, v))
+    fault = 0
+    for k in range(n):
+        if k > 0:
+            x, v = session.motion()
+            force = damper.force(x, v, session.dt_s)
+            fault = damper.last_fault
+        effective[k] = damper.effective_valve_command   # in effect over the step to t_k
+        if k % period == 0:
+            damper.set_valve_command(controller(session.body_velocity(), v))
+        command[k] = damper.valve_command
+        session.apply(force, fault)
+    result = session.result(getattr(damper, "name", "semi-active"))
+    return SemiActiveRun(result, metrics(result, session.n_lead, n), command, effective,
+                         period)

@@ -283,3 +283,29 @@ def test_bad_parameters_exit_with_one_line(tmp_path):
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("damper-hil: error:"), r.stderr
         assert "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("params_file, has_bypass", [
+    (None, True),                                        # sport: the adaptive damper
+    (ROOT / "config" / "fsae_ttx25_base.yaml", False),   # another damper, no adaptive group
+])
+def test_node_damper_gets_a_bypass_only_from_its_own_file(params_file, has_bypass):
+    """The node's defaults are sport's; a params file for another damper without an
+    `adaptive` group must not inherit sport's bypass (its valve command does nothing)."""
+    from damper_emulator.model.compressible import quasi_steady_force
+    from damper_emulator.ros.emulator import load_node_model
+
+    ctx = Context()
+    args = ["--ros-args", "--params-file", str(params_file)] if params_file else None
+    rclpy.init(args=args, context=ctx)
+    try:
+        node = rclpy.create_node("damper_emulator", context=ctx)
+        try:
+            _values, model = load_node_model(node)
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    assert (model.cfg.damper.adaptive is not None) == has_bypass
+    soft, firm = (quasi_steady_force(model, 0.5, c) for c in (0.0, 1.0))
+    assert (soft < firm - 1.0) == has_bypass

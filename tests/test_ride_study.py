@@ -244,3 +244,125 @@ def test_road_group_defaults_and_validation(tmp_path):
         with pytest.raises(ParameterError, match=match) as err:
             load_ride_config(path)
         assert "\n" not in str(err.value) and str(path) in str(err.value)
+
+
+# --------------------------------------------------------------------------------------
+# the adaptive damper (MODEL.md §6): passive sport / comfort and skyhook
+
+
+@pytest.mark.parametrize("command", [1.0, 0.0])
+def test_semi_active_loop_equals_the_compiled_loop_at_a_fixed_command(cfg, command):
+    """The session loop the adaptive study runs (controller every sample) gives the compiled
+    ride loop's forces exactly at a constant command (also catches a stale compiled cache
+    of the ride loop that does not see the valve command)."""
+    from ride_sim.dampers import CompressiblePlugin
+    from ride_sim.session import semi_active_run
+
+    s = _settings(cfg, length_m=120.0, lead_in_s=0.5)
+    heights, n_lead, n_eval = study.random_road_input(s.road, 20.0, 0, s.dt_s)
+    model = study.default_model()
+    ref = study.run(s.car, CompressiblePlugin(model, valve_command=command), heights, s.dt_s)
+    out = semi_active_run(s.car, heights, n_lead, s.dt_s,
+                          CompressiblePlugin(model, valve_command=command),
+                          lambda vb, vd: command, 1)
+    assert np.array_equal(out.result.damper_force_n, ref.damper_force_n)
+    assert np.all(out.command == command) and np.all(out.effective_command == command)
+
+
+def test_semi_active_run_holds_the_command_between_updates(cfg):
+    """The controller is called every 5th sample with the body velocity z2' and the damper
+    velocity of that sample; the command holds in between."""
+    from ride_sim.dampers import CompressiblePlugin
+    from ride_sim.session import semi_active_run
+
+    s = _settings(cfg, length_m=120.0, lead_in_s=0.2)
+    heights, n_lead, _ = study.random_road_input(s.road, 20.0, 1, s.dt_s)
+    heights = heights[:2003]
+    calls = []
+
+    def controller(vb, vd):
+        calls.append((vb, vd))
+        return 0.0 if len(calls) % 2 else 1.0
+
+    out = semi_active_run(s.car, heights, n_lead, s.dt_s,
+                          CompressiblePlugin(study.default_model()), controller, 5)
+    n = heights.size
+    assert len(calls) == math.ceil(n / 5)
+    k = np.arange(n)
+    assert np.array_equal(out.command, np.where((k // 5) % 2 == 0, 0.0, 1.0))
+    r = out.result
+    for i in (0, 7, 40):   # the velocities the controller saw at sample 5 i
+        assert calls[i] == (r.body_velocity_m_s[5 * i], r.damper_velocity_m_s[5 * i])
+    # the effective command lags: it leaves 1 at sample 1, 8 % of the way after 1 ms
+    assert out.effective_command[0] == 1.0
+    assert out.effective_command[1] == pytest.approx(math.exp(-1e-3 / 0.012), abs=1e-12)
+
+
+@pytest.fixture(scope="module")
+def adaptive_doc(cfg):
+    from ride_sim.skyhook import load_skyhook
+
+    return study.adaptive_study(_settings(cfg, seeds=2, length_m=200.0), load_skyhook()).doc
+
+
+def test_adaptive_study_physics(adaptive_doc):
+    """Skyhook lowers the weighted body acceleration against passive sport (and comfort);
+    comfort lowers it too but raises SWS and DTL (docs: README 'Adaptive damper')."""
+    d = adaptive_doc
+    r = d["ratio_to_sport"]
+    assert r["skyhook"]["accel_w_rms"]["max"] < 0.9
+    assert r["comfort"]["accel_w_rms"]["max"] < 0.95
+    assert d["skyhook"]["accel_w_rms"] < d["comfort"]["accel_w_rms"]
+    for key in ("sws_rms", "dtl_rms"):
+        assert r["comfort"][key]["min"] > 1.15
+        assert d["sport"][key] < d["skyhook"][key] < d["comfort"][key]
+    c = d["skyhook"]["valve_command"]
+    assert 0.1 < c["mean"]["mean"] < 0.9 and c["fraction_comfort"]["mean"] > 0.1
+    assert d["controller"]["update_rate_hz"] == pytest.approx(200.0)
+    assert d["sport"]["valve_command"] == 1.0 and d["comfort"]["valve_command"] == 0.0
+
+
+def test_adaptive_study_document(adaptive_doc):
+    d = adaptive_doc
+    assert d["cases"] == ["sport", "comfort", "skyhook"]
+    for case in d["cases"]:
+        assert d[case]["seeds"] == 2 and len(d[case]["per_seed"]) == 2
+        for key in study.ADAPTIVE_KEYS:
+            x = [m[key] for m in d[case]["per_seed"]]
+            assert d[case][key] == pytest.approx(np.mean(x))
+            assert d[case]["spread"][key]["std"] == pytest.approx(np.std(x, ddof=1))
+        assert d[case]["fault_bits"] == 0
+    for case in ("comfort", "skyhook"):
+        ratio = [a["dtl_rms"] / b["dtl_rms"] for a, b in zip(d[case]["per_seed"],
+                                                              d["sport"]["per_seed"])]
+        assert d["ratio_to_sport"][case]["dtl_rms"]["mean"] == pytest.approx(np.mean(ratio))
+    assert "skyhook" in study.adaptive_table(d)
+
+
+def test_cli_adaptive_writes_json_and_plots(tmp_path, capsys):
+    out = tmp_path / "a.json"
+    assert main(["ride-study", "--figure", "adaptive", "--length", "120", "--seeds", "2",
+                 "--workers", "2", "--json", str(out), "--out", str(tmp_path / "fig")]) == 0
+    captured = capsys.readouterr()
+    assert "--workers does not apply to --figure adaptive" in captured.err
+    assert "adaptive, seed 2/2" in captured.err
+    assert "passive comfort" in captured.out and "ratios to sport" in captured.out
+    doc = json.loads(out.read_text())
+    assert doc["figure"] == "adaptive" and doc["settings"]["road"]["length_m"] == 120.0
+    for case in ("sport", "comfort", "skyhook"):
+        for key in study.ADAPTIVE_KEYS:
+            assert math.isfinite(doc[case][key]) and "std" in doc[case]["spread"][key]
+    assert sorted(doc["report_files"]) == ["ride_adaptive_bars.png",
+                                           "ride_adaptive_history.png"]
+    for name in doc["report_files"]:
+        assert (tmp_path / "fig" / name).stat().st_size > 10_000
+
+
+def test_cli_adaptive_bad_skyhook_file_is_one_line(tmp_path, capsys):
+    bad = tmp_path / "s.yaml"
+    bad.write_text("skyhook: {c_sky_ns_m: -1.0}\n")
+    assert main(["ride-study", "--figure", "adaptive", "--skyhook", str(bad),
+                 "--json", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "skyhook.c_sky_ns_m" in err
+    assert not (tmp_path / "x.json").exists()

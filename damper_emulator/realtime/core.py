@@ -115,7 +115,8 @@ class EmulatorCore:
     def __init__(self, model: DamperModel, params: EmulatorParams):
         self.model = model
         self.params = params
-        self.stepper = DamperStepper(model)
+        # the initial valve command, settled (MODEL.md §6; no effect without a bypass)
+        self.stepper = DamperStepper(model, valve_command=params.valve_command)
         #: force at rest at the static position (eq 30's gas force), the passive baseline
         self.static_force_n = self.stepper.force_n
         self._stroke_range = model.stroke_limits_m
@@ -165,10 +166,13 @@ class EmulatorCore:
         return reason
 
     def set_valve_command(self, value: float) -> str | None:
-        """Accept a valve command in [0, 1]; returns the rejection reason or None."""
+        """Accept a valve command in [0, 1] (0 comfort .. 1 sport) and pass it to the
+        model, whose solenoid lag it drives from the next step on; returns the rejection
+        reason or None."""
         if not (math.isfinite(value) and 0.0 <= value <= 1.0):
             return f"valve command {value} outside [0, 1]"
         self.valve_command = float(value)
+        self.stepper.set_valve_command(self.valve_command)
         return None
 
     # ---- output -----------------------------------------------------------------------

@@ -53,10 +53,23 @@ def _damper_defaults() -> dict:
 
 def load_node_model(node: Node, extra: dict | None = None) -> tuple[dict, DamperModel]:
     """Declare the damper (``damper``, ``numerics``) and ``extra`` parameter groups on
-    ``node``; returns ``(values, model)``."""
+    ``node``; returns ``(values, model)``.
+
+    The defaults are config/sport.yaml's; when the given parameters name another damper
+    (``damper.name``) but give no ``damper.adaptive.*``, that damper has no bypass (its valve
+    command has no effect), as :func:`damper_emulator.params.load_config` reads such a file.
+    """
     defaults = {**_damper_defaults(), **(extra or {})}
     values = declare_parameters(node, defaults, defaults.keys())
-    cfg = config_from_mapping({"damper": values["damper"], "numerics": values["numerics"]},
+    damper = dict(values["damper"])
+    overrides = getattr(node, "_parameter_overrides", {})
+    named = overrides.get("damper.name")
+    if named is not None and named.value != defaults["damper"]["name"] and \
+            not any(n.startswith("damper.adaptive.") for n in overrides):
+        # A params file for another damper without an `adaptive` group describes a damper
+        # without a solenoid bypass: the defaults' (sport's) bypass must not leak in.
+        damper.pop("adaptive", None)
+    cfg = config_from_mapping({"damper": damper, "numerics": values["numerics"]},
                               f"node {node.get_name()} parameters")
     return values, DamperModel(cfg)
 

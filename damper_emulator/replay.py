@@ -74,6 +74,12 @@ steps are float differences of those, equal to the node's ``Δns · 1e-9`` to ab
 (relative), so a replay of exactly the node's inputs gives its forces to about 1e-6 N,
 not bit for bit.
 
+Recorded ``/damper/valve_command`` messages drive the model's valve command (with the
+solenoid lag of the damper's ``adaptive`` group): each model sample takes the last valid
+command the recorder logged before that sample's message (the recorder's clock orders both);
+before the first, ``emulator.valve_command``.  A bag without valve commands replays at
+``emulator.valve_command`` throughout.
+
 The replay starts the model in quasi-steady equilibrium, as the node does when it starts.
 A bag that begins while the node was already running (its first force a model output)
 begins from another model state: the two converge within some 30 ms, so the JSON also
@@ -103,7 +109,8 @@ import numpy as np
 
 from damper_emulator.bag import BagError, BagWriter, cdr_fast
 from damper_emulator.bag.cdr_fast import JointStates, RawTopic
-from damper_emulator.model.compressible import S_SIZE, DamperModel, DamperStepper, _simulate
+from damper_emulator.model.compressible import (S_SIZE, DamperModel, DamperStepper, _simulate,
+                                                _simulate_commanded)
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.core import Status, fault_output, input_ok, stroke_window
 from damper_emulator.realtime.settings import (DEFAULT_EMULATOR_FILE, EmulatorParams,
@@ -126,6 +133,7 @@ __all__ = [
 
 STATE = "/damper/state"
 FORCE = "/damper/force"
+VALVE_COMMAND = "/damper/valve_command"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 REPLAY_BAG = "replay_bag"
 REPLAY_JSON = "replay.json"
@@ -150,6 +158,8 @@ class BagData:
     state: JointStates
     force_raw: RawTopic
     force: JointStates
+    #: ``(log_ns, command)`` of the recorded ``/damper/valve_command`` (None: not recorded)
+    valve: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def recorded_duration_s(self) -> float:
@@ -184,7 +194,43 @@ def read_bag(path: str | os.PathLike[str]) -> BagData:
         i = int(np.argmax(lacking))
         raise BagError(f"bag {path}: {FORCE} at {int(raw[FORCE].log_ns[i])} ns lacks "
                        f"position[0], velocity[0] or effort[0]")
-    return BagData(path, raw[STATE], decoded[STATE], raw[FORCE], force)
+    return BagData(path, raw[STATE], decoded[STATE], raw[FORCE], force, _valve_commands(path))
+
+
+def _valve_commands(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """The bag's ``/damper/valve_command`` (``std_msgs/Float64``: a 4-byte CDR header, then
+    the double), or None when it has none."""
+    try:
+        r = cdr_fast.read_raw(path, [VALVE_COMMAND])[VALVE_COMMAND]
+    except BagError:
+        return None
+    if len(r) == 0:
+        return None
+    if (r.lengths < 12).any():
+        raise BagError(f"bag {path}: {VALVE_COMMAND} holds a message too short for a "
+                       "Float64")
+    little = r.buf[r.offsets + 1] == 1
+    raw8 = r.buf[(r.offsets + 4)[:, None] + np.arange(8)]
+    raw8 = np.where(little[:, None], raw8, raw8[:, ::-1])
+    return r.log_ns.copy(), np.ascontiguousarray(raw8).view("<f8").ravel().copy()
+
+
+def commands_at(data: BagData, log_ns: np.ndarray, initial: float) -> np.ndarray | None:
+    """Per model sample ``i`` (recorder time ``log_ns[i]``), the valve command for the step
+    from sample ``i`` to ``i + 1``: the last valid recorded command (finite, in [0, 1], as
+    the node accepts them) logged before sample ``i + 1``, else ``initial``; None when the
+    bag holds no valve command.  (The start is settled at the command of the step from the
+    first sample, not of the instant before it.)"""
+    if data.valve is None:
+        return None
+    t, c = data.valve
+    ok = np.isfinite(c) & (c >= 0.0) & (c <= 1.0)
+    t, c = t[ok], c[ok]
+    i = np.searchsorted(t, log_ns, side="right") - 1
+    at = np.where(i >= 0, c[np.maximum(i, 0)] if c.size else initial, initial)
+    # the node applies a command to the step that ends at the next sample it evaluates;
+    # the batch kernel takes command[i] for the step from sample i to i + 1
+    return np.append(at[1:], at[-1:]) if at.size else at
 
 
 def load_emulator_params(path: str | os.PathLike[str] | None = None
@@ -246,18 +292,23 @@ def _accepted_inputs(state: JointStates, params: EmulatorParams, model: DamperMo
     return ok, x, v
 
 
-def _run_model(model: DamperModel, stamp_ns: np.ndarray, x: np.ndarray, v: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
+def _run_model(model: DamperModel, stamp_ns: np.ndarray, x: np.ndarray, v: np.ndarray,
+               command: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Forces and fault flags of the model driven through the samples (quasi-steady start at
-    the first, then steps by the stamp differences), by the stepper's compiled kernel."""
+    the first, then steps by the stamp differences), by the stepper's compiled kernel;
+    ``command[i]`` is the valve command from sample ``i`` on (None: sport throughout)."""
     n = stamp_ns.size
     force = np.empty(n)
     flags = np.zeros(n, dtype=np.int64)
     if n:
         t = (stamp_ns - stamp_ns[0]).astype(float) * 1e-9
-        _simulate(model.prm, model.tables[0].coef, model.tables[1].coef, np.zeros(S_SIZE),
-                  t, np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float),
-                  force, np.empty(n), np.empty(n), flags)
+        args = (model.prm, model.tables[0].coef, model.tables[1].coef, np.zeros(S_SIZE), t,
+                np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float))
+        if command is None:
+            _simulate(*args, force, np.empty(n), np.empty(n), flags)
+        else:
+            _simulate_commanded(*args, np.ascontiguousarray(command, dtype=float), force,
+                                np.empty(n), np.empty(n), np.empty(n), flags)
     return force, flags
 
 
@@ -299,7 +350,9 @@ def _emulate_input(data: BagData, model: DamperModel, params: EmulatorParams) ->
     accepted = ok & (stamp > prev_max)
     idx = np.flatnonzero(accepted)
     stamp_a = stamp[idx]
-    force, flags = _run_model(model, stamp_a, x[idx], v[idx])
+    force, flags = _run_model(model, stamp_a, x[idx], v[idx],
+                              commands_at(data, data.state_raw.log_ns[idx],
+                                          params.valve_command))
     # the recorded force of each output, by stamp (accepted stamps strictly increase)
     rec_stamp = data.force.stamp_ns
     recorded = np.full(idx.size, -1, dtype=np.int64)
@@ -376,7 +429,9 @@ def _emulate_timer(data: BagData, model: DamperModel, params: EmulatorParams) ->
     fault = (rec_status & _FAULT) != 0
     ticks = np.flatnonzero(~fault)
     x_t, v_t, counts = _match_inputs(data, params, model, ticks, age)
-    force_t, flags = _run_model(model, f.stamp_ns[ticks], x_t, v_t)
+    force_t, flags = _run_model(model, f.stamp_ns[ticks], x_t, v_t,
+                                commands_at(data, data.force_raw.log_ns[ticks],
+                                            params.valve_command))
 
     stroke = f.position[:, 0].copy()
     velocity = f.velocity[:, 0].copy()
@@ -641,6 +696,7 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
         "speed_vs_real_time": round(duration / elapsed, 1) if elapsed > 0 else None,
         "recorded_forces": len(data.force),
         "state_messages": len(data.state),
+        "valve_commands": 0 if data.valve is None else int(data.valve[1].size),
         "recorded_rms_N": _round(cmp.recorded_rms_n),
         "rms_N_after_first_0.1s": _round(cmp.rms_after_settle_n),
         "status_mismatches": cmp.status_mismatches,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -461,3 +462,43 @@ def test_the_shipped_sample_bag_replays_within_one_percent(tmp_path):
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["trigger"] == "timer" and doc["compared"] > 5000
     assert doc["relative_rms"] < 0.01
+
+
+def test_recorded_valve_commands_drive_the_replay(tmp_path, sport_model):
+    """A lockstep bag whose damper was switched comfort ↔ sport mid-run: the node applies a
+    command from the next sample it evaluates (solenoid lag in the model); the replay reads
+    /damper/valve_command and reproduces the forces, and without the commands it cannot."""
+    tr = sine_track(1200, 1_000_000_000, amp=0.03, freq=2.0)
+    switch = {300: 0.0, 700: 1.0, 900: 0.5}      # sample index → command logged just before
+    stepper = DamperStepper(sport_model)
+    states, forces, commands, expected = [], [], [], []
+    for k in range(tr.stamp_ns.size):
+        s, x, v = int(tr.stamp_ns[k]), float(tr.stroke[k]), float(tr.velocity[k])
+        if k in switch:
+            commands.append((s + 10_000, messages.float64(switch[k])))
+            stepper.set_valve_command(switch[k])
+        states.append((s + 50_000, messages.joint_state(s, ["damper"], [x], [v], [])))
+        if k == 0:
+            stepper.reset(x, v)
+            f = stepper.force_n
+        else:
+            f, _ = stepper.step(x, v, 1e-3)
+        expected.append(f)
+        forces.append((s + 120_000, force_msg(s, x, 0.0, v, f, 0)))
+    bag = tmp_path / "bag"
+    with BagWriter(bag, fsync=False) as w:
+        hs = w.add_topic("/damper/state", JS)
+        hf = w.add_topic("/damper/force", JS)
+        hc = w.add_topic("/damper/valve_command", "std_msgs/msg/Float64")
+        for topic, rows in ((hs, states), (hf, forces), (hc, commands)):
+            for log_ns, data in rows:
+                w.write(topic, log_ns, data)
+    expected = np.array(expected)
+    doc = run_replay(bag, tmp_path / "out")
+    assert doc["valve_commands"] == 3
+    assert doc["rms_N"] < 1e-6 and doc["max_abs_N"] < 1e-5
+    from damper_emulator import replay as R
+    data = R.read_bag(bag)
+    blind = R.emulate(dataclasses.replace(data, valve=None), sport_model,
+                      R.load_emulator_params()[0])
+    assert np.sqrt(np.mean((blind.force_n - expected) ** 2)) > 100.0

@@ -110,54 +110,15 @@ def _flow_state(z, prm, coef_r, coef_c, area):
 
 
 @kernel
-def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h):
+def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area):
     """One implicit step ``p − p_old = h f(p)`` of eq 2 to stroke ``x``, velocity ``v``:
     backward Euler as it stands, BDF2 with ``p_old``, ``h`` the BDF2 combinations.
 
     Solves ``R(z) = p_com + Δp(z) − p_old − k (ẋ A − Q(z)) (1 − α p(z)) = 0`` with
-    ``k = h / (V_reb α)``; ``R`` increases with ``z``.  Returns ``(z, p_reb, p_com, flags)``.
-    """
-    area = prm[P_A_ANNULUS]
-    alpha = prm[P_ALPHA]
-    p_com = compression_chamber_pressure(x, prm[P_GAS], prm[V_GAS], prm[P_A_ROD], prm[P_GAMMA])
-    k = h / ((prm[P_MAX_EXT] - x) * area * alpha)
-    q_in = v * area
-    lo = -prm[P_ZLIM_C]
-    hi = prm[P_ZLIM_R]
-    z = min(max(z_old, lo), hi)
-    tol = prm[P_TOL]
-    flags = 0
-    for _ in range(int(prm[P_MAXIT])):
-        dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
-        p = p_com + dp
-        r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
-        if r == 0.0:
-            break
-        dr = ddp + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * ddp
-        if r > 0.0:
-            hi = z
-        else:
-            lo = z
-        z_new = z - r / dr if dr > 0.0 else 0.5 * (lo + hi)
-        if z_new <= lo or z_new >= hi:
-            z_new = 0.5 * (lo + hi)
-        if abs(z_new - z) <= tol * (1.0 + abs(z)):
-            break  # z (evaluated above) is within the tolerance of the root
-        z = z_new
-    else:
-        dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
-        flags = _SOLVER
-    if beyond:
-        flags |= _VALVE_EXTRAPOLATED
-    return z, p_com + dp, p_com, flags
-
-
-@kernel
-def _implicit_substep_bypass(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area):
-    """:func:`_implicit_substep` with the bypass open ``bp_area`` [m²] (> 0) in parallel:
-    ``Q = Q_pv + Q_b`` in eq 2 and in the Newton derivative; ``Q_b`` increases with ``Δp``,
-    so ``R(z)`` still increases with ``z``.  (A separate copy, so that the closed-bypass
-    path is the paper's model's code exactly.)
+    ``k = h / (V_reb α)``; ``R`` increases with ``z``.  ``Q = Q_pv + Q_b``: the piston valve
+    and, when ``bp_area`` [m²] > 0, the solenoid bypass in parallel (MODEL.md §6; ``Q_b``
+    increases with ``Δp``, so ``R`` still increases with ``z``); with the bypass closed the
+    arithmetic is the paper's model's exactly.  Returns ``(z, p_reb, p_com, flags)``.
     """
     area = prm[P_A_ANNULUS]
     alpha = prm[P_ALPHA]
@@ -173,9 +134,10 @@ def _implicit_substep_bypass(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area
         # _flow_state written out (through a wrapper the valve look-up is no longer inlined
         # into this loop, measured 25 % slower)
         dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
-        qb, dqb = bypass_flow(dp, bp_area, prm[P_BP_LAMINAR], prm[P_BP_TURBULENT])
-        q += qb
-        dq += dqb * ddp
+        if bp_area > 0.0:
+            qb, dqb = bypass_flow(dp, bp_area, prm[P_BP_LAMINAR], prm[P_BP_TURBULENT])
+            q += qb
+            dq += dqb * ddp
         p = p_com + dp
         r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
         if r == 0.0:
@@ -301,14 +263,9 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
             p_hat = p
             h_eff = h
         p_prev = p
-        if bp_area > 0.0:
-            z, p, p_com, f = _implicit_substep_bypass(
-                prm, coef_r, coef_c, p_hat, z, x0 + frac * (x - x0), v0 + frac * (v - v0),
-                h_eff, bp_area)
-        else:
-            z, p, p_com, f = _implicit_substep(prm, coef_r, coef_c, p_hat, z,
-                                               x0 + frac * (x - x0), v0 + frac * (v - v0),
-                                               h_eff)
+        z, p, p_com, f = _implicit_substep(prm, coef_r, coef_c, p_hat, z,
+                                           x0 + frac * (x - x0), v0 + frac * (v - v0),
+                                           h_eff, bp_area)
         h_prev = h
         flags |= f
     state[S_P_PREV] = p_prev

@@ -2,10 +2,12 @@
 :class:`~can_bridge.core.BridgeCore` and a :class:`~can_bridge.bus.ResilientBus`.
 
 A receive thread takes every frame from the bus as it arrives (``SCHED_FIFO`` when
-permitted), publishes what it decodes and runs the watchdog at least every DBC cycle; the
-executor thread turns ``/damper/force`` (and, in controller mode, ``/ride/state`` and
-``/damper/state``) into frames.  Nothing is queued by the bridge: a frame that cannot be sent
-is counted and dropped, and a failed bus is reopened with exponential backoff.
+permitted), publishes what it decodes and runs the watchdog at least every DBC cycle; an
+input thread (SCHED_FIFO too) waits on ``/damper/force`` (and, in controller mode,
+``/ride/state`` and ``/damper/state``) without an executor and turns each message into
+frames.  The executor serves only the diagnostics timer and the parameter services.
+Nothing is queued by the bridge: a frame that cannot be sent is counted and dropped, and a
+failed bus is reopened with exponential backoff.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import time
 
 import can
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -28,7 +30,8 @@ from can_bridge.settings import (NODE_NAME, bridge_params_from_mapping,
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import control_qos, declare_parameters, set_stamp
+from damper_emulator.ros.common import (SubscriptionThread, control_qos, declare_parameters,
+                                        publish_diagnostics, set_stamp)
 
 #: A CAN timestamp further than this from the wall clock is not trusted as a stamp [s].
 STAMP_TRUST_S = 1.0
@@ -66,17 +69,24 @@ class BridgeNode(Node):
         self._errors_seen = 0
         self._tx_failed = 0
         qos = control_qos(topics.CONTROL_DEPTH)
+        inputs = [(JointState, topics.FORCE, self._on_force)]
         if p.mode == "dyno":
             self._state_pub = self.create_publisher(JointState, topics.STATE, qos)
         else:
             self._valve_pub = self.create_publisher(Float64, topics.VALVE_COMMAND, qos)
             self._damper_velocity = 0.0
-            self.create_subscription(JointState, topics.RIDE_STATE, self._on_ride_state, qos)
-            self.create_subscription(JointState, topics.STATE, self._on_damper_state, qos)
-        self.create_subscription(JointState, topics.FORCE, self._on_force, qos)
+            inputs += [(JointState, topics.STATE, self._on_damper_state),
+                       (JointState, topics.RIDE_STATE, self._on_ride_state)]
+        # the 1 kHz inputs on a thread of their own, without the executor
+        self._ros_in = SubscriptionThread(self, inputs, qos, "ros-in", RealtimeRequest(
+            sched_fifo=p.sched_fifo, priority=p.priority, lock_memory=False))
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
         self._stop = threading.Event()
+        # DAMPER_FORCE frames come from two threads (forces: the input thread; fault frames:
+        # the receive thread's watchdog) with one alive counter: encode and send them under one
+        # lock, so that no two frames share a counter and they go out in counter order
+        self._force_lock = threading.Lock()
         self._rx = threading.Thread(target=self._receive_loop, name="can-rx", daemon=True)
         self._rt_report = None
         self.get_logger().info(
@@ -87,13 +97,17 @@ class BridgeNode(Node):
 
     def run(self, executor) -> None:
         self._rx.start()
+        self._ros_in.start()
         executor.spin()
 
     def close(self) -> None:
         self._stop.set()
+        self._ros_in.stop()
         if self._rx.is_alive():
             self._rx.join(2.0)
         self.bus.close()
+        if self._ros_in.failed:
+            self.exit_status = 1
 
     # ---- CAN → ROS --------------------------------------------------------------------
 
@@ -118,9 +132,10 @@ class BridgeNode(Node):
                 if errors != self._errors_seen:
                     self._errors_seen = errors
                     core.note_rx_errors()
-                frame, command = core.watchdog(now_ns)
-                if frame is not None:
-                    self._send(self._force_id, frame)
+                with self._force_lock:
+                    frame, command = core.watchdog(now_ns)
+                    if frame is not None:
+                        self._send(self._force_id, frame)
                 if command is not None:
                     self.get_logger().warning(
                         f"no VALVE_COMMAND for {p.command_timeout_s:g} s: fail-safe command "
@@ -162,9 +177,10 @@ class BridgeNode(Node):
         status = int(msg.effort[s]) if s >= 0 and len(msg.effort) > s else 0
         age = float(msg.position[s]) if s >= 0 and len(msg.position) > s else float("nan")
         stroke = float(msg.position[i]) if len(msg.position) > i else float("nan")
-        frame = self.core.force_frame(float(msg.effort[i]), status & 0x0F, age, stroke,
-                                      time.monotonic_ns())
-        self._send(self._force_id, frame)
+        with self._force_lock:
+            frame = self.core.force_frame(float(msg.effort[i]), status & 0x0F, age, stroke,
+                                          time.monotonic_ns())
+            self._send(self._force_id, frame)
 
     def _on_damper_state(self, msg: JointState) -> None:
         i = max(_frame_index(msg, self.params.damper_name), 0)
@@ -217,9 +233,5 @@ class BridgeNode(Node):
             level, message = DiagnosticStatus.ERROR, self.core.fault_text
         if not bus.is_up:
             level, message = DiagnosticStatus.ERROR, f"bus down: {bus.last_error}"
-        status = DiagnosticStatus(level=level, name=f"{NODE_NAME}: {self.params.mode}",
-                                  message=message, hardware_id=self.params.can_channel,
-                                  values=[KeyValue(key=k, value=v) for k, v in values.items()])
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
+        publish_diagnostics(self, self._diag_pub, f"{NODE_NAME}: {self.params.mode}", level,
+                            message, self.params.can_channel, values)

@@ -5,10 +5,12 @@
     A dedicated loop thread (:class:`~damper_emulator.realtime.loop.PeriodicLoop`, absolute
     deadlines, ``SCHED_FIFO`` / ``mlockall`` / CPU affinity when permitted) evaluates the
     model at ``rate_hz`` from the latest accepted input sample (held or extrapolated) and
-    publishes every force.  The subscription runs on the executor thread.
+    publishes every force; it takes the input samples itself at each tick.
 ``trigger: input``
-    One force per input sample, published from the subscription callback with the input's
-    stamp; the model advances by the difference of the input stamps.  This is the lockstep
+    One force per input sample, computed and published as each sample arrives, on an input
+    thread without an executor (:class:`~damper_emulator.ros.common.SubscriptionThread`,
+    SCHED_FIFO when permitted), with the input's stamp; the model advances by the
+    difference of the input stamps.  This is the lockstep
     clock of the ride simulation.
 
 ``/damper/force`` carries, besides the contract's ``name[0]`` / ``position[0]`` /
@@ -27,7 +29,7 @@ import math
 import time
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -41,7 +43,8 @@ from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.settings import (RUNTIME_PARAMETERS, default_emulator_mapping,
                                                emulator_params_from_mapping)
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import control_qos, declare_parameters, set_stamp, stamp_ns
+from damper_emulator.ros.common import (SubscriptionThread, control_qos, declare_parameters,
+                                        publish_diagnostics, set_stamp, stamp_ns)
 
 NODE_NAME = "damper_emulator"
 
@@ -99,9 +102,12 @@ class EmulatorNode(Node):
         self._force_pub = self.create_publisher(JointState, topics.FORCE,
                                                 control_qos(topics.CONTROL_DEPTH))
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self._input_thread = None
         if p.trigger == "input":
-            self.create_subscription(JointState, topics.STATE, self._on_state,
-                                     control_qos(topics.CONTROL_DEPTH))
+            # one force per input, computed on a thread of its own as each input arrives
+            self._input_thread = SubscriptionThread(
+                self, [(JointState, topics.STATE, self._on_state)],
+                control_qos(topics.CONTROL_DEPTH), "emulator-in", p.realtime_request())
             self._io_node = None
         else:
             # The loop thread takes the input itself at each tick (no executor thread
@@ -131,6 +137,8 @@ class EmulatorNode(Node):
         # everything built so far is long-lived: keep the cyclic collector off it
         gc.collect()
         gc.freeze()
+        if self._input_thread is not None:
+            self._input_thread.start()
         if p.trigger == "timer":
             capacity = max(4096, int(p.rate_hz * p.stats_window_s))
             self._loop = PeriodicLoop(1.0 / p.rate_hz, self._tick,
@@ -145,6 +153,10 @@ class EmulatorNode(Node):
         executor.spin()
 
     def close(self) -> None:
+        if self._input_thread is not None:
+            self._input_thread.stop()
+            if self._input_thread.failed:
+                self.exit_status = 1
         if self._loop is not None:
             self._loop.stop()
         if self._io_node is not None:
@@ -287,9 +299,5 @@ class EmulatorNode(Node):
             level, message = DiagnosticStatus.ERROR, "input timeout: fault output"
         elif status_bits & Status.NO_INPUT:
             level, message = DiagnosticStatus.WARN, "no input yet"
-        status = DiagnosticStatus(level=level, name=f"{NODE_NAME}: {self.params.name}",
-                                  message=message, hardware_id=self.params.name,
-                                  values=[KeyValue(key=k, value=v) for k, v in values.items()])
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(array)
+        publish_diagnostics(self, self._diag_pub, f"{NODE_NAME}: {self.params.name}", level, message,
+                            self.params.name, values)

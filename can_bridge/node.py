@@ -54,6 +54,8 @@ class BridgeNode(Node):
             raise ParameterError(f"node {NODE_NAME}: unknown parameter {unknown[0]}")
         values = declare_parameters(self, defaults, ())
         p = self.params = bridge_params_from_mapping(values, f"node {NODE_NAME} parameters")
+        #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal scheduling)
+        self.dds_priority = p.dds_priority
         db = load_database(p.dbc_file or None)
         self.core = BridgeCore(p, db)
         cfg = BusConfig(interface=p.can_interface, channel=p.can_channel, bitrate=p.bitrate)

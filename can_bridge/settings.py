@@ -55,6 +55,9 @@ class BridgeParams:
     sched_fifo: bool = rule("bool", "SCHED_FIFO for the receive thread when permitted", True)
     priority: int = rule(("int_range", 1, 99), "SCHED_FIFO priority of the receive thread",
                          75)
+    dds_priority: int = rule(("int_range", 0, 99),
+                             "SCHED_FIFO priority of the DDS middleware's threads when "
+                             "permitted (0: normal scheduling)", 60)
 
 
 def bridge_params_from_mapping(data: Mapping[str, Any] | None,

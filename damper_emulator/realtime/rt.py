@@ -135,3 +135,61 @@ def _request_latency(latency_us: int, report: RealtimeReport) -> None:
         return
     report.held_fds.append(fd)
     report.applied.append(f"CPU wake-up latency ≤ {latency_us} µs")
+
+
+def thread_ids() -> set[int]:
+    """The OS thread ids of this process (Linux ``/proc/self/task``; empty elsewhere)."""
+    try:
+        return {int(t) for t in os.listdir("/proc/self/task")}
+    except OSError:
+        return set()
+
+
+def set_threads_priority(tids, priority: int) -> str:
+    """Put the threads ``tids`` under ``SCHED_FIFO`` at ``priority`` (0: back to the normal
+    policy); returns one line saying what was done or refused (never raises)."""
+    tids = sorted(tids)
+    if not tids:
+        return "no threads"
+    policy, param = ((os.SCHED_FIFO, os.sched_param(priority)) if priority > 0
+                     else (os.SCHED_OTHER, os.sched_param(0)))
+    done, refused = 0, ""
+    for tid in tids:
+        try:
+            os.sched_setscheduler(tid, policy, param)
+            done += 1
+        except (OSError, AttributeError) as exc:   # gone, or not permitted
+            refused = getattr(exc, "strerror", None) or str(exc)
+    what = f"SCHED_FIFO priority {priority}" if priority > 0 else "normal scheduling"
+    return f"{done} of {len(tids)} threads at {what}" + (f" ({refused})" if refused else "")
+
+
+class ThreadInheritance:
+    """Make the threads a block of code creates (the DDS middleware's, when it is the
+    middleware's first use in the process) start under ``SCHED_FIFO``: the calling thread
+    runs the block at a low real-time priority, which new threads inherit, and returns to
+    the normal policy afterwards.  :meth:`settle` then sets those threads to the priority
+    wanted (or back to normal)."""
+
+    def __init__(self):
+        self._before = thread_ids()
+        self._entered = False
+
+    def __enter__(self) -> "ThreadInheritance":
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            self._entered = True
+        except (OSError, AttributeError):
+            pass
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._entered:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+    def settle(self, priority: int) -> str:
+        """Set the threads created inside the block to ``priority`` (0: normal); one line."""
+        new = thread_ids() - self._before
+        if priority > 0 and not self._entered:
+            return "middleware threads: SCHED_FIFO not permitted"
+        return "middleware threads: " + set_threads_priority(new, priority)

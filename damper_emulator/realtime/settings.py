@@ -62,6 +62,10 @@ class EmulatorParams:
                             True)
     priority: int = rule(("int_range", 1, 99), "SCHED_FIFO priority of the loop thread", 80)
     lock_memory: bool = rule("bool", "mlockall the process when permitted", True)
+    dds_priority: int = rule(("int_range", 0, 99),
+                             "SCHED_FIFO priority of the DDS middleware's threads (receive, "
+                             "events) when permitted; below the loop's, so that input "
+                             "arrives on a busy machine (0: normal scheduling)", 60)
     cpu_affinity: int = rule(("int_range", -1, 1023),
                              "pin the loop thread to this CPU (-1: no pinning)", -1)
     cpu_dma_latency_us: int = rule(("int_range", -1, 100000),

@@ -15,6 +15,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from damper_emulator.bag import BagError
 from damper_emulator.params import ParameterError
+from damper_emulator.realtime.rt import ThreadInheritance
 
 PROG = "damper-hil"
 #: Python's GIL switch interval in the node processes [s].
@@ -136,7 +137,10 @@ def log_info(node: Node, text: str) -> None:
 def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     """Initialise rclpy with ``ros_args``, build the node, spin until SIGINT / SIGTERM or
     until the node calls ``rclpy.try_shutdown`` (a node with a ``run(executor)`` method
-    drives the executor itself), then call its ``close()`` (if any) and tear down.  Returns the node's ``exit_status`` (default 0).
+    drives the executor itself), then call its ``close()`` (if any) and tear down.  Returns
+    the node's ``exit_status`` (default 0).  The middleware threads created while starting
+    run under ``SCHED_FIFO`` at the node's ``dds_priority`` when it has one (> 0) and it is
+    permitted, else under the normal policy.
 
     A :class:`ParameterError` or ``ValueError`` while building is one line on stderr and
     exit status 2.
@@ -144,19 +148,30 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     # A loop thread waiting for the GIL waits at most this long for a Python thread that
     # holds it (default 5 ms, several loop periods).
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    try:
-        rclpy.init(args=["--ros-args", *ros_args] if ros_args else None)
-    except _rclpy_impl.RCLError as exc:   # a malformed --ros-args: one line
-        print(f"{PROG}: error: --ros-args: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
+    # the middleware's threads (DDS receive, events) are created by init and the first
+    # node: let them start under SCHED_FIFO, then set them as the node asks
+    # (``dds_priority``, 0 = normal scheduling)
+    inherit = ThreadInheritance()
+    with inherit:
+        try:
+            rclpy.init(args=["--ros-args", *ros_args] if ros_args else None)
+        except _rclpy_impl.RCLError as exc:   # a malformed --ros-args: one line
+            print(f"{PROG}: error: --ros-args: {' '.join(str(exc).split())}",
+                  file=sys.stderr)
+            return 2
     node = None
     status = 0
     try:
         try:
-            node = build()
+            with inherit:
+                node = build()
         except (ParameterError, ValueError, BagError) as exc:
             print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
             return 2
+        finally:
+            settled = inherit.settle(int(getattr(node, "dds_priority", 0)))
+        if getattr(node, "dds_priority", 0):
+            log_info(node, settled)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         run = getattr(node, "run", None)

@@ -96,6 +96,8 @@ class EmulatorNode(Node):
         self.params = emulator_params_from_mapping(values["emulator"],
                                                    f"node {NODE_NAME} parameters")
         self.core = EmulatorCore(model, self.params)
+        #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal scheduling)
+        self.dds_priority = self.params.dds_priority
         self.exit_status = 0
         p = self.params
         self._status_name = f"{p.name}/status"

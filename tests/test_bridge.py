@@ -29,6 +29,7 @@ from can_bridge import (BusConfig, Encoder, ForceStatus, Receiver, ResilientBus,
                         socketcan_available, socketcan_problem)
 from can_bridge.core import COMMAND, FORCE, MOTION, STATE, BridgeCore
 from can_bridge.settings import BridgeParams
+from ros_probe import Probe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 #: each set-up its own ROS domain (tests/test_nodes.py uses 120..126; the benchmark 138, 139)
@@ -298,41 +299,6 @@ class BusTap:
         self.bus.close()
 
 
-class Probe:
-    """A node of the test process in its own context and domain."""
-
-    def __init__(self, domain: int, name: str = "bridge_probe"):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-        self._rclpy = rclpy
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = rclpy.create_node(name, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def spin_until(self, predicate, timeout_s: float) -> bool:
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            if predicate():
-                return True
-            self.executor.spin_once(timeout_sec=0.01)
-        return predicate()
-
-    def spin_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.002)
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self._rclpy.shutdown(context=self.context)
-
-
 def start_node(name: str, subcommand: str, domain: int, tmp: Path, params=None):
     from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
 
@@ -544,8 +510,8 @@ class TestDynoBridge:
                     pub.publish(JointState(name=["damper", "damper/status"],
                                            position=[1e-3 * j, 2e-4], velocity=[0.0, 0.0],
                                            effort=[100.0 * (burst + 1) + j, 0.0]))
-                    probe.spin_for(0.001)
-                probe.spin_for(0.03)
+                    probe.spin_for(0.001, 0.002)
+                probe.spin_for(0.03, 0.002)
             time.sleep(0.05)
         finally:
             probe.close()
@@ -668,16 +634,16 @@ class TestControllerBridge:
         end = time.monotonic() + 30
         while not r.valves and time.monotonic() < end:
             r.tap.send(r.enc.frame_id, r.enc.encode(Command=0.05)[0])
-            r.probe.spin_for(0.01)
+            r.probe.spin_for(0.01, 0.002)
         assert r.valves, r.bridge.log_tail()
-        r.probe.spin_for(0.05)
+        r.probe.spin_for(0.05, 0.002)
         first = len(r.valves)
         sent = [0.1234, 0.25, 0.75, 0.9999, 0.0, 1.0, 0.3333]
         last = 0
         for value in sent:
             last = r.tap.send(r.enc.frame_id, r.enc.encode(Command=value)[0])
-            r.probe.spin_for(0.005)
-        r.probe.spin_for(0.6)
+            r.probe.spin_for(0.005, 0.002)
+        r.probe.spin_for(0.6, 0.002)
         before = [v for t, v in r.valves[first:] if t <= last + 50 * MS]
         assert before[:len(sent)] == pytest.approx(sent, abs=1e-4)
         # silent for command_timeout_s (0.1 s): the fail-safe command, once
@@ -692,7 +658,7 @@ class TestControllerBridge:
         r = controller_rig
         damper = JointState(name=["damper"], position=[0.01], velocity=[0.42])
         r.state_pub.publish(damper)
-        r.probe.spin_for(0.2)
+        r.probe.spin_for(0.2, 0.002)
         t0 = time.monotonic_ns()
         ride = JointState(name=["wheel", "body", "road"], position=[0.0, 0.0, 0.0],
                           velocity=[0.3, -0.12, 0.05])
@@ -701,7 +667,7 @@ class TestControllerBridge:
         while time.monotonic() < end:                      # about 1 kHz, as the ride node
             r.ride_pub.publish(ride)
             published += 1
-            r.probe.spin_for(0.001)
+            r.probe.spin_for(0.001, 0.002)
         duration = time.monotonic_ns() - t0
         time.sleep(0.1)
         motion = r.tap.decoded(MOTION, t0)
@@ -782,7 +748,7 @@ def test_bridge_on_socketcan_vcan0(tmp_path, db):
                 data, _ = enc.encode(Stroke=0.01234, Velocity=-0.2)
                 bus.send(can.Message(arbitration_id=enc.frame_id, data=data,
                                      is_extended_id=False))
-                probe.spin_for(0.01)
+                probe.spin_for(0.01, 0.002)
                 while (msg := bus.recv(0.0)) is not None:
                     got = force_rx.accept(msg.arbitration_id, msg.data)
                     if got is not None:

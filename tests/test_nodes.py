@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import subprocess
 import sys
 import time
@@ -17,7 +16,6 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rosbags.rosbag2 import Reader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -26,6 +24,7 @@ from damper_emulator.realtime.core import Status  # noqa: E402
 from damper_emulator.ros import topics  # noqa: E402
 from damper_emulator.ros.common import control_qos  # noqa: E402
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment  # noqa: E402
+from ros_probe import Probe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 #: each test its own domain: 110 + offset (>= 102 would clash with the 0..101 range? no:
@@ -33,36 +32,6 @@ ROOT = Path(__file__).resolve().parent.parent
 DOMAINS = {"demo": 120, "lockstep": 121, "stale": 122, "nan": 123, "kill": 124,
            "params": 125, "badfile": 126}
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-
-
-class Probe:
-    """A node of the test process in its own context and domain."""
-
-    def __init__(self, domain: int, name: str = "probe"):
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = rclpy.create_node(name, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def spin_until(self, predicate, timeout_s: float) -> bool:
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            if predicate():
-                return True
-            self.executor.spin_once(timeout_sec=0.01)
-        return predicate()
-
-    def spin_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.005)
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.shutdown(context=self.context)
 
 
 def start(name: str, subcommand: str, domain: int, tmp: Path, params=None, extra=()):

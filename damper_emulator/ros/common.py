@@ -225,15 +225,17 @@ class SubscriptionThread:
     name : str
         Thread name (also the OS thread's).
     realtime : RealtimeRequest, optional
+    raw : bool
+        Hand the handlers the serialized CDR (``bytes``) instead of messages.
     """
 
-    def __init__(self, node: Node, inputs, qos, name: str, realtime=None):
+    def __init__(self, node: Node, inputs, qos, name: str, realtime=None, raw: bool = False):
         import threading
 
         self._node = node
         self._io_node = rclpy.create_node(f"{node.get_name()}_input", context=node.context)
-        self._inputs = [(self._io_node.create_subscription(t, topic, _ignore, qos), handler)
-                        for t, topic, handler in inputs]
+        self._inputs = [(self._io_node.create_subscription(t, topic, _ignore, qos, raw=raw),
+                         handler) for t, topic, handler in inputs]
         self._realtime = realtime
         self._stop = threading.Event()
         self.failed = False
@@ -242,6 +244,11 @@ class SubscriptionThread:
 
     def start(self) -> None:
         self._thread.start()
+
+    @property
+    def io_node(self) -> Node:
+        """The node that holds the subscriptions (for graph queries)."""
+        return self._io_node
 
     def stop(self, timeout_s: float = 2.0) -> None:
         self._stop.set()

@@ -5,12 +5,13 @@
     A dedicated loop thread (:class:`~damper_emulator.realtime.loop.PeriodicLoop`, absolute
     deadlines, ``SCHED_FIFO`` / ``mlockall`` / CPU affinity when permitted) evaluates the
     model at ``rate_hz`` from the latest accepted input sample (held or extrapolated) and
-    publishes every force; it takes the input samples itself at each tick.
+    publishes every force; it takes the input samples and valve commands itself at each
+    tick.
 ``trigger: input``
     One force per input sample, computed and published as each sample arrives, on an input
     thread without an executor (:class:`~damper_emulator.ros.common.SubscriptionThread`,
-    SCHED_FIFO when permitted), with the input's stamp; the model advances by the
-    difference of the input stamps.  This is the lockstep
+    SCHED_FIFO when permitted, which also takes the valve commands), with the input's stamp;
+    the model advances by the difference of the input stamps.  This is the lockstep
     clock of the ride simulation.
 
 ``/damper/force`` carries, besides the contract's ``name[0]`` / ``position[0]`` /
@@ -108,7 +109,8 @@ class EmulatorNode(Node):
         if p.trigger == "input":
             # one force per input, computed on a thread of its own as each input arrives
             self._input_thread = SubscriptionThread(
-                self, [(JointState, topics.STATE, self._on_state)],
+                self, [(JointState, topics.STATE, self._on_state),
+                       (Float64, topics.VALVE_COMMAND, self._on_valve)],
                 control_qos(topics.CONTROL_DEPTH), "emulator-in", p.realtime_request())
             self._io_node = None
         else:
@@ -120,8 +122,9 @@ class EmulatorNode(Node):
             self._state_sub = self._io_node.create_subscription(
                 JointState, topics.STATE, lambda _msg: None,
                 control_qos(topics.CONTROL_DEPTH))
-        self.create_subscription(Float64, topics.VALVE_COMMAND, self._on_valve,
-                                 control_qos(topics.CONTROL_DEPTH))
+            self._valve_sub = self._io_node.create_subscription(
+                Float64, topics.VALVE_COMMAND, lambda _msg: None,
+                control_qos(topics.CONTROL_DEPTH))
         self._diag_timer = self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._last: Output | None = None
@@ -205,7 +208,18 @@ class EmulatorNode(Node):
             delay = time.time_ns() - received if received else 0
             self._on_state(msg, now_ns - max(0, delay))
 
+    def _take_valve_commands(self) -> None:
+        """Every valve command that arrived since the last tick, in order (the last wins)."""
+        sub = self._valve_sub
+        while True:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is None:
+                return
+            self._on_valve(taken[0])
+
     def _tick(self, now_ns: int) -> None:
+        self._take_valve_commands()
         self._take_inputs(now_ns)
         out = self.core.tick(now_ns)
         self._publish(out, time.time_ns())

@@ -75,6 +75,9 @@ class BusConfig:
     receive_own_messages : bool
         Receive the frames this bus sends (not supported by udp_multicast, which delivers
         them anyway).
+    receive_ids : tuple of int
+        Receive only data frames with these 11-bit identifiers (python-can filters: in the
+        kernel for socketcan, before any decoding for the others); empty: all frames.
 
     Raises
     ------
@@ -86,8 +89,12 @@ class BusConfig:
     channel: str = "vcan0"
     bitrate: int = 500_000
     receive_own_messages: bool = False
+    receive_ids: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
+        if not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= 0x7FF
+                   for i in self.receive_ids):
+            raise ValueError(f"receive_ids must be 11-bit identifiers, got {self.receive_ids!r}")
         if self.interface not in can.VALID_INTERFACES:
             raise ValueError(f"can interface {self.interface!r} is not a python-can interface "
                              f"(one of {', '.join(sorted(can.VALID_INTERFACES))})")
@@ -111,6 +118,9 @@ class BusConfig:
         kwargs: dict[str, Any] = dict(interface=self.interface, channel=self.channel,
                                       bitrate=self.bitrate,
                                       receive_own_messages=self.receive_own_messages)
+        if self.receive_ids:
+            kwargs["can_filters"] = [{"can_id": i, "can_mask": 0x7FF, "extended": False}
+                                     for i in self.receive_ids]
         if self.interface == "udp_multicast":
             group, port = _split_udp_channel(self.channel)
             kwargs["channel"] = group

@@ -16,6 +16,7 @@ sample, as the offline model does (:func:`damper_emulator.model.compressible.sim
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from dataclasses import dataclass, field
@@ -72,7 +73,8 @@ def run_over_can(t: np.ndarray, x: np.ndarray, v: np.ndarray, bus_cfg: BusConfig
     state_enc = Encoder(db, STATE)
     receiver = Receiver(db, [FORCE])
     stroke_step = float(db.get_message_by_name(STATE).get_signal_by_name("Stroke").scale)
-    bus = ResilientBus(bus_cfg)
+    bus = ResilientBus(dataclasses.replace(
+        bus_cfg, receive_ids=(int(db.get_message_by_name(FORCE).frame_id),)))
     force = np.full(n, np.nan)
     status = np.full(n, -1, dtype=np.int64)
     stroke_used = np.full(n, np.nan)

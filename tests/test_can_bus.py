@@ -272,3 +272,27 @@ def test_udp_multicast_between_processes(db):
     assert [f.values["Counter"] for f in forces] == [i % 16 for i in range(n)]
     assert receiver.total.accepted == n and receiver.total.dropped == 0
     assert receiver.total.unknown_id >= n                # our own frames, echoed
+
+
+def test_receive_ids_filter_out_other_frames():
+    """A bus given receive_ids takes only those identifiers (python-can filters)."""
+    import can
+
+    from can_bridge.bus import BusConfig, open_bus
+
+    channel = f"filter-{os.getpid()}"
+    only = open_bus(BusConfig("virtual", channel, receive_ids=(0x120,)))
+    sender = open_bus(BusConfig("virtual", channel))
+    try:
+        for frame_id in (0x101, 0x120, 0x100, 0x120):
+            sender.send(can.Message(arbitration_id=frame_id, data=bytes(8),
+                                    is_extended_id=False))
+        got = []
+        while (msg := only.recv(0.1)) is not None:
+            got.append(msg.arbitration_id)
+        assert got == [0x120, 0x120]
+    finally:
+        only.shutdown()
+        sender.shutdown()
+    with pytest.raises(ValueError, match="11-bit"):
+        BusConfig("virtual", channel, receive_ids=(0x800,))

@@ -107,7 +107,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from damper_emulator.bag import BagError, BagWriter, cdr_fast
+from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages
 from damper_emulator.bag.cdr_fast import JointStates, RawTopic
 from damper_emulator.model.compressible import (S_SIZE, DamperModel, DamperStepper, _simulate,
                                                 _simulate_commanded)
@@ -528,7 +528,8 @@ def _prepare_bag_dir(path: Path, source: Path) -> None:
 
 def write_replay_bag(path: str | os.PathLike[str], data: BagData, rep: Replayed,
                      params: EmulatorParams) -> Path:
-    """Write ``/damper/state`` (copied) and the replayed ``/damper/force`` to a new bag.
+    """Write ``/damper/state`` (copied), the replayed ``/damper/force`` and the recorded
+    ``/damper/valve_command`` (re-encoded, same values and times) to a new bag.
 
     Raises
     ------
@@ -555,6 +556,10 @@ def write_replay_bag(path: str | os.PathLike[str], data: BagData, rep: Replayed,
             write(t_state, log_ns, msg)
         for log_ns, msg in zip(rep.log_ns.tolist(), forces):
             write(t_force, log_ns, msg)
+        if data.valve is not None:
+            t_valve = writer.add_topic(VALVE_COMMAND, "std_msgs/msg/Float64")
+            for log_ns, value in zip(data.valve[0].tolist(), data.valve[1].tolist()):
+                write(t_valve, log_ns, messages.float64(value))
     return path
 
 

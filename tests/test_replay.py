@@ -496,6 +496,9 @@ def test_recorded_valve_commands_drive_the_replay(tmp_path, sport_model):
     expected = np.array(expected)
     doc = run_replay(bag, tmp_path / "out")
     assert doc["valve_commands"] == 3
+    out = read_recording(tmp_path / "out" / REPLAY_BAG)
+    assert out.valve_command[1].tolist() == [0.0, 1.0, 0.5]
+    assert out.valve_command[0].tolist() == [log_ns for log_ns, _ in commands]
     assert doc["rms_N"] < 1e-6 and doc["max_abs_N"] < 1e-5
     from damper_emulator import replay as R
     data = R.read_bag(bag)

@@ -141,6 +141,29 @@ def _rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(a))))
 
 
+def simulate_record(model: DamperModel, data: MeasuredData):
+    """``(velocity, how, result)``: ``model`` run over the measured record's time and
+    displacement with its velocity column or, when absent, :func:`estimate_velocity`
+    (``how`` says which), from quasi-steady equilibrium at the first sample.
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: the history cannot be simulated.
+    """
+    t, x = data.time, data.displacement
+    if data.velocity is not None:
+        v = np.asarray(data.velocity, dtype=float)
+        how: dict[str, Any] = {"velocity_source": "file"}
+    else:
+        v, how = estimate_velocity(t, x)
+    try:
+        return v, how, simulate(model, t, x, v)
+    except ValueError as exc:
+        where = data.path or data.name or "<data>"
+        raise ValueError(f"{where}: cannot simulate this history: {exc}") from None
+
+
 def validate_file(model: DamperModel, data: MeasuredData) -> dict[str, Any]:
     """Simulate ``model`` over the displacement history of ``data`` and compare forces.
 
@@ -168,16 +191,7 @@ def validate_file(model: DamperModel, data: MeasuredData) -> dict[str, Any]:
         damper's travel, velocity beyond the valve table, ...).
     """
     t, x, f_meas = data.time, data.displacement, data.force
-    where = data.path or data.name or "<data>"
-    if data.velocity is not None:
-        v = np.asarray(data.velocity, dtype=float)
-        how: dict[str, Any] = {"velocity_source": "file"}
-    else:
-        v, how = estimate_velocity(t, x)
-    try:
-        res = simulate(model, t, x, v)
-    except ValueError as exc:
-        raise ValueError(f"{where}: cannot simulate this history: {exc}") from None
+    v, how, res = simulate_record(model, data)
     f_sim = res.force_n
     err = f_sim - f_meas
     rms = _rms(err)

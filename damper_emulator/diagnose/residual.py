@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.dyno.measured import MeasuredData
-from damper_emulator.model.compressible import DamperModel, simulate
-from damper_emulator.validation import UNIFORM_DT_TOLERANCE, estimate_velocity
+from damper_emulator.model.compressible import DamperModel
+from damper_emulator.validation import UNIFORM_DT_TOLERANCE, simulate_record
 
 #: Savitzky–Golay window of the acceleration, in physical time [s]
 ACCEL_WINDOW_S = 0.025
@@ -150,16 +150,8 @@ def residual_record(model: DamperModel, data: MeasuredData) -> ResidualRecord:
     t = np.asarray(data.time, dtype=float)
     x = np.asarray(data.displacement, dtype=float)
     f_meas = np.asarray(data.force, dtype=float)
-    if data.velocity is not None:
-        v = np.asarray(data.velocity, dtype=float)
-        info: dict[str, Any] = {"velocity_source": "file"}
-    else:
-        v, info = estimate_velocity(t, x)
-    try:
-        f_model = simulate(model, t, x, v).force_n
-    except ValueError as exc:
-        where = data.path or data.name or "<data>"
-        raise ValueError(f"{where}: cannot simulate this history: {exc}") from None
+    v, info, res = simulate_record(model, data)
+    f_model = res.force_n
     a, how_a = acceleration_of(t, v)
     info.update(how_a)
     temp = (np.asarray(data.temperature, dtype=float) if data.temperature is not None

@@ -201,6 +201,17 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
 INPUT_WAIT_NS = 50_000_000
 
 
+def take_all(sub):
+    """Every message waiting on the rclpy subscription ``sub``, oldest first, as
+    ``(message, info)`` (taken directly, without an executor)."""
+    while True:
+        with sub.handle:
+            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+        if taken is None:
+            return
+        yield taken
+
+
 def _ignore(_msg) -> None:
     """Callback of subscriptions whose messages a :class:`SubscriptionThread` takes."""
 
@@ -278,12 +289,8 @@ class SubscriptionThread:
                         wait_set.add_subscription(sub.handle)
                 wait_set.wait(INPUT_WAIT_NS)
                 for sub, handler in self._inputs:
-                    while True:
-                        with sub.handle:
-                            taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                        if taken is None:
-                            break
-                        handler(taken[0])
+                    for msg, _info in take_all(sub):
+                        handler(msg)
         except Exception as exc:  # noqa: BLE001 - reported, then the node stops
             if not self._stop.is_set():
                 self._node.get_logger().error(f"{self._thread.name} thread stopped: {exc!r}")

@@ -45,7 +45,7 @@ from damper_emulator.realtime.settings import (RUNTIME_PARAMETERS, default_emula
                                                emulator_params_from_mapping)
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (SubscriptionThread, control_qos, declare_parameters,
-                                        publish_diagnostics, set_stamp, stamp_ns)
+                                        publish_diagnostics, set_stamp, stamp_ns, take_all)
 
 NODE_NAME = "damper_emulator"
 
@@ -197,26 +197,15 @@ class EmulatorNode(Node):
     def _take_inputs(self, now_ns: int) -> None:
         """Every sample that arrived since the last tick, oldest first; each is received
         at its DDS reception time (mapped onto the monotonic clock)."""
-        sub = self._state_sub
-        while True:
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            if taken is None:
-                return
-            msg, info = taken
+        for msg, info in take_all(self._state_sub):
             received = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
             delay = time.time_ns() - received if received else 0
             self._on_state(msg, now_ns - max(0, delay))
 
     def _take_valve_commands(self) -> None:
         """Every valve command that arrived since the last tick, in order (the last wins)."""
-        sub = self._valve_sub
-        while True:
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            if taken is None:
-                return
-            self._on_valve(taken[0])
+        for msg, _info in take_all(self._valve_sub):
+            self._on_valve(msg)
 
     def _tick(self, now_ns: int) -> None:
         self._take_valve_commands()

@@ -35,7 +35,7 @@ from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import control_qos, set_stamp, stamp_ns
+from damper_emulator.ros.common import control_qos, set_stamp, stamp_ns, take_all
 from damper_emulator.ros.emulator import load_node_model
 from damper_emulator.model.compressible import DamperStepper
 from ride_sim import quarter_car as qc
@@ -205,12 +205,8 @@ class RideNode(Node):
         def tick(now_ns: int) -> None:
             if s.done:
                 raise StopIteration
-            while True:
-                with sub.handle:
-                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                if taken is None:
-                    break
-                self._on_force(taken[0])
+            for msg, _info in take_all(sub):
+                self._on_force(msg)
             latest = self._latest
             if latest is None:
                 force, status = self.static_force_n, 0

@@ -68,7 +68,9 @@ class BridgeCore:
         self.motion_cycle_ns = int(cycle_time_s(db.get_message_by_name(MOTION)) * 1e9)
         self._last_in_ns: int | None = None      # last accepted inbound frame
         self._last_force_ns: int | None = None   # last emulator force
-        self._last_watchdog_ns = 0
+        #: monotonic time [ns] of the watchdog's next fault frame while the emulator is
+        #: silent (the receive loop waits at most until then)
+        self.next_watchdog_ns = 0
         self._last_motion_ns: int | None = None
         self._state_silent = False
         self._force_silent = False
@@ -165,6 +167,13 @@ class BridgeCore:
             StrokeUsed=stroke_m if math.isfinite(stroke_m) else 0.0)
         return data
 
+    def watchdog_wait_ns(self, now_ns: int) -> int:
+        """How long the receive loop may wait for a frame before :meth:`watchdog` is due:
+        until the next fault frame while the emulator is silent, else one DBC cycle."""
+        if not self._force_silent:
+            return self.force_cycle_ns
+        return min(self.force_cycle_ns, max(0, self.next_watchdog_ns - now_ns))
+
     def watchdog(self, now_ns: int) -> tuple[bytes | None, float | None]:
         """Call often (at least every DBC cycle).  Returns ``(fault DAMPER_FORCE payload or
         None, fail-safe valve command to apply or None)``."""
@@ -175,8 +184,11 @@ class BridgeCore:
             if not self._force_silent and since is not None:
                 self.counters.force_timeouts += 1
             self._force_silent = True
-            if now_ns - self._last_watchdog_ns >= self.force_cycle_ns:
-                self._last_watchdog_ns = now_ns
+            if now_ns >= self.next_watchdog_ns:
+                # paced on deadlines (one DBC cycle apart), not on the calls: no drift
+                self.next_watchdog_ns += self.force_cycle_ns
+                if now_ns >= self.next_watchdog_ns:        # fell behind: no burst
+                    self.next_watchdog_ns = now_ns + self.force_cycle_ns
                 self.counters.fault_frames_out += 1
                 bits = int(ForceStatus.FORCE_TIMEOUT) | int(self._inbound_status(now_ns))
                 frame = self._encode_force(0.0, bits, math.nan, math.nan)

@@ -122,11 +122,11 @@ class BridgeNode(Node):
             sched_fifo=p.sched_fifo, priority=p.priority, lock_memory=False))
         if self._rt_report.refused:
             self.get_logger().warning(f"receive thread: {self._rt_report.summary()}")
-        timeout_s = self.core.force_cycle_ns * 1e-9
         core = self.core
         try:
             while not self._stop.is_set():
-                msg = self.bus.recv(timeout_s)
+                # wake for the next frame or the watchdog's next deadline
+                msg = self.bus.recv(core.watchdog_wait_ns(time.monotonic_ns()) * 1e-9)
                 now_ns = time.monotonic_ns()
                 if msg is not None and not msg.is_error_frame:
                     out = core.on_frame(msg.arbitration_id, msg.data, now_ns)

@@ -244,7 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n"
                f"  {PROG} bridge --ros-args -p can_interface:=socketcan -p can_channel:=vcan0\n"
                f"  {PROG} bridge --ros-args -p can_interface:=udp_multicast "
-               "-p can_channel:=ff11::d4:1 -p mode:=controller")
+               "-p \"can_channel:='[ff11::d4:1]:43000'\" -p mode:=controller\n"
+               "(a channel with a port needs the inner YAML quotes)")
     bridge.set_defaults(handler=cmd_bridge, takes_ros_args=True)
     sky = sub.add_parser(
         "skyhook", formatter_class=_Formatter,

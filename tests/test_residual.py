@@ -136,3 +136,32 @@ def test_temperature_channel_and_estimated_velocity_and_plot(sport_model, sine, 
     assert feats["r2_temperature"] > 0.95
     png = plot_residual(tmp_path / "residual.png", rec, "test")
     assert png.stat().st_size > 10_000
+
+
+def test_a_rest_at_the_end_is_trimmed_not_read_as_friction(sport_model, sine):
+    """The rig standing still after the test, with a load-cell offset there: the features
+    are those of the moving record (the rest is trimmed), not a reversal signature."""
+    from damper_emulator.diagnose.residual import trim_rest
+
+    t, x, v, f = sine
+    extra = 30.0 * np.tanh(v / 0.005)            # a real friction-like residual
+    _, moving = features_with(sport_model, sine, extra)
+    n_rest = int(0.6 * RATE)
+    t2 = np.concatenate([t, t[-1] + (1 + np.arange(n_rest)) / RATE])
+    x2 = np.concatenate([x, np.full(n_rest, x[-1])])
+    v2 = np.concatenate([v, np.zeros(n_rest)])
+    f_rest = simulate(sport_model, t2, x2, v2).force_n
+    offset = np.concatenate([extra, np.full(n_rest, 13.0)])
+    data = MeasuredData(time=t2, displacement=x2, force=f_rest + offset, velocity=v2,
+                        name="sine_rest.csv")
+    rec = residual_record(sport_model, data)
+    trimmed, rest_s = trim_rest(rec)
+    assert len(trimmed) < len(rec)
+    assert rest_s == pytest.approx(0.6, abs=0.02)
+    feats = residual_features(rec)
+    assert feats["rest_trimmed_s"] == pytest.approx(rest_s)
+    for key in ("reversal_rms_ratio", "corr_sign_velocity", "r2_velocity"):
+        assert feats[key] == pytest.approx(moving[key], abs=0.02), key
+    # nothing to trim in a record that moves from start to end
+    assert trim_rest(residual_record(sport_model, MeasuredData(
+        time=t, displacement=x, force=f, velocity=v, name="s")))[1] == 0.0

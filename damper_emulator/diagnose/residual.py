@@ -53,6 +53,9 @@ HARMONICS = (1, 2, 3, 4, 5)
 #: half-width of a harmonic's band in FFT bins (the Hann window's main lobe is ±2 bins);
 #: never more than half the fundamental, so bands of neighbouring harmonics do not overlap
 HARMONIC_HALF_WIDTH_BINS = 2.0
+#: A stretch at the start or end of a record with |v| at most the reversal threshold for at
+#: least this long is the rig at rest, not a reversal: trimmed before the features [s].
+REST_MIN_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,13 @@ class ResidualRecord:
 
     def __len__(self) -> int:
         return int(self.time.size)
+
+    def sliced(self, start: int, stop: int) -> "ResidualRecord":
+        """The samples ``start:stop`` (the energy keeps its running value)."""
+        arrays = {f: getattr(self, f)[start:stop] for f in
+                  ("time", "displacement", "velocity", "acceleration", "temperature",
+                   "force_measured", "force_model", "residual", "energy")}
+        return ResidualRecord(**arrays, name=self.name, info=dict(self.info))
 
     @property
     def has_temperature(self) -> bool:
@@ -266,12 +276,36 @@ def _harmonic_fractions(record: ResidualRecord, f0: float) -> dict[int, float]:
     return out
 
 
+def trim_rest(record: ResidualRecord, min_rest_s: float = REST_MIN_S
+              ) -> tuple[ResidualRecord, float]:
+    """``(record, seconds trimmed)``: the record without a leading or trailing stretch at
+    rest (``|v| ≤ REVERSAL_FRACTION · P99(|v|)`` for at least ``min_rest_s``): a rig
+    standing still before or after a test would otherwise read as a reversal (friction)
+    signature and add broadband power.  Interior stretches are kept."""
+    n = len(record)
+    if n < 2:
+        return record, 0.0
+    speed = np.abs(record.velocity)
+    thr = REVERSAL_FRACTION * float(np.percentile(speed, REFERENCE_SPEED_PERCENTILE))
+    moving = np.flatnonzero(speed > thr)
+    if moving.size < 2:
+        return record, 0.0
+    t = record.time
+    start = int(moving[0]) if t[moving[0]] - t[0] >= min_rest_s else 0
+    stop = int(moving[-1]) + 1 if t[-1] - t[moving[-1]] >= min_rest_s else n
+    if start == 0 and stop == n:
+        return record, 0.0
+    trimmed = float((t[start] - t[0]) + (t[-1] - t[stop - 1]))
+    return record.sliced(start, stop), trimmed
+
+
 def residual_features(record: ResidualRecord) -> dict[str, float]:
     """Numbers that trace the residual ``r = F_meas − F_model`` to an effect.
 
     Every value is a finite float (an int for ``spectrum_dominant_harmonic``),
     deterministic; only the temperature feature is NaN, and only when the record has no
-    temperature.  ``N`` samples; ``corr`` is Pearson's correlation (0 when a side has no
+    temperature.  A leading or trailing stretch at rest is left out first (:func:`trim_rest`,
+    ``rest_trimmed_s``).  ``N`` samples; ``corr`` is Pearson's correlation (0 when a side has no
     variance); ``R²_bin(z)`` is :func:`binned_r2` (40 quantile bins, bin-count adjusted).
 
     Size
@@ -307,10 +341,12 @@ def residual_features(record: ResidualRecord) -> dict[str, float]:
         ``lag1_autocorrelation = Σ (r_i − r̄)(r_{i+1} − r̄) / Σ (r_i − r̄)²`` (0 when r
         has no variance).
     """
+    record, rest_s = trim_rest(record)
     r = record.residual
     t, x, v, a = record.time, record.displacement, record.velocity, record.acceleration
     n = r.size
-    out: dict[str, Any] = {"samples": int(n), "duration_s": float(t[-1] - t[0]) if n else 0.0}
+    out: dict[str, Any] = {"samples": int(n), "duration_s": float(t[-1] - t[0]) if n else 0.0,
+                           "rest_trimmed_s": rest_s}
     rms = _rms(r)
     f_rms = _rms(record.force_measured)
     out.update(rms_N=rms, force_rms_N=f_rms, relative_rms=rms / f_rms if f_rms > 0 else 0.0,

@@ -141,7 +141,7 @@ class DamperParams:
     x0_m: float = _pos("piston position at rest X0 [m] (rebound chamber length L_pt − X0)")
     rod_diameter_m: float = _pos("piston rod diameter [m]")
     piston_diameter_m: float = _pos("piston diameter [m]")
-    gas_gamma: float = field(metadata={"rule": ("range", 1.0, 5.0 / 3.0),
+    gas_gamma: float = field(metadata={"rule": ("closed", 1.0, 5.0 / 3.0),
                                        "doc": "gas polytropic exponent γ [-], eq 3"})
     oil_kinematic_viscosity_m2_s: float = _pos("oil kinematic viscosity ν [m²/s]")
     oil_compressibility_per_pa: float = _pos("oil compressibility α [1/Pa], eq 1")
@@ -152,7 +152,7 @@ class DamperParams:
     rebound: ValveParams = field(metadata={"rule": "group", "doc": "rebound valve (Δp > 0)"})
     compression: ValveParams = field(metadata={"rule": "group",
                                                "doc": "compression valve (Δp < 0)"})
-    name: str = field(default="damper", metadata={"rule": "name", "doc": "damper name"})
+    name: str = field(default="damper", metadata={"rule": "text", "doc": "damper name"})
     adaptive: AdaptiveParams | None = field(default=None, metadata={
         "rule": "adaptive", "doc": "solenoid bypass of the softer settings (MODEL.md §6); "
                                    "None: no bypass, the valve command has no effect"})
@@ -285,55 +285,18 @@ def _convert(raw: Any, f: dataclasses.Field, key: str, where: str) -> Any:
         return _build(ValveParams, raw, key, where)
     if f.metadata["rule"] == "adaptive":
         return build_group(AdaptiveParams, raw, key, where, check_value)
-    return _coerce(raw, f, key, where)
+    return check_value(raw, f, key, where)
 
 
-def _coerce(raw: Any, f: dataclasses.Field, key: str, where: str) -> Any:
-    rule = f.metadata["rule"]
-    if rule == "name" or (isinstance(rule, tuple) and rule[0] == "choices"):
-        if not isinstance(raw, str):
-            raise ParameterError(f"{where}: {key} must be a string, got {raw!r}")
-        return raw
-    if isinstance(rule, tuple) and rule[0] == "int_range":
-        if isinstance(raw, bool) or not isinstance(raw, int):
-            raise ParameterError(f"{where}: {key} must be an integer, got {raw!r}")
-        return raw
-    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
-        raise ParameterError(f"{where}: {key} must be a number, got {raw!r}")
-    return float(raw)
-
-
-def _check_field(value: Any, f: dataclasses.Field, key: str) -> str | None:
-    """The broken rule for one value, or None."""
-    rule = f.metadata["rule"]
-    if isinstance(value, float) and not math.isfinite(value):
-        return f"{key} = {value} must be finite"
-    if rule == "positive" and not value > 0:
-        return f"{key} = {value:g} must be positive ({f.metadata['doc']})"
-    if rule == "non-negative" and not value >= 0:
-        return f"{key} = {value:g} must not be negative ({f.metadata['doc']})"
-    if isinstance(rule, tuple):
-        kind = rule[0]
-        if kind == "range" and not rule[1] <= value <= rule[2]:
-            return f"{key} = {value:g} must lie in [{rule[1]:g}, {rule[2]:g}] ({f.metadata['doc']})"
-        if kind == "int_range" and not rule[1] <= value <= rule[2]:
-            return f"{key} = {value} must lie in [{rule[1]}, {rule[2]}]"
-        if kind == "choices" and value not in rule[1]:
-            return f"{key} = {value!r} must be one of {', '.join(rule[1])}"
-    return None
-
-
-def _problems(obj: Any, prefix: str) -> list[str]:
-    out = []
+def _check_fields(obj: Any, prefix: str, where: str) -> None:
+    """Every value's own rule (:func:`check_value`), sub-groups included; the first one
+    broken raises."""
     for f in fields(obj):
         value = getattr(obj, f.name)
         if f.metadata["rule"] == "group":
-            out += _problems(value, f"{prefix}.{f.name}")
-        else:
-            msg = _check_field(value, f, f"{prefix}.{f.name}")
-            if msg:
-                out.append(msg)
-    return out
+            _check_fields(value, f"{prefix}.{f.name}", where)
+        elif f.metadata["rule"] != "adaptive":
+            check_value(value, f, f"{prefix}.{f.name}", where)
 
 
 def validate(cfg: ModelConfig) -> None:
@@ -344,9 +307,8 @@ def validate(cfg: ModelConfig) -> None:
     increasing (hence invertible) over the table range, checked by building the table.
     """
     where = cfg.source
-    problems = _problems(cfg.damper, "damper") + _problems(cfg.numerics, "numerics")
-    if problems:
-        raise ParameterError(f"{where}: {problems[0]}")
+    _check_fields(cfg.damper, "damper", where)
+    _check_fields(cfg.numerics, "numerics", where)
     d = cfg.damper
     if not d.rod_diameter_m < d.piston_diameter_m:
         raise ParameterError(

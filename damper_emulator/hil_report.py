@@ -72,7 +72,7 @@ def plot_control(path: Path, rec: Recording) -> Path | None:
     return save(fig, path)
 
 
-def _loop_record(stats_file: Path):
+def load_loop_record(stats_file: Path):
     """``(arrays, summary)`` of the emulator's loop record (``emulator.stats_file``), or None
     when there is none or it is empty."""
     if not stats_file.is_file():
@@ -81,9 +81,8 @@ def _loop_record(stats_file: Path):
     return (z, s) if z["periods_ns"].size else None
 
 
-def loop_summary(stats_file: Path) -> dict[str, Any] | None:
-    """Period statistics of the emulator's loop record."""
-    record = _loop_record(stats_file)
+def loop_summary(record) -> dict[str, Any] | None:
+    """Period statistics of a loop record (:func:`load_loop_record`; None: none)."""
     if record is None:
         return None
     z, s = record
@@ -94,9 +93,9 @@ def loop_summary(stats_file: Path) -> dict[str, Any] | None:
             "overruns": s.overruns, "skipped": s.skipped, "realtime": str(z["realtime"])}
 
 
-def plot_loop(path: Path, stats_file: Path) -> Path | None:
-    """The loop periods against time and their histogram."""
-    record = _loop_record(stats_file)
+def plot_loop(path: Path, record) -> Path | None:
+    """The loop periods of a loop record (:func:`load_loop_record`) against time and their
+    histogram; None when there is no record."""
     if record is None:
         return None
     z, _ = record
@@ -145,7 +144,8 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
     control_png = plot_control(out / "control.png", rec)
     if control_png is not None:
         files.append(control_png.name)
-    loop_png = plot_loop(out / "loop.png", stats_file)
+    loop_record = load_loop_record(stats_file)
+    loop_png = plot_loop(out / "loop.png", loop_record)
     if loop_png is not None:
         files.append(loop_png.name)
     faults = 0
@@ -157,7 +157,7 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
         "topics": rec.counts,
         "fault_outputs": faults,
         "ride": ride_doc,
-        "emulator_loop": loop_summary(stats_file),
+        "emulator_loop": loop_summary(loop_record),
         "emulator_diagnostics": rec.last_diagnostics,
         "bridge_diagnostics": rec.bridge_diagnostics or None,
         "valve_command": None if rec.valve_command is None else {

@@ -12,12 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from damper_emulator.bag import BagError, cdr_fast, open_bag
-
-STATE = "/damper/state"
-FORCE = "/damper/force"
-RIDE_STATE = "/ride/state"
-DIAGNOSTICS = "/diagnostics"
-VALVE_COMMAND = "/damper/valve_command"
+# the topic names only: damper_emulator.ros.topics imports no rclpy
+from damper_emulator.ros.topics import DIAGNOSTICS, FORCE, RIDE_STATE, STATE, VALVE_COMMAND
 
 
 @dataclass(frozen=True)
@@ -81,6 +77,31 @@ def _lacking(path: Path, topic: str, raw, ok: np.ndarray, what: str) -> None:
         raise BagError(f"bag {path}: {topic} at {int(raw.log_ns[i])} ns lacks {what}")
 
 
+def read_valve_commands(path: str | Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(log_ns, command)`` of the bag's ``/damper/valve_command`` (``std_msgs/Float64``:
+    a 4-byte CDR header, then the double, decoded in bulk), or None when it has none.
+
+    Raises
+    ------
+    BagError
+        A message too short for a Float64.
+    """
+    path = Path(path)
+    try:
+        r = cdr_fast.read_raw(path, [VALVE_COMMAND])[VALVE_COMMAND]
+    except BagError:
+        return None
+    if len(r) == 0:
+        return None
+    if (r.lengths < 12).any():
+        raise BagError(f"bag {path}: {VALVE_COMMAND} holds a message too short for a "
+                       "Float64")
+    little = r.buf[r.offsets + 1] == 1
+    raw8 = r.buf[(r.offsets + 4)[:, None] + np.arange(8)]
+    raw8 = np.where(little[:, None], raw8, raw8[:, ::-1])
+    return r.log_ns.copy(), np.ascontiguousarray(raw8).view("<f8").ravel().copy()
+
+
 def read_recording(path: str | Path) -> Recording:
     """Read the damper and ride topics of a bag into arrays.
 
@@ -95,7 +116,6 @@ def read_recording(path: str | Path) -> Recording:
     """
     path = Path(path)
     last: dict[str, dict[str, str]] = {"damper_emulator": {}, "can_bridge": {}}
-    valve = None
     with open_bag(path) as bag:
         counts = {name: info.count for name, info in bag.topics.items()}
         if DIAGNOSTICS in bag.topics:
@@ -105,11 +125,7 @@ def read_recording(path: str | Path) -> Recording:
                     if node in last:
                         last[node] = {kv.key: kv.value for kv in status.values}
                         last[node]["message"] = status.message
-        if counts.get(VALVE_COMMAND):
-            rows = [(log_ns, float(msg.data))
-                    for _t, log_ns, msg in bag.messages([VALVE_COMMAND])]
-            valve = (np.array([r[0] for r in rows], dtype=np.int64),
-                     np.array([r[1] for r in rows]))
+    valve = read_valve_commands(path) if counts.get(VALVE_COMMAND) else None
     present = [t for t in (STATE, FORCE, RIDE_STATE) if counts.get(t)]
     raw = cdr_fast.read_raw(path, present) if present else {}
     js = {t: cdr_fast.decode_joint_states(r.buf, r.offsets, r.lengths,

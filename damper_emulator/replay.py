@@ -113,6 +113,8 @@ from damper_emulator.model.compressible import (S_SIZE, DamperModel, DamperStepp
                                                 _simulate_commanded)
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.core import Status, fault_output, input_ok, stroke_window
+from damper_emulator.recording import read_valve_commands
+from damper_emulator.ros.topics import FORCE, STATE, VALVE_COMMAND
 from damper_emulator.realtime.settings import (DEFAULT_EMULATOR_FILE, EmulatorParams,
                                                default_emulator_mapping,
                                                emulator_params_from_mapping)
@@ -131,9 +133,6 @@ __all__ = [
     "run_replay",
 ]
 
-STATE = "/damper/state"
-FORCE = "/damper/force"
-VALVE_COMMAND = "/damper/valve_command"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 REPLAY_BAG = "replay_bag"
 REPLAY_JSON = "replay.json"
@@ -194,25 +193,8 @@ def read_bag(path: str | os.PathLike[str]) -> BagData:
         i = int(np.argmax(lacking))
         raise BagError(f"bag {path}: {FORCE} at {int(raw[FORCE].log_ns[i])} ns lacks "
                        f"position[0], velocity[0] or effort[0]")
-    return BagData(path, raw[STATE], decoded[STATE], raw[FORCE], force, _valve_commands(path))
-
-
-def _valve_commands(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """The bag's ``/damper/valve_command`` (``std_msgs/Float64``: a 4-byte CDR header, then
-    the double), or None when it has none."""
-    try:
-        r = cdr_fast.read_raw(path, [VALVE_COMMAND])[VALVE_COMMAND]
-    except BagError:
-        return None
-    if len(r) == 0:
-        return None
-    if (r.lengths < 12).any():
-        raise BagError(f"bag {path}: {VALVE_COMMAND} holds a message too short for a "
-                       "Float64")
-    little = r.buf[r.offsets + 1] == 1
-    raw8 = r.buf[(r.offsets + 4)[:, None] + np.arange(8)]
-    raw8 = np.where(little[:, None], raw8, raw8[:, ::-1])
-    return r.log_ns.copy(), np.ascontiguousarray(raw8).view("<f8").ravel().copy()
+    return BagData(path, raw[STATE], decoded[STATE], raw[FORCE], force,
+                   read_valve_commands(path))
 
 
 def commands_at(data: BagData, log_ns: np.ndarray, initial: float) -> np.ndarray | None:

@@ -314,6 +314,12 @@ class Receiver:
         """The messages this receiver accepts."""
         return tuple(self._by_name)
 
+    @property
+    def frame_ids(self) -> tuple[int, ...]:
+        """The 11-bit identifiers of the standard-frame messages it accepts (for
+        :attr:`can_bridge.bus.BusConfig.receive_ids`)."""
+        return tuple(fid for fid, extended in self._by_id if not extended)
+
     def counters(self, name: str) -> FrameCounters:
         """The live counters of one message (``unknown_id`` is always 0 there)."""
         return self._rx(name).counters

@@ -121,7 +121,7 @@ class BridgeCore:
 
     def _note_drops(self) -> None:
         d = self.receiver.drops
-        dropped = d.length + d.checksum + d.counter + d.lost
+        dropped = d.dropped + d.lost
         if dropped != self._drops_seen:
             self._drops_seen = dropped
             self._rx_trouble = True

@@ -73,8 +73,7 @@ def run_over_can(t: np.ndarray, x: np.ndarray, v: np.ndarray, bus_cfg: BusConfig
     state_enc = Encoder(db, STATE)
     receiver = Receiver(db, [FORCE])
     stroke_step = float(db.get_message_by_name(STATE).get_signal_by_name("Stroke").scale)
-    bus = ResilientBus(dataclasses.replace(
-        bus_cfg, receive_ids=(int(db.get_message_by_name(FORCE).frame_id),)))
+    bus = ResilientBus(dataclasses.replace(bus_cfg, receive_ids=receiver.frame_ids))
     force = np.full(n, np.nan)
     status = np.full(n, -1, dtype=np.int64)
     stroke_used = np.full(n, np.nan)

@@ -23,7 +23,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from can_bridge.bus import BusConfig, CanBusError, ResilientBus, open_bus
-from can_bridge.core import COMMAND, STATE, BridgeCore
+from can_bridge.core import BridgeCore
 from can_bridge.dbc import load_database
 from can_bridge.settings import (NODE_NAME, bridge_params_from_mapping,
                                  default_bridge_mapping)
@@ -58,9 +58,8 @@ class BridgeNode(Node):
         self.dds_priority = p.dds_priority
         db = load_database(p.dbc_file or None)
         self.core = BridgeCore(p, db)
-        inbound = db.get_message_by_name(STATE if p.mode == "dyno" else COMMAND).frame_id
         cfg = BusConfig(interface=p.can_interface, channel=p.can_channel, bitrate=p.bitrate,
-                        receive_ids=(inbound,))
+                        receive_ids=self.core.receiver.frame_ids)
         try:
             open_bus(cfg).shutdown()     # a wrong interface or channel: one line, exit 2
         except CanBusError as exc:
@@ -231,7 +230,7 @@ class BridgeNode(Node):
             "realtime": self._rt_report.summary() if self._rt_report else "",
         }
         level, message = DiagnosticStatus.OK, "ok"
-        if d.length or d.checksum or d.counter or d.lost:
+        if d.dropped or d.lost:
             level, message = DiagnosticStatus.WARN, "frames dropped or lost"
         if self.core.fault_active:
             level, message = DiagnosticStatus.ERROR, self.core.fault_text

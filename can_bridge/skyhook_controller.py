@@ -23,10 +23,6 @@ from can_bridge.codec import Encoder, Receiver
 from can_bridge.core import COMMAND, MOTION
 from ride_sim.skyhook import SkyhookParams, SkyhookRates, skyhook_command
 
-def receiver_id(db, name: str) -> int:
-    return int(db.get_message_by_name(name).frame_id)
-
-
 #: Silence on VEHICLE_MOTION after which the controller stops commanding [s].
 MOTION_TIMEOUT_S = 0.1
 
@@ -63,7 +59,7 @@ def run_skyhook(bus_cfg: BusConfig, db, params: SkyhookParams, rates: SkyhookRat
     latest = None            # (body velocity, damper velocity, arrival)
     silent = True
     next_update = time.monotonic()
-    bus_cfg = dataclasses.replace(bus_cfg, receive_ids=(receiver_id(db, MOTION),))
+    bus_cfg = dataclasses.replace(bus_cfg, receive_ids=receiver.frame_ids)
     with ResilientBus(bus_cfg) as bus:
         while not stop.is_set():
             msg = bus.recv(max(0.0, min(period, next_update - time.monotonic())))

@@ -51,6 +51,9 @@ class OverCanResult:
     stroke_mismatches: int = 0    # forces whose StrokeUsed is not the sample's stroke
     dropped: dict = field(default_factory=dict)
     elapsed_s: float = 0.0
+    #: largest deviation of a sample's send interval from the nominal one [s]: the emulator
+    #: steps by the frames' times, so a dyno that stalls changes what it simulates
+    send_interval_error_max_s: float = 0.0
 
 
 def run_over_can(t: np.ndarray, x: np.ndarray, v: np.ndarray, bus_cfg: BusConfig, db, *,
@@ -167,6 +170,8 @@ def run_over_can(t: np.ndarray, x: np.ndarray, v: np.ndarray, bus_cfg: BusConfig
         bus.close()
     got = ~np.isnan(force)
     lat = np.where(got, (arrival - sent_ns) * 1e-9, np.nan)
+    sent = sent_ns[sent_ns > 0]
+    interval_err = float(np.abs(np.diff(sent) * 1e-9 - dt).max()) if sent.size > 1 else 0.0
     mismatch = int(np.sum(got & (np.abs(stroke_used - np.round(x / stroke_step) * stroke_step)
                                  > 1.5 * stroke_step)))
     d = receiver.drops
@@ -175,4 +180,5 @@ def run_over_can(t: np.ndarray, x: np.ndarray, v: np.ndarray, bus_cfg: BusConfig
                          stroke_mismatches=mismatch,
                          dropped={"length": d.length, "checksum": d.checksum,
                                   "counter": d.counter, "lost": d.lost},
-                         elapsed_s=time.monotonic() - started)
+                         elapsed_s=time.monotonic() - started,
+                         send_interval_error_max_s=interval_err)

@@ -141,6 +141,7 @@ class Loopback:
             "frames_dropped": r.dropped, "fault_frames": r.fault_frames,
             "status_bits_seen": int(np.bitwise_or.reduce(r.status[r.status >= 0]))
             if (r.status >= 0).any() else 0,
+            "send_interval_error_max_ms": round(r.send_interval_error_max_s * 1e3, 3),
             "elapsed_s": round(r.elapsed_s, 2),
         })
         # the emulator's model flag (status bit 8) is the only fault a force frame carries

@@ -553,6 +553,8 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
     assert "Traceback" not in over.stderr
     csvs = sorted(p.name for p in (tmp / "can").glob("*.csv"))
     assert csvs and csvs == sorted(p.name for p in (tmp / "offline").glob("*.csv"))
+    doc = json.loads((tmp / "can" / "dyno.json").read_text())
+    run = doc["over_can"]["runs"][0]
     for name in csvs:
         can_data = read_measured_csv(tmp / "can" / name)
         off_data = read_measured_csv(tmp / "offline" / name)
@@ -561,9 +563,8 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
         f_rms = np.sqrt(np.mean(off_data.force ** 2))
         diff = np.sqrt(np.mean((can_data.force - off_data.force) ** 2))
         assert np.isfinite(can_data.force).all()
-        assert diff / f_rms < 0.01, f"{name}: r.m.s. difference {diff:.1f} N of {f_rms:.0f} N"
-    doc = json.loads((tmp / "can" / "dyno.json").read_text())
-    run = doc["over_can"]["runs"][0]
+        assert diff / f_rms < 0.01, (f"{name}: r.m.s. difference {diff:.1f} N of "
+                                     f"{f_rms:.0f} N; run {run}")
     assert doc["over_can"]["nodes_started"] is True
     assert run["relative_rms_vs_offline_quantised"] < 0.01, run
     assert run["frames_dropped"] == {"length": 0, "checksum": 0, "counter": 0, "lost": 0}

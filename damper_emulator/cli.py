@@ -1,7 +1,7 @@
 """The ``damper-hil`` command line (CONTRACT.md "Command line").
 
-Subcommands so far: ``dyno`` (virtual dyno), ``demo``, ``identify``, ``validate`` and
-``ride-study``.  Every user error (bad parameter file, bad measured data, bad option value, an output that cannot be
+Subcommands so far: ``dyno`` (virtual dyno), ``demo``, ``identify``, ``validate``,
+``diagnose`` and ``ride-study``.  Every user error (bad parameter file, bad measured data, bad option value, an output that cannot be
 written) is one line ``damper-hil: error: <message>`` on stderr and exit status 2.
 """
 
@@ -393,6 +393,54 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--no-compressibility-correction", action="store_true",
                        help="use the rigid-oil valve flow |v|(A_pt − A_rod) as the paper does")
     ident.set_defaults(handler=cmd_identify)
+
+    # ---- diagnose ----------------------------------------------------------------------
+    diag = sub.add_parser(
+        "diagnose", formatter_class=_Formatter,
+        help="close the loop on measured data: find the effect the identified model lacks",
+        description="Fit every model extension (friction, thermal, cavitation, valve\n"
+                    "dynamics, compliance, end stops, air entrainment, position-dependent\n"
+                    "damping, gas-spring heat transfer) on top of the identified parameters\n"
+                    "to the identification files (--quasi-static, --chirp), score each by\n"
+                    "the r.m.s. reduction on the held-out files (--validate), penalise added\n"
+                    "parameters (BIC with the residual's effective sample size) and choose.\n"
+                    "family 'none': no candidate helps significantly and the residual is\n"
+                    "close to noise; 'other': none helps but structure remains.\n\n"
+                    "JSON (--json): {family, effect, significant, rms_before, rms_after,\n"
+                    "candidates: [{effect, family, score, ...}], parameters, uncertainties,\n"
+                    "...}; rms_* are residual r.m.s. forces [N] per file.  Data files as for\n"
+                    "validate (CSV or .csv.gz; an optional temperature column [°C] drives\n"
+                    "the viscosity-temperature candidate).",
+        epilog="examples:\n"
+               f"  {PROG} diagnose --params fitted.yaml --quasi-static qs.csv --chirp "
+               "chirp.csv \\\n      --validate sine_1hz.csv sine_3hz.csv --json diag.json "
+               "--report diag_out\n"
+               f"  {PROG} diagnose --params fitted.yaml --quasi-static qs.csv --chirp "
+               "chirp.csv \\\n      --validate sine_*.csv --effects lugre_friction,valve_lag "
+               "--json d.json")
+    diag.add_argument("--params", metavar="PARAMS.yaml", type=Path, required=True,
+                      help="identified parameter file (from identify); its own parameters "
+                           "stay fixed")
+    diag.add_argument("--quasi-static", metavar="QS.csv", type=Path, required=True, nargs="+",
+                      help="quasi-static test file(s): fitted")
+    diag.add_argument("--chirp", metavar="CHIRP.csv", type=Path, required=True, nargs="+",
+                      help="chirp test file(s): fitted")
+    diag.add_argument("--validate", metavar="DATA.csv", type=Path, required=True, nargs="+",
+                      help="held-out file(s), e.g. the validation sines: scored, never fitted")
+    diag.add_argument("--json", metavar="FILE", type=Path, required=True,
+                      help="results file")
+    diag.add_argument("--report", metavar="DIR", type=Path, default=None,
+                      help="also write report.md, overlay_<file>.png per held-out file, "
+                           "ranking.png and params_with_effect.yaml into DIR")
+    diag.add_argument("--effects", metavar="NAMES", default=None,
+                      help="comma-separated subset of the candidates (default: all): "
+                           "lugre_friction, viscosity_temperature, cavitation, valve_lag, "
+                           "series_compliance, end_stops, air_entrainment, bypass_groove, "
+                           "gas_heat_transfer")
+    diag.add_argument("--jobs", metavar="N", type=_pos_int, default=None,
+                      help="fit the candidates in N processes (default: the CPU count, at "
+                           "most 4)")
+    diag.set_defaults(handler=cmd_diagnose)
 
     # ---- ride-study --------------------------------------------------------------------
     ride = sub.add_parser(
@@ -797,6 +845,61 @@ def cmd_validate(args: argparse.Namespace) -> int:
               f"{r['peak_force_measured_compression_n']:<+8.0f}  "
               f"{r['peak_force_simulated_rebound_n']:>+8.0f}/"
               f"{r['peak_force_simulated_compression_n']:<+8.0f}")
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from damper_emulator.diagnose.selection import diagnose
+    from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.params import EXTENSION_TYPES
+
+    started = time.perf_counter()
+    effects = None
+    if args.effects is not None:
+        effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+        unknown = [e for e in effects if e not in EXTENSION_TYPES]
+        if unknown or not effects:
+            raise CliError(f"--effects: unknown effect {unknown[0] if unknown else '(none)'!r}"
+                           f" (one of {', '.join(EXTENSION_TYPES)})")
+    paths = [*args.quasi_static, *args.chirp, *args.validate]
+    seen: dict[str, Path] = {}
+    for p in paths:  # results are keyed by base name
+        if p.name in seen:
+            raise CliError(f"two data files have the base name {p.name!r} ({seen[p.name]} "
+                           f"and {p}): results are keyed by base name")
+        seen[p.name] = p
+    model, params_file = _load_model(args.params)
+    if model.cfg.damper.extensions is not None:
+        raise CliError(f"{params_file}: already holds damper.extensions "
+                       f"({', '.join(model.cfg.damper.extensions.active())}); diagnose needs "
+                       "the identified model without them")
+    fit = [read_measured_csv(p) for p in [*args.quasi_static, *args.chirp]]
+    held = [read_measured_csv(p) for p in args.validate]
+    print(f"diagnosing {params_file}: fit on {', '.join(d.name for d in fit)}, held out "
+          f"{', '.join(d.name for d in held)}", file=sys.stderr, flush=True)
+    import os
+
+    jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, 4)
+    result = diagnose(model, fit, held, effects, jobs=jobs,
+                      progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    doc = {"params_file": params_file, **result.to_json()}
+    if args.report is not None:
+        from damper_emulator.diagnose.report import write_report
+
+        files = write_report(result, args.report, params_file,
+                             progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+        doc["report_dir"] = str(args.report)
+        doc["report_files"] = [p.name for p in files]
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    _write_json(args.json, doc)
+    width = max(len("file"), *(len(n) for n in result.rms_before))
+    print(f"diagnosis: {result.family}" + (f" ({result.effect}, held-out r.m.s. "
+          f"-{100 * result.chosen.score:.1f} %)" if result.chosen else ""))
+    print(f"{'file':<{width}}  {'role':>8}  {'before [N]':>10}  {'after [N]':>10}")
+    for r in result.records:
+        print(f"{r.name:<{width}}  {'held out' if r.held_out else 'fit':>8}  "
+              f"{result.rms_before[r.name]:>10.2f}  {result.rms_after[r.name]:>10.2f}")
+    print(f"finished in {time.perf_counter() - started:.1f} s", file=sys.stderr)
     return 0
 
 

@@ -119,6 +119,149 @@ class AdaptiveParams:
         return math.pi / 4.0 * self.normal_bypass_diameter_m ** 2
 
 
+# --------------------------------------------------------------------------------------
+# Model extensions (issue 7; damper_emulator/model/extensions.py has the equations): effects
+# the paper's model lacks, each an optional sub-group of ``damper.extensions``, off when
+# absent.  The identification's ``diagnose`` fits them on top of identified parameters.
+
+
+@dataclass(frozen=True)
+class LugreFrictionParams:
+    """LuGre friction with pre-sliding (Canudas de Wit et al. 1995) in place of eq 4's
+    Coulomb term: bristle state ``ż = v − σ0 |v| z / g(v)``, ``g(v) = F_c + (F_s − F_c)
+    exp(−(v/v_s)²)``, force ``σ0 z``."""
+
+    coulomb_n: float = rule("non-negative", "sliding (Coulomb) friction F_c [N]")
+    static_n: float = rule("non-negative", "static (break-away) friction F_s [N]")
+    stribeck_velocity_m_s: float = rule("positive", "Stribeck velocity v_s [m/s]")
+    bristle_stiffness_n_m: float = rule("positive", "pre-sliding (bristle) stiffness σ0 "
+                                                    "[N/m]")
+
+
+@dataclass(frozen=True)
+class ViscosityTemperatureParams:
+    """Oil viscosity falling with temperature, ``ν = ν_ref exp(−β (T − T_ref))``; the port
+    and leak laws (eqs 8–9) scale with ``ν^(1/4)``, applied to the whole valve
+    characteristic.  ``T`` is the measured temperature (data column) plus, with a heat
+    capacity, the rise of a lumped heat model driven by the dissipated power."""
+
+    temperature_coefficient_per_k: float = rule(
+        "non-negative", "viscosity–temperature coefficient β [1/K]")
+    reference_temperature_c: float = rule(
+        ("closed", -60.0, 250.0), "temperature at which the valve parameters hold [°C]")
+    heat_capacity_j_per_k: float = rule(
+        "non-negative", "lumped heat capacity of oil and tube [J/K] (0: no heat model, the "
+                        "measured temperature only)", 0.0)
+    cooling_time_constant_s: float = rule(
+        "positive", "time constant of cooling to ambient [s]", 600.0)
+
+
+@dataclass(frozen=True)
+class CavitationParams:
+    """The rebound chamber cannot fall below the cavitation (vapour / gas-release) pressure:
+    it is held there while a cavity exists, which refills before pressure builds again."""
+
+    cavitation_pressure_pa: float = rule(
+        "non-negative", "absolute pressure at which the oil cavitates [Pa]")
+
+
+@dataclass(frozen=True)
+class ValveLagParams:
+    """Valve dynamics: the piston-valve flow follows its quasi-static value at the present
+    Δp through a first-order lag (the blow-off disc opens late)."""
+
+    time_constant_s: float = rule("positive", "valve opening time constant τ_v [s]")
+
+
+@dataclass(frozen=True)
+class SeriesComplianceParams:
+    """A spring in series between the dyno's stroke and the damper (mount, bushes,
+    fixture): the damper moves ``x − F/k``."""
+
+    stiffness_n_m: float = rule("positive", "series (mount) stiffness k_m [N/m]")
+
+
+@dataclass(frozen=True)
+class EndStopParams:
+    """Elastomer end stops, progressive: ``k δ²`` for a penetration ``δ`` past either stop."""
+
+    rebound_position_m: float = rule(("closed", -1.0, 1.0),
+                                     "stroke at which the rebound stop engages [m, ext +]")
+    compression_position_m: float = rule(
+        ("closed", -1.0, 1.0), "stroke at which the compression (bump) stop engages [m]")
+    stiffness_n_m2: float = rule("positive", "stop coefficient k of k δ² [N/m²]")
+
+
+@dataclass(frozen=True)
+class AirEntrainmentParams:
+    """Air bubbles in the rebound chamber's oil, isothermal: compressibility
+    ``α + ε p_atm / p²``."""
+
+    air_volume_fraction: float = rule(("range", 0.0, 0.5),
+                                      "air volume fraction ε at atmospheric pressure [-]")
+
+
+@dataclass(frozen=True)
+class BypassGrooveParams:
+    """A bypass groove in the pressure tube: an extra orifice in parallel with the piston
+    valve (the law of :mod:`damper_emulator.model.adaptive`) open while the piston is over
+    it, with linear ramps of 20 % of the half-length at its ends."""
+
+    area_m2: float = rule("positive", "open area of the groove [m²]")
+    center_m: float = rule(("closed", -1.0, 1.0), "stroke at the groove's centre [m]")
+    half_length_m: float = rule("positive", "half of the groove's length [m]")
+    land_length_m: float = rule("positive", "flow length over the piston land [m]", 5e-3)
+    discharge_coefficient: float = rule(("range", 0.0, 1.0), "discharge coefficient [-]",
+                                        0.7)
+    oil_density_kg_m3: float = rule("positive", "oil density ρ [kg/m³]", 870.0)
+
+
+@dataclass(frozen=True)
+class GasHeatTransferParams:
+    """Heat transfer between the gas and the tube: the gas compresses adiabatically (γ)
+    and relaxes to the wall temperature with a thermal time constant (isothermal when
+    slow, eq 3 when fast)."""
+
+    thermal_time_constant_s: float = rule("positive", "gas thermal time constant τ_g [s]")
+
+
+@dataclass(frozen=True)
+class ExtensionParams:
+    """``damper.extensions``: the model extensions in use (each absent = off)."""
+
+    lugre_friction: LugreFrictionParams | None = rule("extension", "friction", None)
+    viscosity_temperature: ViscosityTemperatureParams | None = rule("extension", "thermal",
+                                                                     None)
+    cavitation: CavitationParams | None = rule("extension", "cavitation", None)
+    valve_lag: ValveLagParams | None = rule("extension", "valve_dynamics", None)
+    series_compliance: SeriesComplianceParams | None = rule("extension", "compliance", None)
+    end_stops: EndStopParams | None = rule("extension", "end_stop", None)
+    air_entrainment: AirEntrainmentParams | None = rule("extension", "air_entrainment", None)
+    bypass_groove: BypassGrooveParams | None = rule("extension", "position_dependent", None)
+    gas_heat_transfer: GasHeatTransferParams | None = rule("extension", "gas_spring", None)
+
+    def active(self) -> list[str]:
+        """Names of the extensions in use."""
+        return [f.name for f in fields(self) if getattr(self, f.name) is not None]
+
+
+#: dataclass of each extension, by name
+EXTENSION_TYPES: dict[str, type] = {
+    "lugre_friction": LugreFrictionParams,
+    "viscosity_temperature": ViscosityTemperatureParams,
+    "cavitation": CavitationParams,
+    "valve_lag": ValveLagParams,
+    "series_compliance": SeriesComplianceParams,
+    "end_stops": EndStopParams,
+    "air_entrainment": AirEntrainmentParams,
+    "bypass_groove": BypassGrooveParams,
+    "gas_heat_transfer": GasHeatTransferParams,
+}
+#: family (CONTRACT ``diagnose`` JSON) of each extension
+EXTENSION_FAMILIES: dict[str, str] = {f.name: f.metadata["doc"]
+                                      for f in fields(ExtensionParams)}
+
+
 @dataclass(frozen=True)
 class ValveParams:
     """One direction of the piston valve (eqs 8–10, 28)."""
@@ -156,6 +299,9 @@ class DamperParams:
     adaptive: AdaptiveParams | None = field(default=None, metadata={
         "rule": "adaptive", "doc": "solenoid bypass of the softer settings (MODEL.md §6); "
                                    "None: no bypass, the valve command has no effect"})
+    extensions: ExtensionParams | None = field(default=None, metadata={
+        "rule": "extensions", "doc": "effects the paper's model lacks (issue 7); None: the "
+                                     "paper's model"})
 
     @property
     def rod_area_m2(self) -> float:
@@ -285,6 +431,12 @@ def _convert(raw: Any, f: dataclasses.Field, key: str, where: str) -> Any:
         return _build(ValveParams, raw, key, where)
     if f.metadata["rule"] == "adaptive":
         return build_group(AdaptiveParams, raw, key, where, check_value)
+    if f.metadata["rule"] == "extensions":
+        return build_group(ExtensionParams, raw, key, where, _convert)
+    if f.metadata["rule"] == "extension":
+        if raw is None:
+            return None
+        return build_group(EXTENSION_TYPES[f.name], raw, key, where, check_value)
     return check_value(raw, f, key, where)
 
 
@@ -295,8 +447,26 @@ def _check_fields(obj: Any, prefix: str, where: str) -> None:
         value = getattr(obj, f.name)
         if f.metadata["rule"] == "group":
             _check_fields(value, f"{prefix}.{f.name}", where)
+        elif f.metadata["rule"] == "extensions":
+            check_extensions(value, where)
         elif f.metadata["rule"] != "adaptive":
             check_value(value, f, f"{prefix}.{f.name}", where)
+
+
+def check_extensions(ext: ExtensionParams | None, where: str) -> None:
+    """Every rule of a ``damper.extensions`` group (one-line :class:`ParameterError`)."""
+    if ext is None:
+        return
+    if not isinstance(ext, ExtensionParams):
+        raise ParameterError(f"{where}: damper.extensions must be a mapping of "
+                             f"{', '.join(EXTENSION_TYPES)}")
+    for f in fields(ext):
+        group = getattr(ext, f.name)
+        if group is not None:
+            if not isinstance(group, EXTENSION_TYPES[f.name]):
+                raise ParameterError(f"{where}: damper.extensions.{f.name} must be a mapping "
+                                     f"of {', '.join(g.name for g in fields(EXTENSION_TYPES[f.name]))}")
+            _check_fields(group, f"damper.extensions.{f.name}", where)
 
 
 def validate(cfg: ModelConfig) -> None:
@@ -377,6 +547,11 @@ def config_to_mapping(cfg: ModelConfig, node: str = "/**") -> dict[str, Any]:
     damper = dataclasses.asdict(cfg.damper)
     if damper.get("adaptive") is None:
         damper.pop("adaptive", None)
+    ext = damper.get("extensions")
+    if ext is None:
+        damper.pop("extensions", None)
+    else:
+        damper["extensions"] = {k: v for k, v in ext.items() if v is not None}
     return {node: {"ros__parameters": {"damper": damper,
                                        "numerics": dataclasses.asdict(cfg.numerics)}}}
 

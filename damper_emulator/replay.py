@@ -109,8 +109,8 @@ import numpy as np
 
 from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages
 from damper_emulator.bag.cdr_fast import JointStates, RawTopic
-from damper_emulator.model.compressible import (S_SIZE, DamperModel, DamperStepper, _simulate,
-                                                _simulate_commanded)
+from damper_emulator.model.compressible import (DamperModel, DamperStepper, _simulate,
+                                                _simulate_commanded, new_state)
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.core import Status, fault_output, input_ok, stroke_window
 from damper_emulator.recording import read_valve_commands
@@ -284,13 +284,14 @@ def _run_model(model: DamperModel, stamp_ns: np.ndarray, x: np.ndarray, v: np.nd
     flags = np.zeros(n, dtype=np.int64)
     if n:
         t = (stamp_ns - stamp_ns[0]).astype(float) * 1e-9
-        args = (model.prm, model.tables[0].coef, model.tables[1].coef, np.zeros(S_SIZE), t,
+        args = (model.prm, model.tables[0].coef, model.tables[1].coef, new_state(), t,
                 np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float))
         if command is None:
             _simulate(*args, force, np.empty(n), np.empty(n), flags)
         else:
-            _simulate_commanded(*args, np.ascontiguousarray(command, dtype=float), force,
-                                np.empty(n), np.empty(n), np.empty(n), flags)
+            _simulate_commanded(*args, np.ascontiguousarray(command, dtype=float),
+                                np.full(n, np.nan), force, np.empty(n), np.empty(n),
+                                np.empty(n), flags)
     return force, flags
 
 

@@ -144,7 +144,9 @@ def _rms(a: np.ndarray) -> float:
 def simulate_record(model: DamperModel, data: MeasuredData):
     """``(velocity, how, result)``: ``model`` run over the measured record's time and
     displacement with its velocity column or, when absent, :func:`estimate_velocity`
-    (``how`` says which), from quasi-steady equilibrium at the first sample.
+    (``how`` says which), from quasi-steady equilibrium at the first sample; the record's
+    temperature column, when it has one, is the measured temperature of the
+    viscosity–temperature extension.
 
     Raises
     ------
@@ -158,7 +160,7 @@ def simulate_record(model: DamperModel, data: MeasuredData):
     else:
         v, how = estimate_velocity(t, x)
     try:
-        return v, how, simulate(model, t, x, v)
+        return v, how, simulate(model, t, x, v, temperature_c=data.temperature)
     except ValueError as exc:
         where = data.path or data.name or "<data>"
         raise ValueError(f"{where}: cannot simulate this history: {exc}") from None

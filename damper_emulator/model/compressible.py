@@ -27,6 +27,7 @@ those of the paper's model.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from dataclasses import dataclass
@@ -36,10 +37,15 @@ from damper_emulator.model.jit import kernel
 
 from damper_emulator.model.adaptive import (bypass_area, bypass_coefficients, bypass_flow,
                                             solenoid_lag)
+from damper_emulator.model.extensions import (AIR_PRESSURE_FLOOR, P_ATM, end_stop_force,
+                                              gas_temperature, groove_window, heat_rise,
+                                              lag_weight, lugre_steady, lugre_update,
+                                              viscosity_scale)
 from damper_emulator.model.gas import compression_chamber_pressure
 from damper_emulator.model.valve_table import (EXTRAPOLATION_LIMIT, build_valve_tables,
-                                               pressure_drop_of_z, table_flow)
-from damper_emulator.params import ModelConfig, load_config
+                                               pressure_drop_of_z, table_flow,
+                                               z_of_pressure_drop)
+from damper_emulator.params import ModelConfig, check_extensions, load_config
 
 
 class Fault(enum.IntFlag):
@@ -71,18 +77,38 @@ _SOLVER = int(Fault.SOLVER)
 _VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
 
 # Layout of the packed parameter vector (see ``DamperModel``); the bypass constants of the
-# adaptive damper (all 0 without a ``damper.adaptive`` group) come last:
+# adaptive damper (all 0 without a ``damper.adaptive`` group) come next:
 # ``P_BP_LAMINAR`` a = 8πρνL, ``P_BP_TURBULENT`` b = ρ/(2 C_d²), the open areas at commands
-# 0 and 0.5 [m²] and the solenoid's t63 [s].
+# 0 and 0.5 [m²] and the solenoid's t63 [s]; then the model extensions
+# (:mod:`damper_emulator.model.extensions`), each off while its switch entry is 0:
+# LuGre friction (``P_LG_S0`` σ0), viscosity–temperature (``P_TH_BETA`` β), cavitation
+# (``P_CAV_ON``), valve lag (``P_VL_TAU``), series compliance (``P_MOUNT_K``), end stops
+# (``P_ES_K``), air entrainment (``P_AIR_EPS``), bypass groove (``P_GR_AREA``) and gas heat
+# transfer (``P_GT_TAU``).
 (P_A_ANNULUS, P_A_PISTON, P_A_ROD, P_MAX_EXT, P_ALPHA, P_FRICTION, P_GAS, V_GAS, P_GAMMA,
  P_SCALE_R, P_STEP_R, P_SCALE_C, P_STEP_C, P_X_MIN, P_X_MAX, P_SUBSTEP, P_TOL, P_MAXIT,
  P_ZLIM_R, P_ZLIM_C, P_SETTLE, P_V_MAX, P_BP_LAMINAR, P_BP_TURBULENT, P_BP_AREA_COMFORT,
- P_BP_AREA_NORMAL, P_BP_T63, P_SIZE) = range(28)
+ P_BP_AREA_NORMAL, P_BP_T63,
+ P_LG_FC, P_LG_FS, P_LG_VS, P_LG_S0,
+ P_TH_BETA, P_TH_TREF, P_TH_CAP, P_TH_TAU,
+ P_CAV_ON, P_CAV_P,
+ P_VL_TAU,
+ P_MOUNT_K,
+ P_ES_XR, P_ES_XC, P_ES_K,
+ P_AIR_EPS,
+ P_GR_AREA, P_GR_X, P_GR_HALF, P_GR_LAMINAR, P_GR_TURBULENT,
+ P_GT_TAU,
+ P_SIZE) = range(50)
 
 # Layout of the state vector; ``S_CMD`` is the commanded valve command (0 comfort .. 1
-# sport), ``S_CMD_EFF`` the effective one (after the solenoid lag).
+# sport), ``S_CMD_EFF`` the effective one (after the solenoid lag); then the extensions'
+# states: the measured temperature [°C] (an input; NaN: none, the reference temperature),
+# the heat model's temperature rise [K], the LuGre bristle deflection [m], the cavity volume
+# [m³], the lagged piston-valve flow [m³/s], the series-spring (= damper) force [N] and the
+# gas temperature ratio T/T_wall.
 (S_P_REB, S_Z, S_X, S_V, S_FORCE, S_P_COM, S_P_PREV, S_H_PREV, S_CMD, S_CMD_EFF,
- S_SIZE) = range(11)
+ S_TEMP_IN, S_HEAT_DT, S_BRISTLE, S_V_CAV, S_Q_VALVE, S_MOUNT_F, S_GAS_THETA,
+ S_SIZE) = range(18)
 
 
 @kernel
@@ -98,51 +124,101 @@ def _valve_state(z, prm, coef_r, coef_c):
 
 
 @kernel
-def _flow_state(z, prm, coef_r, coef_c, area):
-    """:func:`_valve_state` with the bypass (open ``area`` [m²]) in parallel: signed Δp,
-    dΔp/dz, ``Q_pv + Q_b``, its derivative in ``z``, beyond-table flag."""
+def _z_of(prm, dp, visc):
+    """Table coordinate at which the (viscosity-scaled, factor ``visc``) valve drop is
+    ``dp`` [Pa, signed]."""
+    if dp >= 0.0:
+        return z_of_pressure_drop(dp / visc, prm[P_SCALE_R])
+    return -z_of_pressure_drop(-dp / visc, prm[P_SCALE_C])
+
+
+@kernel
+def _flow_state(z, prm, coef_r, coef_c, area, gr_area, visc, q_lag, lag_w):
+    """:func:`_valve_state` with the extensions and parallel paths: the valve drop scaled by
+    ``visc``, the valve flow lagged (old flow ``q_lag``, weight ``lag_w``), the bypass (open
+    ``area`` [m²]) and the groove (open ``gr_area``) in parallel.  Returns signed Δp,
+    dΔp/dz, total flow, its derivative in ``z``, beyond-table flag, the valve's own flow."""
     dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
+    if visc != 1.0:
+        dp *= visc
+        ddp *= visc
+    if lag_w > 0.0:
+        q = lag_w * q_lag + (1.0 - lag_w) * q
+        dq *= 1.0 - lag_w
+    q_valve = q
     if area > 0.0:
         qb, dqb = bypass_flow(dp, area, prm[P_BP_LAMINAR], prm[P_BP_TURBULENT])
         q += qb
         dq += dqb * ddp
-    return dp, ddp, q, dq, beyond
+    if gr_area > 0.0:
+        qb, dqb = bypass_flow(dp, gr_area, prm[P_GR_LAMINAR], prm[P_GR_TURBULENT])
+        q += qb
+        dq += dqb * ddp
+    return dp, ddp, q, dq, beyond, q_valve
 
 
 @kernel
-def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area):
+def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area, p_com, visc,
+                      q_lag, lag_w, gr_area, mount_c, mount_off, air_hat):
     """One implicit step ``p − p_old = h f(p)`` of eq 2 to stroke ``x``, velocity ``v``:
     backward Euler as it stands, BDF2 with ``p_old``, ``h`` the BDF2 combinations.
 
     Solves ``R(z) = p_com + Δp(z) − p_old − k (ẋ A − Q(z)) (1 − α p(z)) = 0`` with
     ``k = h / (V_reb α)``; ``R`` increases with ``z``.  ``Q = Q_pv + Q_b``: the piston valve
     and, when ``bp_area`` [m²] > 0, the solenoid bypass in parallel (MODEL.md §6; ``Q_b``
-    increases with ``Δp``, so ``R`` still increases with ``z``); with the bypass closed the
-    arithmetic is the paper's model's exactly.  Returns ``(z, p_reb, p_com, flags)``.
+    increases with ``Δp``, so ``R`` still increases with ``z``); with the bypass closed and
+    no extension the arithmetic is the paper's model's exactly.  Extensions
+    (:mod:`damper_emulator.model.extensions`), each skipped at its neutral value:
+    ``visc`` ≠ 1 scales the valve drop; ``lag_w`` > 0 lags the valve flow behind ``q_lag``;
+    ``gr_area`` > 0 opens the groove; ``mount_c`` = A/(k_m h) > 0 makes the inflow
+    ``ẋ A − mount_c (A p + mount_off)`` (series spring); ``P_AIR_EPS`` > 0 adds the air
+    term ``(ε P_ATM/α)(air_hat − 1/p)`` (``air_hat`` the BDF2 combination of ``1/p``).
+    Each keeps ``R`` increasing.  Returns ``(z, p_reb, q_valve, flags)``.
     """
     area = prm[P_A_ANNULUS]
     alpha = prm[P_ALPHA]
-    p_com = compression_chamber_pressure(x, prm[P_GAS], prm[V_GAS], prm[P_A_ROD], prm[P_GAMMA])
     k = h / ((prm[P_MAX_EXT] - x) * area * alpha)
     q_in = v * area
+    air_c = prm[P_AIR_EPS] * P_ATM / alpha
     lo = -prm[P_ZLIM_C]
     hi = prm[P_ZLIM_R]
     z = min(max(z_old, lo), hi)
     tol = prm[P_TOL]
     flags = 0
+    q_valve = 0.0
     for _ in range(int(prm[P_MAXIT])):
         # _flow_state written out (through a wrapper the valve look-up is no longer inlined
         # into this loop, measured 25 % slower)
         dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
+        if visc != 1.0:
+            dp *= visc
+            ddp *= visc
+        if lag_w > 0.0:
+            q = lag_w * q_lag + (1.0 - lag_w) * q
+            dq *= 1.0 - lag_w
+        q_valve = q
         if bp_area > 0.0:
             qb, dqb = bypass_flow(dp, bp_area, prm[P_BP_LAMINAR], prm[P_BP_TURBULENT])
             q += qb
             dq += dqb * ddp
+        if gr_area > 0.0:
+            qb, dqb = bypass_flow(dp, gr_area, prm[P_GR_LAMINAR], prm[P_GR_TURBULENT])
+            q += qb
+            dq += dqb * ddp
         p = p_com + dp
+        if mount_c > 0.0:
+            q_in = v * area - mount_c * (area * p + mount_off)
         r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
         if r == 0.0:
             break
         dr = ddp + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * ddp
+        if mount_c > 0.0:
+            dr += k * mount_c * area * ddp * (1.0 - alpha * p)
+        if air_c > 0.0:
+            pa = max(p, AIR_PRESSURE_FLOOR)
+            r += air_c * (air_hat - 1.0 / pa)
+            if p > AIR_PRESSURE_FLOOR:
+                dr += air_c * ddp / (pa * pa)
         if r > 0.0:
             hi = z
         else:
@@ -155,17 +231,64 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area):
         z = z_new
     else:
         dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)  # Δp only
+        if visc != 1.0:
+            dp *= visc
         flags = _SOLVER
     if beyond:
         flags |= _VALVE_EXTRAPOLATED
-    return z, p_com + dp, p_com, flags
+    return z, p_com + dp, q_valve, flags
 
 
 @kernel
-def _force(prm, p_reb, p_com, v):
-    """Damper force [N, rebound +], eq 4."""
+def _friction(prm, state, v, dt):
+    """Friction force [N, rebound +] at velocity ``v``: eq 4's ``F_friction sgn(ẋ)``, or with
+    LuGre friction ``σ0 z`` after the bristle state (``state[S_BRISTLE]``) has followed ``v``
+    over ``dt`` (``dt = 0``: the steady state at ``v``)."""
+    s0 = prm[P_LG_S0]
+    if s0 > 0.0:
+        if dt > 0.0:
+            zb = lugre_update(state[S_BRISTLE], v, dt, prm[P_LG_FC], prm[P_LG_FS],
+                              prm[P_LG_VS], s0)
+        else:
+            zb = lugre_steady(v, prm[P_LG_FC], prm[P_LG_FS], prm[P_LG_VS], s0)
+        state[S_BRISTLE] = zb
+        return s0 * zb
     sgn = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-    return prm[P_A_ANNULUS] * p_reb - prm[P_A_PISTON] * p_com + prm[P_FRICTION] * sgn
+    return prm[P_FRICTION] * sgn
+
+
+@kernel
+def _force(prm, p_reb, p_com, friction, x):
+    """Damper force [N, rebound +], eq 4 (``friction`` its last term), plus the end stops'
+    force at stroke ``x`` when they are in use."""
+    f = prm[P_A_ANNULUS] * p_reb - prm[P_A_PISTON] * p_com + friction
+    if prm[P_ES_K] > 0.0:
+        f += end_stop_force(x, prm[P_ES_XR], prm[P_ES_XC], prm[P_ES_K])
+    return f
+
+
+@kernel
+def _viscosity_factor(prm, state):
+    """Valve-drop factor of the viscosity–temperature extension (1 when off)."""
+    if prm[P_TH_BETA] <= 0.0:
+        return 1.0
+    t = state[S_TEMP_IN]
+    if not math.isfinite(t):
+        t = prm[P_TH_TREF]
+    return viscosity_scale(prm[P_TH_BETA], prm[P_TH_TREF], t + state[S_HEAT_DT])
+
+
+@kernel
+def _gas_volume(prm, x):
+    return prm[V_GAS] + prm[P_A_ROD] * x
+
+
+@kernel
+def _groove_area(prm, x):
+    """Open area of the bypass groove at stroke ``x`` [m²] (0 without one)."""
+    if prm[P_GR_AREA] <= 0.0:
+        return 0.0
+    return prm[P_GR_AREA] * groove_window(x, prm[P_GR_X], prm[P_GR_HALF])
 
 
 @kernel
@@ -175,14 +298,14 @@ def _bypass_area_of(prm, command):
 
 
 @kernel
-def _equilibrium_z(prm, coef_r, coef_c, q_target, area):
-    """Table coordinate at which valve and bypass (open ``area``) pass ``q_target`` (the
-    rigid-oil limit)."""
+def _equilibrium_z(prm, coef_r, coef_c, q_target, area, gr_area, visc):
+    """Table coordinate at which valve, bypass (open ``area``) and groove (``gr_area``)
+    pass ``q_target`` (the rigid-oil limit)."""
     lo = -prm[P_ZLIM_C]
     hi = prm[P_ZLIM_R]
     for _ in range(200):
         mid = 0.5 * (lo + hi)
-        if _flow_state(mid, prm, coef_r, coef_c, area)[2] < q_target:
+        if _flow_state(mid, prm, coef_r, coef_c, area, gr_area, visc, 0.0, 0.0)[2] < q_target:
             lo = mid
         else:
             hi = mid
@@ -195,20 +318,37 @@ def _equilibrium_z(prm, coef_r, coef_c, q_target, area):
 def init_state(prm, coef_r, coef_c, state, x, v):
     """Put ``state`` in quasi-steady equilibrium at stroke ``x`` moving at ``v``: valve and
     bypass (at the effective command ``state[S_CMD_EFF]``, left as it is) pass
-    ``v (A_pt − A_rod)`` (at rest: ``p_reb = P_com``)."""
+    ``v (A_pt − A_rod)`` (at rest: ``p_reb = P_com``).  The extensions' states settle too
+    (no cavity, the gas at the wall temperature, the bristles in steady sliding); the heat
+    model's temperature rise and the measured temperature are kept."""
     x = min(max(x, prm[P_X_MIN]), prm[P_X_MAX])
     area = _bypass_area_of(prm, state[S_CMD_EFF])
-    z = _equilibrium_z(prm, coef_r, coef_c, v * prm[P_A_ANNULUS], area) if v != 0.0 else 0.0
-    p_com = compression_chamber_pressure(x, prm[P_GAS], prm[V_GAS], prm[P_A_ROD], prm[P_GAMMA])
-    p = p_com + _valve_state(z, prm, coef_r, coef_c)[0]
+    gr_area = _groove_area(prm, x)
+    visc = _viscosity_factor(prm, state)
+    if v != 0.0:
+        z = _equilibrium_z(prm, coef_r, coef_c, v * prm[P_A_ANNULUS], area, gr_area, visc)
+    else:
+        z = 0.0
+    if prm[P_GT_TAU] > 0.0:  # the gas at the wall temperature: isothermal
+        p_com = prm[P_GAS] * prm[V_GAS] / _gas_volume(prm, x)
+    else:
+        p_com = compression_chamber_pressure(x, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
+                                             prm[P_GAMMA])
+    dp, _d, _q, _dq, _b, q_valve = _flow_state(z, prm, coef_r, coef_c, area, gr_area, visc,
+                                               0.0, 0.0)
+    p = p_com + dp
     state[S_P_REB] = p
     state[S_Z] = z
     state[S_X] = x
     state[S_V] = v
     state[S_P_COM] = p_com
-    state[S_FORCE] = _force(prm, p, p_com, v)
+    state[S_FORCE] = _force(prm, p, p_com, _friction(prm, state, v, 0.0), x)
     state[S_P_PREV] = p
     state[S_H_PREV] = 0.0
+    state[S_V_CAV] = 0.0
+    state[S_Q_VALVE] = q_valve
+    state[S_MOUNT_F] = state[S_FORCE]
+    state[S_GAS_THETA] = 1.0
 
 
 @kernel
@@ -219,7 +359,8 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
     The effective valve command first follows the commanded one over ``dt`` (solenoid lag,
     MODEL.md §6); the bypass it opens is held over the step.  Invalid input (non-finite,
     ``dt <= 0``) leaves the state untouched and returns the last force; a stroke beyond
-    the travel is clamped.  The force is always finite.
+    the travel is clamped.  The force is always finite.  The model extensions in use
+    (:mod:`damper_emulator.model.extensions`) act inside the same sub-steps.
     """
     if not (math.isfinite(x) and math.isfinite(v) and math.isfinite(dt) and dt > 0.0):
         return state[S_FORCE], _INVALID_INPUT
@@ -243,6 +384,8 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
         init_state(prm, coef_r, coef_c, state, x, v)
         return state[S_FORCE], flags
     bp_area = _bypass_area_of(prm, cmd)
+    fr = _friction(prm, state, v, dt)
+    visc = _viscosity_factor(prm, state)
     n_sub = max(1, int(math.ceil(dt / prm[P_SUBSTEP] - 1e-9)))
     h = dt / n_sub
     x0 = state[S_X]
@@ -252,41 +395,109 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
     p_com = state[S_P_COM]
     p_prev = state[S_P_PREV]
     h_prev = state[S_H_PREV]
+    # extensions
+    k_m = prm[P_MOUNT_K]
+    mount_f = state[S_MOUNT_F]
+    gas_tau = prm[P_GT_TAU]
+    theta = state[S_GAS_THETA]
+    xd_prev = x0 - mount_f / k_m if k_m > 0.0 else x0
+    lag_w = lag_weight(prm[P_VL_TAU], h) if prm[P_VL_TAU] > 0.0 else 0.0
+    q_lag = state[S_Q_VALVE]
+    cavitation = prm[P_CAV_ON] > 0.0
+    v_cav = state[S_V_CAV]
+    air = prm[P_AIR_EPS] > 0.0
     for j in range(1, n_sub + 1):
         frac = j / n_sub
+        xs = x0 + frac * (x - x0)
+        vs = v0 + frac * (v - v0)
+        air_hat = 0.0
         if h_prev > 0.0 and h / h_prev < BDF2_MAX_STEP_RATIO:
             # variable-step BDF2: p − p̂ = h_eff f(p)
             w = h / h_prev
             p_hat = ((1.0 + w) ** 2 * p - w * w * p_prev) / (1.0 + 2.0 * w)
             h_eff = h * (1.0 + w) / (1.0 + 2.0 * w)
+            if air:
+                air_hat = ((1.0 + w) ** 2 / max(p, AIR_PRESSURE_FLOOR)
+                           - w * w / max(p_prev, AIR_PRESSURE_FLOOR)) / (1.0 + 2.0 * w)
         else:
             p_hat = p
             h_eff = h
+            if air:
+                air_hat = 1.0 / max(p, AIR_PRESSURE_FLOOR)
         p_prev = p
-        z, p, p_com, f = _implicit_substep(prm, coef_r, coef_c, p_hat, z,
-                                           x0 + frac * (x - x0), v0 + frac * (v - v0),
-                                           h_eff, bp_area)
-        h_prev = h
-        flags |= f
+        mount_c = 0.0
+        mount_off = 0.0
+        xd = xs
+        if k_m > 0.0:  # the damper's own stroke behind the series spring
+            xd = min(max(xs - mount_f / k_m, prm[P_X_MIN]), prm[P_X_MAX])
+            mount_c = prm[P_A_ANNULUS] / (k_m * h_eff)
+        if gas_tau > 0.0:
+            vol = _gas_volume(prm, xd)
+            theta = gas_temperature(theta, _gas_volume(prm, xd_prev), vol, prm[P_GAMMA], h,
+                                    gas_tau)
+            p_com = prm[P_GAS] * prm[V_GAS] / vol * theta
+        else:
+            p_com = compression_chamber_pressure(xd, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
+                                                 prm[P_GAMMA])
+        xd_prev = xd
+        if k_m > 0.0:
+            mount_off = -prm[P_A_PISTON] * p_com + fr - mount_f
+        gr_area = _groove_area(prm, xd)
+        if cavitation and v_cav > 0.0:
+            # a cavity is open: the chamber sits at the cavitation pressure until it refills
+            p = prm[P_CAV_P]
+            z = _z_of(prm, p - p_com, visc)
+            q = _flow_state(z, prm, coef_r, coef_c, bp_area, gr_area, visc, q_lag, lag_w)
+            q_lag = q[5]
+            q_in = vs * prm[P_A_ANNULUS] - mount_c * (prm[P_A_ANNULUS] * p + mount_off)
+            v_cav += (q[2] - q_in) * h
+            if v_cav < 0.0:
+                v_cav = 0.0
+            h_prev = 0.0  # restart the multistep formula from here
+        else:
+            z, p, q_lag, f = _implicit_substep(prm, coef_r, coef_c, p_hat, z, xd, vs, h_eff,
+                                               bp_area, p_com, visc, q_lag, lag_w, gr_area,
+                                               mount_c, mount_off, air_hat)
+            flags |= f
+            h_prev = h
+            if cavitation and p < prm[P_CAV_P]:
+                # the oil would be stretched: a cavity of that volume opens instead
+                v_cav = ((prm[P_CAV_P] - p) * (prm[P_MAX_EXT] - xd) * prm[P_A_ANNULUS]
+                         * prm[P_ALPHA])
+                p = prm[P_CAV_P]
+                z = _z_of(prm, p - p_com, visc)
+                h_prev = 0.0
+        if k_m > 0.0:
+            mount_f = prm[P_A_ANNULUS] * p - prm[P_A_PISTON] * p_com + fr
     state[S_P_PREV] = p_prev
     state[S_H_PREV] = h_prev
-    force = _force(prm, p, p_com, v)
+    force = _force(prm, p, p_com, fr, x)
+    if prm[P_TH_BETA] > 0.0 and prm[P_TH_CAP] > 0.0:
+        power = (prm[P_A_ANNULUS] * (p - p_com) + fr) * v
+        state[S_HEAT_DT] = heat_rise(state[S_HEAT_DT], power, dt, prm[P_TH_CAP],
+                                     prm[P_TH_TAU])
     state[S_P_REB] = p
     state[S_Z] = z
     state[S_X] = x
     state[S_V] = v
     state[S_P_COM] = p_com
     state[S_FORCE] = force
+    state[S_Q_VALVE] = q_lag
+    state[S_MOUNT_F] = mount_f
+    state[S_GAS_THETA] = theta
+    state[S_V_CAV] = v_cav
     return force, flags
 
 
 @kernel
-def _simulate_commanded(prm, coef_r, coef_c, state, t, x, v, command, force, p_reb, p_com,
-                        command_eff, flags):
+def _simulate_commanded(prm, coef_r, coef_c, state, t, x, v, command, temperature, force,
+                        p_reb, p_com, command_eff, flags):
     """The batch loop: ``command[i]`` is the valve command from sample ``i`` on (it drives
     the solenoid lag over the step to sample ``i + 1``); the start is settled at
-    ``command[0]``."""
+    ``command[0]``.  ``temperature[i]`` [°C] (NaN: none) is the measured temperature the
+    step to sample ``i`` sees (the viscosity–temperature extension)."""
     for i in range(t.size):
+        state[S_TEMP_IN] = temperature[i]
         if i == 0:
             state[S_CMD] = command[0]
             state[S_CMD_EFF] = command[0]
@@ -307,6 +518,7 @@ def _simulate(prm, coef_r, coef_c, state, t, x, v, force, p_reb, p_com, flags):
     ``state`` holds (the replay passes a zero state)."""
     state[S_CMD] = 1.0
     state[S_CMD_EFF] = 1.0
+    state[S_TEMP_IN] = math.nan
     for i in range(t.size):
         if i == 0:
             init_state(prm, coef_r, coef_c, state, x[0], v[0])
@@ -316,6 +528,50 @@ def _simulate(prm, coef_r, coef_c, state, t, x, v, force, p_reb, p_com, flags):
             force[i], flags[i] = step(prm, coef_r, coef_c, state, x[i], v[i], t[i] - t[i - 1])
         p_reb[i] = state[S_P_REB]
         p_com[i] = state[S_P_COM]
+
+
+def _pack_extensions(prm: np.ndarray, d) -> None:
+    """Write the ``damper.extensions`` in use into the packed parameter vector (the others
+    keep their neutral 0)."""
+    e = d.extensions
+    if e.lugre_friction is not None:
+        g = e.lugre_friction
+        prm[P_LG_FC], prm[P_LG_FS] = g.coulomb_n, g.static_n
+        prm[P_LG_VS], prm[P_LG_S0] = g.stribeck_velocity_m_s, g.bristle_stiffness_n_m
+    if e.viscosity_temperature is not None:
+        g = e.viscosity_temperature
+        prm[P_TH_BETA] = g.temperature_coefficient_per_k
+        prm[P_TH_TREF] = g.reference_temperature_c
+        prm[P_TH_CAP] = g.heat_capacity_j_per_k
+        prm[P_TH_TAU] = g.cooling_time_constant_s
+    if e.cavitation is not None:
+        prm[P_CAV_ON] = 1.0
+        prm[P_CAV_P] = e.cavitation.cavitation_pressure_pa
+    if e.valve_lag is not None:
+        prm[P_VL_TAU] = e.valve_lag.time_constant_s
+    if e.series_compliance is not None:
+        prm[P_MOUNT_K] = e.series_compliance.stiffness_n_m
+    if e.end_stops is not None:
+        g = e.end_stops
+        prm[P_ES_XR], prm[P_ES_XC] = g.rebound_position_m, g.compression_position_m
+        prm[P_ES_K] = g.stiffness_n_m2
+    if e.air_entrainment is not None:
+        prm[P_AIR_EPS] = e.air_entrainment.air_volume_fraction
+    if e.bypass_groove is not None:
+        g = e.bypass_groove
+        prm[P_GR_AREA], prm[P_GR_X], prm[P_GR_HALF] = g.area_m2, g.center_m, g.half_length_m
+        prm[P_GR_LAMINAR], prm[P_GR_TURBULENT] = bypass_coefficients(
+            g.oil_density_kg_m3, d.oil_kinematic_viscosity_m2_s, g.land_length_m,
+            g.discharge_coefficient)
+    if e.gas_heat_transfer is not None:
+        prm[P_GT_TAU] = e.gas_heat_transfer.thermal_time_constant_s
+
+
+def new_state() -> np.ndarray:
+    """A zero state vector with no measured temperature (NaN)."""
+    state = np.zeros(S_SIZE)
+    state[S_TEMP_IN] = math.nan
+    return state
 
 
 class DamperModel:
@@ -361,7 +617,26 @@ class DamperModel:
             prm[P_BP_AREA_COMFORT] = ad.comfort_area_m2
             prm[P_BP_AREA_NORMAL] = ad.normal_area_m2
             prm[P_BP_T63] = ad.solenoid_t63_s
+        if d.extensions is not None:
+            _pack_extensions(prm, d)
         self.prm = prm
+
+    def with_extensions(self, extensions) -> "DamperModel":
+        """This model with its ``damper.extensions`` replaced by ``extensions``
+        (:class:`~damper_emulator.params.ExtensionParams` or ``None``), checked; the valve
+        tables are shared (extensions do not change them), so this is cheap."""
+        cfg = dataclasses.replace(self.cfg, damper=dataclasses.replace(
+            self.cfg.damper, extensions=extensions))
+        check_extensions(extensions, cfg.source)
+        new = object.__new__(DamperModel)
+        new.cfg = cfg
+        new.tables = self.tables
+        prm = self.prm.copy()
+        prm[P_LG_FC:] = 0.0
+        if extensions is not None:
+            _pack_extensions(prm, cfg.damper)
+        new.prm = prm
+        return new
 
     @classmethod
     def from_file(cls, path=None) -> "DamperModel":
@@ -397,7 +672,7 @@ def quasi_steady_force(model: DamperModel, velocity_m_s: float, valve_command: f
     constant ``velocity_m_s`` through ``stroke_m``, with the bypass of a settled
     ``valve_command``: valve and bypass pass ``ẋ (A_pt − A_rod)`` (friction included).
     The equilibrium the stepper starts from."""
-    state = np.zeros(S_SIZE)
+    state = new_state()
     state[S_CMD] = state[S_CMD_EFF] = check_valve_command(valve_command)
     init_state(model.prm, model.tables[0].coef, model.tables[1].coef, state, float(stroke_m),
                float(velocity_m_s))
@@ -426,7 +701,7 @@ class DamperStepper:
         self._prm = model.prm
         self._coef_r = model.tables[0].coef
         self._coef_c = model.tables[1].coef
-        self.state = np.zeros(S_SIZE)
+        self.state = new_state()
         self.state[S_CMD] = check_valve_command(valve_command)
         self.reset(stroke_m, velocity_m_s)
 
@@ -445,6 +720,15 @@ class DamperStepper:
         Without a ``damper.adaptive`` group the command is kept but changes nothing.
         """
         self.state[S_CMD] = check_valve_command(command)
+
+    def set_temperature(self, temperature_c: float | None) -> None:
+        """The measured oil temperature [°C] the viscosity–temperature extension uses from
+        the next :meth:`step` on (``None``: none, the extension's reference temperature).
+        Without that extension it changes nothing."""
+        t = math.nan if temperature_c is None else float(temperature_c)
+        if temperature_c is not None and not math.isfinite(t):
+            raise ValueError(f"temperature must be finite, got {temperature_c!r}")
+        self.state[S_TEMP_IN] = t
 
     @property
     def valve_command(self) -> float:
@@ -519,7 +803,7 @@ def _check_samples(t: np.ndarray, x: np.ndarray, model: DamperModel) -> None:
 
 
 def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None,
-             valve_command=1.0) -> SimulationResult:
+             valve_command=1.0, temperature_c=None) -> SimulationResult:
     """Simulate the compressible model over a whole displacement history.
 
     Uses the same compiled step as :class:`DamperStepper`, starting in quasi-steady
@@ -536,6 +820,9 @@ def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None,
         Valve command, 0 comfort .. 1 sport (default): one value, or one per sample, the
         command from that sample on (held until the next; the solenoid lag acts on it; the
         start is settled at the first).  Command 1 gives the paper's model bit for bit.
+    temperature_c : array_like, shape (n,), optional
+        Measured oil temperature [°C] per sample, for the viscosity–temperature extension
+        (ignored without it).
 
     Returns
     -------
@@ -580,9 +867,15 @@ def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None,
             i = int(np.argmax(bad))
             raise ValueError(f"valve command sample {i} = {cmd[i]!r} outside [0, 1]")
         cmd = np.ascontiguousarray(cmd)
+    if temperature_c is None:
+        temp = np.full(n, math.nan)
+    else:
+        temp = np.ascontiguousarray(temperature_c, dtype=float)
+        if temp.shape != t.shape:
+            raise ValueError(f"temperature has shape {temp.shape}, time {t.shape}")
+        _check_finite("temperature", temp)
     force, p_reb, p_com, c_eff = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     faults = np.zeros(n, dtype=np.int64)
-    state = np.zeros(S_SIZE)
-    _simulate_commanded(model.prm, model.tables[0].coef, model.tables[1].coef, state, t, x, v,
-                        cmd, force, p_reb, p_com, c_eff, faults)
+    _simulate_commanded(model.prm, model.tables[0].coef, model.tables[1].coef, new_state(),
+                        t, x, v, cmd, temp, force, p_reb, p_com, c_eff, faults)
     return SimulationResult(t, x, v, force, p_reb, p_com, faults, c_eff)

@@ -1,0 +1,221 @@
+"""The candidate effects ``diagnose`` fits: one per extension of
+:mod:`damper_emulator.model.extensions`, with bounded parameters and start values derived
+from physics and from the identification data.
+
+Every bound and start is stated in :func:`candidates` with its reason.  Parameters are
+searched in log space where they are scales (stiffnesses, time constants, areas) and in
+linear space where they are positions; positions also get several starts (the fit of an
+engagement point is not convex).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from damper_emulator.dyno.measured import MeasuredData
+from damper_emulator.params import EXTENSION_FAMILIES, ModelConfig
+
+#: A temperature column counts as informative when its values span at least this [K].
+MIN_TEMPERATURE_SPAN_K = 2.0
+#: Viscosity–temperature coefficient held when no temperature is measured [1/K]: mineral
+#: damper oils halve their kinematic viscosity about every 25 K (ln 2 / 25).
+TYPICAL_VISCOSITY_COEFFICIENT_PER_K = math.log(2.0) / 25.0
+#: Cooling time constant of a damper body held in the heat model [s] (order of magnitude
+#: of a dyno-mounted damper in still air; the fit is over minutes, so it matters little).
+TYPICAL_COOLING_TIME_S = 600.0
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One fitted parameter: ``name`` as in the extension's parameter group (or a derived
+    name that ``Candidate.fields`` maps), bounds, start value, search scale and unit."""
+
+    name: str
+    lo: float
+    hi: float
+    start: float
+    log: bool = True
+    unit: str = ""
+
+    def to_internal(self, value: float) -> float:
+        return math.log10(value) if self.log else value
+
+    def from_internal(self, u: float) -> float:
+        return 10.0 ** u if self.log else u
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return self.to_internal(self.lo), self.to_internal(self.hi)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """An extension with its free parameters.
+
+    ``fields(values)`` turns fitted values (by parameter name) into the extension's
+    parameter group; ``extra_starts`` are further start vectors (values, in parameter
+    order) for non-convex fits."""
+
+    effect: str
+    parameters: tuple[Parameter, ...]
+    fields: Callable[[Mapping[str, float]], dict[str, float]]
+    extra_starts: tuple[tuple[float, ...], ...] = ()
+    note: str = ""
+    family: str = field(init=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "family", EXTENSION_FAMILIES[self.effect])
+
+    def starts(self) -> list[np.ndarray]:
+        """Start vectors in the internal (search) coordinates."""
+        vecs = [tuple(p.start for p in self.parameters), *self.extra_starts]
+        out = []
+        for vec in vecs:
+            u = [p.to_internal(min(max(v, p.lo), p.hi)) for p, v in zip(self.parameters, vec)]
+            out.append(np.array(u))
+        return out
+
+
+def _with(fixed: Mapping[str, float]) -> Callable[[Mapping[str, float]], dict[str, float]]:
+    return lambda values: {**fixed, **values}
+
+
+def temperature_span(data: Sequence[MeasuredData]) -> tuple[float, float] | None:
+    """``(mean, span)`` [°C, K] of the temperature columns of ``data``, or ``None`` when no
+    file has one."""
+    temps = [d.temperature for d in data if d.temperature is not None]
+    if not temps:
+        return None
+    allt = np.concatenate(temps)
+    return float(np.mean(allt)), float(np.ptp(allt))
+
+
+def temperature_range(data: Sequence[MeasuredData]) -> tuple[float, float]:
+    """Lowest and highest measured temperature [°C] of ``data`` (files with a column)."""
+    temps = [d.temperature for d in data if d.temperature is not None]
+    return (float(min(np.min(t) for t in temps)), float(max(np.max(t) for t in temps)))
+
+
+def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
+               effects: Sequence[str] | None = None) -> list[Candidate]:
+    """The candidate effects for a base model ``cfg`` identified on ``fit_data`` (only
+    ``effects`` when given, in library order)."""
+    d = cfg.damper
+    x_lo = min(float(np.min(r.displacement)) for r in fit_data)
+    x_hi = max(float(np.max(r.displacement)) for r in fit_data)
+    span = max(x_hi - x_lo, 1e-3)
+    f0 = d.friction_force_n if d.friction_force_n > 0 else 10.0
+    # oil stiffness of the rebound chamber at rest, A²/(V α): the scale of any compliance
+    k_oil = d.annulus_area_m2 / (d.max_extension_m * d.oil_compressibility_per_pa)
+    out: list[Candidate] = []
+
+    # friction: Coulomb level around the identified friction; break-away up to 4× it;
+    # Stribeck velocity 0.1 mm/s .. 0.1 m/s; bristle stiffness so that the pre-sliding
+    # travel F/σ0 lies between 1 µm and 10 mm
+    out.append(Candidate(
+        "lugre_friction",
+        (Parameter("coulomb_n", 0.2 * f0, 3.0 * f0 + 20.0, f0, False, "N"),
+         Parameter("static_ratio", 1.0, 4.0, 1.5, False, "-"),
+         Parameter("stribeck_velocity_m_s", 1e-4, 0.1, 0.01, True, "m/s"),
+         Parameter("bristle_stiffness_n_m", f0 / 1e-2, f0 / 1e-6, f0 / 2e-4, True, "N/m")),
+        lambda v: {"coulomb_n": v["coulomb_n"], "static_n": v["coulomb_n"] * v["static_ratio"],
+                   "stribeck_velocity_m_s": v["stribeck_velocity_m_s"],
+                   "bristle_stiffness_n_m": v["bristle_stiffness_n_m"]},
+        # second start: close to the identified Coulomb friction (no Stribeck, stiff)
+        extra_starts=((f0, 1.0, 0.01, f0 / 2e-6),)))
+
+    # thermal: with a measured temperature, β between 0 and 0.1 /K (oils: 0.02-0.04);
+    # without, β held at a typical oil's and the lumped heat capacity fitted (100 J/K, a
+    # few grams of oil, .. 100 kJ/K, far more than any damper)
+    # and the temperature at which the identified valves hold within the measured range
+    # (± 10 K): the identification averaged over whatever temperatures its files had
+    temp = temperature_span(fit_data)
+    if temp is not None and temp[1] >= MIN_TEMPERATURE_SPAN_K:
+        t_lo, t_hi = temperature_range(fit_data)
+        out.append(Candidate(
+            "viscosity_temperature",
+            (Parameter("temperature_coefficient_per_k", 1e-4, 0.1, 0.02, True, "1/K"),
+             Parameter("reference_temperature_c", t_lo - 10.0, t_hi + 10.0, temp[0], False,
+                       "°C")),
+            _with({}), note="driven by the measured temperature"))
+    else:
+        t_ref = temp[0] if temp is not None else 25.0
+        out.append(Candidate(
+            "viscosity_temperature",
+            (Parameter("heat_capacity_j_per_k", 100.0, 1e5, 2000.0, True, "J/K"),),
+            _with({"reference_temperature_c": t_ref,
+                   "temperature_coefficient_per_k": TYPICAL_VISCOSITY_COEFFICIENT_PER_K,
+                   "cooling_time_constant_s": TYPICAL_COOLING_TIME_S}),
+            note="no measured temperature: heated by the dissipated power, β held at "
+                 f"{TYPICAL_VISCOSITY_COEFFICIENT_PER_K:.4f} /K"))
+
+    # cavitation: vapour pressure (~2 kPa) up to gas-release pressures near 1 bar and a
+    # little beyond; several starts because below the lowest pressure reached it does
+    # nothing
+    p_hi = 0.5 * d.gas_pressure_static_pa
+    out.append(Candidate(
+        "cavitation", (Parameter("cavitation_pressure_pa", 1e3, p_hi, 2e4, True, "Pa"),),
+        _with({}), extra_starts=((1e5,), (min(4e5, 0.5 * p_hi),))))
+
+    # valve dynamics: opening time constants from 10 µs to 50 ms
+    out.append(Candidate(
+        "valve_lag", (Parameter("time_constant_s", 1e-5, 0.05, 2e-3, True, "s"),), _with({}),
+        extra_starts=((2e-4,),)))
+
+    # compliance: a series spring from 1/100 to 1000 × the oil column's stiffness
+    out.append(Candidate(
+        "series_compliance",
+        (Parameter("stiffness_n_m", k_oil / 100.0, k_oil * 1000.0, k_oil, True, "N/m"),),
+        _with({}), extra_starts=((k_oil * 10.0,),)))
+
+    # end stops: engagement within the tested stroke (outside it they cannot be seen);
+    # progressive elastomer coefficient 1e3 .. 1e10 N/m²
+    out.append(Candidate(
+        "end_stops",
+        (Parameter("rebound_position_m", x_lo + 0.5 * span, x_hi, x_hi - 0.15 * span, False,
+                   "m"),
+         Parameter("compression_position_m", x_lo, x_hi - 0.5 * span, x_lo + 0.15 * span,
+                   False, "m"),
+         Parameter("stiffness_n_m2", 1e3, 1e10, 1e6, True, "N/m²")),
+        _with({}),
+        extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, 1e6),
+                      (x_hi - 0.05 * span, x_lo + 0.05 * span, 1e7),
+                      (x_hi, x_lo, 1e4))))  # (almost) not engaged
+
+    # air entrainment: 0.001 % .. 20 % free air at 1 atm
+    out.append(Candidate(
+        "air_entrainment", (Parameter("air_volume_fraction", 1e-5, 0.2, 3e-3, True, "-"),),
+        _with({})))
+
+    # position-dependent damping: a groove of 0.1 .. 5 mm equivalent diameter anywhere in
+    # the tested stroke, 1 mm to the whole stroke long
+    a_lo, a_hi = math.pi / 4 * 1e-4 ** 2, math.pi / 4 * 5e-3 ** 2
+    mid = 0.5 * (x_lo + x_hi)
+    out.append(Candidate(
+        "bypass_groove",
+        (Parameter("area_m2", a_lo, a_hi, math.pi / 4 * 1e-3 ** 2, True, "m²"),
+         Parameter("center_m", x_lo, x_hi, mid, False, "m"),
+         Parameter("half_length_m", 1e-3, span, 0.25 * span, True, "m")),
+        _with({}),
+        extra_starts=((math.pi / 4 * 1e-3 ** 2, x_lo + 0.25 * span, 0.1 * span),
+                      (math.pi / 4 * 1e-3 ** 2, x_hi - 0.25 * span, 0.1 * span),
+                      (4.0 * a_lo, mid, 0.25 * span))))  # (almost) closed
+
+    # gas spring: thermal time constants from 10 ms (isothermal at every test speed) to
+    # 100 s (adiabatic at all but the quasi-static test)
+    out.append(Candidate(
+        "gas_heat_transfer",
+        (Parameter("thermal_time_constant_s", 0.01, 100.0, 1.0, True, "s"),), _with({}),
+        extra_starts=((0.1,),)))
+
+    if effects is not None:
+        known = {c.effect for c in out}
+        unknown = [e for e in effects if e not in known]
+        if unknown:
+            raise ValueError(f"unknown effect {unknown[0]!r} (one of {', '.join(known)})")
+        out = [c for c in out if c.effect in effects]
+    return out

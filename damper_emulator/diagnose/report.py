@@ -1,0 +1,211 @@
+"""Report of a diagnosis: overlay plots, ranking, tables and the extended parameter file.
+
+:func:`write_report` writes into a directory
+
+* ``report.md``: r.m.s. before and after per file, the chosen effect with its fitted
+  parameters and uncertainties, the ranking of every candidate, the thresholds;
+* ``overlay_<file>.png`` per held-out file: measured force, the identified model and the
+  model with the chosen effect against displacement, velocity and time, with the residuals;
+* ``ranking.png``: every candidate's held-out r.m.s. reduction and ΔBIC;
+* ``params_with_effect.yaml``: the identified parameters plus the chosen extension, a params
+  file every command and the emulator load (only when an effect was chosen).
+
+matplotlib is imported only here.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from damper_emulator.diagnose.selection import Diagnosis, Record
+from damper_emulator.model.compressible import simulate
+from damper_emulator.params import save_config
+
+#: figure resolution [dpi]
+DPI = 110
+
+
+def _stem(name: str) -> str:
+    for suffix in (".gz", ".csv"):
+        if name.endswith(suffix):
+            name = name[: -len(suffix)]
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+
+
+def _forces(diag: Diagnosis, rec: Record) -> tuple[np.ndarray, np.ndarray]:
+    d = rec.data
+    before = simulate(diag.base_model, d.time, d.displacement, rec.velocity,
+                      temperature_c=d.temperature).force_n
+    after = simulate(diag.model_after(), d.time, d.displacement, rec.velocity,
+                     temperature_c=d.temperature).force_n
+    return before, after
+
+
+def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
+    """Measured force, identified model and model with the chosen effect on one file."""
+    from damper_emulator.dyno.plots import new_figure, save
+
+    d = rec.data
+    before, after = _forces(diag, rec)
+    k = rec.start
+    label_after = (f"+ {diag.effect}" if diag.effect else "(no effect added)")
+    fig = new_figure(13.0, 8.0)
+    axes = fig.subplots(2, 2)
+    for ax, xs, xlabel in ((axes[0, 0], d.displacement * 1e3, "displacement [mm]"),
+                           (axes[0, 1], rec.velocity, "velocity [m/s]")):
+        ax.plot(xs[k:], d.force[k:], color="0.6", lw=2.5, label="measured")
+        ax.plot(xs[k:], before[k:], color="tab:red", lw=1.0, label="identified model")
+        if diag.effect:
+            ax.plot(xs[k:], after[k:], color="tab:blue", lw=1.0, ls="--", label=label_after)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("force [N, rebound +]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    t = d.time - d.time[0]
+    ax = axes[1, 0]
+    ax.plot(t, d.force - before, color="tab:red", lw=0.8,
+            label=f"measured − identified: r.m.s. {diag.rms_before[rec.name]:.1f} N")
+    ax.plot(t, d.force - after, color="tab:blue", lw=0.8,
+            label=f"measured − model {label_after}: r.m.s. {diag.rms_after[rec.name]:.1f} N")
+    ax.axvspan(0.0, t[k], color="0.9", label="start-up, not counted")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("residual [N]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    ax = axes[1, 1]
+    ax.plot(rec.velocity[k:], (d.force - before)[k:], ".", ms=1.5, color="tab:red",
+            label="before")
+    ax.plot(rec.velocity[k:], (d.force - after)[k:], ".", ms=1.5, color="tab:blue",
+            label="after")
+    ax.set_xlabel("velocity [m/s]")
+    ax.set_ylabel("residual [N]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, markerscale=6)
+    role = "held out" if rec.held_out else "identification file"
+    fig.suptitle(f"{rec.name} ({role}): diagnosis {diag.family}"
+                 + (f" / {diag.effect}" if diag.effect else ""))
+    return save(fig, path)
+
+
+def plot_ranking(path: Path, diag: Diagnosis) -> Path:
+    """Held-out r.m.s. reduction and ΔBIC of every candidate."""
+    from damper_emulator.dyno.plots import new_figure, save
+    from damper_emulator.diagnose.selection import MAX_DELTA_BIC, MIN_SCORE
+
+    ranking = diag.ranking[::-1]
+    names = [f"{c.candidate.effect}\n({c.candidate.family})" for c in ranking]
+    fig = new_figure(12.0, 0.45 * len(ranking) + 2.0)
+    ax1, ax2 = fig.subplots(1, 2, sharey=True)
+    y = np.arange(len(ranking))
+    colors = ["tab:green" if c.significant else "0.6" for c in ranking]
+    ax1.barh(y, [100.0 * c.score for c in ranking], color=colors)
+    ax1.axvline(100.0 * MIN_SCORE, color="k", ls="--", lw=0.8,
+                label=f"significance {100 * MIN_SCORE:g} %")
+    ax1.set_yticks(y, names, fontsize=8)
+    ax1.set_xlabel("held-out r.m.s. reduction [%]")
+    ax1.grid(True, axis="x", alpha=0.3)
+    ax1.legend(fontsize=8)
+    dbic = [c.delta_bic for c in ranking]
+    ax2.barh(y, [math.copysign(math.log10(1.0 + abs(b)), -b) for b in dbic], color=colors)
+    ax2.axvline(math.log10(1.0 - MAX_DELTA_BIC), color="k", ls="--", lw=0.8,
+                label=f"ΔBIC ≤ {MAX_DELTA_BIC:g}")
+    ax2.set_xlabel("evidence: sign(−ΔBIC) log10(1 + |ΔBIC|)")
+    ax2.grid(True, axis="x", alpha=0.3)
+    ax2.legend(fontsize=8)
+    fig.suptitle(f"Candidates ranked: diagnosis {diag.family}"
+                 + (f" / {diag.effect}" if diag.effect else ""))
+    return save(fig, path)
+
+
+def _fmt(x: Any) -> str:
+    if x is None:
+        return "–"
+    if isinstance(x, float):
+        if not math.isfinite(x):
+            return "∞"
+        return f"{x:.4g}"
+    return str(x)
+
+
+def markdown(diag: Diagnosis, params_file: str = "") -> str:
+    """The report's text."""
+    doc = diag.to_json()
+    lines = [f"# Diagnosis: {diag.family}" + (f" ({diag.effect})" if diag.effect else ""), ""]
+    if params_file:
+        lines += [f"Identified parameters: `{params_file}`.", ""]
+    if diag.chosen is not None:
+        c = diag.chosen
+        lines += [f"**{c.candidate.effect}** ({c.candidate.family}) cuts the held-out r.m.s. "
+                  f"by {100 * c.score:.1f} % (ΔBIC {c.delta_bic:.0f}).", ""]
+        if c.candidate.note:
+            lines += [c.candidate.note + ".", ""]
+        lines += ["| parameter | fitted | ± 1σ | unit | bounds |", "|---|---|---|---|---|"]
+        for p in c.candidate.parameters:
+            lines.append(f"| {p.name} | {_fmt(c.values[p.name])} | {_fmt(c.std.get(p.name))} "
+                         f"| {p.unit} | {_fmt(p.lo)} .. {_fmt(p.hi)} |")
+        lines += ["", "Extension written to `params_with_effect.yaml`: "
+                      + ", ".join(f"{k} = {_fmt(v)}" for k, v in c.extension.items()), ""]
+    elif diag.family == "other":
+        lines += ["No candidate explains a significant part of the held-out residual, yet "
+                  f"the residual is {diag.structure_before:.1f}× its noise level: structure "
+                  "remains that the library does not explain.", ""]
+    else:
+        lines += ["No candidate explains a significant part of the held-out residual, and "
+                  f"the residual is close to noise ({diag.structure_before:.2f}× its noise "
+                  "level).", ""]
+    lines += ["## Residual r.m.s. per file [N]", "",
+              "| file | role | before | after | change |", "|---|---|---|---|---|"]
+    for r in diag.records:
+        b, a = diag.rms_before[r.name], diag.rms_after[r.name]
+        ch = f"{100 * (a / b - 1):+.1f} %" if b > 0 else "–"
+        lines.append(f"| {r.name} | {'held out' if r.held_out else 'fit'} | {b:.2f} | "
+                     f"{a:.2f} | {ch} |")
+    lines += ["", f"Structure ratio of the held-out residual (r.m.s. / noise level): "
+                  f"{diag.structure_before:.2f} before, {diag.structure_after:.2f} after.", "",
+              "## Ranking", "",
+              "| effect | family | held-out reduction | ΔBIC | significant | parameters | "
+              "time |", "|---|---|---|---|---|---|---|"]
+    for c in diag.ranking:
+        pars = ", ".join(f"{k} {_fmt(v)}" for k, v in c.values.items())
+        lines.append(f"| {c.candidate.effect} | {c.candidate.family} | "
+                     f"{100 * c.score:+.1f} % | {c.delta_bic:.0f} | "
+                     f"{'yes' if c.significant else 'no'} | {pars} | {c.seconds:.1f} s |")
+    th = doc["thresholds"]
+    lines += ["", f"Significant: held-out r.m.s. reduction ≥ {100 * th['min_score']:g} % and "
+                  f"ΔBIC ≤ {th['max_delta_bic']:g}; `other` when none is and the held-out "
+                  f"residual exceeds {th['structure_ratio']:g}× its noise level.  The first "
+                  "50 ms of each file are not counted (start-up from equilibrium).", "",
+              f"Diagnosis took {diag.seconds:.1f} s.", ""]
+    return "\n".join(lines)
+
+
+def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
+                 progress=None) -> list[Path]:
+    """Write the report files (module docstring) into ``out_dir``; returns their paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    say = progress or (lambda msg: None)
+    files = []
+    for rec in diag.records:
+        if rec.held_out:
+            files.append(plot_overlay(out / f"overlay_{_stem(rec.name)}.png", diag, rec))
+            say(f"wrote {files[-1]}")
+    files.append(plot_ranking(out / "ranking.png", diag))
+    say(f"wrote {files[-1]}")
+    if diag.chosen is not None:
+        path = out / "params_with_effect.yaml"
+        save_config(diag.model_after().cfg, path)
+        files.append(path)
+        say(f"wrote {path}")
+    md = out / "report.md"
+    text = markdown(diag, params_file)
+    text += "\n## Figures\n\n" + "\n".join(f"![{p.name}]({p.name})" for p in files
+                                           if p.suffix == ".png") + "\n"
+    md.write_text(text)
+    files.append(md)
+    say(f"wrote {md}")
+    return files

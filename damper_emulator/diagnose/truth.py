@@ -1,0 +1,202 @@
+"""The project's truth simulation: dyno data of a damper with an effect the paper's model
+lacks, for testing and benchmarking ``diagnose``.
+
+The truth is the project's own compressible model with one ``damper.extensions`` group
+switched on (:mod:`damper_emulator.model.extensions`), run over the paper's identification
+and validation protocol (MODEL.md §3): a quasi-static triangle, an exponential chirp with
+growing velocity amplitude, and the validation sines (1 Hz and 3 Hz at 50 mm, 12 Hz at
+5 mm), with Gaussian noise on the force.  :data:`EXAMPLE_EFFECTS` holds one parameter set
+per family (chosen by us: visible in the protocol, physically plausible); nothing in the
+files says which effect is in them.
+
+The same data come from the command line with a params file holding the extension:
+``damper-hil dyno --params truth.yaml --protocol ...``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from damper_emulator.dyno import protocols
+from damper_emulator.dyno.measured import MeasuredData, write_measured_csv
+from damper_emulator.model.compressible import DamperModel, simulate
+from damper_emulator.params import (EXTENSION_TYPES, ExtensionParams, ModelConfig,
+                                    load_config, validate)
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """The dyno protocol of a diagnosis: identification files (fit) and validation sines
+    (held out).  Defaults: the paper's (MODEL.md §3) with the virtual dyno's chirp settings,
+    shortened to 30 s."""
+
+    qs_velocity_m_s: float = 0.004
+    qs_amplitude_m: float = 0.06
+    qs_cycles: int = 1
+    qs_rate_hz: float = 50.0
+    chirp_f_start_hz: float = 0.5
+    chirp_f_end_hz: float = 16.0
+    chirp_duration_s: float = 30.0
+    chirp_v_start_m_s: float = 0.05
+    chirp_v_end_m_s: float = 1.5
+    rate_hz: float = 1000.0
+    #: validation sines: (frequency [Hz], amplitude [m])
+    sines: tuple[tuple[float, float], ...] = ((1.0, 0.05), (3.0, 0.05), (12.0, 0.005))
+    sine_cycles: int = 3
+    #: lead-in cycles simulated before each sine's record starts
+    sine_settle_cycles: int = 1
+
+    def histories(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """``{file name: (t, x, v)}`` of every test, identification files first."""
+        out = {"quasi_static.csv": protocols.quasi_static(
+                   self.qs_velocity_m_s, self.qs_amplitude_m, self.qs_cycles, self.qs_rate_hz),
+               "chirp.csv": protocols.chirp(
+                   self.chirp_f_start_hz, self.chirp_f_end_hz, self.chirp_duration_s,
+                   self.chirp_v_start_m_s, self.chirp_v_end_m_s, self.rate_hz)}
+        for f, a in self.sines:
+            out[sine_name(f)] = protocols.sine(f, a, self.sine_cycles, self.rate_hz,
+                                               start_cycles=self.sine_settle_cycles)
+        return out
+
+
+def sine_name(frequency_hz: float) -> str:
+    """``sine_<f>hz.csv`` as the virtual dyno names it."""
+    from damper_emulator.dyno.runner import sine_file_name
+
+    return sine_file_name(frequency_hz)
+
+
+#: Temperature [°C] the thermal example's thermocouple reads: per file, a function of the
+#: time in that file (the chirp heats the damper; the sines follow, warmer).
+THERMAL_SESSION_C: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "quasi_static.csv": lambda t: np.full_like(t, 25.0),
+    "chirp.csv": lambda t: 25.0 + 25.0 * (t - t[0]) / max(t[-1] - t[0], 1e-9),
+}
+#: Temperature of the sines of the thermal example, in protocol order [°C].
+THERMAL_SINE_TEMPERATURES_C = (55.0, 65.0, 45.0)
+
+
+#: One example per family: ``{extension name: parameters}`` (see ``ExtensionParams``), plus
+#: base-parameter changes some need: the cavitation example's gas charge is low enough for
+#: the compression valve to pull the rebound chamber down to the vapour pressure, and the
+#: gas-spring example's gas volume small enough for its spring to matter (the sport
+#: damper's gas force changes by only ~10 N between adiabatic and isothermal at 60 mm).
+EXAMPLE_EFFECTS: dict[str, dict[str, Any]] = {
+    "lugre_friction": {"params": {"coulomb_n": 43.7, "static_n": 90.0,
+                                  "stribeck_velocity_m_s": 0.01,
+                                  "bristle_stiffness_n_m": 1.5e5}},
+    "viscosity_temperature": {"params": {"temperature_coefficient_per_k": 0.03,
+                                         "reference_temperature_c": 25.0}},
+    "cavitation": {"params": {"cavitation_pressure_pa": 2.0e4},
+                   "base": {"gas_pressure_static_pa": 1.5e6}},
+    "valve_lag": {"params": {"time_constant_s": 4e-3}},
+    "series_compliance": {"params": {"stiffness_n_m": 1.5e6}},
+    "end_stops": {"params": {"rebound_position_m": 0.04, "compression_position_m": -0.042,
+                             "stiffness_n_m2": 4.0e6}},
+    "air_entrainment": {"params": {"air_volume_fraction": 0.02}},
+    "bypass_groove": {"params": {"area_m2": 2.0e-6, "center_m": 0.005,
+                                 "half_length_m": 0.02}},
+    "gas_heat_transfer": {"params": {"thermal_time_constant_s": 0.3},
+                          "base": {"gas_volume_static_m3": 4.0e-5}},
+}
+
+
+def with_extension(cfg: ModelConfig, name: str | None, params: Mapping[str, Any] | None = None,
+                   base_changes: Mapping[str, Any] | None = None) -> ModelConfig:
+    """``cfg`` with one extension (``None``: none) set to ``params`` and the damper's base
+    parameters changed by ``base_changes``; validated."""
+    damper = cfg.damper
+    if base_changes:
+        damper = dataclasses.replace(damper, **base_changes)
+    if name is not None:
+        if name not in EXTENSION_TYPES:
+            raise ValueError(f"unknown extension {name!r} (one of "
+                             f"{', '.join(EXTENSION_TYPES)})")
+        ext = EXTENSION_TYPES[name](**params)
+        damper = dataclasses.replace(damper, extensions=ExtensionParams(**{name: ext}))
+    else:
+        damper = dataclasses.replace(damper, extensions=None)
+    out = dataclasses.replace(cfg, damper=damper)
+    validate(out)
+    return out
+
+
+def example_config(name: str | None, base: ModelConfig | None = None) -> ModelConfig:
+    """The truth configuration of :data:`EXAMPLE_EFFECTS` ``[name]`` on ``base`` (default
+    ``config/sport.yaml``); ``None``: the base model with its example base changes none."""
+    base = base if base is not None else load_config()
+    if name is None:
+        return with_extension(base, None)
+    ex = EXAMPLE_EFFECTS[name]
+    return with_extension(base, name, ex["params"], ex.get("base"))
+
+
+def session_temperatures(name: str, t: np.ndarray, sine_index: int | None) -> np.ndarray:
+    """The thermocouple reading of the thermal example session in file ``name``."""
+    if name in THERMAL_SESSION_C:
+        return THERMAL_SESSION_C[name](t)
+    temps = THERMAL_SINE_TEMPERATURES_C
+    return np.full_like(t, temps[(sine_index or 0) % len(temps)])
+
+
+def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
+                     noise_std_n: float = 5.0, seed: int = 0, temperature: bool = False,
+                     extra_force: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+                     | None = None) -> dict[str, MeasuredData]:
+    """Run ``cfg`` over the protocol: ``{file name: MeasuredData}``, identification files
+    first.
+
+    Parameters
+    ----------
+    cfg : ModelConfig
+        The truth (e.g. :func:`example_config`).
+    noise_std_n : float
+        Standard deviation of the white Gaussian noise added to the force [N].
+    seed : int
+        Noise seed.
+    temperature : bool
+        Give every file the temperature column of the thermal example session
+        (:data:`THERMAL_SESSION_C`), which also drives the truth's viscosity.
+    extra_force : callable, optional
+        ``f(t, x, v) -> force [N]`` added to the truth's force: an effect outside the
+        extension library.
+    """
+    protocol = protocol or Protocol()
+    model = DamperModel(cfg)
+    rng = np.random.default_rng(seed)
+    out: dict[str, MeasuredData] = {}
+    sine_index = 0
+    for name, (t, x, v) in protocol.histories().items():
+        is_sine = name.startswith("sine_")
+        temp = None
+        if temperature:
+            temp = session_temperatures(name, t, sine_index if is_sine else None)
+        res = simulate(model, t, x, v, temperature_c=temp)
+        f = res.force_n
+        if extra_force is not None:
+            f = f + extra_force(t, x, v)
+        if is_sine:  # drop the lead-in: the record starts at t = 0
+            k = int(np.searchsorted(t, 0.0))
+            t, x, v, f = t[k:], x[k:], v[k:], f[k:]
+            temp = temp[k:] if temp is not None else None
+            sine_index += 1
+        f = f + rng.normal(0.0, noise_std_n, f.size) if noise_std_n > 0 else f
+        out[name] = MeasuredData(time=t, displacement=x, force=f, velocity=v,
+                                 temperature=temp, name=name, path=name)
+    return out
+
+
+def write_session(data: Mapping[str, MeasuredData], out_dir: str | Path) -> dict[str, Path]:
+    """Write a session's files as measured-data CSVs into ``out_dir``; their paths by name."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for name, d in data.items():
+        paths[name] = write_measured_csv(out / name, d.time, d.displacement, d.force,
+                                         d.velocity, d.temperature)
+    return paths

@@ -281,3 +281,36 @@ def test_node_damper_gets_a_bypass_only_from_its_own_file(params_file, has_bypas
     assert (model.cfg.damper.adaptive is not None) == has_bypass
     soft, firm = (quasi_steady_force(model, 0.5, c) for c in (0.0, 1.0))
     assert (soft < firm - 1.0) == has_bypass
+
+
+def test_node_runs_the_extension_a_diagnose_params_file_names(tmp_path):
+    """A params file written by ``diagnose`` (identified damper + one extension) gives the
+    node's model that extension, whose forces are the offline model's."""
+    import numpy as np
+
+    from damper_emulator.diagnose.truth import example_config
+    from damper_emulator.model.compressible import DamperModel, simulate
+    from damper_emulator.params import save_config
+    from damper_emulator.ros.emulator import load_node_model
+
+    cfg = example_config("series_compliance")
+    path = tmp_path / "with_effect.yaml"
+    save_config(cfg, path, node="damper_emulator")
+    ctx = Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], context=ctx)
+    try:
+        node = rclpy.create_node("damper_emulator", context=ctx)
+        try:
+            _values, model = load_node_model(node)
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+    assert model.cfg.damper.extensions.active() == ["series_compliance"]
+    t = np.arange(0.0, 1.0, 1e-3)
+    x = 0.02 * np.sin(2 * np.pi * 3 * t)
+    offline = simulate(DamperModel(cfg), t, x).force_n
+    plain = simulate(DamperModel(cfg.replace_damper(extensions=None)), t, x).force_n
+    node_force = simulate(model, t, x).force_n
+    np.testing.assert_array_equal(node_force, offline)
+    assert np.sqrt(np.mean((offline - plain) ** 2)) > 50.0  # the spring matters here

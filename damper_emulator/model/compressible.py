@@ -104,11 +104,11 @@ _VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
 # sport), ``S_CMD_EFF`` the effective one (after the solenoid lag); then the extensions'
 # states: the measured temperature [°C] (an input; NaN: none, the reference temperature),
 # the heat model's temperature rise [K], the LuGre bristle deflection [m], the cavity volume
-# [m³], the lagged piston-valve flow [m³/s], the series-spring (= damper) force [N] and the
-# gas temperature ratio T/T_wall.
+# [m³], the lagged piston-valve flow [m³/s], the series-spring (= damper) force [N], the
+# gas temperature ratio T/T_wall and the spring force one sub-step earlier [N] (for BDF2).
 (S_P_REB, S_Z, S_X, S_V, S_FORCE, S_P_COM, S_P_PREV, S_H_PREV, S_CMD, S_CMD_EFF,
- S_TEMP_IN, S_HEAT_DT, S_BRISTLE, S_V_CAV, S_Q_VALVE, S_MOUNT_F, S_GAS_THETA,
- S_SIZE) = range(18)
+ S_TEMP_IN, S_HEAT_DT, S_BRISTLE, S_V_CAV, S_Q_VALVE, S_MOUNT_F, S_GAS_THETA, S_MOUNT_PREV,
+ S_SIZE) = range(19)
 
 
 @kernel
@@ -329,25 +329,39 @@ def init_state(prm, coef_r, coef_c, state, x, v):
         z = _equilibrium_z(prm, coef_r, coef_c, v * prm[P_A_ANNULUS], area, gr_area, visc)
     else:
         z = 0.0
-    if prm[P_GT_TAU] > 0.0:  # the gas at the wall temperature: isothermal
-        p_com = prm[P_GAS] * prm[V_GAS] / _gas_volume(prm, x)
-    else:
-        p_com = compression_chamber_pressure(x, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
-                                             prm[P_GAMMA])
     dp, _d, _q, _dq, _b, q_valve = _flow_state(z, prm, coef_r, coef_c, area, gr_area, visc,
                                                0.0, 0.0)
-    p = p_com + dp
+    fr = _friction(prm, state, v, 0.0)
+    # behind a series spring the damper sits at x − F/k: a few fixed-point rounds (the gas
+    # spring is orders of magnitude softer than any mount, so each round gains as much)
+    xd = x
+    for _ in range(4 if prm[P_MOUNT_K] > 0.0 else 1):
+        if prm[P_GT_TAU] > 0.0:  # the gas at the wall temperature: isothermal
+            p_com = prm[P_GAS] * prm[V_GAS] / _gas_volume(prm, xd)
+        else:
+            p_com = compression_chamber_pressure(xd, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
+                                                 prm[P_GAMMA])
+        p = p_com + dp
+        if prm[P_CAV_ON] > 0.0 and p < prm[P_CAV_P]:
+            # steady flow the valve cannot pass above the cavitation pressure: the chamber
+            # sits at it (the cavity opens on the first step)
+            p = prm[P_CAV_P]
+            z = _z_of(prm, p - p_com, visc)
+        force = _force(prm, p, p_com, fr, x)
+        if prm[P_MOUNT_K] > 0.0:
+            xd = min(max(x - force / prm[P_MOUNT_K], prm[P_X_MIN]), prm[P_X_MAX])
     state[S_P_REB] = p
     state[S_Z] = z
     state[S_X] = x
     state[S_V] = v
     state[S_P_COM] = p_com
-    state[S_FORCE] = _force(prm, p, p_com, _friction(prm, state, v, 0.0), x)
+    state[S_FORCE] = force
     state[S_P_PREV] = p
     state[S_H_PREV] = 0.0
     state[S_V_CAV] = 0.0
     state[S_Q_VALVE] = q_valve
-    state[S_MOUNT_F] = state[S_FORCE]
+    state[S_MOUNT_F] = force
+    state[S_MOUNT_PREV] = force
     state[S_GAS_THETA] = 1.0
 
 
@@ -380,7 +394,10 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
         flags |= _VELOCITY_CLAMPED
     if dt > prm[P_SETTLE]:
         # after a gap far longer than the pressure time constants the damper is in
-        # quasi-steady equilibrium at the new sample
+        # quasi-steady equilibrium at the new sample (the heat model cools meanwhile)
+        if prm[P_TH_BETA] > 0.0 and prm[P_TH_CAP] > 0.0:
+            state[S_HEAT_DT] = heat_rise(state[S_HEAT_DT], 0.0, dt, prm[P_TH_CAP],
+                                         prm[P_TH_TAU])
         init_state(prm, coef_r, coef_c, state, x, v)
         return state[S_FORCE], flags
     bp_area = _bypass_area_of(prm, cmd)
@@ -398,6 +415,7 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
     # extensions
     k_m = prm[P_MOUNT_K]
     mount_f = state[S_MOUNT_F]
+    mount_prev = state[S_MOUNT_PREV]
     gas_tau = prm[P_GT_TAU]
     theta = state[S_GAS_THETA]
     xd_prev = x0 - mount_f / k_m if k_m > 0.0 else x0
@@ -411,11 +429,14 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
         xs = x0 + frac * (x - x0)
         vs = v0 + frac * (v - v0)
         air_hat = 0.0
+        mount_hat = mount_f
         if h_prev > 0.0 and h / h_prev < BDF2_MAX_STEP_RATIO:
             # variable-step BDF2: p − p̂ = h_eff f(p)
             w = h / h_prev
             p_hat = ((1.0 + w) ** 2 * p - w * w * p_prev) / (1.0 + 2.0 * w)
             h_eff = h * (1.0 + w) / (1.0 + 2.0 * w)
+            if k_m > 0.0:
+                mount_hat = ((1.0 + w) ** 2 * mount_f - w * w * mount_prev) / (1.0 + 2.0 * w)
             if air:
                 air_hat = ((1.0 + w) ** 2 / max(p, AIR_PRESSURE_FLOOR)
                            - w * w / max(p_prev, AIR_PRESSURE_FLOOR)) / (1.0 + 2.0 * w)
@@ -441,7 +462,7 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
                                                  prm[P_GAMMA])
         xd_prev = xd
         if k_m > 0.0:
-            mount_off = -prm[P_A_PISTON] * p_com + fr - mount_f
+            mount_off = -prm[P_A_PISTON] * p_com + fr - mount_hat
         gr_area = _groove_area(prm, xd)
         if cavitation and v_cav > 0.0:
             # a cavity is open: the chamber sits at the cavitation pressure until it refills
@@ -468,6 +489,7 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
                 z = _z_of(prm, p - p_com, visc)
                 h_prev = 0.0
         if k_m > 0.0:
+            mount_prev = mount_f
             mount_f = prm[P_A_ANNULUS] * p - prm[P_A_PISTON] * p_com + fr
     state[S_P_PREV] = p_prev
     state[S_H_PREV] = h_prev
@@ -484,6 +506,7 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
     state[S_FORCE] = force
     state[S_Q_VALVE] = q_lag
     state[S_MOUNT_F] = mount_f
+    state[S_MOUNT_PREV] = mount_prev
     state[S_GAS_THETA] = theta
     state[S_V_CAV] = v_cav
     return force, flags

@@ -28,10 +28,12 @@ off, the step's arithmetic is the paper's model's.  Families as in the ``diagnos
     note on cavitation).
 ``valve_dynamics`` — the piston-valve flow lags its quasi-static value at the present Δp,
     ``τ_v dQ/dt = Q_pv(Δp) − Q`` (the blow-off disc opens and closes late), backward Euler
-    inside the implicit sub-step (:func:`lag_weight`).
+    inside the implicit sub-step (:func:`lag_weight`; first order: on a step response with
+    τ_v = 16 ms at 10 kHz its error is 2.4 % r.m.s. and halves with the step).
 ``compliance`` — a spring ``k_m`` in series between the dyno and the damper: the damper's
     stroke is ``x − F/k_m`` and its velocity ``ẋ − Ḟ/k_m``; the latter enters eq 2
-    implicitly (the force is the unknown pressure's).
+    implicitly (the force is the unknown pressure's), its rate by the same multistep formula
+    as the pressure's (``(F − F̂)/h_eff``).  The start is the static deflection.
 ``end_stop`` — progressive elastomer stops, ``F += k (x − x_r)²`` past the rebound stop and
     ``− k (x_c − x)²`` past the compression stop (:func:`end_stop_force`).
 ``air_entrainment`` — free air in the rebound chamber, isothermal, volume fraction ``ε`` at
@@ -45,7 +47,8 @@ off, the step's arithmetic is the paper's model's.  Families as in the ``diagnos
 ``gas_spring`` — heat transfer between the gas and the tube: the gas temperature ratio
     ``θ = T/T_wall`` follows the adiabatic change of eq 3 and relaxes to 1 with ``τ_g``,
     ``P_com = P_gas,static (V_gas,static / V) θ`` (:func:`gas_temperature`); ``τ_g → ∞``
-    is eq 3, ``τ_g → 0`` the isothermal gas.
+    is eq 3 (from a start at the static position: a start elsewhere, after a long rest,
+    is at the wall temperature), ``τ_g → 0`` the isothermal gas.
 """
 
 from __future__ import annotations

@@ -77,7 +77,7 @@ def declare_parameters(node: Node, defaults: Mapping[str, Any],
     for name, default in flat.items():
         descriptor = ParameterDescriptor(dynamic_typing=True)
         param = node.declare_parameter(name, _ros_value(default), descriptor)
-        values[name] = _plain(param.value)
+        values[name] = plain_value(param.value)
     return unflatten(values)
 
 
@@ -87,7 +87,7 @@ def _ros_value(value: Any) -> Any:
     return value
 
 
-def _plain(value: Any) -> Any:
+def plain_value(value: Any) -> Any:
     if hasattr(value, "tolist"):
         return value.tolist()
     return value

@@ -45,9 +45,14 @@ from damper_emulator.realtime.settings import (RUNTIME_PARAMETERS, default_emula
                                                emulator_params_from_mapping)
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (SubscriptionThread, control_qos, declare_parameters,
-                                        publish_diagnostics, set_stamp, stamp_ns, take_all)
+                                        plain_value, publish_diagnostics, set_stamp, stamp_ns,
+                                        take_all, unflatten)
 
 NODE_NAME = "damper_emulator"
+
+
+#: parameters under this prefix switch model extensions on (damper_emulator.model.extensions)
+EXTENSIONS_PREFIX = "damper.extensions."
 
 
 def _damper_defaults() -> dict:
@@ -62,11 +67,19 @@ def load_node_model(node: Node, extra: dict | None = None) -> tuple[dict, Damper
     The defaults are config/sport.yaml's; when the given parameters name another damper
     (``damper.name``) but give no ``damper.adaptive.*``, that damper has no bypass (its valve
     command has no effect), as :func:`damper_emulator.params.load_config` reads such a file.
+    ``damper.extensions.*`` parameters (a params file written by ``diagnose``) switch the
+    model extensions they name on.
     """
     defaults = {**_damper_defaults(), **(extra or {})}
+    overrides = getattr(node, "_parameter_overrides", {})
+    ext = {n[len(EXTENSIONS_PREFIX):]: p.value for n, p in overrides.items()
+           if n.startswith(EXTENSIONS_PREFIX)}
+    if ext:  # model extensions (issue 7) exist only where a params file gives them
+        defaults["damper"] = {**defaults["damper"],
+                              "extensions": unflatten({k: plain_value(v)
+                                                      for k, v in ext.items()})}
     values = declare_parameters(node, defaults, defaults.keys())
     damper = dict(values["damper"])
-    overrides = getattr(node, "_parameter_overrides", {})
     named = overrides.get("damper.name")
     if named is not None and named.value != defaults["damper"]["name"] and \
             not any(n.startswith("damper.adaptive.") for n in overrides):

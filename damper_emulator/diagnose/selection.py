@@ -63,6 +63,9 @@ STRUCTURE_RATIO = 1.5
 MAX_RHO = 0.999
 #: evaluations of the least-squares cost per start (Jacobian evaluations not counted)
 MAX_NFEV = 30
+#: ... of which each start of a candidate with several gets this many before the best
+#: start goes on alone
+SCREEN_NFEV = 4
 #: forward-difference step in normalised coordinates (0.1 % of each parameter's range)
 DIFF_STEP = 1e-3
 #: cost returned for parameters the model refuses
@@ -266,13 +269,15 @@ def _fit(cand: Candidate, base: DamperModel, fit: Sequence[Record],
             return np.full(n_total, FAILED_COST)
         return np.concatenate([rec.residual(model) * w for rec, w in zip(fit, weights)])
 
-    best = None
-    for u0 in cand.starts():
-        s0 = np.clip((u0 - lo) / width, 0.0, 1.0)
-        sol = least_squares(fun, s0, bounds=(0.0, 1.0), method="trf", diff_step=DIFF_STEP,
-                            x_scale=1.0, max_nfev=MAX_NFEV)
-        if best is None or sol.cost < best.cost:
-            best = sol
+    def solve(s0: np.ndarray, nfev: int):
+        return least_squares(fun, s0, bounds=(0.0, 1.0), method="trf", diff_step=DIFF_STEP,
+                             x_scale=1.0, max_nfev=nfev)
+
+    starts = [np.clip((u0 - lo) / width, 0.0, 1.0) for u0 in cand.starts()]
+    if len(starts) > 1:  # a few iterations from each start, then on from the best
+        screened = min((solve(s0, SCREEN_NFEV) for s0 in starts), key=lambda r: r.cost)
+        starts = [screened.x]
+    best = solve(starts[0], MAX_NFEV)
     values = values_of(best.x)
     # covariance of the normalised coordinates, inflated for the residual's correlation
     model = with_candidate(base, cand, values)

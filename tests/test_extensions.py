@@ -967,3 +967,31 @@ def test_stepper_and_batch_agree_with_each_extension(name):
     # and the extension changes the force (the comparison is not of the base model)
     assert not np.array_equal(batch.force_n, simulate(m.with_extensions(None), t, x, v,
                                                       temperature_c=temp).force_n)
+
+
+def test_series_compliance_stays_bounded_with_an_extreme_identified_valve():
+    """Regression: with an FSAE identification whose rebound blow-off ended on its bound
+    (preload 1.5e18 Pa, i.e. never open) and an effective α of 2.75e-8 1/Pa, a soft series
+    spring sent the implicit solve to p_reb = −1.8e10 Pa (force −8 MN): through the spring
+    the residual turns over above p = 1/(2α).  The force must stay of the base's size."""
+    from pathlib import Path
+
+    from damper_emulator.params import ValveParams
+
+    root = Path(__file__).resolve().parents[1]
+    cfg = load_config(root / "config" / "fsae_ttx25_base.yaml").replace_damper(
+        oil_compressibility_per_pa=2.7547683715e-08, friction_force_n=30.77,
+        gas_volume_static_m3=4.2498e-06, gas_pressure_static_pa=644360.0,
+        rebound=ValveParams(6.66e13, 5.59e12, 1230.3, 1.4831e18, 1.5),
+        compression=ValveParams(7.905e13, 7.259e13, 2.2815e12, 858381.6, 1.5))
+    base = DamperModel(cfg)
+    rate = 300.0
+    t = np.arange(0.0, 3.0, 1.0 / rate)
+    w = 2.0 * np.pi * 1.053
+    x, v = 0.0186 * np.sin(w * t), 0.0186 * w * np.cos(w * t)
+    f0 = simulate(base, t, x, v).force_n
+    for k in (1e5, 1.6e6):
+        m = base.with_extensions(dataclasses.replace(
+            ExtensionParams(), series_compliance=SeriesComplianceParams(k)))
+        f = simulate(m, t, x, v).force_n
+        assert np.abs(f).max() < 1.5 * np.abs(f0).max(), k

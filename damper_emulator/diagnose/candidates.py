@@ -19,6 +19,9 @@ import numpy as np
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.params import EXTENSION_FAMILIES, ModelConfig
 
+#: Friction scale of the friction candidate's bounds when the identified friction is
+#: smaller (an identification can end with none) [N]
+MIN_FRICTION_SCALE_N = 10.0
 #: A temperature column counts as informative when its values span at least this [K].
 MIN_TEMPERATURE_SPAN_K = 2.0
 #: Viscosity–temperature coefficient held when no temperature is measured [1/K]: mineral
@@ -108,7 +111,7 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
     x_lo = min(float(np.min(r.displacement)) for r in fit_data)
     x_hi = max(float(np.max(r.displacement)) for r in fit_data)
     span = max(x_hi - x_lo, 1e-3)
-    f0 = d.friction_force_n if d.friction_force_n > 0 else 10.0
+    f0 = max(d.friction_force_n, MIN_FRICTION_SCALE_N)
     # oil stiffness of the rebound chamber at rest, A²/(V α): the scale of any compliance
     k_oil = d.annulus_area_m2 / (d.max_extension_m * d.oil_compressibility_per_pa)
     out: list[Candidate] = []

@@ -6,6 +6,8 @@
   parameters and uncertainties, the ranking of every candidate, the thresholds;
 * ``overlay_<file>.png`` per held-out file: measured force, the identified model and the
   model with the chosen effect against displacement, velocity and time, with the residuals;
+* ``residual_before_<file>.png`` (and ``residual_after_<file>.png`` with an effect) per
+  held-out file: the residual analysis of :mod:`damper_emulator.diagnose.residual`;
 * ``ranking.png``: every candidate's held-out r.m.s. reduction and ΔBIC;
 * ``params_with_effect.yaml``: the identified parameters plus the chosen extension, a params
   file every command and the emulator load (only when an effect was chosen).
@@ -21,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.diagnose.residual import plot_residual, residual_record
 from damper_emulator.diagnose.selection import Diagnosis, Record
 from damper_emulator.model.compressible import simulate
 from damper_emulator.params import save_config
@@ -149,6 +152,13 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                          f"| {p.unit} | {_fmt(p.lo)} .. {_fmt(p.hi)} |")
         lines += ["", "Extension written to `params_with_effect.yaml`: "
                       + ", ".join(f"{k} = {_fmt(v)}" for k, v in c.extension.items()), ""]
+    elif diag.family == "other" and diag.closest is not None:
+        c = diag.closest
+        lines += [f"Structure remains that the library does not explain.  The closest "
+                  f"candidate, **{c.candidate.effect}** ({c.candidate.family}), cuts the "
+                  f"held-out r.m.s. by {100 * c.score:.1f} % but removes only "
+                  f"{100 * diag.explained:.0f} % of the residual's structured power; it is "
+                  "not added.", ""]
     elif diag.family == "other":
         lines += ["No candidate explains a significant part of the held-out residual, yet "
                   f"the residual is {diag.structure_before:.1f}× its noise level: structure "
@@ -177,8 +187,10 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
     th = doc["thresholds"]
     lines += ["", f"Significant: held-out r.m.s. reduction ≥ {100 * th['min_score']:g} % and "
                   f"ΔBIC ≤ {th['max_delta_bic']:g}; `other` when none is and the held-out "
-                  f"residual exceeds {th['structure_ratio']:g}× its noise level.  The first "
-                  "50 ms of each file are not counted (start-up from equilibrium).", "",
+                  f"residual exceeds {th['structure_ratio']:g}× its noise level, or when the "
+                  f"best removes less than {100 * th['min_explained']:g} % of its structured "
+                  "power.  The first 50 ms of each file are not counted (start-up from "
+                  "equilibrium).", "",
               f"Diagnosis took {diag.seconds:.1f} s.", ""]
     return "\n".join(lines)
 
@@ -194,6 +206,15 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
         if rec.held_out:
             files.append(plot_overlay(out / f"overlay_{_stem(rec.name)}.png", diag, rec))
             say(f"wrote {files[-1]}")
+            models = [("before", diag.base_model)]
+            if diag.chosen is not None:
+                models.append(("after", diag.model_after()))
+            for when, model in models:
+                path = out / f"residual_{when}_{_stem(rec.name)}.png"
+                what = "identified model" if when == "before" else f"with {diag.effect}"
+                files.append(plot_residual(path, residual_record(model, rec.data),
+                                           title=f"{rec.name}: residual of the {what}"))
+                say(f"wrote {path}")
     files.append(plot_ranking(out / "ranking.png", diag))
     say(f"wrote {files[-1]}")
     if diag.chosen is not None:

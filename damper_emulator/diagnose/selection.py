@@ -24,10 +24,13 @@ Procedure (:func:`diagnose`):
    40 000 correlated samples as 40 000 pieces of evidence).
 5. **Select.**  A candidate is *significant* when it cuts the held-out r.m.s. by at least
    :data:`MIN_SCORE` **and** ``ΔBIC ≤`` :data:`MAX_DELTA_BIC`.  The most significant
-   candidate by score is the diagnosis.  With none significant the result is ``other`` if
-   the held-out residual still has structure — its r.m.s. more than
-   :data:`STRUCTURE_RATIO` times the noise level estimated from sample-to-sample
-   differences (:func:`noise_level`) — and ``none`` otherwise.
+   candidate by score is the diagnosis, unless it removes less than :data:`MIN_EXPLAINED`
+   of the held-out residual's structured power (:func:`explained_fraction`) and structure
+   remains: then the answer is ``other``, with that candidate as the closest family and
+   nothing added.  With none significant the result is ``other`` if the held-out residual
+   still has structure — its r.m.s. more than :data:`STRUCTURE_RATIO` times the noise level
+   estimated from sample-to-sample differences (:func:`noise_level`) — and ``none``
+   otherwise.
 
 Thresholds: ``MIN_SCORE`` = 5 %: on data without an extra effect (noise only) the best
 candidate's held-out reduction stayed below 0.5 % (measured in ``docs/diagnose.md``), so 5 %
@@ -59,6 +62,9 @@ MIN_SCORE = 0.05
 MAX_DELTA_BIC = -10.0
 #: held-out residual r.m.s. / noise level above which structure remains
 STRUCTURE_RATIO = 1.5
+#: a significant candidate that removes less than this fraction of the held-out residual's
+#: structured power while structure remains is reported as the closest family of ``other``
+MIN_EXPLAINED = 0.5
 #: lag-1 autocorrelation is clipped to this in the effective sample size
 MAX_RHO = 0.999
 #: evaluations of the least-squares cost per start (Jacobian evaluations not counted)
@@ -148,6 +154,18 @@ def structure_ratio(residuals: Sequence[np.ndarray]) -> float:
     return math.sqrt(sse / max(n, 1)) / noise if noise > 0 else math.inf
 
 
+def explained_fraction(before: Sequence[np.ndarray], after: Sequence[np.ndarray]) -> float:
+    """Fraction of the structured power (mean square less the noise level's square, pooled)
+    of residuals ``before`` that is gone ``after``; noise levels from ``after``."""
+    n = sum(r.size for r in before)
+    noise2 = sum(noise_level(r) ** 2 * r.size for r in after) / max(n, 1)
+    p0 = sum(float(np.dot(r, r)) for r in before) / max(n, 1) - noise2
+    p1 = sum(float(np.dot(r, r)) for r in after) / max(n, 1) - noise2
+    if p0 <= 0.0:
+        return 0.0
+    return 1.0 - max(p1, 0.0) / p0
+
+
 def effective_bic(residuals: Sequence[np.ndarray], k: int,
                   rhos: Sequence[float] | None = None) -> tuple[float, float]:
     """``(BIC, N_eff)`` of residuals with ``k`` added parameters (module docstring); ``rhos``
@@ -208,6 +226,11 @@ class Diagnosis:
     structure_after: float
     seconds: float
     chosen: CandidateResult | None = None
+    #: with ``other``: the significant candidate that explained too little to be the answer
+    closest: CandidateResult | None = None
+    #: fraction of the held-out residual's structured power the best significant candidate
+    #: removed (:func:`explained_fraction`; 0 when none was significant)
+    explained: float = 0.0
     base_model: DamperModel | None = None
     records: list[Record] = field(default_factory=list)
 
@@ -229,10 +252,17 @@ class Diagnosis:
             "uncertainties": ({p: chosen.std.get(p) for p in chosen.values}
                               if chosen else None),
             "score": chosen.score if chosen else None,
+            "explained_fraction": self.explained,
+            "closest": ({"effect": self.closest.candidate.effect,
+                         "family": self.closest.candidate.family,
+                         "score": self.closest.score,
+                         "parameters": self.closest.extension}
+                        if self.closest else None),
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "thresholds": {"min_score": MIN_SCORE, "max_delta_bic": MAX_DELTA_BIC,
-                           "structure_ratio": STRUCTURE_RATIO},
+                           "structure_ratio": STRUCTURE_RATIO,
+                           "min_explained": MIN_EXPLAINED},
             "seconds": round(self.seconds, 2)}
         return doc
 
@@ -402,9 +432,18 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     ranking = sorted(results, key=lambda c: (-c.significant, -c.score))
     chosen = ranking[0] if ranking and ranking[0].significant else None
     structure_before = structure_ratio([base_res[r.name] for r in held])
+    closest = None
+    explained = 0.0
     if chosen is not None:
         model = with_candidate(base, chosen.candidate, chosen.values)
         after = {r.name: r.residual(model) for r in records}
+        explained = explained_fraction([base_res[r.name] for r in held],
+                                       [after[r.name] for r in held])
+        if (explained < MIN_EXPLAINED
+                and structure_ratio([after[r.name] for r in held]) > STRUCTURE_RATIO):
+            # a real but partial improvement: most of the structure is something else
+            closest, chosen = chosen, None
+    if chosen is not None:
         family, effect = chosen.candidate.family, chosen.candidate.effect
     else:
         after = base_res
@@ -417,4 +456,5 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                      ranking=ranking, held_out=[r.name for r in held],
                      structure_before=structure_before, structure_after=structure_after,
                      seconds=time.perf_counter() - t_start, chosen=chosen, base_model=base,
+                     closest=closest, explained=explained,
                      records=records)

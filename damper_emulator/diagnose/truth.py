@@ -32,16 +32,17 @@ from damper_emulator.params import (EXTENSION_TYPES, ExtensionParams, ModelConfi
 @dataclass(frozen=True)
 class Protocol:
     """The dyno protocol of a diagnosis: identification files (fit) and validation sines
-    (held out).  Defaults: the paper's (MODEL.md §3) with the virtual dyno's chirp settings,
-    shortened to 30 s."""
+    (held out).  Defaults: the paper's (MODEL.md §3) as the virtual dyno runs it
+    (``damper-hil dyno`` defaults: quasi-static 4 mm/s over ±75 mm twice, 150 s; chirp
+    0.5–16 Hz in 60 s at 0.05–1.5 m/s; the three validation sines)."""
 
     qs_velocity_m_s: float = 0.004
-    qs_amplitude_m: float = 0.06
-    qs_cycles: int = 1
+    qs_amplitude_m: float = 0.075
+    qs_cycles: int = 2
     qs_rate_hz: float = 50.0
     chirp_f_start_hz: float = 0.5
     chirp_f_end_hz: float = 16.0
-    chirp_duration_s: float = 30.0
+    chirp_duration_s: float = 60.0
     chirp_v_start_m_s: float = 0.05
     chirp_v_end_m_s: float = 1.5
     rate_hz: float = 1000.0

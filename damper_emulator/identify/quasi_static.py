@@ -20,6 +20,9 @@ from damper_emulator.model.gas import compression_chamber_pressure
 NAMES = ("gas_pressure_static_pa", "gas_volume_static_m3", "friction_force_n")
 #: Bounds: the gas parameters within this factor of their start values.
 GAS_BOUND_FACTOR = 20.0
+#: The gas volume's lower bound keeps this multiple of the rod volume the data stroke in
+#: compression (eq 3 needs V_gas + A_rod x > 0 at every sample).
+GAS_TRAVEL_MARGIN = 1.05
 
 
 class IdentificationError(ValueError):
@@ -91,4 +94,12 @@ def fit_quasi_static(x, v, force, rod_area_m2: float, gamma: float,
     f_max = float(np.max(np.abs(target)))
     lower = np.array([start[0] / GAS_BOUND_FACTOR, start[1] / GAS_BOUND_FACTOR, 0.0])
     upper = np.array([start[0] * GAS_BOUND_FACTOR, start[1] * GAS_BOUND_FACTOR, f_max])
+    # the gas volume must stay positive over the whole stroke of the data (eq 3): a slope
+    # steepened by viscous force (a test that is not slow enough) can put the linear start
+    # value below that
+    v_travel = GAS_TRAVEL_MARGIN * max(-rod_area_m2 * float(np.min(x)), 0.0)
+    if lower[1] < v_travel:
+        lower[1] = v_travel
+        start[1] = max(start[1], 2.0 * v_travel)
+        upper[1] = max(upper[1], start[1] * GAS_BOUND_FACTOR)
     return fit(residual, NAMES, start, (True, True, False), lower, upper, target)

@@ -182,6 +182,11 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area, p_com
     air_c = prm[P_AIR_EPS] * P_ATM / alpha
     lo = -prm[P_ZLIM_C]
     hi = prm[P_ZLIM_R]
+    if mount_c > 0.0 and 0.5 / alpha > p_com:
+        # through the spring the inflow falls with p, and with eq 2's factor (1 − α p) the
+        # residual turns over above p = 1/(2α) (far above any damper pressure): keep the
+        # bracket below it
+        hi = min(hi, _z_of(prm, 0.5 / alpha - p_com, visc))
     z = min(max(z_old, lo), hi)
     tol = prm[P_TOL]
     flags = 0
@@ -209,8 +214,6 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area, p_com
         if mount_c > 0.0:
             q_in = v * area - mount_c * (area * p + mount_off)
         r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
-        if r == 0.0:
-            break
         dr = ddp + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * ddp
         if mount_c > 0.0:
             dr += k * mount_c * area * ddp * (1.0 - alpha * p)
@@ -219,6 +222,8 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area, p_com
             r += air_c * (air_hat - 1.0 / pa)
             if p > AIR_PRESSURE_FLOOR:
                 dr += air_c * ddp / (pa * pa)
+        if r == 0.0:
+            break
         if r > 0.0:
             hi = z
         else:

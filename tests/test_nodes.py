@@ -257,14 +257,9 @@ def test_bad_parameters_exit_with_one_line(tmp_path):
         assert "Traceback" not in r.stderr
 
 
-@pytest.mark.parametrize("params_file, has_bypass", [
-    (None, True),                                        # sport: the adaptive damper
-    (ROOT / "config" / "fsae_ttx25_base.yaml", False),   # another damper, no adaptive group
-])
-def test_node_damper_gets_a_bypass_only_from_its_own_file(params_file, has_bypass):
-    """The node's defaults are sport's; a params file for another damper without an
-    `adaptive` group must not inherit sport's bypass (its valve command does nothing)."""
-    from damper_emulator.model.compressible import quasi_steady_force
+def _node_model(params_file):
+    """The damper model a real ``damper_emulator`` rclpy node builds from ``params_file``
+    (None: the defaults)."""
     from damper_emulator.ros.emulator import load_node_model
 
     ctx = Context()
@@ -273,11 +268,23 @@ def test_node_damper_gets_a_bypass_only_from_its_own_file(params_file, has_bypas
     try:
         node = rclpy.create_node("damper_emulator", context=ctx)
         try:
-            _values, model = load_node_model(node)
+            return load_node_model(node)[1]
         finally:
             node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.parametrize("params_file, has_bypass", [
+    (None, True),                                        # sport: the adaptive damper
+    (ROOT / "config" / "fsae_ttx25_base.yaml", False),   # another damper, no adaptive group
+])
+def test_node_damper_gets_a_bypass_only_from_its_own_file(params_file, has_bypass):
+    """The node's defaults are sport's; a params file for another damper without an
+    `adaptive` group must not inherit sport's bypass (its valve command does nothing)."""
+    from damper_emulator.model.compressible import quasi_steady_force
+
+    model = _node_model(params_file)
     assert (model.cfg.damper.adaptive is not None) == has_bypass
     soft, firm = (quasi_steady_force(model, 0.5, c) for c in (0.0, 1.0))
     assert (soft < firm - 1.0) == has_bypass
@@ -291,21 +298,11 @@ def test_node_runs_the_extension_a_diagnose_params_file_names(tmp_path):
     from damper_emulator.diagnose.truth import example_config
     from damper_emulator.model.compressible import DamperModel, simulate
     from damper_emulator.params import save_config
-    from damper_emulator.ros.emulator import load_node_model
 
     cfg = example_config("series_compliance")
     path = tmp_path / "with_effect.yaml"
     save_config(cfg, path, node="damper_emulator")
-    ctx = Context()
-    rclpy.init(args=["--ros-args", "--params-file", str(path)], context=ctx)
-    try:
-        node = rclpy.create_node("damper_emulator", context=ctx)
-        try:
-            _values, model = load_node_model(node)
-        finally:
-            node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
+    model = _node_model(path)
     assert model.cfg.damper.extensions.active() == ["series_compliance"]
     t = np.arange(0.0, 1.0, 1e-3)
     x = 0.02 * np.sin(2 * np.pi * 3 * t)

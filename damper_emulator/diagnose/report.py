@@ -28,8 +28,8 @@ from damper_emulator.diagnose.selection import Diagnosis, Record
 from damper_emulator.model.compressible import simulate
 from damper_emulator.params import save_config
 
-#: figure resolution [dpi]
-DPI = 110
+#: the ranking plot's reduction axis starts here [%]; worse candidates are clipped
+RANKING_FLOOR_PCT = -50.0
 
 
 def _stem(name: str) -> str:
@@ -55,7 +55,7 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     d = rec.data
     before, after = _forces(diag, rec)
     k = rec.start
-    label_after = (f"+ {diag.effect}" if diag.effect else "(no effect added)")
+    label_after = f"+ {diag.effect}"
     fig = new_figure(13.0, 8.0)
     axes = fig.subplots(2, 2)
     for ax, xs, xlabel in ((axes[0, 0], d.displacement * 1e3, "displacement [mm]"),
@@ -72,8 +72,10 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     ax = axes[1, 0]
     ax.plot(t, d.force - before, color="tab:red", lw=0.8,
             label=f"measured − identified: r.m.s. {diag.rms_before[rec.name]:.1f} N")
-    ax.plot(t, d.force - after, color="tab:blue", lw=0.8,
-            label=f"measured − model {label_after}: r.m.s. {diag.rms_after[rec.name]:.1f} N")
+    if diag.effect:
+        ax.plot(t, d.force - after, color="tab:blue", lw=0.8,
+                label=f"measured − model {label_after}: r.m.s. "
+                      f"{diag.rms_after[rec.name]:.1f} N")
     ax.axvspan(0.0, t[k], color="0.9", label="start-up, not counted")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("residual [N]")
@@ -82,8 +84,9 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     ax = axes[1, 1]
     ax.plot(rec.velocity[k:], (d.force - before)[k:], ".", ms=1.5, color="tab:red",
             label="before")
-    ax.plot(rec.velocity[k:], (d.force - after)[k:], ".", ms=1.5, color="tab:blue",
-            label="after")
+    if diag.effect:
+        ax.plot(rec.velocity[k:], (d.force - after)[k:], ".", ms=1.5, color="tab:blue",
+                label="after")
     ax.set_xlabel("velocity [m/s]")
     ax.set_ylabel("residual [N]")
     ax.grid(True, alpha=0.3)
@@ -105,7 +108,14 @@ def plot_ranking(path: Path, diag: Diagnosis) -> Path:
     ax1, ax2 = fig.subplots(1, 2, sharey=True)
     y = np.arange(len(ranking))
     colors = ["tab:green" if c.significant else "0.6" for c in ranking]
-    ax1.barh(y, [100.0 * c.score for c in ranking], color=colors)
+    scores = [100.0 * c.score for c in ranking]
+    floor = RANKING_FLOOR_PCT
+    ax1.barh(y, [max(v, floor) for v in scores], color=colors)
+    for yi, v in zip(y, scores):
+        if v < floor:  # far worse than the identified model: clipped, value written
+            ax1.text(floor, yi, f" {v:+.0f} %", va="center", fontsize=7)
+    ax1.set_xlim(left=max(min(min(scores, default=0.0), 0.0) - 5.0, floor),
+                 right=max(100.0, max(scores, default=0.0) + 5.0))
     ax1.axvline(100.0 * MIN_SCORE, color="k", ls="--", lw=0.8,
                 label=f"significance {100 * MIN_SCORE:g} %")
     ax1.set_yticks(y, names, fontsize=8)

@@ -29,6 +29,9 @@ PROTOCOL_DEFAULTS: dict[str, dict[str, Any]] = {
 }
 _PROTOCOL_OPTIONS = sorted({k for d in PROTOCOL_DEFAULTS.values() for k in d})
 
+#: identify warns when a quasi-static file moves faster than this [m/s] (99th percentile):
+#: twice the FSAE slow run's 26 mm/s, twelve times the paper's 4 mm/s
+QUASI_STATIC_WARN_SPEED_M_S = 0.05
 #: the paper's validation sines (MODEL.md §3): (frequency [Hz], amplitude [m])
 PAPER_SINES = ((1.0, 0.05), (3.0, 0.05), (12.0, 0.005))
 
@@ -940,6 +943,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
     print(f"identifying from {', '.join(d.name for d in qs)} "
           f"({sum(len(d) for d in qs)} samples) and {', '.join(d.name for d in chirp)} "
           f"({sum(len(d) for d in chirp)} samples) ...", file=sys.stderr, flush=True)
+    import numpy as np
+
+    for d in qs:
+        v_peak = float(np.percentile(np.abs(d.velocity_or_derivative()), 99))
+        if v_peak > QUASI_STATIC_WARN_SPEED_M_S:
+            print(f"warning: {d.name} is not slow (99th-percentile speed {v_peak:.3g} m/s, "
+                  f"the paper's quasi-static test runs at 0.004 m/s): its viscous force "
+                  "will bias the gas spring and friction", file=sys.stderr, flush=True)
     result = identify(qs, chirp, base, progress=lambda m: print(m, file=sys.stderr,
                                                                  flush=True),
                       correct_compressibility=not args.no_compressibility_correction,

@@ -309,3 +309,16 @@ def test_bad_fix_option_exits_2_with_one_line(tmp_path, spec, words):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0], proc.stderr
+
+
+def test_a_fast_quasi_static_file_is_warned_about(round_trip, tmp_path):
+    """A chirp given as the quasi-static test: one warning line naming it before the fit
+    (here the fit then refuses the data with one error line); the slow file: no warning."""
+    proc = _run("identify", "--quasi-static", round_trip / "chirp.csv", "--chirp",
+                round_trip / "chirp.csv", "--out", tmp_path / "P.yaml", check=False)
+    warnings = [ln for ln in proc.stderr.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and "chirp.csv is not slow" in warnings[0], proc.stderr
+    assert "Traceback" not in proc.stderr
+    slow = _run("identify", "--quasi-static", round_trip / "quasi_static.csv", "--chirp",
+                round_trip / "chirp.csv", "--out", tmp_path / "P2.yaml")
+    assert "warning:" not in slow.stderr

@@ -11,7 +11,12 @@ the sines.  Target (issue 7): a full diagnosis in ≤ 2 minutes.
 ``--none-seeds N`` also runs N noise-only sessions and reports the best candidate's
 held-out r.m.s. reduction on each: the level the significance threshold must clear.
 
-Usage: ``python benchmarks/diagnose_bench.py [--jobs N] [--none-seeds N] [--only NAME]``
+``--identify`` gives ``diagnose`` the parameters ``identify`` finds on the same quasi-static
+and chirp files (the base data sheet as its fixed part), as a user would, instead of the
+truth's base parameters: the identification then absorbs part of the effect.
+
+Usage: ``python benchmarks/diagnose_bench.py [--jobs N] [--none-seeds N] [--only NAME]
+[--identify]``
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import time
 import numpy as np
 
 from damper_emulator.diagnose.selection import diagnose
+from damper_emulator.identify.pipeline import identify
 from damper_emulator.diagnose.truth import (EXAMPLE_EFFECTS, Protocol, example_config,
                                             simulate_session, with_extension)
 from damper_emulator.model.compressible import DamperModel
@@ -61,6 +67,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=min(os.cpu_count() or 1, 4))
     ap.add_argument("--none-seeds", type=int, default=0)
     ap.add_argument("--only", default=None, help="one scenario (an effect, none, inertia)")
+    ap.add_argument("--identify", action="store_true",
+                    help="diagnose on top of identify's result from the same files")
     args = ap.parse_args()
     scenarios = ["none", *EXAMPLE_EFFECTS, "inertia"]
     if args.only:
@@ -80,12 +88,14 @@ def main() -> None:
         expected, base, data = _scenario(name, 1)
         files = list(data.values())
         t0 = time.perf_counter()
+        if args.identify:
+            base = identify(files[0], files[1], base).config
         d = diagnose(DamperModel(base), files[:2], files[2:], jobs=args.jobs,
                      progress=lambda m: print(m, file=sys.stderr))
         wall = time.perf_counter() - t0
         walls.append(wall)
         b, a = _pooled(d.rms_before, d.held_out), _pooled(d.rms_after, d.held_out)
-        c = d.chosen or d.ranking[0]
+        c = d.chosen or d.closest or d.ranking[0]
         fitted = ", ".join(f"{k} {v:.4g}" for k, v in c.values.items())
         ok = "✓" if d.family == expected else "✗"
         print(f"| {name} | {expected} | {d.family} {ok} | {b:.1f} → {a:.1f} | "

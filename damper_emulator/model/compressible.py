@@ -191,39 +191,43 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area, p_com
     tol = prm[P_TOL]
     flags = 0
     q_valve = 0.0
+    # any extension acting in this solve (one test per iteration when none does)
+    ext = visc != 1.0 or lag_w > 0.0 or gr_area > 0.0 or mount_c > 0.0 or air_c > 0.0
     for _ in range(int(prm[P_MAXIT])):
         # _flow_state written out (through a wrapper the valve look-up is no longer inlined
         # into this loop, measured 25 % slower)
         dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
-        if visc != 1.0:
-            dp *= visc
-            ddp *= visc
-        if lag_w > 0.0:
-            q = lag_w * q_lag + (1.0 - lag_w) * q
-            dq *= 1.0 - lag_w
-        q_valve = q
+        if ext:
+            if visc != 1.0:
+                dp *= visc
+                ddp *= visc
+            if lag_w > 0.0:
+                q = lag_w * q_lag + (1.0 - lag_w) * q
+                dq *= 1.0 - lag_w
+            q_valve = q
         if bp_area > 0.0:
             qb, dqb = bypass_flow(dp, bp_area, prm[P_BP_LAMINAR], prm[P_BP_TURBULENT])
             q += qb
             dq += dqb * ddp
-        if gr_area > 0.0:
-            qb, dqb = bypass_flow(dp, gr_area, prm[P_GR_LAMINAR], prm[P_GR_TURBULENT])
-            q += qb
-            dq += dqb * ddp
         p = p_com + dp
-        if mount_c > 0.0:
-            q_in = v * area - mount_c * (area * p + mount_off)
+        if ext:
+            if gr_area > 0.0:
+                qb, dqb = bypass_flow(dp, gr_area, prm[P_GR_LAMINAR], prm[P_GR_TURBULENT])
+                q += qb
+                dq += dqb * ddp
+            if mount_c > 0.0:
+                q_in = v * area - mount_c * (area * p + mount_off)
         r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
-        dr = ddp + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * ddp
-        if mount_c > 0.0:
-            dr += k * mount_c * area * ddp * (1.0 - alpha * p)
-        if air_c > 0.0:
-            pa = max(p, AIR_PRESSURE_FLOOR)
-            r += air_c * (air_hat - 1.0 / pa)
-            if p > AIR_PRESSURE_FLOOR:
-                dr += air_c * ddp / (pa * pa)
+        if ext and air_c > 0.0:
+            r += air_c * (air_hat - 1.0 / max(p, AIR_PRESSURE_FLOOR))
         if r == 0.0:
             break
+        dr = ddp + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * ddp
+        if ext:
+            if mount_c > 0.0:
+                dr += k * mount_c * area * ddp * (1.0 - alpha * p)
+            if air_c > 0.0 and p > AIR_PRESSURE_FLOOR:
+                dr += air_c * ddp / (p * p)
         if r > 0.0:
             hi = z
         else:

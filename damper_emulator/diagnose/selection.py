@@ -10,7 +10,8 @@ Procedure (:func:`diagnose`):
    identified model, whose own parameters stay fixed, and its parameters are fitted on the
    identification files (quasi-static + chirp) by bounded least squares
    (``scipy.optimize.least_squares``, trust-region reflective, forward differences) in
-   coordinates normalised to the bounds, from each of its start vectors.  The cost is
+   coordinates normalised to the bounds; a candidate with several start vectors gets
+   :data:`SCREEN_NFEV` evaluations from each and goes on from the best.  The cost is
    ``Σ_f MSE_f(θ) / MSE_f(base)``: every file counts by the fraction of its own residual
    power removed, so a quasi-static test of a few hundred newtons weighs as much as a
    chirp of kilonewtons.
@@ -195,7 +196,6 @@ class CandidateResult:
     significant: bool
     evaluations: int
     seconds: float
-    failed: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         c = self.candidate
@@ -207,8 +207,7 @@ class CandidateResult:
                     for p in c.parameters},
                 "rms_fit": self.rms_fit, "rms_held_out": self.rms_held_out,
                 "evaluations": self.evaluations, "seconds": round(self.seconds, 2),
-                **({"note": c.note} if c.note else {}),
-                **({"failed": self.failed} if self.failed else {})}
+                **({"note": c.note} if c.note else {})}
 
 
 @dataclass
@@ -276,9 +275,9 @@ def with_candidate(base: DamperModel, cand: Candidate, values: Mapping[str, floa
 
 def _fit(cand: Candidate, base: DamperModel, fit: Sequence[Record],
          base_mse: Sequence[float]) -> tuple[dict[str, float], dict[str, float], int,
-                                             list[np.ndarray], str | None]:
-    """Least-squares fit of ``cand`` on ``fit``: values, standard deviations, evaluations,
-    the fit residuals, and why it failed (or None)."""
+                                             list[np.ndarray]]:
+    """Least-squares fit of ``cand`` on ``fit``: values, standard deviations, evaluations
+    and the fit residuals."""
     params = cand.parameters
     lo = np.array([p.bounds[0] for p in params])
     hi = np.array([p.bounds[1] for p in params])
@@ -324,7 +323,7 @@ def _fit(cand: Candidate, base: DamperModel, fit: Sequence[Record],
             std[p.name] = values[p.name] * math.log(10.0) * su if p.log else su
     except np.linalg.LinAlgError:
         std = {p.name: math.inf for p in params}
-    return values, std, evals[0], resid, None
+    return values, std, evals[0], resid
 
 
 #: the work of one :func:`diagnose` call, for :func:`_evaluate` (in this process or in a
@@ -339,7 +338,7 @@ def _evaluate(i: int) -> dict[str, Any]:
     base, fit, held, cands, base_mse, sse_held_0, base_fit_res = _JOB
     cand = cands[i]
     t0 = time.perf_counter()
-    values, std, nev, fit_res, failed = _fit(cand, base, fit, base_mse)
+    values, std, nev, fit_res = _fit(cand, base, fit, base_mse)
     model = with_candidate(base, cand, values)
     held_res = [r.residual(model) for r in held]
     sse_held = sum(float(np.dot(h, h)) for h in held_res)
@@ -355,7 +354,7 @@ def _evaluate(i: int) -> dict[str, Any]:
             "rms_held_out": {r.name: rms(x) for r, x in zip(held, held_res)},
             "score": float(score), "delta_bic": float(delta),
             "significant": bool(score >= MIN_SCORE and delta <= MAX_DELTA_BIC),
-            "evaluations": nev, "seconds": time.perf_counter() - t0, "failed": failed}
+            "evaluations": nev, "seconds": time.perf_counter() - t0}
 
 
 def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],

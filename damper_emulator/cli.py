@@ -529,6 +529,17 @@ def _progress(path: Path) -> None:
     print(f"wrote {path}", file=sys.stderr, flush=True)
 
 
+def _check_unique_names(paths: Sequence[Path]) -> None:
+    """Results are keyed by base name: refuse two files with the same one, before any
+    work."""
+    seen: dict[str, Path] = {}
+    for p in paths:
+        if p.name in seen:
+            raise CliError(f"two data files have the base name {p.name!r} ({seen[p.name]} "
+                           f"and {p}): results are keyed by base name")
+        seen[p.name] = p
+
+
 def _write_json(path: Path, doc: dict[str, Any]) -> None:
     path.write_text(json.dumps(doc, indent=2) + "\n")
     _progress(path)
@@ -800,12 +811,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     paths: list[Path] = args.data
-    seen: dict[str, Path] = {}
-    for p in paths:  # the JSON is keyed by base name: refuse ambiguity before any work
-        if p.name in seen:
-            raise CliError(f"two data files have the base name {p.name!r} ({seen[p.name]} "
-                           f"and {p}): results are keyed by base name")
-        seen[p.name] = p
+    _check_unique_names(paths)
     from damper_emulator import validation
     from damper_emulator.dyno.measured import read_measured_csv
 
@@ -864,13 +870,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if unknown or not effects:
             raise CliError(f"--effects: unknown effect {unknown[0] if unknown else '(none)'!r}"
                            f" (one of {', '.join(EXTENSION_TYPES)})")
-    paths = [*args.quasi_static, *args.chirp, *args.validate]
-    seen: dict[str, Path] = {}
-    for p in paths:  # results are keyed by base name
-        if p.name in seen:
-            raise CliError(f"two data files have the base name {p.name!r} ({seen[p.name]} "
-                           f"and {p}): results are keyed by base name")
-        seen[p.name] = p
+    _check_unique_names([*args.quasi_static, *args.chirp, *args.validate])
     model, params_file = _load_model(args.params)
     if model.cfg.damper.extensions is not None:
         raise CliError(f"{params_file}: already holds damper.extensions "

@@ -137,8 +137,9 @@ def estimate_velocity(time_s, displacement_m) -> tuple[np.ndarray, dict[str, Any
 # validation
 
 
-def _rms(a: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(a))))
+def rms(a: np.ndarray) -> float:
+    """Root mean square of ``a`` (0 for an empty array)."""
+    return float(np.sqrt(np.mean(np.square(a)))) if a.size else 0.0
 
 
 def simulate_record(model: DamperModel, data: MeasuredData):
@@ -153,14 +154,30 @@ def simulate_record(model: DamperModel, data: MeasuredData):
     ValueError
         One line naming the file: the history cannot be simulated.
     """
-    t, x = data.time, data.displacement
+    v, how = record_velocity(data)
+    return v, how, simulate_measured(model, data, v)
+
+
+def record_velocity(data: MeasuredData) -> tuple[np.ndarray, dict[str, Any]]:
+    """``(velocity, how)``: the record's velocity column or, when absent,
+    :func:`estimate_velocity` (``how`` says which)."""
     if data.velocity is not None:
-        v = np.asarray(data.velocity, dtype=float)
-        how: dict[str, Any] = {"velocity_source": "file"}
-    else:
-        v, how = estimate_velocity(t, x)
+        return np.asarray(data.velocity, dtype=float), {"velocity_source": "file"}
+    return estimate_velocity(data.time, data.displacement)
+
+
+def simulate_measured(model: DamperModel, data: MeasuredData, velocity: np.ndarray):
+    """``model`` over the record's time and displacement at ``velocity`` (and its
+    temperature column, if any), from quasi-steady equilibrium at the first sample.
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: the history cannot be simulated.
+    """
     try:
-        return v, how, simulate(model, t, x, v, temperature_c=data.temperature)
+        return simulate(model, data.time, data.displacement, velocity,
+                        temperature_c=data.temperature)
     except ValueError as exc:
         where = data.path or data.name or "<data>"
         raise ValueError(f"{where}: cannot simulate this history: {exc}") from None
@@ -196,15 +213,15 @@ def validate_file(model: DamperModel, data: MeasuredData) -> dict[str, Any]:
     v, how, res = simulate_record(model, data)
     f_sim = res.force_n
     err = f_sim - f_meas
-    rms = _rms(err)
-    rms_meas = _rms(f_meas)
+    rms_n = rms(err)
+    rms_meas = rms(f_meas)
     bits = Fault(int(np.bitwise_or.reduce(res.faults))) if res.faults.size else Fault.NONE
     return {
         "name": data.name,
         "samples": int(t.size),
         "duration_s": float(t[-1] - t[0]),
-        "rms_N": rms,
-        "relative_rms": rms / rms_meas if rms_meas > 0 else None,
+        "rms_N": rms_n,
+        "relative_rms": rms_n / rms_meas if rms_meas > 0 else None,
         "rms_measured_N": rms_meas,
         "max_abs_error_N": float(np.abs(err).max()),
         "mean_error_N": float(np.mean(err)),

@@ -34,29 +34,17 @@ from pathlib import Path
 
 import numpy as np
 
-from damper_emulator.cli import main as cli
-from damper_emulator.dyno.fsae import read_fsae_ttx25
-from damper_emulator.dyno.measured import MeasuredData, write_measured_csv
+from damper_emulator.dyno.fsae import export_fsae_csv, read_fsae_ttx25
+from damper_emulator.dyno.measured import MeasuredData
+from fsae_identify import ALPHA_BOUNDS, FIXED, run_cli  # noqa: E402  (same folder)
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured" / "fsae_ttx25"
 OUT = REPO / "docs" / "measured" / "fsae_diagnose"
 BASE = REPO / "config" / "fsae_ttx25_base.yaml"
 #: as tools/fsae_identify.py: G held (one speed cannot determine it), α fitted
-IDENTIFY_OPTIONS = ("--fix", "smoothing_g=1.5", "--fit-alpha", "--alpha-bounds", "1e-9",
-                    "3e-7")
-
-
-def run_cli(args: list[str]) -> None:
-    print("damper-hil " + " ".join(args), file=sys.stderr, flush=True)
-    status = cli(args)
-    if status != 0:
-        raise SystemExit(f"damper-hil {args[0]} failed with status {status}")
-
-
-def write(data: MeasuredData, path: Path) -> Path:
-    return write_measured_csv(path, data.time, data.displacement, data.force,
-                              velocity=data.velocity, temperature=data.temperature)
+IDENTIFY_OPTIONS = (*(x for fix in FIXED for x in ("--fix", fix)), "--fit-alpha",
+                    "--alpha-bounds", *ALPHA_BOUNDS)
 
 
 def cut(data: MeasuredData, lo: float, hi: float, name: str) -> MeasuredData:
@@ -117,14 +105,13 @@ def main() -> None:
         summary = {}
         # 3_3_24_24: cold run, two heat-gun runs
         slow_stem = "t1_1_1_18_18_s1_n10_100psi"
-        slow = write(read_fsae_ttx25(args.data / "pressure_testing" / f"{slow_stem}.csv.gz"),
-                     work / f"{slow_stem}.csv")
+        slow = export_fsae_csv(args.data / "pressure_testing" / f"{slow_stem}.csv.gz", work)
         runs = {}
         for stem in ("t1_3_3_24_24_s5_n10_100psi",
                      "t1_3_3_24_24_s5_n100_100psi_with_heat_gun",
                      "t2_3_3_24_24_s5_n100_100psi_with_heat_gun"):
             runs[stem] = read_fsae_ttx25(args.data / f"{stem}.csv.gz")
-        paths = {s: write(d, work / f"{s}.csv") for s, d in runs.items()}
+        paths = {s: export_fsae_csv(d, work) for s, d in runs.items()}
         cold, hg1, hg2 = paths.values()
         temps = {p.name: temperature_range(runs[s]) for s, p in paths.items()}
         summary["3_3_24_24"] = case(work, "3_3_24_24", [slow, cold], [cold, hg1], [hg2], temps)
@@ -133,7 +120,7 @@ def main() -> None:
         run = read_fsae_ttx25(args.data / f"{stem}.csv.gz")
         parts = [cut(run, i / 3.0, (i + 1) / 3.0, f"{stem}_part{i + 1}.csv")
                  for i in range(3)]
-        ppaths = [write(p, work / p.name) for p in parts]
+        ppaths = [export_fsae_csv(p, work) for p in parts]
         temps = {p.name: temperature_range(p) for p in parts}
         summary["2_2_12_12"] = case(work, "2_2_12_12", [slow, ppaths[0]], ppaths[:2],
                                     [ppaths[2]], temps)

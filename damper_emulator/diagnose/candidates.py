@@ -87,20 +87,14 @@ def _with(fixed: Mapping[str, float]) -> Callable[[Mapping[str, float]], dict[st
     return lambda values: {**fixed, **values}
 
 
-def temperature_span(data: Sequence[MeasuredData]) -> tuple[float, float] | None:
-    """``(mean, span)`` [°C, K] of the temperature columns of ``data``, or ``None`` when no
-    file has one."""
+def temperature_stats(data: Sequence[MeasuredData]) -> tuple[float, float, float] | None:
+    """``(mean, lowest, highest)`` [°C] of the temperature columns of ``data``, or ``None``
+    when no file has one."""
     temps = [d.temperature for d in data if d.temperature is not None]
     if not temps:
         return None
     allt = np.concatenate(temps)
-    return float(np.mean(allt)), float(np.ptp(allt))
-
-
-def temperature_range(data: Sequence[MeasuredData]) -> tuple[float, float]:
-    """Lowest and highest measured temperature [°C] of ``data`` (files with a column)."""
-    temps = [d.temperature for d in data if d.temperature is not None]
-    return (float(min(np.min(t) for t in temps)), float(max(np.max(t) for t in temps)))
+    return float(np.mean(allt)), float(np.min(allt)), float(np.max(allt))
 
 
 def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
@@ -136,9 +130,9 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
     # few grams of oil, .. 100 kJ/K, far more than any damper)
     # and the temperature at which the identified valves hold within the measured range
     # (± 10 K): the identification averaged over whatever temperatures its files had
-    temp = temperature_span(fit_data)
-    if temp is not None and temp[1] >= MIN_TEMPERATURE_SPAN_K:
-        t_lo, t_hi = temperature_range(fit_data)
+    temp = temperature_stats(fit_data)
+    if temp is not None and temp[2] - temp[1] >= MIN_TEMPERATURE_SPAN_K:
+        t_lo, t_hi = temp[1], temp[2]
         out.append(Candidate(
             "viscosity_temperature",
             (Parameter("temperature_coefficient_per_k", 1e-4, 0.1, 0.02, True, "1/K"),

@@ -25,27 +25,11 @@ import numpy as np
 
 from damper_emulator.diagnose.residual import plot_residual, residual_record
 from damper_emulator.diagnose.selection import Diagnosis, Record
-from damper_emulator.model.compressible import simulate
 from damper_emulator.params import save_config
+from damper_emulator.validation import report_stem
 
 #: the ranking plot's reduction axis starts here [%]; worse candidates are clipped
 RANKING_FLOOR_PCT = -50.0
-
-
-def _stem(name: str) -> str:
-    for suffix in (".gz", ".csv"):
-        if name.endswith(suffix):
-            name = name[: -len(suffix)]
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
-
-
-def _forces(diag: Diagnosis, rec: Record) -> tuple[np.ndarray, np.ndarray]:
-    d = rec.data
-    before = simulate(diag.base_model, d.time, d.displacement, rec.velocity,
-                      temperature_c=d.temperature).force_n
-    after = simulate(diag.model_after(), d.time, d.displacement, rec.velocity,
-                     temperature_c=d.temperature).force_n
-    return before, after
 
 
 def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
@@ -53,7 +37,7 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     from damper_emulator.dyno.plots import new_figure, save
 
     d = rec.data
-    before, after = _forces(diag, rec)
+    before, after = rec.simulate(diag.base_model), rec.simulate(diag.model_after())
     k = rec.start
     label_after = f"+ {diag.effect}"
     fig = new_figure(13.0, 8.0)
@@ -214,13 +198,13 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
     files = []
     for rec in diag.records:
         if rec.held_out:
-            files.append(plot_overlay(out / f"overlay_{_stem(rec.name)}.png", diag, rec))
+            files.append(plot_overlay(out / f"overlay_{report_stem(rec.name)}.png", diag, rec))
             say(f"wrote {files[-1]}")
             models = [("before", diag.base_model)]
             if diag.chosen is not None:
                 models.append(("after", diag.model_after()))
             for when, model in models:
-                path = out / f"residual_{when}_{_stem(rec.name)}.png"
+                path = out / f"residual_{when}_{report_stem(rec.name)}.png"
                 what = "identified model" if when == "before" else f"with {diag.effect}"
                 files.append(plot_residual(path, residual_record(model, rec.data),
                                            title=f"{rec.name}: residual of the {what}"))

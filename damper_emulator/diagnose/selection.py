@@ -53,9 +53,9 @@ from scipy.optimize import least_squares
 
 from damper_emulator.diagnose.candidates import Candidate, candidates as make_candidates
 from damper_emulator.dyno.measured import MeasuredData
-from damper_emulator.model.compressible import DamperModel, simulate
+from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ParameterError
-from damper_emulator.validation import estimate_velocity
+from damper_emulator.validation import record_velocity, rms, simulate_measured
 
 #: a candidate must cut the pooled held-out r.m.s. by at least this fraction
 MIN_SCORE = 0.05
@@ -104,27 +104,20 @@ class Record:
         t = self.data.time
         return min(int(np.searchsorted(t, t[0] + START_SKIP_S)), max(t.size - 3, 0))
 
+    def simulate(self, model: DamperModel) -> np.ndarray:
+        """The force [N] of ``model`` over the whole file (one line naming the file when it
+        cannot be simulated)."""
+        return simulate_measured(model, self.data, self.velocity).force_n
+
     def residual(self, model: DamperModel) -> np.ndarray:
         """``F_sim − F_meas`` [N] of ``model`` on this file, from :attr:`start` on."""
-        d = self.data
-        res = simulate(model, d.time, d.displacement, self.velocity,
-                       temperature_c=d.temperature)
         k = self.start
-        return res.force_n[k:] - d.force[k:]
+        return self.simulate(model)[k:] - self.data.force[k:]
 
 
 def make_record(data: MeasuredData, held_out: bool) -> Record:
-    """The record of ``data`` with its velocity column or its Savitzky–Golay derivative, as
-    ``validate`` does."""
-    if data.velocity is not None:
-        v = np.asarray(data.velocity, dtype=float)
-    else:
-        v, _ = estimate_velocity(data.time, data.displacement)
-    return Record(data, v, held_out)
-
-
-def rms(a: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(a)))) if a.size else 0.0
+    """The record of ``data`` with the velocity ``validate`` uses."""
+    return Record(data, record_velocity(data)[0], held_out)
 
 
 def lag1(r: np.ndarray) -> float:
@@ -168,9 +161,9 @@ def explained_fraction(before: Sequence[np.ndarray], after: Sequence[np.ndarray]
 
 
 def effective_bic(residuals: Sequence[np.ndarray], k: int,
-                  rhos: Sequence[float] | None = None) -> tuple[float, float]:
-    """``(BIC, N_eff)`` of residuals with ``k`` added parameters (module docstring); ``rhos``
-    the lag-1 autocorrelations to use (default: each residual's own)."""
+                  rhos: Sequence[float] | None = None) -> float:
+    """BIC of residuals with ``k`` added parameters (module docstring); ``rhos`` the lag-1
+    autocorrelations to use (default: each residual's own)."""
     bic = 0.0
     n_eff_total = 0.0
     for i, r in enumerate(residuals):
@@ -178,7 +171,7 @@ def effective_bic(residuals: Sequence[np.ndarray], k: int,
         n_eff = r.size * (1.0 - rho) / (1.0 + rho)
         bic += n_eff * math.log(max(float(np.mean(r * r)), 1e-300))
         n_eff_total += n_eff
-    return bic + k * math.log(max(n_eff_total, 2.0)), n_eff_total
+    return bic + k * math.log(max(n_eff_total, 2.0))
 
 
 @dataclass
@@ -344,9 +337,8 @@ def _evaluate(i: int) -> dict[str, Any]:
     sse_held = sum(float(np.dot(h, h)) for h in held_res)
     score = 1.0 - math.sqrt(sse_held / sse_held_0) if sse_held_0 > 0 else 0.0
     rhos = [lag1(r) for r in fit_res]
-    bic_c, _ = effective_bic(fit_res, len(cand.parameters), rhos)
-    bic_0, _ = effective_bic(base_fit_res, 0, rhos)
-    delta = bic_c - bic_0
+    delta = (effective_bic(fit_res, len(cand.parameters), rhos)
+             - effective_bic(base_fit_res, 0, rhos))
     return {"values": {k: float(v) for k, v in values.items()},
             "std": {k: float(v) for k, v in std.items()},
             "extension": {k: float(v) for k, v in cand.fields(values).items()},
@@ -383,13 +375,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                + [make_record(d, True) for d in held_out_data])
     fit = [r for r in records if not r.held_out]
     held = [r for r in records if r.held_out]
-    base_res = {}
-    for r in records:
-        try:
-            base_res[r.name] = r.residual(base)
-        except ValueError as exc:
-            raise ValueError(f"{r.data.path or r.name}: cannot simulate this history: "
-                             f"{exc}") from None
+    base_res = {r.name: r.residual(base) for r in records}
     base_mse = [max(float(np.mean(base_res[r.name] ** 2)), 1e-12) for r in fit]
     rms_before = {r.name: rms(base_res[r.name]) for r in records}
     sse_held_0 = sum(float(np.dot(base_res[r.name], base_res[r.name])) for r in held)

@@ -24,6 +24,7 @@ import numpy as np
 
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.measured import MeasuredData, write_measured_csv
+from damper_emulator.dyno.runner import sine_file_name
 from damper_emulator.model.compressible import DamperModel, simulate
 from damper_emulator.params import (EXTENSION_TYPES, ExtensionParams, ModelConfig,
                                     load_config, validate)
@@ -60,16 +61,9 @@ class Protocol:
                    self.chirp_f_start_hz, self.chirp_f_end_hz, self.chirp_duration_s,
                    self.chirp_v_start_m_s, self.chirp_v_end_m_s, self.rate_hz)}
         for f, a in self.sines:
-            out[sine_name(f)] = protocols.sine(f, a, self.sine_cycles, self.rate_hz,
+            out[sine_file_name(f)] = protocols.sine(f, a, self.sine_cycles, self.rate_hz,
                                                start_cycles=self.sine_settle_cycles)
         return out
-
-
-def sine_name(frequency_hz: float) -> str:
-    """``sine_<f>hz.csv`` as the virtual dyno names it."""
-    from damper_emulator.dyno.runner import sine_file_name
-
-    return sine_file_name(frequency_hz)
 
 
 #: Temperature [°C] the thermal example's thermocouple reads: per file, a function of the

@@ -30,8 +30,10 @@ from can_bridge.settings import (NODE_NAME, bridge_params_from_mapping,
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import (SubscriptionThread, control_qos, declare_parameters,
-                                        publish_diagnostics, set_stamp)
+from damper_emulator.ros.common import (MAIN_THREAD_PRIORITY, NotReadyError,
+                                        SubscriptionThread, control_qos,
+                                        declare_parameters, publish_diagnostics, set_stamp,
+                                        wait_until_active)
 
 #: A CAN timestamp further than this from the wall clock is not trusted as a stamp [s].
 STAMP_TRUST_S = 1.0
@@ -56,6 +58,8 @@ class BridgeNode(Node):
         p = self.params = bridge_params_from_mapping(values, f"node {NODE_NAME} parameters")
         #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal scheduling)
         self.dds_priority = p.dds_priority
+        #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
+        self.main_thread_priority = MAIN_THREAD_PRIORITY if p.sched_fifo else 0
         db = load_database(p.dbc_file or None)
         self.core = BridgeCore(p, db)
         cfg = BusConfig(interface=p.can_interface, channel=p.can_channel, bitrate=p.bitrate,
@@ -101,6 +105,18 @@ class BridgeNode(Node):
     def run(self, executor) -> None:
         self._rx.start()
         self._ros_in.start()
+        p = self.params
+        if p.emulator_node:
+            # the frames flow meanwhile (fault frames with the no-force status until the
+            # emulator's forces arrive); this only says what the bridge waits for
+            try:
+                waited = wait_until_active(self, p.emulator_node, p.wait_for_emulator_s,
+                                           executor=executor)
+                self.get_logger().info(f"/{p.emulator_node} is active (waited "
+                                       f"{waited:.1f} s)")
+            except NotReadyError as exc:
+                self.get_logger().error(f"{exc}; sending DAMPER_FORCE fault frames until "
+                                        f"forces arrive")
         executor.spin()
 
     def close(self) -> None:

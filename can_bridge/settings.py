@@ -58,6 +58,14 @@ class BridgeParams:
     dds_priority: int = rule(("int_range", 0, 99),
                              "SCHED_FIFO priority of the DDS middleware's threads when "
                              "permitted (0: normal scheduling)", 60)
+    emulator_node: str = rule("text", "the managed emulator node the bridge waits for and "
+                                      "reports on (its lifecycle state 'active'); until "
+                                      "then DAMPER_FORCE frames carry the no-force status "
+                                      "('' = do not ask)", "damper_emulator")
+    wait_for_emulator_s: float = rule(("range", 0.0, 3600.0),
+                                      "say so in one error line when the emulator is not "
+                                      "active after this long [s] (the bridge runs on, "
+                                      "sending fault frames)", 120.0)
 
 
 def bridge_params_from_mapping(data: Mapping[str, Any] | None,

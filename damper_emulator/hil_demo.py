@@ -44,6 +44,36 @@ def _clear_bag(bag: Path) -> None:
 
 
 CONTROLS = ("skyhook", "passive")
+#: How long the demo waits for the emulator to become active (a first run compiles its
+#: kernels: some seconds on a 2-core machine) [s].
+READY_TIMEOUT_S = 120.0
+#: Each readiness question's own limit, so that a node that died meanwhile is noticed [s].
+READY_POLL_S = 2.0
+
+
+def _wait_for_emulator(env: dict, helpers: list, progress: Callable[[str], None]) -> None:
+    """Wait until the emulator's lifecycle state is ``active`` (its kernels loaded and
+    exercised, its loop running), saying so; one line if a node dies or time runs out."""
+    from damper_emulator.ros.common import NotReadyError, ReadinessProbe
+    from damper_emulator.ros.emulator import NODE_NAME
+
+    progress(f"      waiting for /{NODE_NAME} to become active (a first run compiles its "
+             f"kernels)")
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    started = time.monotonic()
+    with ReadinessProbe(int(env["ROS_DOMAIN_ID"]), "demo_readiness") as probe:
+        while True:
+            for node in helpers:
+                if node.poll() is not None:
+                    raise DemoError(f"the {node.name} stopped (exit {node.poll()}) before "
+                                    f"the ride started: {node.log_tail(1)}")
+            try:
+                probe.wait(NODE_NAME, READY_POLL_S, say=lambda _line: None)
+                break
+            except NotReadyError as exc:
+                if time.monotonic() > deadline:
+                    raise DemoError(f"{exc} (waited {READY_TIMEOUT_S:g} s)") from None
+    progress(f"      /{NODE_NAME} active after {time.monotonic() - started:.1f} s")
 
 
 def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
@@ -83,6 +113,7 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
             helpers.append(NodeProcess("skyhook", node_command("skyhook", extra=[
                 "--can-interface", bus.interface, "--can-channel", bus.channel,
                 "--json", str(sky_json)]), env, logs))
+        _wait_for_emulator(env, helpers, progress)
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         ride = NodeProcess("ride", node_command("ride", {
             "ride.duration_s": float(duration_s), "ride.clock": clock,

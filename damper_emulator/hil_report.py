@@ -86,11 +86,28 @@ def loop_summary(record) -> dict[str, Any] | None:
     if record is None:
         return None
     z, s = record
-    return {"ticks": s.ticks, "achieved_rate_hz": s.achieved_rate_hz,
-            "period_p50_us": s.period_p50_us, "period_p99_us": s.period_p99_us,
-            "period_max_us": s.period_max_us, "period_error_p99_us": s.error_p99_us,
-            "wake_latency_p99_us": s.wake_p99_us, "tick_work_p99_us": s.work_p99_us,
-            "overruns": s.overruns, "skipped": s.skipped, "realtime": str(z["realtime"])}
+    doc = {"ticks": s.ticks, "achieved_rate_hz": s.achieved_rate_hz,
+           "period_p50_us": s.period_p50_us, "period_p99_us": s.period_p99_us,
+           "period_max_us": s.period_max_us, "period_error_p99_us": s.error_p99_us,
+           "wake_latency_p99_us": s.wake_p99_us, "tick_work_p99_us": s.work_p99_us,
+           "overruns": s.overruns, "skipped": s.skipped, "realtime": str(z["realtime"])}
+    for key in ("warm_up_s", "compiled_after_ready"):
+        if key in z:
+            doc[key] = z[key].item()
+    first = int(z["first_input_tick"]) if "first_input_tick" in z else -1
+    if first >= 0:
+        # the ring holds the latest periods: period k lies between ticks k and k + 1
+        periods = z["periods_ns"]
+        start = first - (int(z["ticks"]) - 1 - periods.size)
+        after = periods[max(0, start):]
+        if after.size:
+            err = np.abs(after - int(z["period_ns"])) / 1e3
+            doc["after_first_input"] = {
+                "periods": int(after.size),
+                "period_max_us": float(after.max() / 1e3),
+                "period_error_p99_us": float(np.percentile(err, 99)),
+                "overruns": int((after > 2 * int(z["period_ns"])).sum())}
+    return doc
 
 
 def plot_loop(path: Path, record) -> Path | None:
@@ -148,14 +165,25 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
     loop_png = plot_loop(out / "loop.png", loop_record)
     if loop_png is not None:
         files.append(loop_png.name)
-    faults = 0
+    faults = faults_in_ride = 0
     if rec.force is not None:
-        faults = int(((rec.force.status & int(Status.NO_INPUT | Status.TIMEOUT)) != 0).sum())
+        fault = (rec.force.status & int(Status.NO_INPUT | Status.TIMEOUT)) != 0
+        faults = int(fault.sum())
+        fed = ~((rec.force.status & int(Status.NO_INPUT)) != 0)
+        if fed.any() and rec.state is not None and rec.state.log_ns.size:
+            # from the first output made from an input to the last input (the ride's end:
+            # the timeouts after it are the ride stopping, not the loop failing)
+            t = rec.force.log_ns
+            ride = (t >= t[np.argmax(fed)]) & (t <= rec.state.log_ns[-1])
+            faults_in_ride = int((fault & ride).sum())
     summary = {
         **extra,
         "bag": str(rec.path),
         "topics": rec.counts,
         "fault_outputs": faults,
+        "fault_outputs_after_first_input": faults_in_ride,
+        "kernels_compiled_after_ready": (loop_summary(loop_record) or {}).get(
+            "compiled_after_ready"),
         "ride": ride_doc,
         "emulator_loop": loop_summary(loop_record),
         "emulator_diagnostics": rec.last_diagnostics,
@@ -170,6 +198,7 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
     (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n")
     m = ride_doc.get("metrics", {})
     loop = summary["emulator_loop"] or {}
+    after = loop.get("after_first_input") or {}
     lines = [
         "# Closed-loop HIL demo",
         "",
@@ -199,6 +228,14 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
         f"| overruns (> 2 periods) | {loop.get('overruns')} |",
         f"| real-time settings | {loop.get('realtime', '')} |",
         f"| fault outputs (no input yet / stale input) | {faults} |",
+        f"| fault outputs from the first input to the ride's end | {faults_in_ride} |",
+        f"| from the first input on: period max / p99 error / overruns | "
+        f"{after.get('period_max_us', float('nan')):.0f} / "
+        f"{after.get('period_error_p99_us', float('nan')):.0f} µs / "
+        f"{after.get('overruns')} |",
+        f"| model warm-up before 'active' / kernels compiled after | "
+        f"{loop.get('warm_up_s', float('nan')):.2f} s / "
+        f"{loop.get('compiled_after_ready')} |",
         "",
         *_control_lines(summary),
         "| topic | messages |",

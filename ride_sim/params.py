@@ -149,7 +149,11 @@ class RideRunParams:
                                    "no force from the emulator for this long aborts the run "
                                    "[s]", 2.0)
     wait_for_emulator_s: float = _rule(("range", 0.0, 600.0),
-                                       "wait this long for the emulator to appear [s]", 30.0)
+                                       "wait this long for the emulator to become active "
+                                       "(its first start compiles its kernels) [s]", 120.0)
+    emulator_node: str = _rule("text", "the managed emulator node whose lifecycle state "
+                                       "'active' starts the clock ('' = do not ask, only "
+                                       "wait for the subscribers)", "damper_emulator")
     state_subscribers: int = _rule(("int_range", 1, 100),
                                    "start once this many subscribe to /damper/state (the "
                                    "emulator, plus a recorder that must not miss the start)",

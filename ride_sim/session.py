@@ -39,6 +39,11 @@ def run_road(road: RoadParams, run: RideRunParams, dt_s: float
     return heights, n_lead
 
 
+#: Samples of the scratch session of :meth:`RideSession.warm_up` (the first and the last
+#: sample of a road take different branches of the road interpolation).
+WARM_UP_SAMPLES = 4
+
+
 class RideSession:
     """The quarter car on the run's road, advanced one sample per :meth:`apply`.
 
@@ -83,6 +88,19 @@ class RideSession:
         self = cls.__new__(cls)
         self._setup(car, heights, int(n_lead), dt_s, static_force_n)
         return self
+
+    def warm_up(self) -> None:
+        """Load or compile the kernels of :meth:`motion`, :meth:`apply` and :meth:`last` by
+        running a scratch session of :data:`WARM_UP_SAMPLES` samples on this road: a
+        real-time caller pays this before its clock starts, not in its first periods.
+        This session is not touched."""
+        scratch = RideSession.on_road(self.car.params, self.heights[:WARM_UP_SAMPLES], 0,
+                                      self.dt_s, self.car.static_force_n)
+        while not scratch.done:
+            x, v = scratch.motion()
+            scratch.body_velocity()
+            scratch.apply(self.car.static_force_n + v, 0)
+            scratch.last()
 
     @property
     def done(self) -> bool:

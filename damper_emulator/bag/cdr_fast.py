@@ -43,7 +43,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 import yaml
-from numba import njit
+
+from damper_emulator.model.jit import plain_kernel
 
 from . import mcap_records as rec
 from .messages import BagError
@@ -272,7 +273,7 @@ class JointStates:
         return self.counts[:, k] > np.asarray(index)
 
 
-@njit(cache=True)
+@plain_kernel
 def _gather_rows(buf, offsets, out):  # pragma: no cover - compiled
     length = out.shape[1]
     for i in range(offsets.size):
@@ -449,7 +450,7 @@ class _Unsupported(Exception):
     """The fast scan does not handle this bag; the rosbags path will."""
 
 
-@njit(cache=True)
+@plain_kernel
 def _walk_chunks(buf, starts, ends, opcode, content, length, channel,
                  log_ns):  # pragma: no cover - compiled
     """Records inside the chunks' record areas ``[starts[j], ends[j])``: opcode, content

@@ -711,6 +711,15 @@ def quasi_steady_force(model: DamperModel, velocity_m_s: float, valve_command: f
     return float(state[S_FORCE])
 
 
+#: :meth:`DamperStepper.warm_up`'s script: steps per cycle of its motion, its stroke and
+#: velocity amplitudes (well inside the travel, past the valves' blow-off) and a measured
+#: temperature (any finite value reaches the viscosity–temperature branch).
+WARM_UP_STEPS = 8
+WARM_UP_STROKE_M = 0.01
+WARM_UP_VELOCITY_M_S = 0.5
+WARM_UP_TEMPERATURE_C = 40.0
+
+
 class DamperStepper:
     """Real-time form of the compressible model: one sample in, one force out.
 
@@ -781,6 +790,41 @@ class DamperStepper:
         """
         return step(self._prm, self._coef_r, self._coef_c, self.state, stroke_m, velocity_m_s,
                     dt_s)
+
+    def warm_up(self) -> None:
+        """Load or compile every kernel :meth:`step`, :meth:`reset` and the valve command
+        can reach, and run each branch once: the real-time caller's start-up cost, paid
+        before it says it is ready rather than in its first loop period (a compile there
+        stalls it for seconds).
+
+        A scratch copy of the state goes through a scripted sequence (a settled start,
+        strokes both ways, a valve-command sweep through comfort and normal (the bypass and
+        the solenoid lag), a measured temperature, a pause longer than
+        ``numerics.settle_gap_s`` (the restart from equilibrium), and every fault: NaN
+        input, ``dt <= 0``, a stroke beyond the travel, a velocity beyond the table).  This
+        stepper's own state is not touched.
+        """
+        scratch = object.__new__(DamperStepper)
+        scratch.model, scratch._prm = self.model, self._prm
+        scratch._coef_r, scratch._coef_c = self._coef_r, self._coef_c
+        scratch.state = self.state.copy()
+        lo, hi = self.model.stroke_limits_m
+        dt = self.model.cfg.numerics.max_substep_s
+        v_fast = 2.0 * self.model.cfg.numerics.valve_table_max_velocity_m_s
+        scratch.reset(0.0, 0.0)
+        for command in (0.0, 0.5, 1.0):
+            scratch.set_valve_command(command)
+            for k in range(WARM_UP_STEPS):
+                phase = 2.0 * math.pi * k / WARM_UP_STEPS
+                scratch.step(WARM_UP_STROKE_M * math.sin(phase),
+                             WARM_UP_VELOCITY_M_S * math.cos(phase), dt)
+        scratch.set_temperature(WARM_UP_TEMPERATURE_C)
+        scratch.step(0.0, 0.1, dt)
+        scratch.set_temperature(None)
+        scratch.step(0.0, 0.1, 2.0 * self.model.cfg.numerics.settle_gap_s)  # restart
+        for x, v, h in ((math.nan, 0.0, dt), (0.0, 0.0, 0.0), (2.0 * hi, 0.0, dt),
+                        (2.0 * lo, 0.0, dt), (0.0, v_fast, dt), (0.0, -v_fast, dt)):
+            scratch.step(x, v, h)
 
     @property
     def force_n(self) -> float:

@@ -14,12 +14,16 @@ latest accepted sample, published as one tuple (an atomic store in CPython).
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from dataclasses import dataclass
 
 from damper_emulator.model.compressible import DamperModel, DamperStepper
-from damper_emulator.realtime.settings import EmulatorParams
+from damper_emulator.realtime.settings import FAULT_MODES, INPUT_MODES, EmulatorParams
+
+#: Period of the scripted ticks of :meth:`EmulatorCore.warm_up` [s].
+WARM_UP_PERIOD_S = 1e-3
 
 
 def stroke_window(stroke_limits_m: tuple[float, float], tolerance_m: float
@@ -129,6 +133,39 @@ class EmulatorCore:
         self._in_timeout = False
         self._rejected_flag = False
 
+    def warm_up(self) -> None:
+        """Exercise every path a running node can take (its compiled kernels loaded or
+        compiled, each branch run once) on scratch copies, before the node says it is
+        ready: the model step of both triggers and input modes, every fault output mode,
+        a timeout, rejected input and a valve command.  This core's own state is not
+        touched.  See :meth:`DamperStepper.warm_up`."""
+        self.stepper.warm_up()
+        p = self.params
+        lo, hi = self._stroke_range
+        period_ns = int(WARM_UP_PERIOD_S * 1e9)
+        timeout_ns = int(p.input_timeout_s * 1e9) + period_ns
+        for mode in INPUT_MODES:
+            for fault in FAULT_MODES:
+                scratch = EmulatorCore(self.model, dataclasses.replace(
+                    p, input_mode=mode, fault_mode=fault))
+                scratch.tick(0)                                   # no input yet
+                for k in range(1, 4):
+                    scratch.submit(k * period_ns, 0.001 * k, 0.1, k * period_ns)
+                    scratch.tick(k * period_ns)
+                scratch.set_valve_command(0.0)
+                scratch.tick(4 * period_ns)
+                scratch.tick(4 * period_ns + timeout_ns)          # input timeout
+                scratch.submit(0, math.nan, 0.0, 0)               # rejected inputs
+                scratch.submit(0, 2.0 * hi - lo, 0.0, 0)
+                scratch.submit(0, 0.0, 2.0 * p.max_velocity_m_s, 0)
+                scratch.set_valve_command(math.nan)
+                scratch.tick(5 * period_ns + timeout_ns)
+        scratch = EmulatorCore(self.model, p)                     # trigger: input
+        for k in range(1, 4):
+            scratch.evaluate(k * period_ns, 0.001 * k, 0.1)
+        scratch.evaluate(period_ns, 0.0, 0.0)                     # stamp not after
+        scratch.evaluate(5 * period_ns, math.nan, 0.0)
+
     # ---- input ------------------------------------------------------------------------
 
     @property
@@ -150,6 +187,13 @@ class EmulatorCore:
             return c.reject("range", f"stroke {stroke_m:.4g} m outside the travel "
                                      f"[{lo:.4g}, {hi:.4g}] m")
         return c.reject("range", f"|velocity| {abs(velocity_m_s):.4g} m/s above {vmax:g} m/s")
+
+    def reject_malformed(self, reason: str) -> str:
+        """Count an input message that holds no usable sample (e.g. a JointState without
+        position or velocity) and flag the next output :attr:`Status.REJECTED`, as
+        :meth:`submit` does for a sample it rejects; returns ``reason``."""
+        self._rejected_flag = True
+        return self.counters.reject("range", reason)
 
     def submit(self, stamp_ns: int, stroke_m: float, velocity_m_s: float,
                now_ns: int) -> str | None:

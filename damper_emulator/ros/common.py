@@ -4,6 +4,7 @@ until SIGINT / SIGTERM with one-line errors."""
 from __future__ import annotations
 
 import sys
+import time
 from typing import Any, Callable, Iterable, Mapping
 
 import rclpy
@@ -15,11 +16,15 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from damper_emulator.bag import BagError
 from damper_emulator.params import ParameterError
-from damper_emulator.realtime.rt import ThreadInheritance
+from damper_emulator.realtime.rt import RealtimeRequest, ThreadInheritance, apply_realtime
 
 PROG = "damper-hil"
 #: Python's GIL switch interval in the node processes [s].
 GIL_SWITCH_INTERVAL_S = 1e-4
+#: SCHED_FIFO priority of the executor (main) thread of a node with a real-time thread
+#: (``main_thread_priority``; see :func:`spin_node`): the lowest real-time priority is
+#: enough to stay above every normal thread.
+MAIN_THREAD_PRIORITY = 1
 
 
 def control_qos(depth: int) -> QoSProfile:
@@ -149,8 +154,10 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     # holds it (default 5 ms, several loop periods).
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     # the middleware's threads (DDS receive, events) are created by init and the first
-    # node: let them start under SCHED_FIFO, then set them as the node asks
-    # (``dds_priority``, 0 = normal scheduling)
+    # node of the context: let them start under SCHED_FIFO, then set them as the node asks
+    # (``dds_priority``, 0 = normal scheduling).  Only that runs at the inherited real-time
+    # priority: a node's own start-up (its model, warm-up, road) must not, or it keeps
+    # other processes' threads of the same priority off the CPU for seconds.
     inherit = ThreadInheritance()
     with inherit:
         try:
@@ -159,12 +166,12 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
             print(f"{PROG}: error: --ros-args: {' '.join(str(exc).split())}",
                   file=sys.stderr)
             return 2
+        rclpy.create_node(f"{PROG.replace('-', '_')}_start").destroy_node()
     node = None
     status = 0
     try:
         try:
-            with inherit:
-                node = build()
+            node = build()
         except (ParameterError, ValueError, BagError) as exc:
             print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
             return 2
@@ -172,6 +179,16 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
             settled = inherit.settle(int(getattr(node, "dds_priority", 0)))
         if getattr(node, "dds_priority", 0):
             log_info(node, settled)
+        main_priority = int(getattr(node, "main_thread_priority", 0))
+        if main_priority:
+            # The executor thread shares the GIL with the node's SCHED_FIFO loop: left at
+            # normal priority it can be preempted by other processes' real-time threads
+            # while it holds the GIL, and the loop then waits for it (a priority inversion
+            # measured at 100 ms stalls under the demo's load).  Any SCHED_FIFO priority
+            # lifts it above every normal thread; it does little work.
+            report = apply_realtime(RealtimeRequest(sched_fifo=True, priority=main_priority,
+                                                    lock_memory=False))
+            log_info(node, f"executor thread: {report.summary()}")
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         run = getattr(node, "run", None)
@@ -192,6 +209,118 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
         if rclpy.ok():
             rclpy.shutdown()
     return status
+
+
+# --------------------------------------------------------------------------------------
+# readiness: waiting for a managed node to become active
+
+#: How often a waiting node says again what it is waiting for [s].
+WAIT_REPORT_PERIOD_S = 5.0
+#: Longest single spin of a waiting node [s].
+WAIT_SPIN_S = 0.1
+#: The lifecycle state a managed node is ready in.
+ACTIVE = "active"
+#: A managed node of this project publishes its lifecycle state on ``/<node>/<this>``
+#: (``lifecycle_msgs/msg/State``, reliable, transient local, depth 1: latched).
+LIFECYCLE_STATE_TOPIC = "lifecycle_state"
+
+
+def latched_qos() -> QoSProfile:
+    """Reliable, transient local, keep-last 1: a late subscriber gets the latest message."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def lifecycle_state_topic(node_name: str) -> str:
+    """``/<node_name>/lifecycle_state``: where the managed node publishes its state."""
+    return f"/{node_name.strip('/')}/{LIFECYCLE_STATE_TOPIC}"
+
+
+class NotReadyError(RuntimeError):
+    """A managed node did not become active in time (one line, naming the node and the
+    state last seen)."""
+
+
+def wait_until_active(node: Node, target: str, timeout_s: float,
+                      say: Callable[[str], None] | None = None, executor=None) -> float:
+    """Wait until the managed node ``target`` (e.g. ``damper_emulator``) is in the
+    lifecycle state ``active``: the project's readiness handshake (a node becomes active
+    only once its compiled code is loaded and exercised and its loop runs).
+
+    The state comes from the node's latched ``/<target>/lifecycle_state`` topic, not from
+    its ``get_state`` service: an rclpy server holds the GIL while the middleware waits (up
+    to 100 ms) for a new client's response reader to match, which stalls the server's
+    real-time loop (measured: three 100 ms stalls at the demo's start); a latched topic
+    costs the publisher nothing.
+
+    ``say`` (default: ``node``'s logger) hears what is being waited for, at once and then
+    every :data:`WAIT_REPORT_PERIOD_S`.  ``executor`` spins ``node`` meanwhile (default: a
+    private one).  Returns the seconds waited; raises :class:`NotReadyError` after
+    ``timeout_s``.
+    """
+    from lifecycle_msgs.msg import State
+
+    say = say or node.get_logger().info
+    topic = lifecycle_state_topic(target)
+    seen: list[str] = []
+    sub = node.create_subscription(State, topic, lambda m: seen.append(m.label),
+                                   latched_qos())
+    own = executor is None
+    if own:
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+    start = time.monotonic()
+    deadline = start + timeout_s
+    next_report = start
+    try:
+        while not (seen and seen[-1] == ACTIVE):
+            now = time.monotonic()
+            last = (f"lifecycle state '{seen[-1]}'" if seen else
+                    "no state yet (the node is not up, or is still loading)")
+            if now >= deadline or not node.context.ok():
+                raise NotReadyError(f"/{target.strip('/')} did not become active within "
+                                    f"{timeout_s:g} s (last seen: {last}; on {topic})")
+            if now >= next_report:
+                say(f"waiting for /{target.strip('/')} to become active: {last}")
+                next_report = now + WAIT_REPORT_PERIOD_S
+            executor.spin_once(timeout_sec=min(WAIT_SPIN_S, max(0.0, deadline - now)))
+        return time.monotonic() - start
+    finally:
+        node.destroy_subscription(sub)
+        if own:
+            executor.remove_node(node)
+            executor.shutdown()
+
+
+class ReadinessProbe:
+    """A node of its own (own context, ``domain_id``, localhost-only discovery) for a
+    process that is not a node itself, e.g. the demo, to ask whether a managed node is
+    active: :meth:`wait` is :func:`wait_until_active`.  Use as a context manager."""
+
+    def __init__(self, domain_id: int, name: str = "readiness_probe"):
+        import os
+
+        from rclpy.context import Context
+
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=int(domain_id))
+        self.node = rclpy.create_node(name, context=self.context)
+
+    def wait(self, target: str, timeout_s: float,
+             say: Callable[[str], None] | None = None) -> float:
+        return wait_until_active(self.node, target, timeout_s, say)
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+    def __enter__(self) -> "ReadinessProbe":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 # --------------------------------------------------------------------------------------

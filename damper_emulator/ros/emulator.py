@@ -31,24 +31,31 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.msg import SetParametersResult
+from lifecycle_msgs.msg import State as LifecycleStateMsg
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
+from damper_emulator.model import jit
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import (DEFAULT_PARAMS_FILE, ParameterError, config_from_mapping,
                                     node_parameters, read_yaml)
 from damper_emulator.realtime.core import EmulatorCore, Output, Status
-from damper_emulator.realtime.loop import PeriodicLoop
+from damper_emulator.realtime.loop import LoopStats, PeriodicLoop
 from damper_emulator.realtime.settings import (RUNTIME_PARAMETERS, default_emulator_mapping,
                                                emulator_params_from_mapping)
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import (SubscriptionThread, control_qos, declare_parameters,
+from damper_emulator.ros.common import (MAIN_THREAD_PRIORITY, SubscriptionThread, control_qos,
+                                        declare_parameters, latched_qos,
+                                        lifecycle_state_topic,
                                         plain_value, publish_diagnostics, set_stamp, stamp_ns,
                                         take_all, unflatten)
 
 NODE_NAME = "damper_emulator"
+#: The managed node's own parameter: configure and activate at start.
+AUTOSTART = "autostart"
 
 
 #: parameters under this prefix switch model extensions on (damper_emulator.model.extensions)
@@ -100,49 +107,59 @@ def input_sample(msg: JointState, name: str) -> tuple[float, float] | str:
     return float(msg.position[i]), float(msg.velocity[i])
 
 
-class EmulatorNode(Node):
+class EmulatorNode(LifecycleNode):
     """See the module docstring.  Parameters: groups ``emulator`` (config/emulator.yaml),
-    ``damper`` and ``numerics`` (config/sport.yaml)."""
+    ``damper`` and ``numerics`` (config/sport.yaml), and ``autostart``.
+
+    A managed (lifecycle) node.  Its parameters are read and checked, and the damper model
+    built, when it is created (a bad value is one line and exit 2).  ``configure`` loads the
+    compiled kernels and exercises every path the loop can take
+    (:meth:`EmulatorCore.warm_up`): nothing is compiled once the node is active.
+    ``activate`` starts the loop (or the input thread) and the outputs; ``deactivate`` stops
+    them.  ``active`` is the readiness the ride, the bridge and the demo wait for
+    (:func:`~damper_emulator.ros.common.wait_until_active`).  With ``autostart: true`` (the
+    default) the node configures and activates itself at start.
+    """
 
     def __init__(self):
         super().__init__(NODE_NAME)
+        self.autostart = bool(self.declare_parameter(
+            AUTOSTART, True, ParameterDescriptor(
+                type=ParameterType.PARAMETER_BOOL, read_only=True,
+                description="configure and activate at start (false: wait for a lifecycle "
+                            "manager's transitions)")).value)
         values, model = load_node_model(self, {"emulator": default_emulator_mapping()})
         self.params = emulator_params_from_mapping(values["emulator"],
                                                    f"node {NODE_NAME} parameters")
-        self.core = EmulatorCore(model, self.params)
+        self.model = model
+        self.core: EmulatorCore | None = None
         #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal scheduling)
         self.dds_priority = self.params.dds_priority
+        #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
+        self.main_thread_priority = MAIN_THREAD_PRIORITY if self.params.sched_fifo else 0
         self.exit_status = 0
         p = self.params
         self._status_name = f"{p.name}/status"
-        self._force_pub = self.create_publisher(JointState, topics.FORCE,
-                                                control_qos(topics.CONTROL_DEPTH))
-        self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self._input_thread = None
-        if p.trigger == "input":
-            # one force per input, computed on a thread of its own as each input arrives
-            self._input_thread = SubscriptionThread(
-                self, [(JointState, topics.STATE, self._on_state),
-                       (Float64, topics.VALVE_COMMAND, self._on_valve)],
-                control_qos(topics.CONTROL_DEPTH), "emulator-in", p.realtime_request())
-            self._io_node = None
-        else:
-            # The loop thread takes the input itself at each tick (no executor thread
-            # competing for the GIL at the input rate): a subscription on a second node of
-            # the same context that no executor spins.
-            self._io_node = rclpy.create_node(f"{NODE_NAME}_input",
-                                              context=self.context)
-            self._state_sub = self._io_node.create_subscription(
-                JointState, topics.STATE, lambda _msg: None,
-                control_qos(topics.CONTROL_DEPTH))
-            self._valve_sub = self._io_node.create_subscription(
-                Float64, topics.VALVE_COMMAND, lambda _msg: None,
-                control_qos(topics.CONTROL_DEPTH))
-        self._diag_timer = self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
+        self._force_pub = None
+        self._diag_pub = None
+        self._diag_timer = None
+        self._input_thread: SubscriptionThread | None = None
+        self._io_node = None
+        self._state_sub = self._valve_sub = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._last: Output | None = None
-        self._warned_rejection = False
         self._loop: PeriodicLoop | None = None
+        self._stats: LoopStats | None = None
+        self._realtime_summary = ""
+        self._first_input_tick = -1     # loop tick of the first output from an input
+        self._compiled_after_ready = 0
+        #: compiled specialisations when the node became active (None: not yet)
+        self._compiled_at_ready: int | None = None
+        self.warm_up_s = math.nan
+        self._lifecycle_pub = self.create_publisher(LifecycleStateMsg,
+                                                    lifecycle_state_topic(NODE_NAME),
+                                                    latched_qos())
+        self._announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
         self.get_logger().info(
             f"damper '{model.cfg.damper.name}', trigger {p.trigger}"
             + (f" at {p.rate_hz:g} Hz" if p.trigger == "timer" else "")
@@ -150,47 +167,155 @@ class EmulatorNode(Node):
 
     # ---- lifecycle --------------------------------------------------------------------
 
-    def run(self, executor) -> None:
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        p = self.params
+        self.get_logger().info(f"configuring: loading and exercising the compiled model "
+                               f"(kernel cache {jit.CACHE_DIR}; the first run compiles, "
+                               f"some seconds)")
+        start = time.monotonic()
+        self.core = EmulatorCore(self.model, p)
+        self.core.warm_up()
+        self.warm_up_s = time.monotonic() - start
+        self._force_pub = self.create_lifecycle_publisher(JointState, topics.FORCE,
+                                                          control_qos(topics.CONTROL_DEPTH))
+        self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        if p.trigger == "timer":
+            # The loop thread takes the input itself at each tick (no executor thread
+            # competing for the GIL at the input rate): a subscription on a second node of
+            # the same context that no executor spins.
+            self._io_node = rclpy.create_node(f"{NODE_NAME}_input", context=self.context)
+            self._state_sub = self._io_node.create_subscription(
+                JointState, topics.STATE, lambda _msg: None,
+                control_qos(topics.CONTROL_DEPTH))
+            self._valve_sub = self._io_node.create_subscription(
+                Float64, topics.VALVE_COMMAND, lambda _msg: None,
+                control_qos(topics.CONTROL_DEPTH))
+        self._diag_timer = self.create_timer(p.diagnostics_period_s,
+                                             self._publish_diagnostics)
+        self.get_logger().info(f"configured: model exercised in {self.warm_up_s:.2f} s")
+        self._announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         p = self.params
         # everything built so far is long-lived: keep the cyclic collector off it
         gc.collect()
         gc.freeze()
-        if self._input_thread is not None:
+        self._compiled_at_ready = jit.compiled_signatures()
+        result = super().on_activate(state)
+        if p.trigger == "input":
+            # one force per input, computed on a thread of its own as each input arrives
+            self._input_thread = SubscriptionThread(
+                self, [(JointState, topics.STATE, self._on_state),
+                       (Float64, topics.VALVE_COMMAND, self._on_valve)],
+                control_qos(topics.CONTROL_DEPTH), "emulator-in", p.realtime_request())
             self._input_thread.start()
-        if p.trigger == "timer":
+        else:
+            for sub in (self._state_sub, self._valve_sub):   # nothing from before 'active'
+                for _ in take_all(sub):
+                    pass
             capacity = max(4096, int(p.rate_hz * p.stats_window_s))
             self._loop = PeriodicLoop(1.0 / p.rate_hz, self._tick,
                                       realtime=p.realtime_request(), capacity=capacity,
                                       name="emulator-loop")
+            self._stats = self._loop.stats
             self._loop.start()
             report = self._loop.report
-            if report.refused:
-                self.get_logger().warning(f"real-time settings: {report.summary()}")
-            else:
-                self.get_logger().info(f"real-time settings: {report.summary()}")
-        executor.spin()
+            self._realtime_summary = report.summary()
+            log = self.get_logger().warning if report.refused else self.get_logger().info
+            log(f"real-time settings: {self._realtime_summary}")
+        self.get_logger().info("active: publishing " + topics.FORCE)
+        self._announce(LifecycleStateMsg.PRIMARY_STATE_ACTIVE, "active")
+        return result
 
-    def close(self) -> None:
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
+        self._stop_io()
+        self.get_logger().info("inactive: outputs stopped")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self._announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._announce(LifecycleStateMsg.PRIMARY_STATE_FINALIZED, "finalized")
+        self._stop_io()
+        self._release()
+        return super().on_shutdown(state)
+
+    def _announce(self, state_id: int, label: str) -> None:
+        """Publish the lifecycle state on the latched ``/damper_emulator/lifecycle_state``
+        (what :func:`~damper_emulator.ros.common.wait_until_active` waits on)."""
+        self._lifecycle_pub.publish(LifecycleStateMsg(id=state_id, label=label))
+
+    def _stop_io(self) -> None:
         if self._input_thread is not None:
             self._input_thread.stop()
             if self._input_thread.failed:
                 self.exit_status = 1
+            self._input_thread = None
         if self._loop is not None:
             self._loop.stop()
+            self._loop = None
+        self._check_compiled()
+
+    def _release(self) -> None:
+        if self._diag_timer is not None:
+            self.destroy_timer(self._diag_timer)
+            self._diag_timer = None
         if self._io_node is not None:
             self._io_node.destroy_node()
             self._io_node = None
-        if self._loop is not None:
-            if self.params.stats_file:
-                self._loop.stats.save(self.params.stats_file,
-                                      realtime=self._loop.report.summary())
+            self._state_sub = self._valve_sub = None
+        if self._force_pub is not None:
+            self.destroy_lifecycle_publisher(self._force_pub)
+            self._force_pub = None
+        if self._diag_pub is not None:
+            self.destroy_publisher(self._diag_pub)
+            self._diag_pub = None
+        self.core = None
+
+    def _check_compiled(self) -> None:
+        """A compile after 'active' is a bug (a stall of the loop): say so."""
+        if self._compiled_at_ready is None:
+            return
+        grown = jit.compiled_signatures() - self._compiled_at_ready
+        self._compiled_after_ready += grown
+        if grown:
+            self.get_logger().error(f"bug: {grown} kernel specialisation(s) compiled after "
+                                    f"the node became active (warm-up incomplete)")
+            self.exit_status = 1
+        self._compiled_at_ready = None
+
+    def run(self, executor) -> None:
+        if self.autostart:
+            for name, trigger in (("configure", self.trigger_configure),
+                                  ("activate", self.trigger_activate)):
+                if trigger() != TransitionCallbackReturn.SUCCESS:
+                    self.get_logger().error(f"autostart: the {name} transition failed")
+                    self.exit_status = 1
+                    return
+        else:
+            self.get_logger().info("autostart false: waiting for a lifecycle manager "
+                                   f"(/{NODE_NAME}/change_state)")
+        executor.spin()
+
+    def close(self) -> None:
+        stats = self._stats
+        self._stop_io()
+        if stats is not None and self.params.stats_file:
+            stats.save(self.params.stats_file, realtime=self._realtime_summary,
+                       warm_up_s=self.warm_up_s, first_input_tick=self._first_input_tick,
+                       compiled_after_ready=self._compiled_after_ready)
 
     # ---- callbacks --------------------------------------------------------------------
 
     def _on_state(self, msg: JointState, received_ns: int | None = None) -> None:
         sample = input_sample(msg, self.params.name)
         if isinstance(sample, str):
-            self.core.counters.reject("range", sample)
+            self.core.reject_malformed(sample)
             return
         x, v = sample
         stamp = stamp_ns(msg.header.stamp)
@@ -225,6 +350,8 @@ class EmulatorNode(Node):
         self._take_inputs(now_ns)
         out = self.core.tick(now_ns)
         self._publish(out, time.time_ns())
+        if self._first_input_tick < 0 and not out.status & Status.NO_INPUT:
+            self._first_input_tick = self._stats.ticks
 
     def _publish(self, out: Output, stamp: int) -> None:
         self._last = out
@@ -252,10 +379,11 @@ class EmulatorNode(Node):
             changes[key] = p.value
         try:
             new = emulator_params_from_mapping(
-                {**dataclasses.asdict(self.core.params), **changes}, "parameter change")
+                {**dataclasses.asdict(self.params), **changes}, "parameter change")
         except ParameterError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        self.core.params = new
+        if self.core is not None:
+            self.core.params = new
         self.params = new
         return SetParametersResult(successful=True)
 
@@ -289,6 +417,9 @@ class EmulatorNode(Node):
             "model_faults": str(c.model_faults),
             "fault_mode": self.params.fault_mode,
             "valve_command": f"{self.core.valve_command:g}",
+            "warm_up_s": f"{self.warm_up_s:.3f}",
+            "compiled_after_ready": str(jit.compiled_signatures() - self._compiled_at_ready
+                                        if self._compiled_at_ready is not None else 0),
         }
         level, message = DiagnosticStatus.OK, "ok"
         if loop is not None:

@@ -19,7 +19,8 @@ from rclpy.node import Node
 from damper_emulator.bag import BagWriter, Qos
 from damper_emulator.ros import topics
 from damper_emulator.realtime.rt import RealtimeRequest
-from damper_emulator.ros.common import SubscriptionThread, control_qos, log_info
+from damper_emulator.ros.common import (MAIN_THREAD_PRIORITY, SubscriptionThread, control_qos,
+                                        log_info)
 
 NODE_NAME = "damper_hil_recorder"
 #: SCHED_FIFO priority (when permitted) of the recorder's input and DDS threads: below the
@@ -75,6 +76,8 @@ class RecorderNode(Node):
                             cpu_dma_latency_us=-1), raw=True)
         #: read by spin_node: the DDS threads' SCHED_FIFO priority
         self.dds_priority = RECORDER_PRIORITY
+        #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
+        self.main_thread_priority = MAIN_THREAD_PRIORITY
         self.get_logger().info(f"recording {', '.join(names)} to {bag_path}")
 
     def run(self, executor) -> None:

@@ -35,7 +35,9 @@ from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import control_qos, set_stamp, stamp_ns, take_all
+from damper_emulator.ros.common import (MAIN_THREAD_PRIORITY, NotReadyError, control_qos,
+                                        set_stamp, stamp_ns,
+                                        take_all, wait_until_active)
 from damper_emulator.ros.emulator import load_node_model
 from damper_emulator.model.compressible import DamperStepper
 from ride_sim import quarter_car as qc
@@ -69,6 +71,8 @@ class RideNode(Node):
                                        f"node {NODE_NAME} parameters")
         self.cfg = cfg
         self.run_params = cfg.ride
+        #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
+        self.main_thread_priority = MAIN_THREAD_PRIORITY if cfg.ride.sched_fifo else 0
         static = DamperStepper(model).force_n
         self.session = RideSession(cfg.quarter_car, cfg.road, cfg.ride, cfg.simulation.step_s,
                                    static)
@@ -93,6 +97,11 @@ class RideNode(Node):
         self._loop: PeriodicLoop | None = None
         self._started_ns = 0
         self.faults = 0
+        self._span: list[int] = []    # realtime: sample and monotonic time of first/last tick
+        start = time.monotonic()
+        self.session.warm_up()
+        self.get_logger().info(f"ride kernels loaded and exercised in "
+                               f"{time.monotonic() - start:.2f} s")
         self.get_logger().info(
             f"{cfg.ride.clock} run: {cfg.ride.duration_s:g} s (+{cfg.ride.lead_in_s:g} s "
             f"lead-in) at {cfg.ride.speed_m_s:g} m/s, {self.session.n} samples of "
@@ -139,17 +148,34 @@ class RideNode(Node):
     # ---- running ----------------------------------------------------------------------
 
     def _wait_for_emulator(self, executor) -> bool:
-        deadline = time.monotonic() + self.run_params.wait_for_emulator_s
+        """Wait until the emulator is active (its lifecycle state, over its get_state
+        service) and enough nodes subscribe to /damper/state; say what is awaited."""
+        p = self.run_params
+        deadline = time.monotonic() + p.wait_for_emulator_s
+        if p.emulator_node:
+            try:
+                waited = wait_until_active(self, p.emulator_node, p.wait_for_emulator_s,
+                                           executor=executor)
+            except NotReadyError as exc:
+                self.get_logger().error(f"no emulator: {exc}")
+                self.exit_status = 1
+                return False
+            self.get_logger().info(f"/{p.emulator_node} is active (waited {waited:.1f} s)")
+        said = False
         while time.monotonic() < deadline and rclpy.ok():
-            if (self.count_subscribers(topics.STATE) >= self.run_params.state_subscribers
+            if (self.count_subscribers(topics.STATE) >= p.state_subscribers
                     and self.count_publishers(topics.FORCE) > 0):
                 return True
+            if not said:
+                self.get_logger().info(f"waiting for {p.state_subscribers} subscribers to "
+                                       f"{topics.STATE} and a publisher of {topics.FORCE}")
+                said = True
             executor.spin_once(timeout_sec=0.05)
         self.get_logger().error(
             f"no emulator: {self.count_subscribers(topics.STATE)} of "
-            f"{self.run_params.state_subscribers} subscribers to {topics.STATE} and "
+            f"{p.state_subscribers} subscribers to {topics.STATE} and "
             f"{self.count_publishers(topics.FORCE)} publishers of {topics.FORCE} after "
-            f"{self.run_params.wait_for_emulator_s:g} s")
+            f"{p.wait_for_emulator_s:g} s")
         self.exit_status = 1
         return False
 
@@ -159,6 +185,7 @@ class RideNode(Node):
         self._started_ns = time.monotonic_ns()
         if self.run_params.clock == "lockstep":
             self._run_lockstep(executor)
+            self._span = [0, self._started_ns, self.session.k, time.monotonic_ns()]
         else:
             self._run_realtime(executor)
         # reliable delivery needs the publisher alive: let every subscriber (a recorder)
@@ -218,6 +245,11 @@ class RideNode(Node):
                 if now_ns - recv > timeout_ns:
                     raise TimeoutError(f"no force from the emulator for "
                                        f"{(now_ns - recv) * 1e-9:.3f} s")
+            span = self._span
+            if span:
+                span[2], span[3] = s.k, now_ns
+            else:
+                span += [s.k, now_ns, s.k, now_ns]
             stamp = time.time_ns()
             x, v = s.motion()
             self._publish_state(stamp, x, v)
@@ -250,6 +282,11 @@ class RideNode(Node):
             self.exit_status = 1
             return
         elapsed = (time.monotonic_ns() - self._started_ns) * 1e-9
+        # the loop's own pace: samples advanced over the time between the first and the
+        # last tick (not the start-up or the wait for acknowledgements after it)
+        k0, t0, k1, t1 = self._span or (0, 0, 0, 0)
+        loop_s = (t1 - t0) * 1e-9
+        rtf = (k1 - k0) * s.dt_s / loop_s if loop_s > 0 else None
         doc = {
             "clock": self.run_params.clock,
             "samples": s.k,
@@ -259,7 +296,8 @@ class RideNode(Node):
             "duration_s": self.run_params.duration_s,
             "seed": self.run_params.seed,
             "elapsed_s": round(elapsed, 3),
-            "real_time_factor": round(s.k * s.dt_s / elapsed, 3) if elapsed > 0 else None,
+            "real_time_factor": round(rtf, 4) if rtf is not None else None,
+            "loop_s": round(loop_s, 3),
             "damper_fault_bits": int(self.faults),
             "static_force_n": self.static_force_n,
             "metrics": m,

@@ -1,0 +1,210 @@
+"""Issue 14: nothing compiles inside a real-time loop, the readiness handshake, where the
+compiled kernels are cached, and a first start with a cold cache.
+
+- A fresh process warms up a core (:meth:`EmulatorCore.warm_up`) and a ride session
+  (:meth:`RideSession.warm_up`), then runs everything a node can do at run time (every
+  extension, the adaptive bypass, every fault output, both triggers); the number of
+  compiled kernel specialisations must not grow (it grows on any compile or cache load).
+- The emulator is a managed node: ``/damper_emulator/get_state`` answers ``active`` once it
+  publishes, and the first ``/damper/force`` of a cold start comes from a warmed model.
+- ``damper-hil demo`` runs with an empty numba cache and exits 0.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from damper_emulator.model import jit
+
+ROOT = Path(__file__).resolve().parents[1]
+#: ROS domains of this file (away from the other node tests' and the demo's 40..89)
+DOMAINS = {"cold_emulate": 140, "cold_demo": 141, "not_ready": 142}
+#: The cold demo's ride loop must keep this pace.  The issue's target is 0.99 on a 20 s
+#: demo (measured 0.994-0.997 here, README); a 5 s run on a busy CI machine gets a little
+#: margin, so that the test fails on a stall (a compile stalls it for seconds: < 0.8) and
+#: not on noise.
+MIN_REAL_TIME_FACTOR = 0.98
+
+
+def _run_python(code: str, env: dict | None = None, timeout: float = 300) -> str:
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=ROOT,
+                          env=env, capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_after_warm_up_nothing_compiles():
+    out = _run_python("""
+        import dataclasses, math
+        from damper_emulator.model import jit
+        from damper_emulator.model.compressible import DamperModel
+        from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, example_config
+        from damper_emulator.realtime.core import EmulatorCore
+        from damper_emulator.realtime.settings import emulator_params_from_mapping
+        from ride_sim.params import load_ride_config
+        from ride_sim.session import RideSession
+
+        base = DamperModel()
+        models = [base] + [DamperModel(example_config(n)) for n in EXAMPLE_EFFECTS]
+        params = emulator_params_from_mapping({})
+        cores = [EmulatorCore(m, params) for m in models]
+        rc = load_ride_config()
+        session = RideSession(rc.quarter_car, rc.road, rc.ride, rc.simulation.step_s,
+                              cores[0].static_force_n)
+        for c in cores:
+            c.warm_up()
+        session.warm_up()
+        ready = jit.compiled_signatures()
+
+        # what the nodes do at run time, in every mode
+        for c in cores:
+            for mode in ("hold", "extrapolate"):
+                for fault in ("hold", "zero", "passive"):
+                    c.params = dataclasses.replace(params, input_mode=mode, fault_mode=fault)
+                    t = 10**9
+                    for k in range(300):
+                        t += 10**6
+                        x = 0.03 * math.sin(k / 20.0)
+                        c.submit(t, x, 0.6 * math.cos(k / 20.0), t)
+                        if k % 50 == 0:
+                            c.set_valve_command((k // 50 % 3) / 2.0)
+                            c.stepper.set_temperature(30.0 + k / 10.0)
+                        c.tick(t)
+                    c.tick(t + 10**9)                              # input timeout
+                    c.submit(t, math.nan, 0.0, t)                  # rejected
+                    c.reject_malformed("empty JointState")
+                    c.tick(t + 2 * 10**9)
+            t = 5 * 10**9
+            for k in range(200):                                   # trigger: input
+                t += 10**6
+                c.evaluate(t, 0.02 * math.sin(k / 9.0), 0.4 * math.cos(k / 9.0))
+        force = cores[0].static_force_n
+        while not session.done:
+            x, v = session.motion()
+            session.body_velocity()
+            session.apply(force + 1000.0 * v, 0)
+            session.last()
+        print(ready, jit.compiled_signatures())
+    """)
+    ready, after = map(int, out.split())
+    assert ready > 0
+    assert after == ready, f"{after - ready} kernel specialisations compiled after warm-up"
+
+
+def test_cache_lives_outside_the_source_tree_and_is_keyed_by_the_sources(tmp_path):
+    assert ROOT not in Path(jit.CACHE_DIR).parents
+    key = jit.source_key()
+    assert Path(jit.CACHE_DIR).name == f"{jit.CACHE_PREFIX}{key}"
+    # a copy of the sources with one kernel file changed gets another key
+    copy = tmp_path / "src"
+    for pkg in jit.KEYED_PACKAGES:
+        for f in (ROOT / pkg).rglob("*.py"):
+            dest = copy / f.relative_to(ROOT)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            dest.write_bytes(f.read_bytes())
+    assert jit.source_key(copy) == key
+    step_file = copy / "damper_emulator" / "model" / "compressible.py"
+    step_file.write_text(step_file.read_text() + "\n# a change\n")
+    assert jit.source_key(copy) != key
+    # NUMBA_CACHE_DIR (numba's own variable) moves the base
+    out = _run_python("from damper_emulator.model import jit; print(jit.CACHE_DIR)",
+                      env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "nc")})
+    assert Path(out.strip()).parent == tmp_path / "nc"
+
+
+def _cold_env(tmp_path: Path, domain: int) -> dict:
+    from damper_emulator.ros.launch import ros_environment
+
+    env = ros_environment(domain)
+    env["NUMBA_CACHE_DIR"] = str(tmp_path / "numba-cache")      # empty: a first start
+    return env
+
+
+def test_cold_emulate_is_active_before_its_first_force(tmp_path):
+    """A cold start: `damper-hil emulate` compiles while configuring, answers `active`
+    over its lifecycle service, and publishes its first force only then; from that force
+    on the outputs flow without a stall."""
+    from sensor_msgs.msg import JointState
+
+    from damper_emulator.ros import topics
+    from damper_emulator.ros.common import control_qos
+    from damper_emulator.ros.launch import NodeProcess, node_command
+    from ros_probe import Probe
+
+    env = _cold_env(tmp_path, DOMAINS["cold_emulate"])
+    started = time.monotonic()
+    emu = NodeProcess("emulator", node_command("emulate"), env, tmp_path)
+    probe = Probe(DOMAINS["cold_emulate"])
+    forces: list[float] = []
+    probe.node.create_subscription(JointState, topics.FORCE,
+                                   lambda m: forces.append(time.monotonic()),
+                                   control_qos(100))
+    try:
+        from damper_emulator.ros.common import wait_until_active
+
+        waited = wait_until_active(probe.node, "damper_emulator", 120.0,
+                                   say=lambda _s: None, executor=probe.executor)
+        active_s = time.monotonic() - started
+        assert probe.spin_until(lambda: len(forces) >= 1, 30), emu.log_tail()
+        first_s = forces[0] - started
+        assert probe.spin_until(lambda: len(forces) >= 1000, 30), emu.log_tail()
+        gaps = [b - a for a, b in zip(forces, forces[1:])]
+    finally:
+        probe.close()
+        emu.stop()
+    log = emu.log_path.read_text()
+    report = (f"cold start: active after {active_s:.2f} s (waited {waited:.2f} s), first "
+              f"/damper/force after {first_s:.2f} s, largest gap in the first 1000 forces "
+              f"{max(gaps) * 1e3:.1f} ms")
+    print(report)
+    (tmp_path / "cold_start.txt").write_text(report + "\n")
+    assert "configured: model exercised" in log
+    assert "compiled after" not in log, log
+    # no compile stall once the forces flow (a compile of the step takes over a second)
+    assert max(gaps) < 0.5, report
+
+
+def test_ride_says_what_it_waits_for_and_fails_in_one_line(tmp_path):
+    """No emulator at all: the ride node names what it waited for and exits 1."""
+    from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
+
+    env = ros_environment(DOMAINS["not_ready"])
+    ride = NodeProcess("ride", node_command("ride", {"ride.wait_for_emulator_s": 3.0}),
+                       env, tmp_path)
+    assert ride.wait(120) == 1
+    ride.stop()
+    log = ride.log_path.read_text()
+    assert "waiting for /damper_emulator to become active" in log
+    errors = [ln for ln in log.splitlines() if "[ERROR]" in ln]
+    assert len(errors) == 1, log
+    assert "/damper_emulator did not become active within 3 s" in errors[0], log
+    assert "Traceback" not in log
+
+
+def test_demo_with_an_empty_numba_cache_holds_real_time(tmp_path):
+    """`damper-hil demo` as a new user runs it: nothing cached.  It must exit 0 and its
+    ride loop must keep pace with the wall clock."""
+    env = _cold_env(tmp_path, DOMAINS["cold_demo"])
+    out = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, "-m", "damper_emulator.cli", "demo",
+                           "--duration", "5", "--out", str(out)], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=600)
+    figures = ""
+    if (out / "demo.json").is_file():
+        doc = json.loads((out / "demo.json").read_text())
+        loop = doc.get("emulator_loop", {})
+        figures = (f"real-time factor {doc['ride'].get('real_time_factor')}, emulator "
+                   f"{json.dumps(loop)}, fault outputs after the first input "
+                   f"{doc.get('fault_outputs_after_first_input')}")
+    assert proc.returncode == 0, f"{proc.stderr[-2000:]}\n{figures}"
+    doc = json.loads((out / "demo.json").read_text())
+    assert doc["ride"]["real_time_factor"] >= MIN_REAL_TIME_FACTOR, figures
+    assert doc["kernels_compiled_after_ready"] == 0, figures

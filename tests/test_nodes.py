@@ -165,7 +165,15 @@ def test_nan_input_never_reaches_the_force(tmp_path):
             x, v = bad[k % len(bad)] if k % 2 else (0.005, 0.05)
             pub.publish(state(x, v))
             probe.executor.spin_once(timeout_sec=0.002)
+        # a JointState without position and velocity, between good samples: counted, and
+        # the outputs after it carry status bit 4 (latest input rejected)
+        probe.spin_for(0.1)
+        empty_from = len(forces)
+        for k in range(200):
+            pub.publish(state(0.005, 0.05) if k % 2 else JointState())
+            probe.executor.spin_once(timeout_sec=0.002)
         probe.spin_until(lambda: len(diag) >= 2, 5)
+        probe.spin_for(1.2)
     finally:
         probe.close()
         emu.stop()
@@ -173,7 +181,11 @@ def test_nan_input_never_reaches_the_force(tmp_path):
     assert len(arr) > 300 and np.isfinite(arr).all()
     values = {kv.key: kv.value for kv in diag[-1].status[0].values}
     assert int(values["rejected_non_finite"]) >= 150
-    assert int(values["rejected_out_of_range"]) >= 80
+    # 100 empty messages on top of the >= 80 out-of-range samples
+    assert int(values["rejected_out_of_range"]) >= 80 + 90
+    assert "without position" in values["last_rejection"]
+    flagged = [int(f[1]) & int(Status.REJECTED) for f in forces[empty_from:]]
+    assert sum(1 for f in flagged if f) >= 20, flagged
 
 
 def test_a_killed_recorder_leaves_a_readable_bag(tmp_path):
@@ -245,15 +257,30 @@ def test_runtime_parameters_are_checked(tmp_path):
 def test_bad_parameters_exit_with_one_line(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("/**:\n  ros__parameters:\n    emulator:\n      rate_hz: -3.0\n")
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("")
+    other = tmp_path / "other.yaml"
+    other.write_text("some_node:\n  other_key: 1\n")
+    missing = tmp_path / "missing.yaml"
+    sport = ROOT / "config" / "sport.yaml"
     env = ros_environment(DOMAINS["badfile"])
-    for params in (["--params-file", str(bad)], ["-p", "emulator.fault_mode:=brake"],
-                   ["-p", "emulator.no_such_thing:=1.0"], ["-p", "damper.gas_gamma:=7.0"]):
+    # (ros arguments, what the one line must name)
+    for params, named in ((["--params-file", str(bad)], f"{bad} (node damper_emulator)"),
+                          (["--params-file", str(sport), "--params-file", str(bad)],
+                           f"{bad} (node damper_emulator)"),
+                          (["--params-file", str(empty)], f"{empty}: empty parameter file"),
+                          (["--params-file", str(other)], f"{other}: no parameters"),
+                          (["--params-file", str(missing)], f"{missing}: cannot read"),
+                          (["-p", "emulator.fault_mode:=brake"], "emulator.fault_mode"),
+                          (["-p", "emulator.no_such_thing:=1.0"], "emulator.no_such_thing"),
+                          (["-p", "damper.gas_gamma:=7.0"], "damper.gas_gamma")):
         r = subprocess.run([sys.executable, "-m", "damper_emulator.cli", "emulate",
                             "--ros-args", *params], env=env, capture_output=True, text=True,
                            timeout=120)
         assert r.returncode == 2, r.stderr
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("damper-hil: error:"), r.stderr
+        assert named in lines[0], r.stderr
         assert "Traceback" not in r.stderr
 
 

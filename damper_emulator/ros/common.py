@@ -139,6 +139,54 @@ def log_info(node: Node, text: str) -> None:
         print(f"[{node.get_name()}] {text}", file=sys.stderr)
 
 
+def params_files(ros_args: list[str]) -> list[str]:
+    """The files of ``--params-file FILE`` in ROS arguments."""
+    return [ros_args[i + 1] for i, a in enumerate(ros_args[:-1]) if a == "--params-file"]
+
+
+def check_params_file(path: str) -> None:
+    """Refuse, in one line naming ``path``, a params file that cannot be read, is not
+    YAML, is empty or holds no ``<node>: ros__parameters:`` mapping (rclpy would start
+    the node on its defaults without a word)."""
+    from damper_emulator.params import read_yaml
+
+    doc = read_yaml(path)
+    if not doc:
+        raise ParameterError(f"{path}: empty parameter file (no parameters)")
+    if not isinstance(doc, Mapping) or not any(
+            isinstance(body, Mapping) and isinstance(body.get("ros__parameters"), Mapping)
+            and body["ros__parameters"] for body in doc.values()):
+        raise ParameterError(f"{path}: no parameters (expected '<node name or /**>: "
+                             f"ros__parameters: {{...}}')")
+
+
+def _file_keys(path: str) -> set[str]:
+    from damper_emulator.params import read_yaml
+
+    try:
+        doc = read_yaml(path)
+    except ParameterError:
+        return set()
+    keys: set[str] = set()
+    for body in (doc.values() if isinstance(doc, Mapping) else ()):
+        if isinstance(body, Mapping) and isinstance(body.get("ros__parameters"), Mapping):
+            keys |= set(flatten(body["ros__parameters"]))
+    return keys
+
+
+def attribute_to_file(message: str, files: list[str]) -> str:
+    """A node's one-line parameter error names the node (``node X parameters: ...``);
+    where the offending parameter comes from a ``--params-file``, name that file instead
+    (the first that sets it, else every file given)."""
+    prefix, sep, rest = message.partition(" parameters: ")
+    if not files or not sep or not prefix.startswith("node "):
+        return message
+    named = [f for f in files if any(k in rest.split() or f"{k}." in rest or
+                                     rest.startswith(k) for k in _file_keys(f))]
+    source = named[0] if named else ", ".join(files)
+    return f"{source} ({prefix}): {rest}"
+
+
 def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     """Initialise rclpy with ``ros_args``, build the node, spin until SIGINT / SIGTERM or
     until the node calls ``rclpy.try_shutdown`` (a node with a ``run(executor)`` method
@@ -158,6 +206,13 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     # (``dds_priority``, 0 = normal scheduling).  Only that runs at the inherited real-time
     # priority: a node's own start-up (its model, warm-up, road) must not, or it keeps
     # other processes' threads of the same priority off the CPU for seconds.
+    files = params_files(ros_args)
+    try:
+        for f in files:    # before rcl reads them: one line of ours, not rcl's two
+            check_params_file(f)
+    except ParameterError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
     inherit = ThreadInheritance()
     with inherit:
         try:
@@ -173,7 +228,8 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
         try:
             node = build()
         except (ParameterError, ValueError, BagError) as exc:
-            print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+            print(f"{PROG}: error: {attribute_to_file(' '.join(str(exc).split()), files)}",
+                  file=sys.stderr)
             return 2
         finally:
             settled = inherit.settle(int(getattr(node, "dds_priority", 0)))

@@ -74,8 +74,11 @@ class FrameCounters:
         Frames missing before accepted frames whose counter jumped by more than one (a jump of
         n counts n − 1).  Not a drop: those frames never arrived.
     unknown_id : int
-        Frames with an identifier not in the receiver's set (only in the total; not an
-        error: other nodes' traffic).
+        Frames handed to :meth:`Receiver.accept` with an identifier not in the receiver's
+        set (only in the total; not an error: other nodes' traffic).  Behind a bus
+        filtered to :attr:`Receiver.frame_ids` (``BusConfig.receive_ids``, as the bridge,
+        the loopback dyno and the skyhook controller open theirs) such frames never reach
+        the receiver and this stays 0.
     """
 
     accepted: int = 0
@@ -279,9 +282,10 @@ class Receiver:
     ----------
     db : cantools.database.can.Database
     names : iterable of str, optional
-        Messages to accept; all of the database's when None.  Frames of other messages count
-        as ``unknown_id`` (e.g. the node's own frames echoed back on ``udp_multicast``): pick
-        the messages the node receives, e.g. ``messages_for(db, receiver="EMULATOR")``.
+        Messages to accept; all of the database's when None.  Frames of other messages that
+        reach :meth:`accept` count as ``unknown_id`` (e.g. the node's own frames echoed back
+        on an unfiltered ``udp_multicast`` bus): pick the messages the node receives, e.g.
+        ``messages_for(db, receiver="EMULATOR")``.
 
     Raises
     ------

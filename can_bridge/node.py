@@ -232,7 +232,8 @@ class BridgeNode(Node):
             "dropped_checksum": str(d.checksum),
             "dropped_counter": str(d.counter),
             "lost_frames": str(d.lost),
-            "unknown_ids": str(d.unknown_id),
+            # no count of other identifiers: the bus filter (receive_ids) drops those
+            # frames before the receiver sees them (in the kernel on socketcan)
             "states_in": str(c.states_in),
             "commands_in": str(c.commands_in),
             "forces_out": str(c.forces_out),

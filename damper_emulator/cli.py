@@ -971,8 +971,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if args.report is not None:
         from damper_emulator.identify.report import write_report
 
-        for path in write_report(args.report, result):
-            _progress(path)
+        write_report(args.report, result, progress=_progress)
         doc["report_dir"] = str(args.report)
     doc["elapsed_s"] = round(time.perf_counter() - started, 3)
     _write_json(json_path, doc)

@@ -642,6 +642,7 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
     messages.type_hash(JOINT_STATE)   # the typestore, built once per process
     cdr_fast.warm_up()                # compiled code from numba's cache
     _run_model(model, np.array([0, 1_000_000], dtype=np.int64), np.zeros(2), np.zeros(2))
+    DamperStepper(model).warm_up()    # the per-tick stepper of timer bags
     setup_s = time.perf_counter() - t_setup
 
     # The replay makes no reference cycles worth collecting, but allocates ~10 container

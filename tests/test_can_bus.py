@@ -296,3 +296,35 @@ def test_receive_ids_filter_out_other_frames():
         sender.shutdown()
     with pytest.raises(ValueError, match="11-bit"):
         BusConfig("virtual", channel, receive_ids=(0x800,))
+
+
+def test_a_receiver_behind_its_bus_filter_never_sees_other_identifiers(db):
+    """Why the bridge's /diagnostics has no unknown-identifier count: a bus opened as the
+    bridge opens its own (receive_ids = the receiver's frame_ids) hands the receiver only
+    its messages, so its ``unknown_id`` stays 0 however much other traffic there is; an
+    unfiltered bus on the same channel sees (and its receiver counts) every other frame."""
+    channel = _channel("unknown")
+    filtered_rx, open_rx = Receiver(db, ["DAMPER_STATE"]), Receiver(db, ["DAMPER_STATE"])
+    filtered = ResilientBus(BusConfig("virtual", channel,
+                                      receive_ids=filtered_rx.frame_ids))
+    unfiltered = ResilientBus(BusConfig("virtual", channel))
+    sender = open_bus(BusConfig("virtual", channel))
+    state, force = Encoder(db, "DAMPER_STATE"), Encoder(db, "DAMPER_FORCE")
+    own, other = 5, 7
+    try:
+        assert filtered.ensure_open() and unfiltered.ensure_open()
+        for k in range(max(own, other)):
+            if k < own:
+                sender.send(_frame(state, Stroke=0.001 * k, Velocity=0.0))
+            if k < other:
+                sender.send(_frame(force, Force=1.0, Status=0, InputAge=0.0,
+                                   StrokeUsed=0.0))
+        for bus, rx in ((filtered, filtered_rx), (unfiltered, open_rx)):
+            while (msg := bus.recv(0.1)) is not None:
+                rx.accept(msg.arbitration_id, msg.data, msg.is_extended_id)
+    finally:
+        filtered.close()
+        unfiltered.close()
+        sender.shutdown()
+    assert filtered_rx.total.accepted == own and filtered_rx.total.unknown_id == 0
+    assert open_rx.total.accepted == own and open_rx.total.unknown_id == other

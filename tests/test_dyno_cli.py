@@ -180,7 +180,8 @@ def _write(path: Path, text: str) -> Path:
     return path
 
 
-GOOD = "time,displacement,force\n0,0,10\n0.001,0.001,20\n0.002,0.002,30\n"
+# forces a damper could give at 1 m/s (the unit checks refuse a toy 10 N at 1 m/s as kN)
+GOOD = "time,displacement,force\n0,0,1000\n0.001,0.001,2000\n0.002,0.002,3000\n"
 
 
 @pytest.mark.parametrize("text, row, needle", [
@@ -195,6 +196,15 @@ GOOD = "time,displacement,force\n0,0,10\n0.001,0.001,20\n0.002,0.002,30\n"
     ("time,displacement,force\n0,0,10\n0.001,12.5,20\n0.002,25.0,30\n", 3,
      "looks like millimetres; expected metres"),
     ("time,displacement,velocity,force\n0,0,0,10\n0.001,0.001,800,20\n", 2, "mm/s"),
+    # force in kN: 0.4 at most while the rod strokes 2 mm (a damper gives tens of N)
+    ("time,displacement,force\n0,0,0.1\n0.001,0.001,-0.4\n0.002,0.002,0.3\n", 2,
+     "looks like kilonewtons; expected newtons"),
+    # time in ms: 1 ms steps written as 1
+    ("time,displacement,force\n0,0,1000\n1,0.001,2000\n2,0.002,3000\n", 2,
+     "looks like milliseconds; expected seconds"),
+    # time in ms over more than a day in ms (86.4 s): the row that passes the day
+    ("time,displacement,force\n0,0,1000\n0.1,0.001,2000\n0.2,0.002,3000\n"
+     "90000,0.003,2000\n", 4, "more than a day"),
     ("time,displacement,force\n0,0,10\n0.001,0.001\n", 2, "no value for column 'force'"),
     ("time,displacement,force\n0,0,10\n", None, "need at least 2"),
     ("time,displacement,force\n", None, "need at least 2"),
@@ -218,6 +228,37 @@ def test_reader_row_numbers_skip_blank_lines(tmp_path):
         read_measured_csv(path)
 
 
+def test_reader_row_numbers_skip_blank_lines_after_a_fast_read(tmp_path):
+    # every field numeric, so numpy reads the file; the unit check then names the row of
+    # the peak force (the 3rd data row) and its line in the file, counted by hand
+    path = _write(tmp_path / "blank_kn.csv",
+                  "time,displacement,force\n0,0,1\n\n0.001,0.001,2\n\n0.002,0.002,3\n")
+    with pytest.raises(MeasuredDataError, match=r"row 3 \(line 6\): force peaks at 3 "):
+        read_measured_csv(path)
+
+
+def test_fast_and_field_by_field_reads_agree(tmp_path):
+    """numpy's read (all columns numeric) and the field-by-field one (forced by a parser)
+    give the same floats, blank lines, CRLF and extra columns included."""
+    from damper_emulator.dyno.measured import (OPTIONAL_COLUMNS, REQUIRED_COLUMNS,
+                                               parse_number, read_csv_table)
+    rng = np.random.default_rng(5)
+    values = rng.normal(0.0, 1.0, (200, 3)) * [1.0, 1e-2, 1e3]
+    body = "".join(f"{float(a)!r},{b:.17g},note,{c:.6e}\r\n" + ("\r\n" if k % 50 == 0 else "")
+                   for k, (a, b, c) in enumerate(values))
+    path = _write(tmp_path / "mixed.csv", "time,displacement,comment,force\r\n" + body)
+    fast = read_csv_table(path, REQUIRED_COLUMNS, OPTIONAL_COLUMNS)
+    slow = read_csv_table(path, REQUIRED_COLUMNS, OPTIONAL_COLUMNS,
+                          parsers={"time": parse_number})
+    assert isinstance(fast.values["time"], np.ndarray) and isinstance(slow.values["time"], list)
+    assert fast.rows == slow.rows == 200
+    for k, col in enumerate(REQUIRED_COLUMNS):
+        np.testing.assert_array_equal(fast.values[col], np.asarray(slow.values[col]))
+        np.testing.assert_array_equal(fast.values[col],
+                                      [float(f"{v:.6e}") if col == "force" else v
+                                       for v in values[:, k]])
+
+
 def test_reader_missing_file_is_measured_data_error(tmp_path):
     with pytest.raises(MeasuredDataError, match="nope.csv"):
         read_measured_csv(tmp_path / "nope.csv")
@@ -227,7 +268,7 @@ def test_round_trip_gzip_extra_columns_and_optional_columns(tmp_path):
     t = np.arange(5) * 1e-3
     x = 0.01 * np.sin(t * 100)
     v = 1.0 * np.cos(t * 100)
-    f = 1234.5678901 * x
+    f = 1234.5678901 * v
     temp = np.full(5, 42.5)
     path = write_measured_csv(tmp_path / "rt.csv.gz", t, x, f, velocity=v, temperature=temp)
     with gzip.open(path, "rt") as fh:
@@ -239,9 +280,9 @@ def test_round_trip_gzip_extra_columns_and_optional_columns(tmp_path):
     np.testing.assert_allclose(data.temperature, temp)
     # extra columns ignored, column order free, names case/blank-insensitive
     extra = _write(tmp_path / "extra.csv",
-                   "Force , comment,TIME,displacement\n1,a,0,0\n2,b,1,0.1\n")
+                   "Force , comment,TIME,displacement\n100,a,0,0\n200,b,0.1,0.01\n")
     data = read_measured_csv(extra)
-    np.testing.assert_array_equal(data.force, [1, 2])
+    np.testing.assert_array_equal(data.force, [100, 200])
     assert data.velocity is None and data.temperature is None
     np.testing.assert_array_equal(read_measured_csv(
-        _write(tmp_path / "good.csv", GOOD)).force, [10, 20, 30])
+        _write(tmp_path / "good.csv", GOOD)).force, [1000, 2000, 3000])

@@ -118,6 +118,24 @@ def test_export_round_trips_through_the_contract_reader(runs, tmp_path):
                                    atol=1e-12, err_msg=col)
 
 
+def test_every_exported_run_passes_the_unit_checks_and_fails_them_in_kn_and_ms(runs,
+                                                                               tmp_path):
+    """The contract reader's plausibility checks (force in kN, time in ms) accept every
+    real run, the slow s1 runs with their 75–90 N peaks included, and refuse each run
+    written in kN or in ms."""
+    from damper_emulator.dyno.measured import write_measured_csv
+
+    for name, d in runs.items():
+        read_measured_csv(export_fsae_csv(d, tmp_path / "ok"))  # raises if refused
+        for unit, time_s, force_n in (("kilonewtons", d.time, d.force * 1e-3),
+                                      ("milliseconds", d.time * 1e3, d.force)):
+            path = write_measured_csv(tmp_path / f"wrong_{unit}.csv", time_s,
+                                      d.displacement, force_n, velocity=d.velocity,
+                                      temperature=d.temperature)
+            with pytest.raises(MeasuredDataError, match=f"looks like {unit}"):
+                read_measured_csv(path)
+
+
 # --------------------------------------------------------------------------------------
 # file names
 

@@ -322,3 +322,31 @@ def test_a_fast_quasi_static_file_is_warned_about(round_trip, tmp_path):
     slow = _run("identify", "--quasi-static", round_trip / "quasi_static.csv", "--chirp",
                 round_trip / "chirp.csv", "--out", tmp_path / "P2.yaml")
     assert "warning:" not in slow.stderr
+
+
+def test_a_capped_valve_fit_finds_the_same_valves(sport_cfg, sport_model, monkeypatch):
+    """A chirp with more usable samples than the cap (here 3,000 per direction instead of
+    50,000, so the paper's chirp stands in for a long one): the valve fits take 1 in k of
+    them, say so, and find the valves of the whole fit within 3 standard errors of the
+    capped fit (its errors are the larger: it has fewer samples)."""
+    import math
+
+    import damper_emulator.identify.pipeline as pipeline
+
+    cap = 3000
+    qs, chirp = _virtual(sport_cfg, sport_model, 4)
+    whole = identify(qs, chirp, sport_cfg)
+    monkeypatch.setattr(pipeline, "MAX_VALVE_FIT_SAMPLES", cap)
+    said = []
+    capped = identify(qs, chirp, sport_cfg, progress=said.append)
+    for side in ("rebound", "compression"):
+        usable = whole.chirp_samples[side]  # the uncapped fit uses every usable sample
+        assert whole.chirp_samples_usable[side] == usable > cap
+        stride = math.ceil(usable / cap)
+        assert capped.chirp_samples_usable[side] == usable
+        assert capped.chirp_samples[side] == math.ceil(usable / stride) <= cap
+        assert any(f"1 in {stride} of the {usable} " in m for m in said), said
+        a, b = getattr(whole, side), getattr(capped, side)
+        assert np.all(np.abs(b.values - a.values) <= 3 * b.std_errors), (side, a.values,
+                                                                         b.values)
+        assert np.all(b.std_errors > a.std_errors)

@@ -201,3 +201,92 @@ def test_cli_duplicate_base_names(sine_files, tmp_path, capsys):
                str(other)])
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "base name" in err
+
+
+# --------------------------------------------------------------------------------------
+# wrong units of force and time (CONTRACT.md: refused with one line naming file and row)
+
+
+def _rewritten(src, dest, time_factor=1.0, force_factor=1.0, velocity=True):
+    """``src`` written again with its time and force multiplied by the given factors."""
+    from damper_emulator.dyno.measured import read_measured_csv
+
+    d = read_measured_csv(src)
+    return write_measured_csv(dest, d.time * time_factor, d.displacement,
+                              d.force * force_factor,
+                              velocity=d.velocity if velocity else None), d
+
+
+def _refused(tmp_path, capsys, bad, needle, row):
+    rc = main(["validate", "--params", str(DEFAULT_PARAMS_FILE), str(bad),
+               "--json", str(tmp_path / "v.json")])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert err.count("\n") == 1 and err.startswith("damper-hil: error: "), err
+    assert str(bad) in err and f"row {row} " in err and needle in err, err
+    assert not (tmp_path / "v.json").exists()
+
+
+@pytest.mark.parametrize("velocity", [True, False])
+def test_cli_refuses_force_in_kilonewtons(sine_files, tmp_path, capsys, velocity):
+    # the 3 Hz sine's force in kN; the error names the row of the peak |force|
+    bad, d = _rewritten(sine_files[0], tmp_path / "kn.csv", force_factor=1e-3,
+                        velocity=velocity)
+    _refused(tmp_path, capsys, bad, "looks like kilonewtons; expected newtons",
+             int(np.argmax(np.abs(d.force))) + 1)
+
+
+def test_cli_refuses_force_in_kilonewtons_of_a_heavy_damper(sine_files, tmp_path, capsys):
+    # a damper ten times as strong (peak 26 kN, more than the 20 N floor in kN): its force
+    # per unit speed in kN, about 28, is not a damper's (hundreds of N·s/m and more)
+    bad, d = _rewritten(sine_files[0], tmp_path / "heavy_kn.csv", force_factor=1e-2)
+    assert np.abs(d.force).max() * 1e-2 > 20.0
+    _refused(tmp_path, capsys, bad, "N·s/m", int(np.argmax(np.abs(d.force))) + 1)
+
+
+@pytest.mark.parametrize("velocity", [True, False])
+def test_cli_refuses_time_in_milliseconds(sine_files, tmp_path, capsys, velocity):
+    # 1 kHz in ms: 1 per step; the first step ends on data row 2
+    bad, _ = _rewritten(sine_files[1], tmp_path / "ms.csv", time_factor=1e3,
+                        velocity=velocity)
+    _refused(tmp_path, capsys, bad, "looks like milliseconds; expected seconds", 2)
+
+
+def test_cli_refuses_time_in_ms_of_a_fast_short_file_by_its_velocity(sport_model, tmp_path,
+                                                                       capsys):
+    # 20 kHz for 0.5 s in ms: steps of 0.05 and 500 "s" in all look plausible, but the
+    # velocity column is 1000 × d(displacement)/d(time); the row is the peak velocity's
+    t, x, v, f, _ = runner.simulate_sine(sport_model, 12.0, 0.005, 6, 20_000.0, 1)
+    bad = write_measured_csv(tmp_path / "fast_ms.csv", t * 1e3, x, f, velocity=v)
+    _refused(tmp_path, capsys, bad, "milliseconds", int(np.argmax(np.abs(v))) + 1)
+
+
+def test_cli_accepts_quasi_static_at_50_hz_over_150_s(sport_model, tmp_path, capsys):
+    # the slowest legitimate file of the project: 4 mm/s, 0.02 s steps, 150 s, 300–500 N
+    runner.run_quasi_static(sport_model, tmp_path)
+    rc = main(["validate", "--params", str(DEFAULT_PARAMS_FILE),
+               str(tmp_path / "quasi_static.csv"), "--json", str(tmp_path / "v.json")])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    doc = json.loads((tmp_path / "v.json").read_text())
+    assert doc["files"]["quasi_static.csv"]["samples"] == 7501
+
+
+def test_cli_refuses_quasi_static_force_in_kilonewtons(sport_model, tmp_path, capsys):
+    # at 4 mm/s the force is gas and friction (0.3–0.5 kN) and the speed too low to judge
+    # damping: the peak alone (0.5 while the rod strokes 150 mm) gives the kN away
+    runner.run_quasi_static(sport_model, tmp_path)
+    bad, d = _rewritten(tmp_path / "quasi_static.csv", tmp_path / "qs_kn.csv",
+                        force_factor=1e-3)
+    _refused(tmp_path, capsys, bad, "while the displacement moves 150 mm",
+             int(np.argmax(np.abs(d.force))) + 1)
+
+
+def test_reader_accepts_a_rod_at_rest_with_a_tared_load_cell(tmp_path):
+    # no stroke (< 1 mm): a force near 0 N is no sign of kilonewtons
+    from damper_emulator.dyno.measured import read_measured_csv
+
+    t = np.arange(0, 1.0, 1e-3)
+    path = write_measured_csv(tmp_path / "rest.csv", t, 1e-5 * np.sin(50 * t),
+                              0.5 * np.cos(50 * t))
+    assert len(read_measured_csv(path)) == t.size

@@ -30,7 +30,7 @@ from can_bridge.settings import (NODE_NAME, bridge_params_from_mapping,
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import (MAIN_THREAD_PRIORITY, NotReadyError,
+from damper_emulator.ros.common import (NotReadyError, executor_priority,
                                         SubscriptionThread, control_qos,
                                         declare_parameters, publish_diagnostics, set_stamp,
                                         wait_until_active)
@@ -59,7 +59,7 @@ class BridgeNode(Node):
         #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal scheduling)
         self.dds_priority = p.dds_priority
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
-        self.main_thread_priority = MAIN_THREAD_PRIORITY if p.sched_fifo else 0
+        self.main_thread_priority = executor_priority(p.priority) if p.sched_fifo else 0
         db = load_database(p.dbc_file or None)
         self.core = BridgeCore(p, db)
         cfg = BusConfig(interface=p.can_interface, channel=p.can_channel, bitrate=p.bitrate,

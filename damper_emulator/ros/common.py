@@ -21,10 +21,15 @@ from damper_emulator.realtime.rt import RealtimeRequest, ThreadInheritance, appl
 PROG = "damper-hil"
 #: Python's GIL switch interval in the node processes [s].
 GIL_SWITCH_INTERVAL_S = 1e-4
-#: SCHED_FIFO priority of the executor (main) thread of a node with a real-time thread
-#: (``main_thread_priority``; see :func:`spin_node`): the lowest real-time priority is
-#: enough to stay above every normal thread.
-MAIN_THREAD_PRIORITY = 1
+
+
+def executor_priority(loop_priority: int) -> int:
+    """SCHED_FIFO priority of the executor (main) thread of a node whose real-time thread
+    runs at ``loop_priority`` (``main_thread_priority``; see :func:`spin_node`): just below
+    it.  The executor thread shares the GIL with that thread; any lower and another
+    process's real-time thread could keep it off the CPU while it holds the GIL.  It does
+    little work (diagnostics, services), so the high priority costs the others little."""
+    return max(1, int(loop_priority) - 1)
 
 
 def control_qos(depth: int) -> QoSProfile:
@@ -239,9 +244,8 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
         if main_priority:
             # The executor thread shares the GIL with the node's SCHED_FIFO loop: left at
             # normal priority it can be preempted by other processes' real-time threads
-            # while it holds the GIL, and the loop then waits for it (a priority inversion
-            # measured at 100 ms stalls under the demo's load).  Any SCHED_FIFO priority
-            # lifts it above every normal thread; it does little work.
+            # while it holds the GIL, and the loop then waits for it (a priority inversion;
+            # see executor_priority).
             report = apply_realtime(RealtimeRequest(sched_fifo=True, priority=main_priority,
                                                     lock_memory=False))
             log_info(node, f"executor thread: {report.summary()}")

@@ -47,7 +47,7 @@ from damper_emulator.realtime.loop import LoopStats, PeriodicLoop
 from damper_emulator.realtime.settings import (RUNTIME_PARAMETERS, default_emulator_mapping,
                                                emulator_params_from_mapping)
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import (MAIN_THREAD_PRIORITY, SubscriptionThread, control_qos,
+from damper_emulator.ros.common import (SubscriptionThread, control_qos, executor_priority,
                                         declare_parameters, latched_qos,
                                         lifecycle_state_topic,
                                         plain_value, publish_diagnostics, set_stamp, stamp_ns,
@@ -136,7 +136,8 @@ class EmulatorNode(LifecycleNode):
         #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal scheduling)
         self.dds_priority = self.params.dds_priority
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
-        self.main_thread_priority = MAIN_THREAD_PRIORITY if self.params.sched_fifo else 0
+        self.main_thread_priority = (executor_priority(self.params.priority)
+                                     if self.params.sched_fifo else 0)
         self.exit_status = 0
         p = self.params
         self._status_name = f"{p.name}/status"

@@ -19,7 +19,7 @@ from rclpy.node import Node
 from damper_emulator.bag import BagWriter, Qos
 from damper_emulator.ros import topics
 from damper_emulator.realtime.rt import RealtimeRequest
-from damper_emulator.ros.common import (MAIN_THREAD_PRIORITY, SubscriptionThread, control_qos,
+from damper_emulator.ros.common import (SubscriptionThread, control_qos, executor_priority,
                                         log_info)
 
 NODE_NAME = "damper_hil_recorder"
@@ -77,7 +77,7 @@ class RecorderNode(Node):
         #: read by spin_node: the DDS threads' SCHED_FIFO priority
         self.dds_priority = RECORDER_PRIORITY
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
-        self.main_thread_priority = MAIN_THREAD_PRIORITY
+        self.main_thread_priority = executor_priority(RECORDER_PRIORITY)
         self.get_logger().info(f"recording {', '.join(names)} to {bag_path}")
 
     def run(self, executor) -> None:

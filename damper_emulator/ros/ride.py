@@ -35,7 +35,7 @@ from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import (MAIN_THREAD_PRIORITY, NotReadyError, control_qos,
+from damper_emulator.ros.common import (NotReadyError, control_qos, executor_priority,
                                         set_stamp, stamp_ns,
                                         take_all, wait_until_active)
 from damper_emulator.ros.emulator import load_node_model
@@ -72,7 +72,8 @@ class RideNode(Node):
         self.cfg = cfg
         self.run_params = cfg.ride
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
-        self.main_thread_priority = MAIN_THREAD_PRIORITY if cfg.ride.sched_fifo else 0
+        self.main_thread_priority = (executor_priority(cfg.ride.priority)
+                                     if cfg.ride.sched_fifo else 0)
         static = DamperStepper(model).force_n
         self.session = RideSession(cfg.quarter_car, cfg.road, cfg.ride, cfg.simulation.step_s,
                                    static)

@@ -174,8 +174,13 @@ class EmulatorNode(LifecycleNode):
                                f"(kernel cache {jit.CACHE_DIR}; the first run compiles, "
                                f"some seconds)")
         start = time.monotonic()
-        self.core = EmulatorCore(self.model, p)
-        self.core.warm_up()
+        try:
+            self.core = EmulatorCore(self.model, p)
+            self.core.warm_up()
+        except Exception as exc:  # noqa: BLE001 - a bug: reported, the transition fails
+            self.get_logger().error(f"configure failed (a bug): {exc!r}")
+            self.core = None
+            return TransitionCallbackReturn.FAILURE
         self.warm_up_s = time.monotonic() - start
         self._force_pub = self.create_lifecycle_publisher(JointState, topics.FORCE,
                                                           control_qos(topics.CONTROL_DEPTH))

@@ -24,7 +24,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/model_bench.py
 	$(BIN)/python benchmarks/identify_bench.py
 	$(BIN)/python benchmarks/ride_bench.py
-	$(BIN)/python benchmarks/demo_bench.py --runs 3 --cyclictest
+	$(BIN)/python benchmarks/demo_bench.py --runs 3 --host
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .hypothesis

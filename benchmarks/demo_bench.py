@@ -12,14 +12,15 @@ when ``--cold``), and the figures come from its ``demo.json``:
 * fault outputs between the first input and the ride's end;
 * the model's warm-up before 'active' and the kernels compiled after it (must be 0).
 
-With ``--cyclictest`` (Debian's ``rt-tests``), ``cyclictest`` runs beside each demo's ride
-at the emulator's settings (SCHED_FIFO 80, 1 kHz, ``/dev/cpu_dma_latency`` 0): its wake-ups
-later than 1 ms are the host stopping the VM, which no process inside it can avoid; the
-emulator's overruns are to be read against them.  Targets (issue 14): real-time factor
->= 0.99, no overrun after ready, p99 period error <= 100 µs, no fault outputs after the
-first input.
+With ``--host``, :mod:`host_sentinel` runs one SCHED_FIFO thread pinned to each CPU at the
+emulator's priority, waking every millisecond, for the whole run: its wake-ups later than
+1 ms are the machine stopping (on a VM, the hypervisor stopping a vCPU), which no process
+can avoid.  Each overrun of the emulator's loop is then classed by whether a sentinel was
+stalled during it (``host``) or not (``own``): the loop's own overruns are the ones to fix.
+Targets (issue 14): real-time factor >= 0.99, no overrun after ready, p99 period error
+<= 100 µs, no fault outputs after the first input.
 
-Usage: ``python benchmarks/demo_bench.py [--runs N] [--duration S] [--cold] [--cyclictest]
+Usage: ``python benchmarks/demo_bench.py [--runs N] [--duration S] [--cold] [--host]
 [--json FILE]``
 """
 
@@ -42,65 +43,70 @@ import numpy as np
 from machine import cpu_name
 
 ROOT = Path(__file__).resolve().parent.parent
-#: cyclictest's histogram range [µs]; later wake-ups are counted as overflows
-HISTOGRAM_US = 3000
-#: A wake-up this late is a missed period of a 1 kHz loop [µs]
-LATE_US = 1000
-#: Seconds after the demo's start when the ride runs (start-up and warm-up come first)
-RIDE_START_S = 12.0
+#: Seconds the sentinels run beyond the ride (start-up, warm-up, shut-down); they are
+#: stopped when the demo ends
+SENTINEL_MARGIN_S = 120.0
+SENTINEL = ROOT / "benchmarks" / "host_sentinel.py"
 
 
-def _cyclictest(seconds: float, histfile: Path) -> subprocess.Popen:
-    loops = int(seconds * 1000)
-    return subprocess.Popen(["cyclictest", "-m", "-p", "80", "-i", "1000", "-l", str(loops),
-                             "-q", "-t", "1", "-h", str(HISTOGRAM_US),
-                             f"--histfile={histfile}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+def _start_sentinels(seconds: float, out: Path) -> list[tuple[subprocess.Popen, Path]]:
+    procs = []
+    for cpu in sorted(os.sched_getaffinity(0)):
+        path = out / f"sentinel_{cpu}.npy"
+        procs.append((subprocess.Popen([sys.executable, str(SENTINEL), str(cpu),
+                                        str(seconds), str(path)]), path))
+    return procs
 
 
-def _late_wakeups(histfile: Path) -> tuple[int, int, float]:
-    """(wake-ups later than LATE_US, total, p99 [µs]) of a cyclictest histogram."""
-    rows, overflows = [], 0
-    for line in histfile.read_text().splitlines():
-        if line.startswith("# Histogram Overflows:"):
-            overflows = int(line.split(":")[1])
-        elif line and not line.startswith("#"):
-            parts = line.split()
-            rows.append((int(parts[0]), int(parts[1])))
-    lat = np.array([r[0] for r in rows])
-    n = np.array([r[1] for r in rows])
-    total = int(n.sum()) + overflows
-    cum = np.cumsum(n) / max(total, 1)
-    p99 = float(lat[np.searchsorted(cum, 0.99)]) if total else float("nan")
-    return int(n[lat > LATE_US].sum()) + overflows, total, p99
+def _stop_sentinels(procs) -> np.ndarray | None:
+    """The stalls ``(start_ns, end_ns)`` every sentinel saw, or None when none ran."""
+    events = []
+    for proc, path in procs:
+        proc.terminate()
+        proc.wait()
+        if path.is_file():
+            events.append(np.load(path))
+    return np.concatenate(events) if events else None
+
+
+def classify_overruns(record: dict, stalls: np.ndarray) -> tuple[int, int]:
+    """``(host, own)``: the loop's overruns from its first input on during which some
+    sentinel was stalled, and the others."""
+    periods = record["periods_ns"].astype(np.int64)
+    if periods.size < int(record["ticks"]) - 1 or not int(record.get("first_tick_ns", 0)):
+        return 0, 0                                   # ring wrapped or no time base
+    ticks = int(record["first_tick_ns"]) + np.concatenate([[0], np.cumsum(periods)])
+    first = max(0, int(record.get("first_input_tick", 0)))
+    host = own = 0
+    for k in np.nonzero(periods > 2 * int(record["period_ns"]))[0]:
+        if k < first:
+            continue
+        a, b = ticks[k], ticks[k + 1]
+        if stalls.size and np.any((stalls[:, 0] < b) & (stalls[:, 1] > a)):
+            host += 1
+        else:
+            own += 1
+    return host, own
 
 
 def run(args) -> list[dict]:
     results = []
     cache = Path(tempfile.mkdtemp(prefix="demo-bench-cache-")) if args.cold else None
-    have_cyclictest = args.cyclictest and shutil.which("cyclictest") is not None
-    if args.cyclictest and not have_cyclictest:
-        print("cyclictest not found (Debian: rt-tests): host floor not measured",
-              file=sys.stderr)
     for k in range(args.runs):
         out = Path(tempfile.mkdtemp(prefix="demo-bench-"))
         env = dict(os.environ)
         if cache is not None:
             env["NUMBA_CACHE_DIR"] = str(cache)   # empty for the first run: cold
-        cyc = None
-        hist = out / "cyclictest.txt"
+        sentinels = (_start_sentinels(args.duration + SENTINEL_MARGIN_S, out)
+                     if args.host else [])
         started = time.monotonic()
         proc = subprocess.Popen([sys.executable, "-m", "damper_emulator.cli", "demo",
                                  "--duration", str(args.duration), "--out", str(out / "demo")],
                                 cwd=ROOT, env=env, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True)
-        if have_cyclictest:
-            time.sleep(RIDE_START_S)
-            cyc = _cyclictest(args.duration * 0.75, hist)
         log, _ = proc.communicate()
         wall = time.monotonic() - started
-        if cyc is not None:
-            cyc.wait()
+        stalls = _stop_sentinels(sentinels)
         if proc.returncode != 0:
             print(f"run {k + 1}: demo failed (exit {proc.returncode}): "
                   f"{log.strip().splitlines()[-1] if log.strip() else ''}", file=sys.stderr)
@@ -118,9 +124,12 @@ def run(args) -> list[dict]:
                "faults_in_ride": doc.get("fault_outputs_after_first_input"),
                "warm_up_s": loop.get("warm_up_s"),
                "compiled_after_ready": doc.get("kernels_compiled_after_ready")}
-        if cyc is not None and hist.is_file():
-            late, total, p99 = _late_wakeups(hist)
-            row.update(host_late_wakeups=late, host_samples=total, host_p99_us=p99)
+        if stalls is not None:
+            with np.load(out / "demo" / "emulator_loop.npz") as z:
+                record = {k: z[k] for k in z.files}
+            host, own = classify_overruns(record, stalls)
+            row.update(host_stalls=int(stalls.shape[0]), overruns_host=host,
+                       overruns_own=own)
         results.append(row)
         shutil.rmtree(out, ignore_errors=True)
     if cache is not None:
@@ -141,8 +150,9 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=20.0, help="ride seconds (default 20)")
     ap.add_argument("--cold", action="store_true",
                     help="the first run with an empty numba cache (a fresh NUMBA_CACHE_DIR)")
-    ap.add_argument("--cyclictest", action="store_true",
-                    help="measure the host's wake-up floor beside each ride (rt-tests)")
+    ap.add_argument("--host", action="store_true",
+                    help="one stall sentinel per CPU beside each run (host_sentinel.py): "
+                         "class the loop's overruns as the machine's or its own")
     ap.add_argument("--json", type=Path, help="write the rows here")
     args = ap.parse_args()
     if args.runs < 1 or not args.duration > 0:
@@ -152,11 +162,11 @@ def main() -> int:
           f"{platform.python_version()}, {time.strftime('%Y-%m-%d %H:%M')}; "
           f"{args.duration:g} s ride per run")
     print()
-    host = any("host_late_wakeups" in r for r in rows)
+    host = any("host_stalls" in r for r in rows)
     head = ("| run | real-time factor | p99 period error [µs] | overruns | max period [ms] "
             "| faults in ride | warm-up [s] | compiled after ready |")
     if host:
-        head += " host: wake-ups > 1 ms / p99 [µs] |"
+        head += " sentinel stalls > 1 ms | overruns during one / not |"
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
     for r in rows:
@@ -167,7 +177,8 @@ def main() -> int:
                 f"{r['p99_error_us']:.0f} | {r['overruns']} | {r['period_max_ms']:.1f} | "
                 f"{r['faults_in_ride']} | {r['warm_up_s']:.2f} | {r['compiled_after_ready']} |")
         if host:
-            line += f" {r.get('host_late_wakeups', '–')} / {r.get('host_p99_us', '–')} |"
+            line += (f" {r.get('host_stalls', '–')} | {r.get('overruns_host', '–')} / "
+                     f"{r.get('overruns_own', '–')} |")
         print(line)
     ok = [r for r in rows if not r.get("failed")]
     print()

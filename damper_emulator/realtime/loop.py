@@ -78,6 +78,9 @@ class LoopStats:
         self.recorded = 0       # periods recorded (ticks − 1)
         self.overruns = 0
         self.skipped = 0
+        #: ``time.monotonic_ns()`` of the first tick (0: none yet); with the periods it
+        #: places every tick on the machine's monotonic clock
+        self.first_tick_ns = 0
 
     def record(self, period_ns: int) -> None:
         self._ring[self.recorded % self._ring.size] = period_ns
@@ -124,7 +127,8 @@ class LoopStats:
         """Write the record (:func:`load_record` reads it) as ``.npz``, with ``extra``."""
         np.savez(path, periods_ns=self.periods_ns(), wake_ns=self.wake_ns(),
                  work_ns=self.work_ns(), period_ns=self.period_ns, ticks=self.ticks,
-                 overruns=self.overruns, skipped=self.skipped, **extra)
+                 overruns=self.overruns, skipped=self.skipped,
+                 first_tick_ns=self.first_tick_ns, **extra)
 
 
 def load_record(path) -> tuple[dict, LoopSummary]:
@@ -200,6 +204,8 @@ class PeriodicLoop:
                 now = clock()
                 if previous:
                     stats.record(now - previous)
+                else:
+                    stats.first_tick_ns = now
                 previous = now
                 self._tick(now)
                 stats.record_tick(now - deadline, clock() - now)

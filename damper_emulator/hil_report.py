@@ -176,16 +176,16 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
             t = rec.force.log_ns
             ride = (t >= t[np.argmax(fed)]) & (t <= rec.state.log_ns[-1])
             faults_in_ride = int((fault & ride).sum())
+    loop_doc = loop_summary(loop_record)
     summary = {
         **extra,
         "bag": str(rec.path),
         "topics": rec.counts,
         "fault_outputs": faults,
         "fault_outputs_after_first_input": faults_in_ride,
-        "kernels_compiled_after_ready": (loop_summary(loop_record) or {}).get(
-            "compiled_after_ready"),
+        "kernels_compiled_after_ready": (loop_doc or {}).get("compiled_after_ready"),
         "ride": ride_doc,
-        "emulator_loop": loop_summary(loop_record),
+        "emulator_loop": loop_doc,
         "emulator_diagnostics": rec.last_diagnostics,
         "bridge_diagnostics": rec.bridge_diagnostics or None,
         "valve_command": None if rec.valve_command is None else {

@@ -54,11 +54,11 @@ def bench_batch(model: DamperModel, repeats: int, rate_hz: float) -> float:
 
 
 def bench_load(repeats: int) -> float:
-    from damper_emulator.model.valve_table import _build_tables
+    from damper_emulator.model.valve_table import _build_table
 
     times = []
     for _ in range(repeats):
-        _build_tables.cache_clear()
+        _build_table.cache_clear()
         t0 = time.perf_counter()
         DamperModel(load_config())
         times.append(time.perf_counter() - t0)

@@ -1,83 +1,146 @@
-"""``diagnose``: data made by the truth simulation with one effect (own parameters, noise
-added, nothing saying which) must come back as that effect's family with the held-out
-r.m.s. at least halved and the truth's parameters recovered; data without an effect as
-``none``; data with an effect outside the library as ``other`` or the closest family, with
-an improvement that holds when checked by ``validate``."""
+"""``diagnose`` as a user runs it: ``identify`` on the truth data's quasi-static and chirp
+files with the damper's data sheet, then ``diagnose`` on the same files with the sines
+held out.  The truth differs in model form from the emulator's model (smooth friction, a
+4× finer integrator, displacement noise; ``truth.REALISTIC``) and carries effects the
+identification never heard of: they must come back by family, with the held-out residual
+brought down to the floor; data without one as ``none`` (on two dampers); an effect
+outside the library as ``other``; two effects together as both.
+
+The suite uses a shorter protocol and, for the single effects, the true candidate among
+two that are easily confused with it (the full protocol with all nine candidates:
+``benchmarks/diagnose_bench.py``)."""
 
 from __future__ import annotations
 
 import json
 import math
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
 
 from damper_emulator.cli import main
-from damper_emulator.diagnose.selection import (MIN_SCORE, STRUCTURE_RATIO, diagnose,
-                                                noise_level, structure_ratio)
-from damper_emulator.diagnose.truth import (EXAMPLE_EFFECTS, Protocol, example_config,
-                                            simulate_session, with_extension, write_session)
+from damper_emulator.diagnose.selection import (FLOOR_FORCE_FRACTION, MIN_SCORE,
+                                                STRUCTURE_RATIO, diagnose, noise_level,
+                                                structure_ratio)
+from damper_emulator.diagnose.truth import (EXAMPLE_EFFECTS, REALISTIC, Protocol,
+                                            example_config, simulate_session, write_session)
+from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel
-from damper_emulator.params import EXTENSION_FAMILIES, load_config
+from damper_emulator.params import EXTENSION_FAMILIES, load_config, save_config
 from damper_emulator.validation import validate_file
 
 #: a shorter chirp and one quasi-static cycle keep the suite quick; the rest as the paper
-#: (the full protocol: benchmarks/diagnose_bench.py)
 PROTOCOL = Protocol(chirp_duration_s=12.0, qs_cycles=1)
-NOISE_N = 2.0
-#: relative tolerance on each recovered parameter (the truth is known exactly)
-PARAMETER_TOLERANCE = {"lugre_friction": 0.25, "end_stops": 0.1, "bypass_groove": 0.2}
-DEFAULT_TOLERANCE = 0.1
+NOISE_N = 4.0
+#: for each single effect, two candidates that take part of it when it is absent
+CONFUSABLE = {
+    "lugre_friction": ("end_stops", "valve_lag"),
+    "viscosity_temperature": ("valve_lag", "gas_heat_transfer"),
+    "cavitation": ("air_entrainment", "series_compliance"),
+    "valve_lag": ("series_compliance", "air_entrainment"),
+    "series_compliance": ("valve_lag", "air_entrainment"),
+    "end_stops": ("gas_heat_transfer", "bypass_groove"),
+    "air_entrainment": ("series_compliance", "cavitation"),
+    "bypass_groove": ("end_stops", "lugre_friction"),
+    "gas_heat_transfer": ("end_stops", "air_entrainment"),
+}
+#: relative tolerance on the main recovered parameters (identification from the same
+#: data and a truth of another model form: the parameters are close, not exact)
+PARAMETER_TOLERANCE = 0.25
+#: the parameters checked (the others are weakly determined on the short protocol)
+CHECKED = {"lugre_friction": ("coulomb_n",), "cavitation": (),
+           "viscosity_temperature": ("temperature_coefficient_per_k",),
+           "end_stops": ("rebound_position_m", "compression_position_m"),
+           "bypass_groove": ("center_m", "half_length_m")}
 
 
-def _base_config(effect):
-    changes = EXAMPLE_EFFECTS[effect].get("base") if effect else None
-    return with_extension(load_config(), None, None, changes)
+def _session(effects, damper="sport", seed=3, extra_force=None):
+    sheet = load_config(f"config/{damper}.yaml")
+    truth = example_config(effects, sheet)
+    data = list(simulate_session(truth, PROTOCOL, noise_std_n=NOISE_N, seed=seed,
+                                 temperature=True, extra_force=extra_force,
+                                 form=REALISTIC).values())
+    return sheet, data
 
 
-def _run(truth_cfg, base_cfg, *, seed=3, temperature=False, extra_force=None):
-    data = list(simulate_session(truth_cfg, PROTOCOL, noise_std_n=NOISE_N, seed=seed,
-                                 temperature=temperature, extra_force=extra_force).values())
-    return diagnose(DamperModel(base_cfg), data[:2], data[2:], jobs=2), data
+def _identify_and_diagnose(sheet, data, effects=None, **kw):
+    cfg = identify(data[0], data[1], sheet).config
+    return diagnose(DamperModel(cfg), data[:2], data[2:], effects, jobs=2, **kw)
 
 
 def _pooled(rms: dict[str, float], names) -> float:
     return math.sqrt(sum(rms[n] ** 2 for n in names) / len(names))
 
 
-@pytest.mark.parametrize("effect", list(EXAMPLE_EFFECTS))
-def test_each_family_is_found_with_its_parameters_and_halves_the_held_out_error(effect):
-    truth = example_config(effect)
-    diag, _ = _run(truth, _base_config(effect),
-                   temperature=effect == "viscosity_temperature")
+#: families not yet found after an identification on the same files on this protocol
+#: (issue 15 open; each diagnosis is an honest ``other``): a cavity in the chirp corrupts
+#: the identified compression valve (K_port → 0), and neither the joint fit nor a
+#: re-identification without the cavitating samples brings it back
+NOT_YET = {"cavitation": "the identified compression valve absorbs the cavity",
+           "bypass_groove": "on the short protocol the groove's pre-fit on top of the "
+                            "identification finds no start the joint fit improves on",
+           "gas_heat_transfer": "the identified gas spring absorbs the heat transfer"}
+
+
+@pytest.mark.parametrize("effect", [
+    pytest.param(e, marks=pytest.mark.xfail(strict=True, reason=NOT_YET[e]))
+    if e in NOT_YET else e for e in EXAMPLE_EFFECTS])
+def test_each_family_is_found_after_identify_on_the_same_files(effect):
+    sheet, data = _session(effect)
+    diag = _identify_and_diagnose(sheet, data, [effect, *CONFUSABLE[effect]])
     assert diag.family == EXTENSION_FAMILIES[effect], (
-        f"{effect}: diagnosed {diag.family}; ranking "
+        f"{effect}: diagnosed {diag.family}; first round "
         + ", ".join(f"{c.candidate.effect} {c.score:.3f}/{c.delta_bic:.0f}"
                     for c in diag.ranking))
     assert diag.effect == effect and diag.significant
     before = _pooled(diag.rms_before, diag.held_out)
     after = _pooled(diag.rms_after, diag.held_out)
-    assert after <= 0.5 * before, (effect, before, after)
-    # the truth's own parameters come back (they were never given to diagnose)
+    # the effect's residual is gone: down to the floor, and at least halved
+    assert after <= max(diag.floor_n, 2.0 * NOISE_N) and after <= 0.5 * before, (
+        effect, before, after, diag.floor_n)
     truth_params = EXAMPLE_EFFECTS[effect]["params"]
-    tol = PARAMETER_TOLERANCE.get(effect, DEFAULT_TOLERANCE)
-    for name, value in diag.chosen.extension.items():
-        if name in truth_params:
-            assert value == pytest.approx(truth_params[name], rel=tol, abs=1e-4), (
-                effect, name, value, truth_params[name])
-    # nothing but noise is left on the held-out files
-    assert diag.structure_after < STRUCTURE_RATIO
+    main = diag.to_json()["effects"][0]
+    for name in CHECKED.get(effect, tuple(truth_params)):
+        assert main["parameters"][name] == pytest.approx(
+            truth_params[name], rel=PARAMETER_TOLERANCE), (effect, name, main)
+    # each fitted parameter has a finite uncertainty
+    assert all(math.isfinite(f["std"]) for f in main["fitted"].values()), main
 
 
-def test_without_an_extra_effect_the_answer_is_none():
-    base = _base_config(None)
-    diag, _ = _run(base, base)
-    assert diag.family == "none" and diag.effect is None and not diag.significant
-    assert diag.rms_after == diag.rms_before
-    # the residual is the noise that was added
-    for name in diag.held_out:
-        assert diag.rms_before[name] == pytest.approx(NOISE_N, rel=0.1)
-    assert all(c.score < MIN_SCORE for c in diag.ranking)
+@pytest.mark.parametrize("damper", ["sport", "van"])
+def test_without_an_extra_effect_the_answer_is_none_on_two_dampers(damper):
+    """No extension in the truth, only its model-form differences: all nine candidates
+    are tried and none is significant."""
+    sheet, data = _session(None, damper)
+    diag = _identify_and_diagnose(sheet, data)
+    assert diag.family == "none" and diag.effect is None and not diag.significant, [
+        (c.candidate.effect, c.score, c.delta_bic) for c in diag.ranking]
+    assert not diag.steps and all(not c.significant for c in diag.ranking)
+    # the refitted paper's model is within the floor, which is what `none` says
+    refit = _pooled(diag.refit.rms_held_out, diag.held_out)
+    assert refit <= diag.floor_n
+    # the floor is at least 1 % of the held-out force r.m.s. (the counted samples)
+    force = np.concatenate([r.data.force[r.start:] for r in diag.records if r.held_out])
+    assert diag.floor_n >= FLOOR_FORCE_FRACTION * float(np.sqrt(np.mean(force ** 2))) - 1e-9
+    assert diag.to_json()["effects"] == []
+
+
+def test_two_effects_together_are_both_found_by_forward_selection():
+    pair = ("lugre_friction", "valve_lag")
+    sheet, data = _session(pair)
+    diag = _identify_and_diagnose(sheet, data, [*pair, "series_compliance"])
+    assert {s.candidate.effect for s in diag.steps} == set(pair), diag.to_json()["rounds"]
+    doc = diag.to_json()
+    assert doc["effect"] == doc["effects"][0]["effect"]
+    assert [e["effect"] for e in doc["effects"]] == [s.candidate.effect for s in diag.steps]
+    assert all(e["held_out_gain"] >= MIN_SCORE for e in doc["effects"])
+    # the model after carries both effects, with the fitted values the JSON reports
+    active = diag.model_after().cfg.damper.extensions.active()
+    assert sorted(active) == sorted(pair)
+    after = _pooled(diag.rms_after, diag.held_out)
+    assert after <= max(diag.floor_n, 2.0 * NOISE_N)
 
 
 def test_an_effect_outside_the_library_gives_other_and_an_honest_closest_family():
@@ -89,23 +152,36 @@ def test_an_effect_outside_the_library_gives_other_and_an_honest_closest_family(
     def inertia(t, x, v):
         return mass_kg * np.gradient(v, t)
 
-    base = _base_config(None)
-    diag, data = _run(base, base, extra_force=inertia)
+    sheet, data = _session(None, extra_force=inertia)
+    diag = _identify_and_diagnose(sheet, data)
     assert diag.structure_before > STRUCTURE_RATIO  # there is something to find
-    assert diag.family == "other" and diag.effect is None and not diag.significant
-    assert diag.rms_after == diag.rms_before  # nothing added, nothing claimed
+    assert diag.family == "other" and diag.effect is None and not diag.significant, (
+        diag.to_json()["rounds"], diag.explained)
+    # nothing added: the model after is the refitted paper's model
+    assert diag.model_after().cfg.damper.extensions is None
     if diag.closest is not None:
         c = diag.closest
-        assert diag.explained < 0.5 and c.score < 0.5
-        from damper_emulator.diagnose.selection import with_candidate
-
-        model = with_candidate(diag.base_model, c.candidate, c.values)
+        model = c.model()
         for d in data:
             if d.name in diag.held_out:  # validate counts the 50 ms start-up too
                 assert validate_file(model, d)["rms_N"] == pytest.approx(
                     c.rms_held_out[d.name], rel=0.25)
     doc = diag.to_json()
     assert doc["family"] == "other" and doc["significant"] is False
+
+
+def test_the_fits_run_on_any_executor_in_self_contained_tasks():
+    """A spawned process pool shares nothing with this process (no fork, no globals), as
+    a cluster's workers would: the same diagnosis comes back."""
+    sheet, data = _session("valve_lag")
+    cfg = identify(data[0], data[1], sheet).config
+    local = diagnose(DamperModel(cfg), data[:2], data[2:], ["valve_lag"], jobs=1,
+                     max_effects=1)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        remote = diagnose(DamperModel(cfg), data[:2], data[2:], ["valve_lag"],
+                          executor=pool, max_effects=1)
+    assert remote.family == local.family == "valve_dynamics"
+    assert remote.rms_after == pytest.approx(local.rms_after, rel=1e-9)
 
 
 def test_noise_level_and_structure_ratio_follow_their_definitions():
@@ -120,26 +196,34 @@ def test_noise_level_and_structure_ratio_follow_their_definitions():
                                                               rel=0.03)
 
 
-def test_cli_writes_the_contract_json_report_and_an_extended_params_file(tmp_path, capsys):
+def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
+        tmp_path, capsys):
     effect = "valve_lag"
-    data = simulate_session(example_config(effect), PROTOCOL, noise_std_n=NOISE_N, seed=5)
+    data = simulate_session(example_config(effect), PROTOCOL, noise_std_n=NOISE_N, seed=5,
+                            form=REALISTIC)
     paths = write_session(data, tmp_path / "data")
-    params = tmp_path / "identified.yaml"
-    from damper_emulator.params import save_config
-
-    save_config(_base_config(effect), params)
-    out_json = tmp_path / "diag.json"
     names = list(paths)
+    params = tmp_path / "identified.yaml"
+    assert main(["identify", "--quasi-static", str(paths[names[0]]), "--chirp",
+                 str(paths[names[1]]), "--base", "config/sport.yaml", "--out",
+                 str(params)]) == 0
+    out_json = tmp_path / "diag.json"
+    chosen = ["valve_lag", "series_compliance", "air_entrainment"]
     rc = main(["diagnose", "--params", str(params), "--quasi-static", str(paths[names[0]]),
                "--chirp", str(paths[names[1]]), "--validate",
                *(str(paths[n]) for n in names[2:]), "--json", str(out_json),
-               "--report", str(tmp_path / "report"), "--jobs", "2"])
+               "--report", str(tmp_path / "report"), "--jobs", "2",
+               "--effects", ",".join(chosen)])
     assert rc == 0
     doc = json.loads(out_json.read_text())
     assert doc["family"] == "valve_dynamics" and doc["effect"] == "valve_lag"
     assert doc["significant"] is True
+    assert [e["effect"] for e in doc["effects"]] == ["valve_lag"]
+    assert doc["effects"][0]["held_out_gain"] == pytest.approx(doc["score"])
     assert set(doc["rms_before"]) == set(doc["rms_after"]) == set(names)
-    assert {c["effect"] for c in doc["candidates"]} == set(EXTENSION_FAMILIES)
+    assert {c["effect"] for c in doc["candidates"]} == set(chosen)
+    assert doc["thresholds"]["floor_force_fraction"] == FLOOR_FORCE_FRACTION
+    assert doc["floor_N"] > 0 and doc["refit"]["rms"].keys() == set(names)
     for c in doc["candidates"]:
         assert c["family"] == EXTENSION_FAMILIES[c["effect"]]
         assert isinstance(c["score"], float)
@@ -154,9 +238,13 @@ def test_cli_writes_the_contract_json_report_and_an_extended_params_file(tmp_pat
     assert extended.damper.extensions.active() == ["valve_lag"]
     assert extended.damper.extensions.valve_lag.time_constant_s == pytest.approx(
         doc["parameters"]["time_constant_s"])
+    # the re-identified paper's parameters are in it too
+    assert extended.damper.rebound.k_port == pytest.approx(
+        doc["base_parameters_after"]["values"]["rebound.k_port"])
+    assert load_config(report / "params_refit.yaml").damper.extensions is None
     out = capsys.readouterr()
     assert "diagnosis: valve_dynamics" in out.out
-    assert "[9/9]" in out.err  # progress
+    assert "round 1 [4/4]" in out.err  # progress
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -164,7 +252,7 @@ def test_cli_writes_the_contract_json_report_and_an_extended_params_file(tmp_pat
     (["--quasi-static", "/nonexistent/qs.csv"], "qs.csv"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, extra, message):
-    data = simulate_session(_base_config(None), PROTOCOL, noise_std_n=NOISE_N, seed=1)
+    data = simulate_session(load_config(), PROTOCOL, noise_std_n=NOISE_N, seed=1)
     paths = list(write_session(data, tmp_path).values())
     args = ["diagnose", "--params", "config/sport.yaml", "--quasi-static", str(paths[0]),
             "--chirp", str(paths[1]), "--validate", str(paths[2]), "--json",
@@ -180,11 +268,9 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, extra, message):
 
 
 def test_cli_refuses_a_params_file_that_already_has_extensions(tmp_path, capsys):
-    from damper_emulator.params import save_config
-
     params = tmp_path / "extended.yaml"
     save_config(example_config("valve_lag"), params)
-    data = simulate_session(_base_config(None), PROTOCOL, noise_std_n=NOISE_N, seed=1)
+    data = simulate_session(load_config(), PROTOCOL, noise_std_n=NOISE_N, seed=1)
     paths = list(write_session(data, tmp_path).values())
     rc = main(["diagnose", "--params", str(params), "--quasi-static", str(paths[0]),
                "--chirp", str(paths[1]), "--validate", str(paths[2]), "--json",

@@ -27,6 +27,9 @@ MIN_TEMPERATURE_SPAN_K = 2.0
 #: Viscosity–temperature coefficient held when no temperature is measured [1/K]: mineral
 #: damper oils halve their kinematic viscosity about every 25 K (ln 2 / 25).
 TYPICAL_VISCOSITY_COEFFICIENT_PER_K = math.log(2.0) / 25.0
+#: The end stops' re-identification leaves out samples farther than this fraction of the
+#: tested stroke from its middle (the outer half of the stroke).
+OUTER_STROKE_FRACTION = 0.25
 #: Cooling time constant of a damper body held in the heat model [s] (order of magnitude
 #: of a dyno-mounted damper in still air; the fit is over minutes, so it matters little).
 TYPICAL_COOLING_TIME_S = 600.0
@@ -68,6 +71,10 @@ class Candidate:
     fields: Callable[[Mapping[str, float]], dict[str, float]]
     extra_starts: tuple[tuple[float, ...], ...] = ()
     note: str = ""
+    #: where the effect may act whatever its parameters (``MeasuredData -> mask``): the
+    #: samples a re-identification of the paper's parameters leaves out for it
+    #: (:func:`damper_emulator.diagnose.joint.joint_fit`); ``None``: found by simulation
+    may_act: Callable[[MeasuredData], np.ndarray] | None = None
     family: str = field(init=False)
 
     def __post_init__(self):
@@ -170,7 +177,15 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
         _with({}), extra_starts=((k_oil * 10.0,),)))
 
     # end stops: engagement within the tested stroke (outside it they cannot be seen);
-    # progressive elastomer coefficient 1e3 .. 1e10 N/m²
+    # progressive elastomer coefficient 1e3 .. 1e10 N/m².  A stop fitted on top of an
+    # identification has to undo a gas spring that absorbed it; the re-identification
+    # leaves out the outer half of the tested stroke, where a stop may engage (the
+    # quasi-static fit then sees the gas spring alone).
+    mid_stroke = 0.5 * (x_lo + x_hi)
+
+    def outer_half(data: MeasuredData) -> np.ndarray:
+        return np.abs(data.displacement - mid_stroke) > OUTER_STROKE_FRACTION * span
+
     out.append(Candidate(
         "end_stops",
         (Parameter("rebound_position_m", x_lo + 0.5 * span, x_hi, x_hi - 0.15 * span, False,
@@ -178,7 +193,7 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
          Parameter("compression_position_m", x_lo, x_hi - 0.5 * span, x_lo + 0.15 * span,
                    False, "m"),
          Parameter("stiffness_n_m2", 1e3, 1e10, 1e6, True, "N/m²")),
-        _with({}),
+        _with({}), may_act=outer_half,
         extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, 1e6),
                       (x_hi - 0.05 * span, x_lo + 0.05 * span, 1e7),
                       (x_hi, x_lo, 1e4))))  # (almost) not engaged

@@ -2,15 +2,17 @@
 
 :func:`write_report` writes into a directory
 
-* ``report.md``: r.m.s. before and after per file, the chosen effect with its fitted
-  parameters and uncertainties, the ranking of every candidate, the thresholds;
+* ``report.md``: the effects added step by step with their fitted parameters and
+  uncertainties, the paper's parameters identified and re-identified, r.m.s. per file
+  (identified, refitted, after), every round's candidates, the thresholds and the floor;
 * ``overlay_<file>.png`` per held-out file: measured force, the identified model and the
-  model with the chosen effect against displacement, velocity and time, with the residuals;
+  model after the diagnosis against displacement, velocity and time, with the residuals;
 * ``residual_before_<file>.png`` (and ``residual_after_<file>.png`` with an effect) per
   held-out file: the residual analysis of :mod:`damper_emulator.diagnose.residual`;
 * ``ranking.png``: every candidate's held-out r.m.s. reduction and ΔBIC;
-* ``params_with_effect.yaml``: the identified parameters plus the chosen extension, a params
-  file every command and the emulator load (only when an effect was chosen).
+* ``params_with_effect.yaml``: the re-identified parameters plus the effects found, a params
+  file every command and the emulator load (only when an effect was added);
+* ``params_refit.yaml``: the paper's model alone, re-identified jointly.
 
 matplotlib is imported only here.
 """
@@ -39,15 +41,15 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     d = rec.data
     before, after = rec.simulate(diag.base_model), rec.simulate(diag.model_after())
     k = rec.start
-    label_after = f"+ {diag.effect}"
+    label_after = ("+ " + " + ".join(s.candidate.effect for s in diag.steps) if diag.steps
+                   else "refitted")
     fig = new_figure(13.0, 8.0)
     axes = fig.subplots(2, 2)
     for ax, xs, xlabel in ((axes[0, 0], d.displacement * 1e3, "displacement [mm]"),
                            (axes[0, 1], rec.velocity, "velocity [m/s]")):
         ax.plot(xs[k:], d.force[k:], color="0.6", lw=2.5, label="measured")
         ax.plot(xs[k:], before[k:], color="tab:red", lw=1.0, label="identified model")
-        if diag.effect:
-            ax.plot(xs[k:], after[k:], color="tab:blue", lw=1.0, ls="--", label=label_after)
+        ax.plot(xs[k:], after[k:], color="tab:blue", lw=1.0, ls="--", label=label_after)
         ax.set_xlabel(xlabel)
         ax.set_ylabel("force [N, rebound +]")
         ax.grid(True, alpha=0.3)
@@ -56,10 +58,9 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     ax = axes[1, 0]
     ax.plot(t, d.force - before, color="tab:red", lw=0.8,
             label=f"measured − identified: r.m.s. {diag.rms_before[rec.name]:.1f} N")
-    if diag.effect:
-        ax.plot(t, d.force - after, color="tab:blue", lw=0.8,
-                label=f"measured − model {label_after}: r.m.s. "
-                      f"{diag.rms_after[rec.name]:.1f} N")
+    ax.plot(t, d.force - after, color="tab:blue", lw=0.8,
+            label=f"measured − model {label_after}: r.m.s. "
+                  f"{diag.rms_after[rec.name]:.1f} N")
     ax.axvspan(0.0, t[k], color="0.9", label="start-up, not counted")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("residual [N]")
@@ -68,9 +69,8 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     ax = axes[1, 1]
     ax.plot(rec.velocity[k:], (d.force - before)[k:], ".", ms=1.5, color="tab:red",
             label="before")
-    if diag.effect:
-        ax.plot(rec.velocity[k:], (d.force - after)[k:], ".", ms=1.5, color="tab:blue",
-                label="after")
+    ax.plot(rec.velocity[k:], (d.force - after)[k:], ".", ms=1.5, color="tab:blue",
+            label="after")
     ax.set_xlabel("velocity [m/s]")
     ax.set_ylabel("residual [N]")
     ax.grid(True, alpha=0.3)
@@ -128,63 +128,108 @@ def _fmt(x: Any) -> str:
     return str(x)
 
 
+def _base_table(diag: Diagnosis) -> list[str]:
+    """The paper's parameters: identified, after the diagnosis, ± 1σ."""
+    from damper_emulator.diagnose.joint import BASE_PARAMETERS, _get
+
+    final = diag.final
+    if final is None:
+        return []
+    cfg = diag.base_model.cfg
+    lines = ["| parameter | identified | after | ± 1σ | unit |", "|---|---|---|---|---|"]
+    for bp in BASE_PARAMETERS:
+        after = final.out["base_values"].get(bp.path)
+        if after is None:
+            continue
+        sd = final.out["base_std"].get(bp.path)
+        held = " (replaced by the effect)" if sd is None else ""
+        lines.append(f"| {bp.path} | {_fmt(_get(cfg, bp.path))} | {_fmt(after)}{held} | "
+                     f"{_fmt(sd)} | {bp.unit} |")
+    return lines
+
+
 def markdown(diag: Diagnosis, params_file: str = "") -> str:
     """The report's text."""
     doc = diag.to_json()
-    lines = [f"# Diagnosis: {diag.family}" + (f" ({diag.effect})" if diag.effect else ""), ""]
+    effects = doc["effects"]
+    title = diag.family + (f" ({', '.join(e['effect'] for e in effects)})" if effects else "")
+    lines = [f"# Diagnosis: {title}", ""]
     if params_file:
         lines += [f"Identified parameters: `{params_file}`.", ""]
-    if diag.chosen is not None:
-        c = diag.chosen
-        lines += [f"**{c.candidate.effect}** ({c.candidate.family}) cuts the held-out r.m.s. "
-                  f"by {100 * c.score:.1f} % (ΔBIC {c.delta_bic:.0f}).", ""]
-        if c.candidate.note:
-            lines += [c.candidate.note + ".", ""]
-        lines += ["| parameter | fitted | ± 1σ | unit | bounds |", "|---|---|---|---|---|"]
-        for p in c.candidate.parameters:
-            lines.append(f"| {p.name} | {_fmt(c.values[p.name])} | {_fmt(c.std.get(p.name))} "
-                         f"| {p.unit} | {_fmt(p.lo)} .. {_fmt(p.hi)} |")
-        lines += ["", "Extension written to `params_with_effect.yaml`: "
-                      + ", ".join(f"{k} = {_fmt(v)}" for k, v in c.extension.items()), ""]
+    if effects:
+        lines += ["Effects added by forward selection, each fitted together with the paper's "
+                  "parameters and the effects before it; the gain is on the held-out files, "
+                  "against the model of the step before.", "",
+                  "| step | effect | family | held-out gain | ΔBIC |", "|---|---|---|---|---|"]
+        for k, (e, st) in enumerate(zip(effects, diag.steps), 1):
+            lines.append(f"| {k} | {e['effect']} | {e['family']} | "
+                         f"{100 * e['held_out_gain']:.1f} % | {st.delta_bic:.0f} |")
+        for e, st in zip(effects, diag.steps):
+            c = st.candidate
+            lines += ["", f"**{e['effect']}** ({e['family']})"
+                      + (f": {c.note}" if c.note else ""), "",
+                      "| parameter | fitted | ± 1σ | unit | bounds |", "|---|---|---|---|---|"]
+            for p in c.parameters:
+                f = e["fitted"][p.name]
+                lines.append(f"| {p.name} | {_fmt(f['value'])} | {_fmt(f['std'])} | "
+                             f"{p.unit} | {_fmt(p.lo)} .. {_fmt(p.hi)} |")
+        lines += ["", "Model written to `params_with_effect.yaml`: the re-identified paper's "
+                      "parameters and " + ", ".join(e["effect"] for e in effects) + ".", ""]
     elif diag.family == "other" and diag.closest is not None:
         c = diag.closest
         lines += [f"Structure remains that the library does not explain.  The closest "
                   f"candidate, **{c.candidate.effect}** ({c.candidate.family}), cuts the "
-                  f"held-out r.m.s. by {100 * c.score:.1f} % but removes only "
-                  f"{100 * diag.explained:.0f} % of the residual's structured power; it is "
-                  "not added.", ""]
+                  f"held-out r.m.s. by {100 * c.score:.1f} %, but the effects found remove "
+                  f"only {100 * diag.explained:.0f} % of the residual's structured power; "
+                  "none is added.", ""]
     elif diag.family == "other":
         lines += ["No candidate explains a significant part of the held-out residual, yet "
-                  f"the residual is {diag.structure_before:.1f}× its noise level: structure "
-                  "remains that the library does not explain.", ""]
+                  f"the refitted model's residual is {doc['structure_ratio_before']:.1f}× its "
+                  "noise level and above the floor: structure remains that the library does "
+                  "not explain.", ""]
     else:
-        lines += ["No candidate explains a significant part of the held-out residual, and "
-                  f"the residual is close to noise ({diag.structure_before:.2f}× its noise "
-                  "level).", ""]
-    lines += ["## Residual r.m.s. per file [N]", "",
-              "| file | role | before | after | change |", "|---|---|---|---|---|"]
+        lines += ["Nothing to add: the refitted paper's model leaves a held-out residual "
+                  f"within the floor ({diag.floor_n:.2f} N: the larger of "
+                  f"{100 * doc['thresholds']['floor_force_fraction']:g} % of the force r.m.s. "
+                  f"and {doc['thresholds']['floor_noise_factor']:g}× the noise level "
+                  f"{diag.noise_n:.2f} N) or without structure, and no candidate is "
+                  "significant.", ""]
+    lines += ["## The paper's parameters", "",
+              "Identified (`identify`'s staged fits) and after the joint fit of the "
+              "diagnosis (simulated over the identification files, with the effects above):",
+              "", *_base_table(diag), "",
+              "## Residual r.m.s. per file [N]", "",
+              "| file | role | identified | refitted | after | change |",
+              "|---|---|---|---|---|---|"]
+    refit = doc["refit"]["rms"] if doc["refit"] else {}
     for r in diag.records:
         b, a = diag.rms_before[r.name], diag.rms_after[r.name]
         ch = f"{100 * (a / b - 1):+.1f} %" if b > 0 else "–"
         lines.append(f"| {r.name} | {'held out' if r.held_out else 'fit'} | {b:.2f} | "
-                     f"{a:.2f} | {ch} |")
-    lines += ["", f"Structure ratio of the held-out residual (r.m.s. / noise level): "
-                  f"{diag.structure_before:.2f} before, {diag.structure_after:.2f} after.", "",
-              "## Ranking", "",
-              "| effect | family | held-out reduction | ΔBIC | significant | parameters | "
-              "time |", "|---|---|---|---|---|---|---|"]
-    for c in diag.ranking:
-        pars = ", ".join(f"{k} {_fmt(v)}" for k, v in c.values.items())
-        lines.append(f"| {c.candidate.effect} | {c.candidate.family} | "
-                     f"{100 * c.score:+.1f} % | {c.delta_bic:.0f} | "
-                     f"{'yes' if c.significant else 'no'} | {pars} | {c.seconds:.1f} s |")
+                     f"{_fmt(refit.get(r.name))} | {a:.2f} | {ch} |")
+    lines += ["", "*refitted*: the paper's model alone, re-identified jointly (the "
+                  "reference of the first round).", "",
+              f"Structure ratio of the held-out residual (r.m.s. / noise level): "
+              f"{diag.structure_before:.2f} identified, {diag.structure_after:.2f} after.  "
+              f"Floor {diag.floor_n:.2f} N, noise level {diag.noise_n:.2f} N.", ""]
+    for k, rnd in enumerate(diag.rounds, 1):
+        lines += [f"## Round {k}", "",
+                  "| effect | family | held-out gain | ΔBIC | significant | parameters | "
+                  "time |", "|---|---|---|---|---|---|---|"]
+        for c in rnd:
+            pars = ", ".join(f"{n} {_fmt(v)}" for n, v in c.values.items())
+            lines.append(f"| {c.candidate.effect} | {c.candidate.family} | "
+                         f"{100 * c.score:+.1f} % | {c.delta_bic:.0f} | "
+                         f"{'yes' if c.significant else 'no'} | {pars} | {c.seconds:.1f} s |")
+        lines.append("")
     th = doc["thresholds"]
-    lines += ["", f"Significant: held-out r.m.s. reduction ≥ {100 * th['min_score']:g} % and "
-                  f"ΔBIC ≤ {th['max_delta_bic']:g}; `other` when none is and the held-out "
-                  f"residual exceeds {th['structure_ratio']:g}× its noise level, or when the "
-                  f"best removes less than {100 * th['min_explained']:g} % of its structured "
-                  "power.  The first 50 ms of each file are not counted (start-up from "
-                  "equilibrium).", "",
+    lines += [f"Significant: the present model's held-out residual above the floor, a "
+              f"held-out gain ≥ {100 * th['min_score']:g} % and ΔBIC ≤ "
+              f"{th['max_delta_bic']:g}; at most {th['max_effects']} effects.  `other` when "
+              f"none is and the residual exceeds {th['structure_ratio']:g}× its noise level "
+              f"and the floor, or when the effects remove less than "
+              f"{100 * th['min_explained']:g} % of its structured power.  The first 50 ms of "
+              "each file are not counted (start-up from equilibrium).", "",
               f"Diagnosis took {diag.seconds:.1f} s.", ""]
     return "\n".join(lines)
 
@@ -205,7 +250,8 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
                 models.append(("after", diag.model_after()))
             for when, model in models:
                 path = out / f"residual_{when}_{report_stem(rec.name)}.png"
-                what = "identified model" if when == "before" else f"with {diag.effect}"
+                what = ("identified model" if when == "before" else "model with "
+                        + " + ".join(st.candidate.effect for st in diag.steps))
                 files.append(plot_residual(path, residual_record(model, rec.data),
                                            title=f"{rec.name}: residual of the {what}"))
                 say(f"wrote {path}")
@@ -214,6 +260,11 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
     if diag.chosen is not None:
         path = out / "params_with_effect.yaml"
         save_config(diag.model_after().cfg, path)
+        files.append(path)
+        say(f"wrote {path}")
+    if diag.refit is not None:
+        path = out / "params_refit.yaml"
+        save_config(diag.refit.model().cfg, path)
         files.append(path)
         say(f"wrote {path}")
     md = out / "report.md"

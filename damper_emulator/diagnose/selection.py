@@ -1,61 +1,86 @@
-"""Which missing effect explains the residual: fit every candidate, score it on held-out
-data, pick one or say ``none`` / ``other``.
+"""Which missing effects explain the residual: re-identify the damper with each candidate
+inside the model, score on held-out data, add effects by forward selection, or say
+``none`` / ``other``.
 
 Procedure (:func:`diagnose`):
 
-1. **Base.**  The identified model is simulated over every file (the same simulation as
-   ``validate``: :func:`damper_emulator.validation.simulate_record`); the residuals
-   ``F_sim − F_meas`` are the "before".
-2. **Fit.**  Each candidate (:mod:`damper_emulator.diagnose.candidates`) is added to the
-   identified model, whose own parameters stay fixed, and its parameters are fitted on the
-   identification files (quasi-static + chirp) by bounded least squares
-   (``scipy.optimize.least_squares``, trust-region reflective, forward differences) in
-   coordinates normalised to the bounds; a candidate with several start vectors gets
-   :data:`SCREEN_NFEV` evaluations from each and goes on from the best.  The cost is
-   ``Σ_f MSE_f(θ) / MSE_f(base)``: every file counts by the fraction of its own residual
-   power removed, so a quasi-static test of a few hundred newtons weighs as much as a
-   chirp of kilonewtons.
-3. **Score** on the held-out files (the validation sines), never seen by the fit:
-   ``score = 1 − √(Σ SSE_after / Σ SSE_before)``, the pooled r.m.s. reduction.
-4. **Penalise** the added parameters with the Bayesian information criterion on the
-   identification files, ``BIC = Σ_f n_f,eff ln MSE_f + k ln N_eff``, with each file's
-   sample count reduced to the effective number of independent samples of an AR(1)
+1. **Before.**  The identified model (``identify``'s result, the user's parameters) is
+   simulated over every file (as ``validate`` does): the residuals "before".
+2. **Refit.**  The paper's model alone is fitted again, jointly over the identification
+   files (quasi-static + chirp) simulated whole (:func:`damper_emulator.diagnose.joint.
+   joint_fit`): the reference every candidate has to beat.  ``identify``'s staged fits are
+   not the least-squares optimum of the simulated model; without this step that gain
+   would be credited to whichever effect came first.
+3. **Candidates, jointly.**  Each candidate effect (:mod:`damper_emulator.diagnose.
+   candidates`) is pre-fitted on top of the present model and then fitted *together with*
+   every paper's parameter and every effect already accepted.  The cost is
+   ``Σ_f mean_f((F_sim − F_meas)²) / σ_f²``, each file in units of its own noise level
+   ``σ_f`` (:func:`noise_level` of the identified model's residual): a file already at its
+   noise counts as much as one far from it, and none stops the fit early.
+4. **Score** on the held-out files (the validation sines), never seen by a fit:
+   ``gain = 1 − √(Σ SSE_candidate / Σ SSE_reference)``, the pooled r.m.s. reduction
+   against the present model.
+5. **Penalise** the added parameters with the Bayesian information criterion on the
+   identification files, ``ΔBIC = Σ_f n_f,eff ln(MSE_f / MSE_f,ref) + k ln N_eff``, each
+   file's sample count reduced to the effective number of independent samples of an AR(1)
    residual, ``n_eff = n (1 − ρ)/(1 + ρ)`` (ρ the lag-1 autocorrelation of the candidate's
-   residual; a residual of a dyno record is never white, and the plain BIC would take
-   40 000 correlated samples as 40 000 pieces of evidence).
-5. **Select.**  A candidate is *significant* when it cuts the held-out r.m.s. by at least
-   :data:`MIN_SCORE` **and** ``ΔBIC ≤`` :data:`MAX_DELTA_BIC`.  The most significant
-   candidate by score is the diagnosis, unless it removes less than :data:`MIN_EXPLAINED`
-   of the held-out residual's structured power (:func:`explained_fraction`) and structure
-   remains: then the answer is ``other``, with that candidate as the closest family and
-   nothing added.  With none significant the result is ``other`` if the held-out residual
-   still has structure — its r.m.s. more than :data:`STRUCTURE_RATIO` times the noise level
-   estimated from sample-to-sample differences (:func:`noise_level`) — and ``none``
-   otherwise.
+   residual: a dyno record's residual is never white, and the plain BIC would take 40,000
+   correlated samples as 40,000 pieces of evidence).
+6. **Forward selection.**  A candidate is *significant* when the present model's held-out
+   residual is above the engineering floor (below), its gain is at least
+   :data:`MIN_SCORE` and ``ΔBIC ≤`` :data:`MAX_DELTA_BIC`.  The one with the largest gain
+   is added, its joint fit becomes the present model, and the remaining candidates are
+   fitted again on top of it (step 3); this repeats until none is significant, the floor
+   is reached, or :data:`MAX_EFFECTS` are in.
+7. **Answer.**  No effect added: ``none`` when the refitted model's held-out residual is
+   within the floor or has no structure (r.m.s. at most :data:`STRUCTURE_RATIO` × its
+   noise level), else ``other``.  Effects added: the first (largest) names the family,
+   unless together they remove less than :data:`MIN_EXPLAINED` of the refitted model's
+   held-out structured power (:func:`explained_fraction`) while structure above the floor
+   remains: then ``other``, the first as the closest family, nothing added.
 
-Thresholds: ``MIN_SCORE`` = 5 %: on data without an extra effect (noise only) the best
-candidate's held-out reduction stayed below 0.5 % (measured in ``docs/diagnose.md``), so 5 %
-is ten times that; ``MAX_DELTA_BIC`` = −10 is "very strong" evidence on the Kass & Raftery
-(1995) scale; ``STRUCTURE_RATIO`` = 1.5: white noise gives 1.0 ± 0.02 on these record lengths
-and a residual 1.5× its noise floor carries more than half its power in structure
-(1 − 1/1.5²  = 56 %).
+**The floor** ("small in engineering terms") is the larger of :data:`FLOOR_FORCE_FRACTION`
+of the held-out force r.m.s. and :data:`FLOOR_NOISE_FACTOR` × the held-out noise level.
+1 % of the force is the accuracy of a dyno's force channel (load cells and their
+amplifiers are specified to 0.5–1 % of reading) and the spread between repeated runs; a
+model within it has nothing left to explain that the instrument could vouch for.  A
+residual within twice its white-noise level carries at most 3/4 of its power in structure
+of r.m.s. ≤ √3 σ, below anything a fit of one more effect can separate from the noise on
+a few sine cycles.
+
+Other thresholds: ``MIN_SCORE`` = 5 %: on data without an extra effect (noise only) the
+best candidate's held-out gain stayed below 0.5 % (``docs/diagnose.md``);
+``MAX_DELTA_BIC`` = −10 is "very strong" evidence on the Kass & Raftery (1995) scale;
+``STRUCTURE_RATIO`` = 1.5: white noise gives 1.0 ± 0.02 on these record lengths, and a
+residual 1.5× its noise level carries more than half its power in structure
+(1 − 1/1.5² = 56 %).
+
+The fits of a round are independent tasks (:class:`FitTask`, run by :func:`run_fit_task`)
+submitted to one :class:`concurrent.futures.Executor`: a local process pool by default, or
+any other, e.g. a Dask cluster's ``distributed.Client(...).get_executor()``.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import Executor, as_completed
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from damper_emulator.diagnose.candidates import Candidate, candidates as make_candidates
+from damper_emulator.diagnose.joint import (JOINT_NFEV, Record, base_parameters, joint_fit,
+                                            lag1, make_record, model_of)
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
-from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ParameterError
-from damper_emulator.validation import record_velocity, rms, simulate_measured
+from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ModelConfig
+from damper_emulator.validation import rms
+
+__all__ = ["Diagnosis", "FitTask", "Record", "StepFit", "diagnose", "run_fit_task",
+           "noise_level", "structure_ratio", "explained_fraction", "effective_bic",
+           "make_record"]
 
 #: a candidate must cut the pooled held-out r.m.s. by at least this fraction
 MIN_SCORE = 0.05
@@ -63,71 +88,20 @@ MIN_SCORE = 0.05
 MAX_DELTA_BIC = -10.0
 #: held-out residual r.m.s. / noise level above which structure remains
 STRUCTURE_RATIO = 1.5
-#: a significant candidate that removes less than this fraction of the held-out residual's
-#: structured power while structure remains is reported as the closest family of ``other``
-MIN_EXPLAINED = 0.5
-#: lag-1 autocorrelation is clipped to this in the effective sample size
-MAX_RHO = 0.999
-#: evaluations of the least-squares cost per start (Jacobian evaluations not counted)
-MAX_NFEV = 30
-#: ... of which each start of a candidate with several gets this many before the best
-#: start goes on alone
-SCREEN_NFEV = 4
-#: forward-difference step in normalised coordinates (0.1 % of each parameter's range)
-DIFF_STEP = 1e-3
-#: cost returned for parameters the model refuses
-FAILED_COST = 1e6
-#: the first this many seconds of every file are left out of every figure: the model
-#: starts from quasi-steady equilibrium at the first sample, the damper on the rig was
-#: already moving, and an effect with its own state (a series spring's deflection, a
-#: cavity, a lagging valve) takes a few of its time constants to agree
-START_SKIP_S = 0.05
+#: effects that together remove less than this fraction of the held-out residual's
+#: structured power while structure remains give ``other``
+MIN_EXPLAINED = 0.75
+#: the floor: this fraction of the held-out force r.m.s. ...
+FLOOR_FORCE_FRACTION = 0.01
+#: ... or this multiple of the held-out noise level, whichever is larger
+FLOOR_NOISE_FACTOR = 2.0
+#: forward selection adds at most this many effects
+MAX_EFFECTS = 2
+#: a file's noise level in the fit's weights is at least this fraction of its force
+#: r.m.s. (data without noise would otherwise get an infinite weight)
+MIN_NOISE_FRACTION = 1e-3
 
 Progress = Optional[Callable[[str], None]]
-
-
-@dataclass
-class Record:
-    """One file ready to simulate: samples, the velocity used, the temperature (or None)."""
-
-    data: MeasuredData
-    velocity: np.ndarray
-    held_out: bool
-
-    @property
-    def name(self) -> str:
-        return self.data.name or self.data.path
-
-    @property
-    def start(self) -> int:
-        """Index of the first sample that counts (:data:`START_SKIP_S` in)."""
-        t = self.data.time
-        return min(int(np.searchsorted(t, t[0] + START_SKIP_S)), max(t.size - 3, 0))
-
-    def simulate(self, model: DamperModel) -> np.ndarray:
-        """The force [N] of ``model`` over the whole file (one line naming the file when it
-        cannot be simulated)."""
-        return simulate_measured(model, self.data, self.velocity).force_n
-
-    def residual(self, model: DamperModel) -> np.ndarray:
-        """``F_sim − F_meas`` [N] of ``model`` on this file, from :attr:`start` on."""
-        k = self.start
-        return self.simulate(model)[k:] - self.data.force[k:]
-
-
-def make_record(data: MeasuredData, held_out: bool) -> Record:
-    """The record of ``data`` with the velocity ``validate`` uses."""
-    return Record(data, record_velocity(data)[0], held_out)
-
-
-def lag1(r: np.ndarray) -> float:
-    """Lag-1 autocorrelation of ``r`` (mean removed), clipped to ``[0, MAX_RHO]``."""
-    r = r - r.mean()
-    den = float(np.dot(r, r))
-    if r.size < 3 or den <= 0.0:
-        return 0.0
-    return min(max(float(np.dot(r[1:], r[:-1])) / den, 0.0), MAX_RHO)
-
 
 def noise_level(r: np.ndarray) -> float:
     """Robust standard deviation of the white part of ``r`` [N]: the median absolute
@@ -174,33 +148,166 @@ def effective_bic(residuals: Sequence[np.ndarray], k: int,
     return bic + k * math.log(max(n_eff_total, 2.0))
 
 
-@dataclass
-class CandidateResult:
-    """One fitted candidate."""
 
-    candidate: Candidate
-    values: dict[str, float]
-    std: dict[str, float]
-    extension: dict[str, float]
-    rms_fit: dict[str, float]
-    rms_held_out: dict[str, float]
-    score: float
-    delta_bic: float
-    significant: bool
-    evaluations: int
-    seconds: float
+def floor_level(held: Sequence[Record], residuals: Sequence[np.ndarray]) -> tuple[float, float]:
+    """``(floor, noise)`` [N] of the held-out files for the model with ``residuals``:
+    ``max(FLOOR_FORCE_FRACTION × pooled force r.m.s., FLOOR_NOISE_FACTOR × pooled noise
+    level)`` and that noise level."""
+    n = sum(r.size for r in residuals)
+    noise = math.sqrt(sum(noise_level(r) ** 2 * r.size for r in residuals) / max(n, 1))
+    f2 = sum(float(np.dot(rec.data.force[rec.start:], rec.data.force[rec.start:]))
+             for rec in held)
+    force_rms = math.sqrt(f2 / max(n, 1))
+    return max(FLOOR_FORCE_FRACTION * force_rms, FLOOR_NOISE_FACTOR * noise), noise
+
+
+def pooled_rms(residuals: Sequence[np.ndarray]) -> float:
+    n = sum(r.size for r in residuals)
+    return math.sqrt(sum(float(np.dot(r, r)) for r in residuals) / max(n, 1))
+
+
+@dataclass(frozen=True)
+class FitTask:
+    """One independent fit of a diagnosis, in plain picklable values: the identified
+    configuration, the files, the cost weights, the present model (its paper's parameters
+    and the effects ``accepted`` with their values) and the candidate ``effect`` to add
+    (``None``: refit the present model alone)."""
+
+    cfg: ModelConfig
+    fit: tuple[MeasuredData, ...]
+    held: tuple[MeasuredData, ...]
+    weights: tuple[float, ...]
+    base_values: Mapping[str, float]
+    accepted: tuple[tuple[str, Mapping[str, float]], ...]
+    effect: str | None
+    nfev: int = JOINT_NFEV
+    #: the first this many ``fit`` files are quasi-static tests, the others chirps
+    n_quasi_static: int = 1
+
+
+def run_fit_task(task: FitTask) -> dict[str, Any]:
+    """Run one :class:`FitTask` (in any process): the joint fit and the plain figures the
+    selection needs (per file: MSE, lag-1 autocorrelation and samples of the fit files,
+    SSE of the held-out files)."""
+    t0 = time.perf_counter()
+    fit = [make_record(d, False) for d in task.fit]
+    held = [make_record(d, True) for d in task.held]
+    cands = {c.effect: c for c in make_candidates(task.cfg, task.fit)}
+    accepted = [(cands[e], v) for e, v in task.accepted]
+    cand = cands[task.effect] if task.effect is not None else None
+    jf = joint_fit(task.cfg, fit, task.weights, task.base_values, accepted, cand, task.nfev,
+                   task.n_quasi_static)
+    order = [c for c, _ in accepted] + ([cand] if cand is not None else [])
+    model = jf.model(task.cfg, order)
+    fit_res = [r.residual(model) for r in fit]
+    held_res = [r.residual(model) for r in held]
+    return {"effect": task.effect,
+            "effects": [c.effect for c in order],
+            "base_values": {k: float(v) for k, v in jf.base_values.items()},
+            "base_std": {k: float(v) for k, v in jf.base_std.items()},
+            "values": [{k: float(v) for k, v in vals.items()} for vals in jf.values],
+            "std": [{k: float(v) for k, v in sd.items()} for sd in jf.std],
+            "fit": {r.name: {"mse": float(np.mean(x * x)), "rho": lag1(x), "n": int(x.size),
+                             "rms": rms(x)} for r, x in zip(fit, fit_res)},
+            "held": {r.name: {"sse": float(np.dot(x, x)), "rms": rms(x)}
+                     for r, x in zip(held, held_res)},
+            "reidentified": jf.reidentified,
+            "evaluations": jf.evaluations, "seconds": time.perf_counter() - t0}
+
+
+@dataclass
+class StepFit:
+    """One fitted model of a diagnosis (the output of :func:`run_fit_task`), scored
+    against the model it was fitted on top of."""
+
+    cfg: ModelConfig
+    candidates: list[Candidate]
+    out: dict[str, Any]
+    #: held-out gain against the reference, ΔBIC, significant
+    score: float = 0.0
+    delta_bic: float = 0.0
+    significant: bool = False
+
+    @property
+    def candidate(self) -> Candidate | None:
+        """The effect this fit added (``None`` for a refit of the present model)."""
+        return self.candidates[-1] if self.out["effect"] is not None else None
+
+    @property
+    def effects(self) -> list[str]:
+        return list(self.out["effects"])
+
+    @property
+    def values(self) -> dict[str, float]:
+        """The added effect's fitted parameters (by candidate parameter name)."""
+        return self.out["values"][-1] if self.out["effect"] is not None else {}
+
+    @property
+    def std(self) -> dict[str, float]:
+        return self.out["std"][-1] if self.out["effect"] is not None else {}
+
+    @property
+    def extension(self) -> dict[str, float]:
+        c = self.candidate
+        return {k: float(v) for k, v in c.fields(self.values).items()} if c else {}
+
+    @property
+    def rms_fit(self) -> dict[str, float]:
+        return {k: v["rms"] for k, v in self.out["fit"].items()}
+
+    @property
+    def rms_held_out(self) -> dict[str, float]:
+        return {k: v["rms"] for k, v in self.out["held"].items()}
+
+    @property
+    def sse_held(self) -> float:
+        return sum(v["sse"] for v in self.out["held"].values())
+
+    @property
+    def seconds(self) -> float:
+        return float(self.out["seconds"])
+
+    @property
+    def evaluations(self) -> int:
+        return int(self.out["evaluations"])
+
+    def model(self) -> DamperModel:
+        return model_of(self.cfg, self.out["base_values"],
+                        list(zip(self.candidates, self.out["values"])))
+
+    def score_against(self, ref: "StepFit", floor_reached: bool) -> None:
+        """Held-out gain and ΔBIC against ``ref`` (module docstring, steps 4–6)."""
+        sse0 = ref.sse_held
+        self.score = 1.0 - math.sqrt(self.sse_held / sse0) if sse0 > 0 else 0.0
+        k = (sum(len(c.parameters) for c in self.candidates)
+             - sum(len(c.parameters) for c in ref.candidates))
+        dbic, n_eff_total = 0.0, 0.0
+        for name, f in self.out["fit"].items():
+            rho = min(f["rho"], 0.999)
+            n_eff = f["n"] * (1.0 - rho) / (1.0 + rho)
+            dbic += n_eff * math.log(max(f["mse"], 1e-300)
+                                     / max(ref.out["fit"][name]["mse"], 1e-300))
+            n_eff_total += n_eff
+        self.delta_bic = dbic + k * math.log(max(n_eff_total, 2.0))
+        self.significant = bool(not floor_reached and self.score >= MIN_SCORE
+                                and self.delta_bic <= MAX_DELTA_BIC)
 
     def to_json(self) -> dict[str, Any]:
         c = self.candidate
-        return {"effect": c.effect, "family": c.family, "score": self.score,
-                "significant": self.significant, "delta_bic": self.delta_bic,
-                "parameters": self.extension,
-                "fitted": {p.name: {"value": self.values.get(p.name), "std": self.std.get(
-                    p.name), "unit": p.unit, "bounds": [p.lo, p.hi]}
-                    for p in c.parameters},
-                "rms_fit": self.rms_fit, "rms_held_out": self.rms_held_out,
-                "evaluations": self.evaluations, "seconds": round(self.seconds, 2),
-                **({"note": c.note} if c.note else {})}
+        doc: dict[str, Any] = {
+            "effect": c.effect if c else None, "family": c.family if c else None,
+            "score": self.score, "significant": self.significant,
+            "delta_bic": self.delta_bic, "parameters": self.extension,
+            "fitted": ({p.name: {"value": self.values.get(p.name),
+                                 "std": self.std.get(p.name), "unit": p.unit,
+                                 "bounds": [p.lo, p.hi]}
+                        for p in c.parameters} if c else {}),
+            "rms_fit": self.rms_fit, "rms_held_out": self.rms_held_out,
+            "reidentified": bool(self.out.get("reidentified")),
+            "evaluations": self.evaluations, "seconds": round(self.seconds, 2)}
+        if c is not None and c.note:
+            doc["note"] = c.note
+        return doc
 
 
 @dataclass
@@ -212,37 +319,72 @@ class Diagnosis:
     significant: bool
     rms_before: dict[str, float]
     rms_after: dict[str, float]
-    ranking: list[CandidateResult]
+    #: the first round: every candidate against the refitted paper's model
+    ranking: list[StepFit]
     held_out: list[str]
     structure_before: float
     structure_after: float
     seconds: float
-    chosen: CandidateResult | None = None
-    #: with ``other``: the significant candidate that explained too little to be the answer
-    closest: CandidateResult | None = None
-    #: fraction of the held-out residual's structured power the best significant candidate
-    #: removed (:func:`explained_fraction`; 0 when none was significant)
+    #: the paper's model refitted jointly (the reference of the first round)
+    refit: StepFit | None = None
+    #: the effects added, in order (each fitted with all before it)
+    steps: list[StepFit] = field(default_factory=list)
+    #: every round's fits (round 1 = :attr:`ranking`)
+    rounds: list[list[StepFit]] = field(default_factory=list)
+    #: with ``other``: the first significant effect, which explained too little
+    closest: StepFit | None = None
+    #: fraction of the refitted model's held-out structured power the effects removed
     explained: float = 0.0
+    floor_n: float = 0.0
+    noise_n: float = 0.0
     base_model: DamperModel | None = None
     records: list[Record] = field(default_factory=list)
 
+    @property
+    def chosen(self) -> StepFit | None:
+        """The first effect added (the main one), ``None`` with ``none``/``other``."""
+        return self.steps[0] if self.steps else None
+
+    @property
+    def final(self) -> StepFit | None:
+        """The model after the diagnosis: the last effect's fit, or the refit."""
+        return self.steps[-1] if self.steps else self.refit
+
     def model_after(self) -> DamperModel:
-        """The identified model with the chosen effect (the base model when none)."""
-        if self.chosen is None:
-            return self.base_model
-        return with_candidate(self.base_model, self.chosen.candidate, self.chosen.values)
+        """The model after the diagnosis (the identified model when nothing was fitted)."""
+        return self.final.model() if self.final is not None else self.base_model
+
+    def effects_json(self) -> list[dict[str, Any]]:
+        out = []
+        final = self.final
+        for k, st in enumerate(self.steps):
+            c = st.candidate
+            vals = final.out["values"][k]
+            sd = final.out["std"][k]
+            out.append({"effect": c.effect, "family": c.family,
+                        "parameters": {n: float(v) for n, v in c.fields(vals).items()},
+                        "fitted": {p.name: {"value": vals[p.name], "std": sd.get(p.name),
+                                            "unit": p.unit}
+                                   for p in c.parameters},
+                        "held_out_gain": st.score, "delta_bic": st.delta_bic,
+                        "rms_held_out": st.rms_held_out})
+        return out
 
     def to_json(self) -> dict[str, Any]:
         chosen = self.chosen
+        final = self.final
+        effects = self.effects_json()
+        main = effects[0] if effects else None
         doc: dict[str, Any] = {
             "family": self.family, "effect": self.effect, "significant": self.significant,
             "rms_before": self.rms_before, "rms_after": self.rms_after,
             "candidates": [c.to_json() for c in self.ranking],
+            "effects": effects,
             "held_out": self.held_out,
             "fit_files": [r.name for r in self.records if not r.held_out],
-            "parameters": chosen.extension if chosen else None,
-            "uncertainties": ({p: chosen.std.get(p) for p in chosen.values}
-                              if chosen else None),
+            "parameters": main["parameters"] if main else None,
+            "uncertainties": ({n: f["std"] for n, f in main["fitted"].items()}
+                              if main else None),
             "score": chosen.score if chosen else None,
             "explained_fraction": self.explained,
             "closest": ({"effect": self.closest.candidate.effect,
@@ -250,111 +392,87 @@ class Diagnosis:
                          "score": self.closest.score,
                          "parameters": self.closest.extension}
                         if self.closest else None),
+            "refit": ({"rms": {**self.refit.rms_fit, **self.refit.rms_held_out},
+                       "parameters": self.refit.out["base_values"],
+                       "uncertainties": self.refit.out["base_std"]}
+                      if self.refit else None),
+            "base_parameters_after": ({"values": final.out["base_values"],
+                                       "uncertainties": final.out["base_std"]}
+                                      if final else None),
+            "rounds": [[{"effect": f.candidate.effect if f.candidate else None,
+                         "score": f.score, "delta_bic": f.delta_bic,
+                         "significant": f.significant} for f in rnd]
+                       for rnd in self.rounds],
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
+            "floor_N": self.floor_n, "noise_N": self.noise_n,
             "thresholds": {"min_score": MIN_SCORE, "max_delta_bic": MAX_DELTA_BIC,
                            "structure_ratio": STRUCTURE_RATIO,
-                           "min_explained": MIN_EXPLAINED},
+                           "min_explained": MIN_EXPLAINED,
+                           "floor_force_fraction": FLOOR_FORCE_FRACTION,
+                           "floor_noise_factor": FLOOR_NOISE_FACTOR,
+                           "max_effects": MAX_EFFECTS},
             "seconds": round(self.seconds, 2)}
         return doc
 
 
 def with_candidate(base: DamperModel, cand: Candidate, values: Mapping[str, float]
                    ) -> DamperModel:
-    """``base`` with candidate ``cand`` at parameter ``values``."""
+    """``base`` with candidate ``cand`` at parameter ``values`` (its own parameters as
+    they are)."""
     group = EXTENSION_TYPES[cand.effect](**cand.fields(values))
     return base.with_extensions(ExtensionParams(**{cand.effect: group}))
 
 
-def _fit(cand: Candidate, base: DamperModel, fit: Sequence[Record],
-         base_mse: Sequence[float]) -> tuple[dict[str, float], dict[str, float], int,
-                                             list[np.ndarray]]:
-    """Least-squares fit of ``cand`` on ``fit``: values, standard deviations, evaluations
-    and the fit residuals."""
-    params = cand.parameters
-    lo = np.array([p.bounds[0] for p in params])
-    hi = np.array([p.bounds[1] for p in params])
-    width = hi - lo
-    weights = [1.0 / math.sqrt((r.data.force.size - r.start) * m)
-               for r, m in zip(fit, base_mse)]
-    n_total = sum(r.data.force.size - r.start for r in fit)
-    evals = [0]
+class _LocalPool:
+    """The default executor: a fork-based process pool (the workers inherit the compiled
+    kernels) of ``jobs`` processes, or this process for one."""
 
-    def values_of(s: np.ndarray) -> dict[str, float]:
-        return {p.name: p.from_internal(lo[i] + width[i] * s[i]) for i, p in enumerate(params)}
+    def __init__(self, jobs: int):
+        self.jobs = jobs
+        self.pool: Executor | None = None
 
-    def fun(s: np.ndarray) -> np.ndarray:
-        evals[0] += 1
-        try:
-            model = with_candidate(base, cand, values_of(s))
-        except (ParameterError, ValueError):
-            return np.full(n_total, FAILED_COST)
-        return np.concatenate([rec.residual(model) * w for rec, w in zip(fit, weights)])
+    def __enter__(self) -> "_LocalPool":
+        if self.jobs > 1:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
 
-    def solve(s0: np.ndarray, nfev: int):
-        return least_squares(fun, s0, bounds=(0.0, 1.0), method="trf", diff_step=DIFF_STEP,
-                             x_scale=1.0, max_nfev=nfev)
+            self.pool = ProcessPoolExecutor(self.jobs,
+                                            mp_context=multiprocessing.get_context("fork"))
+        return self
 
-    starts = [np.clip((u0 - lo) / width, 0.0, 1.0) for u0 in cand.starts()]
-    if len(starts) > 1:  # a few iterations from each start, then on from the best
-        screened = min((solve(s0, SCREEN_NFEV) for s0 in starts), key=lambda r: r.cost)
-        starts = [screened.x]
-    best = solve(starts[0], MAX_NFEV)
-    values = values_of(best.x)
-    # covariance of the normalised coordinates, inflated for the residual's correlation
-    model = with_candidate(base, cand, values)
-    resid = [rec.residual(model) for rec in fit]
-    std: dict[str, float] = {}
-    jac = best.jac
-    dof = max(best.fun.size - len(params), 1)
-    s2 = 2.0 * best.cost / dof
-    rho = max(lag1(r) for r in resid)
-    try:
-        cov = np.linalg.inv(jac.T @ jac) * s2 * (1.0 + rho) / (1.0 - rho)
-        for i, p in enumerate(params):
-            su = math.sqrt(max(cov[i, i], 0.0)) * width[i]
-            std[p.name] = values[p.name] * math.log(10.0) * su if p.log else su
-    except np.linalg.LinAlgError:
-        std = {p.name: math.inf for p in params}
-    return values, std, evals[0], resid
+    def __exit__(self, *exc) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(cancel_futures=True)
+
+    def map_unordered(self, fn, tasks):
+        if self.pool is None:
+            for i, t in enumerate(tasks):
+                yield i, fn(t)
+            return
+        yield from _unordered(self.pool, fn, tasks)
 
 
-#: the work of one :func:`diagnose` call, for :func:`_evaluate` (in this process or in a
-#: forked worker): base model, fit records, held-out records, candidates, base MSE of the
-#: fit files, base SSE of the held-out files, base residuals of the fit files
-_JOB: tuple | None = None
-
-
-def _evaluate(i: int) -> dict[str, Any]:
-    """Fit, score and penalise candidate ``i`` of :data:`_JOB` (plain values only, so that
-    a worker process can return them)."""
-    base, fit, held, cands, base_mse, sse_held_0, base_fit_res = _JOB
-    cand = cands[i]
-    t0 = time.perf_counter()
-    values, std, nev, fit_res = _fit(cand, base, fit, base_mse)
-    model = with_candidate(base, cand, values)
-    held_res = [r.residual(model) for r in held]
-    sse_held = sum(float(np.dot(h, h)) for h in held_res)
-    score = 1.0 - math.sqrt(sse_held / sse_held_0) if sse_held_0 > 0 else 0.0
-    rhos = [lag1(r) for r in fit_res]
-    delta = (effective_bic(fit_res, len(cand.parameters), rhos)
-             - effective_bic(base_fit_res, 0, rhos))
-    return {"values": {k: float(v) for k, v in values.items()},
-            "std": {k: float(v) for k, v in std.items()},
-            "extension": {k: float(v) for k, v in cand.fields(values).items()},
-            "rms_fit": {r.name: rms(x) for r, x in zip(fit, fit_res)},
-            "rms_held_out": {r.name: rms(x) for r, x in zip(held, held_res)},
-            "score": float(score), "delta_bic": float(delta),
-            "significant": bool(score >= MIN_SCORE and delta <= MAX_DELTA_BIC),
-            "evaluations": nev, "seconds": time.perf_counter() - t0}
+def _unordered(executor: Executor, fn, tasks):
+    futures = {executor.submit(fn, t): i for i, t in enumerate(tasks)}
+    for fut in as_completed(futures):
+        yield futures[fut], fut.result()
 
 
 def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
              held_out_data: Sequence[MeasuredData], effects: Sequence[str] | None = None,
-             progress: Progress = None, jobs: int | None = None) -> Diagnosis:
-    """Fit every candidate effect on ``fit_data`` on top of ``base`` (the identified
-    model), score it on ``held_out_data`` and choose (module docstring).  ``jobs`` > 1 fits
-    the candidates in that many forked processes (default: one, in this process).
+             progress: Progress = None, jobs: int | None = None,
+             executor: Executor | None = None, max_effects: int = MAX_EFFECTS,
+             nfev: int = JOINT_NFEV, n_quasi_static: int = 1) -> Diagnosis:
+    """Diagnose the residual of ``base`` (the identified model) on ``fit_data``
+    (quasi-static and chirp: fitted) and ``held_out_data`` (scored only), with the
+    candidates ``effects`` (default: all); module docstring.  The first ``n_quasi_static``
+    files of ``fit_data`` are quasi-static tests, the others chirps (the re-identification
+    of a local effect needs to know which).
+
+    The fits run on ``executor`` (any :class:`concurrent.futures.Executor`, e.g. a Dask
+    client's ``get_executor()``) or, without one, in ``jobs`` forked processes (default
+    one: in this process).
 
     Raises
     ------
@@ -371,75 +489,129 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ValueError(f"two data files share the name {dup[0]!r}; names must differ")
+    if base.cfg.damper.extensions is not None:
+        raise ValueError("diagnose needs the identified model without damper.extensions")
+    cfg = base.cfg
     records = ([make_record(d, False) for d in fit_data]
                + [make_record(d, True) for d in held_out_data])
     fit = [r for r in records if not r.held_out]
     held = [r for r in records if r.held_out]
     base_res = {r.name: r.residual(base) for r in records}
-    base_mse = [max(float(np.mean(base_res[r.name] ** 2)), 1e-12) for r in fit]
     rms_before = {r.name: rms(base_res[r.name]) for r in records}
-    sse_held_0 = sum(float(np.dot(base_res[r.name], base_res[r.name])) for r in held)
-    say("base model: held-out r.m.s. "
+    weights = []
+    for r in fit:
+        force_rms = rms(r.data.force[r.start:])
+        sigma = max(noise_level(base_res[r.name]), MIN_NOISE_FRACTION * force_rms, 1e-9)
+        weights.append(1.0 / (math.sqrt(r.counted) * sigma))
+    say("identified model: held-out r.m.s. "
         + ", ".join(f"{r.name} {rms_before[r.name]:.1f} N" for r in held))
-    cands = make_candidates(base.cfg, [r.data for r in fit], effects)
-    global _JOB
-    _JOB = (base, fit, held, cands, base_mse, sse_held_0,
-            [base_res[r.name] for r in fit])
-    results: list[CandidateResult | None] = [None] * len(cands)
-    jobs = max(1, min(int(jobs or 1), len(cands)))
-    say(f"fitting {len(cands)} candidates" + (f" in {jobs} processes" if jobs > 1 else ""))
+    cands = make_candidates(cfg, [r.data for r in fit], effects)
+    by_effect = {c.effect: c for c in cands}
+    base_values = {p.name: p.start for p in base_parameters(cfg, [r.data for r in fit])}
 
-    def done(i: int, out: dict[str, Any]) -> None:
-        cand = cands[i]
-        results[i] = CandidateResult(candidate=cand, **out)
-        n_done = sum(r is not None for r in results)
-        say(f"[{n_done}/{len(cands)}] {cand.effect} ({cand.family}, "
-            f"{len(cand.parameters)} parameter{'s' if len(cand.parameters) > 1 else ''}): "
-            f"held-out r.m.s. {-100 * out['score']:+.1f} %, ΔBIC {out['delta_bic']:.0f}"
-            f"{'  (significant)' if out['significant'] else ''}, {out['seconds']:.1f} s")
-
-    try:
-        if jobs == 1:
-            for i in range(len(cands)):
-                done(i, _evaluate(i))
+    def task(present: StepFit | None, effect: str | None) -> FitTask:
+        if present is None:
+            bv, acc = base_values, ()
         else:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor, as_completed
+            bv = present.out["base_values"]
+            acc = tuple(zip(present.effects, present.out["values"]))
+        # an effect that replaces a paper's parameter leaves it at the identified value
+        bv = {**base_values, **bv}
+        return FitTask(cfg, tuple(r.data for r in fit), tuple(r.data for r in held),
+                       tuple(weights), bv, acc, effect, nfev, n_quasi_static)
 
-            # fork: the workers inherit the job and the compiled kernels
-            with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")
-                                     ) as pool:
-                futures = {pool.submit(_evaluate, i): i for i in range(len(cands))}
-                for fut in as_completed(futures):
-                    done(futures[fut], fut.result())
-    finally:
-        _JOB = None
-    ranking = sorted(results, key=lambda c: (-c.significant, -c.score))
-    chosen = ranking[0] if ranking and ranking[0].significant else None
-    structure_before = structure_ratio([base_res[r.name] for r in held])
+    def step_fit(present: StepFit | None, out: dict[str, Any]) -> StepFit:
+        order = ([] if present is None else list(present.candidates))
+        if out["effect"] is not None:
+            order.append(by_effect[out["effect"]])
+        return StepFit(cfg, order, out)
+
+    jobs = max(1, int(jobs or 1))
+    rounds: list[list[StepFit]] = []
+    steps: list[StepFit] = []
+    with _LocalPool(jobs if executor is None else 1) as local:
+        def run(present: StepFit | None, effects_: Sequence[str | None], label: str):
+            tasks = [task(present, e) for e in effects_]
+            out: list[StepFit | None] = [None] * len(tasks)
+            it = (_unordered(executor, run_fit_task, tasks) if executor is not None
+                  else local.map_unordered(run_fit_task, tasks))
+            for n_done, (i, res) in enumerate(it, 1):
+                out[i] = step_fit(present, res)
+                e = res["effect"] or "paper's model alone"
+                say(f"{label} [{n_done}/{len(tasks)}] {e}: held-out r.m.s. "
+                    + ", ".join(f"{v['rms']:.1f}" for v in res["held"].values())
+                    + f" N ({res['evaluations']} simulations, {res['seconds']:.1f} s)")
+            return out
+
+        say(f"round 1: the paper's model refitted and {len(cands)} candidates fitted with "
+            f"it ({min(jobs, len(cands) + 1) if executor is None else 'executor'} "
+            "processes)")
+        first = run(None, [None, *by_effect], "round 1")
+        refit, fits = first[0], first[1:]
+        present = refit
+        remaining = list(by_effect)
+        while True:
+            held_res = [r.residual(present.model()) for r in held]
+            floor, _noise = floor_level(held, held_res)
+            small = pooled_rms(held_res) <= floor
+            for f in fits:
+                f.score_against(present, small)
+            rounds.append(sorted(fits, key=lambda f: (-f.significant, -f.score)))
+            sig = [f for f in fits if f.significant]
+            for f in rounds[-1][:3]:
+                say(f"round {len(rounds)}: {f.candidate.effect} gain {100 * f.score:+.1f} %, "
+                    f"ΔBIC {f.delta_bic:.0f}{' (significant)' if f.significant else ''}")
+            if small:
+                say(f"round {len(rounds)}: held-out r.m.s. {pooled_rms(held_res):.2f} N is "
+                    f"within the floor {floor:.2f} N: nothing more to explain")
+            if not sig:
+                break
+            best = max(sig, key=lambda f: f.score)
+            steps.append(best)
+            remaining.remove(best.candidate.effect)
+            say(f"added {best.candidate.effect} ({best.candidate.family}): held-out gain "
+                f"{100 * best.score:.1f} %")
+            held_best = [r.residual(best.model()) for r in held]
+            if (len(steps) >= max_effects or not remaining
+                    or pooled_rms(held_best) <= floor_level(held, held_best)[0]):
+                break
+            # the next round: the present model refitted once more (the reference: a
+            # candidate must beat the present model's own further convergence, not only
+            # its last fit) and every remaining candidate on top of it
+            nxt = run(best, [None, *remaining], f"round {len(rounds) + 1}")
+            present, fits = nxt[0], nxt[1:]
+            if present.sse_held > best.sse_held:
+                present = best
+
+    ref_held = [r.residual(refit.model()) for r in held]
+    floor, noise = floor_level(held, ref_held)
+    structure_ref = structure_ratio(ref_held)
     closest = None
     explained = 0.0
-    if chosen is not None:
-        model = with_candidate(base, chosen.candidate, chosen.values)
-        after = {r.name: r.residual(model) for r in records}
-        explained = explained_fraction([base_res[r.name] for r in held],
-                                       [after[r.name] for r in held])
-        if (explained < MIN_EXPLAINED
-                and structure_ratio([after[r.name] for r in held]) > STRUCTURE_RATIO):
-            # a real but partial improvement: most of the structure is something else
-            closest, chosen = chosen, None
-    if chosen is not None:
-        family, effect = chosen.candidate.family, chosen.candidate.effect
+    if steps:
+        final_held = [r.residual(steps[-1].model()) for r in held]
+        explained = explained_fraction(ref_held, final_held)
+        if (explained < MIN_EXPLAINED and structure_ratio(final_held) > STRUCTURE_RATIO
+                and pooled_rms(final_held) > floor):
+            closest, steps = steps[0], []
+    if steps:
+        family, effect = steps[0].candidate.family, steps[0].candidate.effect
     else:
-        after = base_res
-        family = "other" if structure_before > STRUCTURE_RATIO else "none"
+        family = ("other" if structure_ref > STRUCTURE_RATIO and pooled_rms(ref_held) > floor
+                  else "none")
         effect = None
-    structure_after = structure_ratio([after[r.name] for r in held])
-    return Diagnosis(family=family, effect=effect, significant=chosen is not None,
-                     rms_before=rms_before,
-                     rms_after={r.name: rms(after[r.name]) for r in records},
-                     ranking=ranking, held_out=[r.name for r in held],
-                     structure_before=structure_before, structure_after=structure_after,
-                     seconds=time.perf_counter() - t_start, chosen=chosen, base_model=base,
-                     closest=closest, explained=explained,
-                     records=records)
+    diag = Diagnosis(family=family, effect=effect, significant=bool(steps),
+                     rms_before=rms_before, rms_after={}, ranking=rounds[0] if rounds else [],
+                     held_out=[r.name for r in held],
+                     structure_before=structure_ratio([base_res[r.name] for r in held]),
+                     structure_after=0.0, seconds=0.0, refit=refit, steps=steps,
+                     rounds=rounds, closest=closest, explained=explained, floor_n=floor,
+                     noise_n=noise, base_model=base, records=records)
+    after_model = diag.model_after()
+    after = {r.name: r.residual(after_model) for r in records}
+    diag.rms_after = {r.name: rms(after[r.name]) for r in records}
+    diag.structure_after = structure_ratio([after[r.name] for r in held])
+    diag.seconds = time.perf_counter() - t_start
+    say(f"diagnosis: {family}" + (f" ({', '.join(s.candidate.effect for s in steps)})"
+                                  if steps else "") + f" in {diag.seconds:.1f} s")
+    return diag

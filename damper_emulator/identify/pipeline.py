@@ -237,8 +237,15 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
              start_factors: Optional[dict] = None,
              fixed: Optional[Mapping[str, Mapping[str, float]]] = None,
              fit_alpha: bool = False,
-             alpha_bounds_per_pa: Optional[tuple[float, float]] = None) -> Identification:
+             alpha_bounds_per_pa: Optional[tuple[float, float]] = None,
+             exclude: Optional[tuple[Optional[np.ndarray], Optional[np.ndarray]]] = None
+             ) -> Identification:
     """Identify gas spring, friction and both valves (see the module docstring).
+
+    ``exclude`` = ``(quasi-static mask, chirp mask)`` (either ``None``): samples of the
+    joined quasi-static and chirp records that no fit uses, e.g. where an effect the
+    paper's model lacks is known to act (``diagnose`` leaves out the samples where a
+    cavity is open or an end stop engaged).
 
     With ``fit_alpha`` the oil compressibility α (eq 1) is fitted too, as the paper
     suggests ("adjusted slightly to absorb other compliances"): a bounded scalar search on
@@ -261,9 +268,10 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
     """
     if not fit_alpha:
         return _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
-                              hysteresis_filter_on, start_factors, fixed)
+                              hysteresis_filter_on, start_factors, fixed, exclude)
     return _identify_alpha(quasi_static, chirp, base, progress, alpha_bounds_per_pa,
-                           correct_compressibility, hysteresis_filter_on, start_factors, fixed)
+                           correct_compressibility, hysteresis_filter_on, start_factors, fixed,
+                           exclude)
 
 
 def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Identification:
@@ -313,7 +321,7 @@ def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Id
 
 
 def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
-                   hysteresis_filter_on, start_factors, fixed) -> Identification:
+                   hysteresis_filter_on, start_factors, fixed, exclude=None) -> Identification:
     say = progress or (lambda msg: None)
     d = base.damper
     a_rod, a_ann, gamma = d.rod_area_m2, d.annulus_area_m2, d.gas_gamma
@@ -326,6 +334,20 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
         raise IdentificationError(f"fixed valve parameters for unknown side(s) {sorted(unknown)} "
                                   "(rebound or compression)")
     xq, vq, fq = quasi_static.displacement, quasi_static.velocity, quasi_static.force
+    qs_keep = np.ones(xq.size, bool)
+    chirp_drop = np.zeros(chirp.force.size, bool)
+    if exclude is not None:
+        for mask, n, what in zip(exclude, (xq.size, chirp.force.size),
+                                 ("quasi-static", "chirp")):
+            if mask is not None and np.shape(mask) != (n,):
+                raise IdentificationError(f"the {what} exclusion mask has shape "
+                                          f"{np.shape(mask)}, the joined record {n} samples")
+        if exclude[0] is not None:
+            qs_keep = ~np.asarray(exclude[0], bool)
+            if qs_keep.sum() < 10:
+                raise IdentificationError("fewer than 10 quasi-static samples left to fit")
+        if exclude[1] is not None:
+            chirp_drop = np.asarray(exclude[1], bool)
     tc, xc, vc, fc = chirp.time, chirp.displacement, chirp.velocity, chirp.force
     cfg = base
     fits: dict[str, FitResult] = {}
@@ -334,7 +356,8 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
     for rounds in range(1, MAX_ROUNDS + 1):
         valve_force = (None if not fits else
                        valve_pressure_drop(vq, cfg) * a_ann)
-        qs = fit_quasi_static(xq, vq, fq, a_rod, gamma, valve_force)
+        qs = fit_quasi_static(xq[qs_keep], vq[qs_keep], fq[qs_keep], a_rod, gamma,
+                              None if valve_force is None else valve_force[qs_keep])
         p_gas, v_gas, friction = qs.values
         say(f"round {rounds}: quasi-static P_gas {p_gas / 1e6:.4f} MPa, V_gas "
             f"{v_gas * 1e6:.2f} cm³, friction {friction:.1f} N (r.m.s. {qs.rms:.2f} N)")
@@ -345,7 +368,7 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
         force_sd = qs.rms  # the quasi-static residual: the force measurement's noise
         selected = [chirp_selection(tc[f], vc[f], q_all[f], dp_all[f], hysteresis_filter_on)
                     for f in chirp_files]
-        masks = {side: np.concatenate([sel[k] for sel in selected])
+        masks = {side: np.concatenate([sel[k] for sel in selected]) & ~chirp_drop
                  for k, side in enumerate(("rebound", "compression"))}
         for side, m in masks.items():
             if m.sum() < 20:

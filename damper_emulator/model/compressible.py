@@ -670,6 +670,19 @@ class DamperModel:
         new.prm = prm
         return new
 
+    def with_max_substep(self, max_substep_s: float) -> "DamperModel":
+        """This model integrated on sub-steps of at most ``max_substep_s`` [s] (the
+        ``numerics.max_substep_s`` of a copy; tables shared, cheap)."""
+        if max_substep_s == self.prm[P_SUBSTEP]:
+            return self
+        new = object.__new__(DamperModel)
+        new.cfg = dataclasses.replace(self.cfg, numerics=dataclasses.replace(
+            self.cfg.numerics, max_substep_s=float(max_substep_s)))
+        new.tables = self.tables
+        new.prm = self.prm.copy()
+        new.prm[P_SUBSTEP] = float(max_substep_s)
+        return new
+
     @classmethod
     def from_file(cls, path=None) -> "DamperModel":
         return cls(load_config(path))

@@ -109,12 +109,15 @@ def test_each_family_is_found_after_identify_on_the_same_files(effect):
     assert all(math.isfinite(f["std"]) for f in main["fitted"].values()), main
 
 
-@pytest.mark.parametrize("damper", ["sport", "van"])
-def test_without_an_extra_effect_the_answer_is_none_on_two_dampers(damper):
+@pytest.mark.parametrize("damper, effects", [
+    ("sport", None),
+    ("van", ["lugre_friction", "valve_lag", "series_compliance", "end_stops"])])
+def test_without_an_extra_effect_the_answer_is_none_on_two_dampers(damper, effects):
     """No extension in the truth, only its model-form differences: all nine candidates
-    are tried and none is significant."""
+    (on the van, the four that took most of a noise-only residual in the benchmark) are
+    tried and none is significant."""
     sheet, data = _session(None, damper)
-    diag = _identify_and_diagnose(sheet, data)
+    diag = _identify_and_diagnose(sheet, data, effects)
     assert diag.family == "none" and diag.effect is None and not diag.significant, [
         (c.candidate.effect, c.score, c.delta_bic) for c in diag.ranking]
     assert not diag.steps and all(not c.significant for c in diag.ranking)
@@ -153,7 +156,10 @@ def test_an_effect_outside_the_library_gives_other_and_an_honest_closest_family(
         return mass_kg * np.gradient(v, t)
 
     sheet, data = _session(None, extra_force=inertia)
-    diag = _identify_and_diagnose(sheet, data)
+    # the candidates that can act on the force's phase as a mass does (the benchmark runs
+    # all nine)
+    diag = _identify_and_diagnose(sheet, data, ["valve_lag", "series_compliance",
+                                                "air_entrainment", "lugre_friction"])
     assert diag.structure_before > STRUCTURE_RATIO  # there is something to find
     assert diag.family == "other" and diag.effect is None and not diag.significant, (
         diag.to_json()["rounds"], diag.explained)
@@ -181,7 +187,9 @@ def test_the_fits_run_on_any_executor_in_self_contained_tasks():
         remote = diagnose(DamperModel(cfg), data[:2], data[2:], ["valve_lag"],
                           executor=pool, max_effects=1)
     assert remote.family == local.family == "valve_dynamics"
-    assert remote.rms_after == pytest.approx(local.rms_after, rel=1e-9)
+    # the same fits (the compiled kernels of another process agree to ~1e-7, and the
+    # least-squares stop then falls a step apart)
+    assert remote.rms_after == pytest.approx(local.rms_after, rel=1e-4)
 
 
 def test_noise_level_and_structure_ratio_follow_their_definitions():

@@ -314,6 +314,10 @@ class Space:
         return out
 
 
+#: lag-1 autocorrelation is clipped to this in the effective sample size
+MAX_RHO = 0.999
+
+
 def lag1(r: np.ndarray) -> float:
     """Lag-1 autocorrelation of ``r`` (mean removed), clipped to ``[0, MAX_RHO]``."""
     r = r - r.mean()
@@ -322,9 +326,6 @@ def lag1(r: np.ndarray) -> float:
         return 0.0
     return min(max(float(np.dot(r[1:], r[:-1])) / den, 0.0), MAX_RHO)
 
-
-#: lag-1 autocorrelation is clipped to this in the effective sample size
-MAX_RHO = 0.999
 
 
 def active_samples(records: Sequence[Record], without: DamperModel, with_: DamperModel

@@ -75,11 +75,11 @@ from damper_emulator.diagnose.joint import (JOINT_NFEV, Record, base_parameters,
                                             lag1, make_record, model_of)
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
-from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ModelConfig
+from damper_emulator.params import ModelConfig
 from damper_emulator.validation import rms
 
 __all__ = ["Diagnosis", "FitTask", "Record", "StepFit", "diagnose", "run_fit_task",
-           "noise_level", "structure_ratio", "explained_fraction", "effective_bic",
+           "noise_level", "structure_ratio", "explained_fraction",
            "make_record"]
 
 #: a candidate must cut the pooled held-out r.m.s. by at least this fraction
@@ -132,20 +132,6 @@ def explained_fraction(before: Sequence[np.ndarray], after: Sequence[np.ndarray]
     if p0 <= 0.0:
         return 0.0
     return 1.0 - max(p1, 0.0) / p0
-
-
-def effective_bic(residuals: Sequence[np.ndarray], k: int,
-                  rhos: Sequence[float] | None = None) -> float:
-    """BIC of residuals with ``k`` added parameters (module docstring); ``rhos`` the lag-1
-    autocorrelations to use (default: each residual's own)."""
-    bic = 0.0
-    n_eff_total = 0.0
-    for i, r in enumerate(residuals):
-        rho = lag1(r) if rhos is None else rhos[i]
-        n_eff = r.size * (1.0 - rho) / (1.0 + rho)
-        bic += n_eff * math.log(max(float(np.mean(r * r)), 1e-300))
-        n_eff_total += n_eff
-    return bic + k * math.log(max(n_eff_total, 2.0))
 
 
 
@@ -283,7 +269,7 @@ class StepFit:
              - sum(len(c.parameters) for c in ref.candidates))
         dbic, n_eff_total = 0.0, 0.0
         for name, f in self.out["fit"].items():
-            rho = min(f["rho"], 0.999)
+            rho = f["rho"]  # lag1: already clipped to MAX_RHO
             n_eff = f["n"] * (1.0 - rho) / (1.0 + rho)
             dbic += n_eff * math.log(max(f["mse"], 1e-300)
                                      / max(ref.out["fit"][name]["mse"], 1e-300))
@@ -414,14 +400,6 @@ class Diagnosis:
                            "max_effects": MAX_EFFECTS},
             "seconds": round(self.seconds, 2)}
         return doc
-
-
-def with_candidate(base: DamperModel, cand: Candidate, values: Mapping[str, float]
-                   ) -> DamperModel:
-    """``base`` with candidate ``cand`` at parameter ``values`` (its own parameters as
-    they are)."""
-    group = EXTENSION_TYPES[cand.effect](**cand.fields(values))
-    return base.with_extensions(ExtensionParams(**{cand.effect: group}))
 
 
 class _LocalPool:

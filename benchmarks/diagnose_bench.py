@@ -91,8 +91,10 @@ def expected(effects: tuple[str, ...]) -> set[str]:
     return {EXTENSION_FAMILIES[e] for e in effects}
 
 
-def _pooled(rms: dict, names) -> float:
-    return float(np.sqrt(np.mean([rms[n] ** 2 for n in names])))
+def _pooled(rms: dict, counts: dict) -> float:
+    """The r.m.s. over all samples of the files ``counts`` (as the diagnosis pools)."""
+    n = sum(counts.values())
+    return float(np.sqrt(sum(rms[k] ** 2 * c for k, c in counts.items()) / n))
 
 
 def main() -> None:
@@ -121,9 +123,9 @@ def main() -> None:
                      progress=lambda m: print(m, file=sys.stderr, flush=True))
         wall = time.perf_counter() - t0
         walls.append(time.perf_counter() - t1)
-        names = d.held_out
-        b, a = _pooled(d.rms_before, names), _pooled(d.rms_after, names)
-        r = _pooled({**d.refit.rms_held_out}, names) if d.refit else math.nan
+        counts = {r.name: r.counted for r in d.records if r.name in d.held_out}
+        b, a = _pooled(d.rms_before, counts), _pooled(d.rms_after, counts)
+        r = _pooled(d.refit.rms_held_out, counts) if d.refit else math.nan
         found = [s.candidate.family for s in d.steps]
         exp = expected(effects)
         if effects and effects != ("inertia",) and len(effects) == 1:

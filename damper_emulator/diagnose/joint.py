@@ -379,8 +379,9 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     2. **Re-identify** (first effect only, and only a local one: :func:`active_samples`,
        or where the candidate says it may act, ``Candidate.may_act``): the staged
        identification again without the samples where the pre-fitted effect acts (an open
-       cavity corrupts the valve fit, an engaged end stop the gas spring's),
-       and the pre-fit again on it; the start of step 3 is whichever of the two fits the
+       cavity corrupts the valve fit, an engaged end stop the gas spring's), or with the
+       configuration the candidate names (``Candidate.identify_as``: an isothermal gas for
+       a gas that exchanges heat), and the pre-fit again on it; the start of step 3 is whichever of the two fits the
        records better.
     3. **Joint fit** of every free parameter — :func:`base_parameters` of ``cfg`` (bounds
        around the identified values), each accepted effect's and the candidate's — from
@@ -415,10 +416,14 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
         if not accepted:
             without = model_of(cfg, base_values, [])
             with_ = model_of(cfg, base_values, [(candidate, pre_values)])
-            masks = ([candidate.may_act(r.data) for r in records]
-                     if candidate.may_act is not None
-                     else active_samples(records, without, with_))
-            new_base = (reidentify(cfg, records, n_quasi_static, masks)
+            if candidate.identify_as is not None:
+                masks = [np.zeros(r.data.force.size, dtype=bool) for r in records]
+            elif candidate.may_act is not None:
+                masks = [candidate.may_act(r.data) for r in records]
+            else:
+                masks = active_samples(records, without, with_)
+            new_base = (reidentify(candidate.identify_as(cfg) if candidate.identify_as
+                                   else cfg, records, n_quasi_static, masks)
                         if masks is not None else None)
             if new_base is not None:
                 alt_values, alt_cost, n = prefit(new_base, [*start_values, pre_values])

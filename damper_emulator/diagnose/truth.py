@@ -81,6 +81,10 @@ THERMAL_SINE_TEMPERATURES_C = (55.0, 65.0, 45.0)
 #: the compression valve to pull the rebound chamber down to the vapour pressure, and the
 #: gas-spring example's gas volume small enough for its spring to matter (the sport
 #: damper's gas force changes by only ~10 N between adiabatic and isothermal at 60 mm).
+#: The bypass groove (−3 … +13 mm) is shorter than the chirp's stroke (±16 mm), as the
+#: ride-height zone of a position-sensitive damper: a groove longer than the
+#: identification's stroke acts on the whole chirp and cannot be told from a valve bleed
+#: in those files (docs/diagnose.md, limits).
 EXAMPLE_EFFECTS: dict[str, dict[str, Any]] = {
     "lugre_friction": {"params": {"coulomb_n": 43.7, "static_n": 90.0,
                                   "stribeck_velocity_m_s": 0.01,
@@ -95,7 +99,7 @@ EXAMPLE_EFFECTS: dict[str, dict[str, Any]] = {
                              "stiffness_n_m2": 4.0e6}},
     "air_entrainment": {"params": {"air_volume_fraction": 0.02}},
     "bypass_groove": {"params": {"area_m2": 2.0e-6, "center_m": 0.005,
-                                 "half_length_m": 0.02}},
+                                 "half_length_m": 0.008}},
     "gas_heat_transfer": {"params": {"thermal_time_constant_s": 0.3},
                           "base": {"gas_volume_static_m3": 3.0e-5}},
 }

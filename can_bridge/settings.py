@@ -1,8 +1,8 @@
 """Typed parameters of the ``can_bridge`` node (``damper-hil bridge``).
 
 Defaults live in ``config/bridge.yaml``.  The names are the node's own, without a group
-(CONTRACT.md: ``can_interface``, ``can_channel``, ``mode``); every value is checked by the
-project's one rule checker (:func:`damper_emulator.params.check_value`) and a bad one gives a
+(docs/interfaces.md §5: ``can_interface``, ``can_channel``, ``mode``); every value is
+checked by the project's one rule checker (:func:`damper_emulator.params.check_value`) and a bad one gives a
 one-line :class:`~damper_emulator.params.ParameterError`.
 """
 

@@ -1,4 +1,4 @@
-"""The ``damper-hil`` command line (CONTRACT.md "Command line").
+"""The ``damper-hil`` command line (docs/interfaces.md §3).
 
 Subcommands so far: ``dyno`` (virtual dyno), ``demo``, ``identify``, ``validate``,
 ``diagnose`` and ``ride-study``.  Every user error (bad parameter file, bad measured data, bad option value, an output that cannot be
@@ -32,7 +32,7 @@ _PROTOCOL_OPTIONS = sorted({k for d in PROTOCOL_DEFAULTS.values() for k in d})
 #: identify warns when a quasi-static file moves faster than this [m/s] (99th percentile):
 #: twice the FSAE slow run's 26 mm/s, twelve times the paper's 4 mm/s
 QUASI_STATIC_WARN_SPEED_M_S = 0.05
-#: the paper's validation sines (MODEL.md §3): (frequency [Hz], amplitude [m])
+#: the paper's validation sines (docs/model.md §3): (frequency [Hz], amplitude [m])
 PAPER_SINES = ((1.0, 0.05), (3.0, 0.05), (12.0, 0.005))
 
 
@@ -318,7 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
              "per file",
         description="Simulate the compressible (hysteretic) model over the displacement\n"
                     "history of each measured-data file and compare the simulated force\n"
-                    "with the measured one (MODEL.md eqs 34-35):\n"
+                    "with the measured one (docs/model.md eqs 34-35):\n"
                     "  rms_N        = sqrt(mean((F_sim - F_meas)^2))   [N]\n"
                     "  relative_rms = rms_N / sqrt(mean(F_meas^2))\n"
                     "Every sample counts, the first cycle included: the simulation starts\n"
@@ -354,7 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
         "identify", formatter_class=_Formatter,
         help="fit the model's parameters to a quasi-static and a chirp test",
         description="Identify gas spring, friction and both valves from dyno data "
-                    "(MODEL.md §3).\n\n"
+                    "(docs/model.md §3).\n\n"
                     "Quasi-static fit (eq 37) and chirp fit of the incompressible valve\n"
                     "model after the paper's hysteresis filter, alternated until they agree;\n"
                     "least squares with an exact Jacobian, log-scaled parameters and start\n"
@@ -456,7 +456,7 @@ def build_parser() -> argparse.ArgumentParser:
         "ride-study", formatter_class=_Formatter,
         help="quarter-car ride studies: the paper's figures 10 (random road), 11 (speed "
              "sweep) and 13 (pothole); the adaptive damper (passive vs skyhook)",
-        description="Quarter-car ride studies after Simms & Crolla (MODEL.md §5), for the\n"
+        description="Quarter-car ride studies after Simms & Crolla (docs/model.md §5), for the\n"
                     "damper representations linear (C_s = 2622 N s/m at the wheel), 14speed\n"
                     "(14-speed test of the hysteretic model), nonlinear (the hysteretic model\n"
                     "in the 1 kHz loop) and incompressible (extra column):\n"
@@ -467,7 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "  11  weighted acceleration r.m.s. against speed (5..35 m/s) in a\n"
                     "      process pool\n"
                     "  13  the project's pothole at 10 m/s\n"
-                    "  adaptive  the adaptive damper (MODEL.md §6) on the figure-10 road:\n"
+                    "  adaptive  the adaptive damper (docs/model.md §6) on the figure-10 road:\n"
                     "      passive sport (valve command 1), passive comfort (0) and the\n"
                     "      skyhook law (--skyhook, config/skyhook.yaml; command held at its\n"
                     "      rate, solenoid lag in the model); SWS, Wk-weighted acceleration and\n"

@@ -4,9 +4,9 @@ A parameter file is a ROS 2 params file (``<node or /**>: ros__parameters: {...}
 bare mapping inside it.  Two groups are read:
 
 ``damper``
-    the physical parameters of Simms & Crolla (MODEL.md §2.3), SI units named in each key,
+    the physical parameters of Simms & Crolla (docs/model.md §2.3), SI units named in each key,
     with the optional sub-group ``damper.adaptive`` (the solenoid bypass of the softer
-    settings, MODEL.md §6, :class:`AdaptiveParams`; without it there is no bypass and the
+    settings, docs/model.md §6, :class:`AdaptiveParams`; without it there is no bypass and the
     valve command has no effect);
 ``numerics``
     the settings of the numerical implementation (valve look-up table, implicit solver).
@@ -90,7 +90,7 @@ def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING) -> Any:
 
 @dataclass(frozen=True)
 class AdaptiveParams:
-    """The solenoid bypass of the adaptive damper's softer settings (MODEL.md §6;
+    """The solenoid bypass of the adaptive damper's softer settings (docs/model.md §6;
     :mod:`damper_emulator.model.adaptive`): a short bore in parallel with the piston valve,
     ``Δp = (8πρνL Q + ρ/(2C_d²) Q|Q|)/A²``, open ``A_comfort`` at command 0, ``A_normal`` at
     0.5 and closed at 1 ('sport'), behind a first-order solenoid lag.  The oil viscosity is
@@ -278,7 +278,7 @@ class ValveParams:
 
 @dataclass(frozen=True)
 class DamperParams:
-    """Physical parameters of the mono-tube damper (MODEL.md §2.3)."""
+    """Physical parameters of the mono-tube damper (docs/model.md §2.3)."""
 
     pressure_tube_length_m: float = _pos("pressure tube length L_pt [m]")
     x0_m: float = _pos("piston position at rest X0 [m] (rebound chamber length L_pt − X0)")
@@ -297,7 +297,7 @@ class DamperParams:
                                                "doc": "compression valve (Δp < 0)"})
     name: str = field(default="damper", metadata={"rule": "text", "doc": "damper name"})
     adaptive: AdaptiveParams | None = field(default=None, metadata={
-        "rule": "adaptive", "doc": "solenoid bypass of the softer settings (MODEL.md §6); "
+        "rule": "adaptive", "doc": "solenoid bypass of the softer settings (docs/model.md §6); "
                                    "None: no bypass, the valve command has no effect"})
     extensions: ExtensionParams | None = field(default=None, metadata={
         "rule": "extensions", "doc": "effects the paper's model lacks (issue 7); None: the "

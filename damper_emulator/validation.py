@@ -1,4 +1,4 @@
-"""Validation of the compressible model against measured data (MODEL.md §3, eqs 34–35).
+"""Validation of the compressible model against measured data (docs/model.md §3, eqs 34–35).
 
 :func:`validate_file` simulates the compressible (hysteretic) model over a measured
 displacement history and compares the simulated force with the measured one:

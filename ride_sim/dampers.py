@@ -1,8 +1,8 @@
-"""Damper plug-ins for the quarter car (MODEL.md §5, eq 38).
+"""Damper plug-ins for the quarter car (docs/model.md §5, eq 38).
 
 A plug-in is sampled once per vehicle step with the damper's stroke and velocity and returns
 its force, which the vehicle holds over the following step (see
-:mod:`ride_sim.quarter_car`).  Conventions are the damper's own (MODEL.md §1): stroke and
+:mod:`ride_sim.quarter_car`).  Conventions are the damper's own (docs/model.md §1): stroke and
 velocity positive in extension (rebound), force positive in rebound.
 
 Protocol (:class:`DamperPlugin`)::
@@ -24,7 +24,7 @@ Adapters over the project's existing representations (nothing is re-implemented)
   (:func:`~damper_emulator.model.incompressible.incompressible_force`) tabulated once;
 - :class:`CompressiblePlugin` — the hysteretic model, eqs 1–4, stepped by
   :class:`~damper_emulator.model.compressible.DamperStepper` with the real ``dt``; for the
-  adaptive damper (MODEL.md §6) at a valve command (0 comfort .. 1 sport) that
+  adaptive damper (docs/model.md §6) at a valve command (0 comfort .. 1 sport) that
   :meth:`CompressiblePlugin.set_valve_command` may change between samples (the compiled
   loop keeps the command the plug-in holds when it starts).
 
@@ -257,7 +257,7 @@ class CompressiblePlugin:
     latest sample are in :attr:`last_fault`, their OR since the latest reset in
     :attr:`faults` (clamped stroke or velocity, extrapolated valve table, solver).
     ``valve_command`` (0 comfort .. 1 sport, default) sets the adaptive damper's bypass
-    (MODEL.md §6); :meth:`reset` settles the solenoid at the commanded value.
+    (docs/model.md §6); :meth:`reset` settles the solenoid at the commanded value.
     """
 
     def __init__(self, model: DamperModel | None = None, name: str = "compressible",
@@ -338,7 +338,7 @@ def make_damper(kind: str, model: DamperModel | None = None, *, car=None,
         N of the N-speed test for ``14speed`` (the paper uses 14 and 28).
     valve_command : float
         For ``compressible``/``nonlinear``: the adaptive damper's valve command, 0 comfort
-        .. 0.5 normal .. 1 sport (default; MODEL.md §6).
+        .. 0.5 normal .. 1 sport (default; docs/model.md §6).
     """
     kinds = ("linear", "14speed", "incompressible", "compressible", "nonlinear")
     if kind not in kinds:

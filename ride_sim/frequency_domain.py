@@ -1,4 +1,4 @@
-"""Frequency response of the linear quarter car, Simms & Crolla eq 38 (MODEL.md §5).
+"""Frequency response of the linear quarter car, Simms & Crolla eq 38 (docs/model.md §5).
 
 With a linear damper of rate ``C_s`` at the wheel, eq 38 in the frequency domain
 (``s = j 2π f``, road height ``X0``) is

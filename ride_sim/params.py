@@ -12,7 +12,7 @@ The file (default ``config/quarter_car.yaml``) has the layout of ``config/sport.
 (:mod:`ride_sim.study`, ``docs/ride_study.md``); every key has a default.
 
 (or the bare mapping inside ``ros__parameters``).  The quarter car is the two-mass model of
-Simms & Crolla eq 38 (``../shared/MODEL.md`` §5); its values are the paper's front corner
+Simms & Crolla eq 38 (``docs/model.md`` §5); its values are the paper's front corner
 (Figure 8).  Every value is checked; a bad file raises
 :class:`damper_emulator.params.ParameterError` whose message is one line naming the file,
 the key and the rule that was broken.
@@ -40,7 +40,7 @@ AMPLITUDE_METHODS = ("deterministic", "random")
 
 @dataclass(frozen=True)
 class QuarterCarParams:
-    """Two-mass quarter car, eq 38 (MODEL.md §5), SI units.
+    """Two-mass quarter car, eq 38 (docs/model.md §5), SI units.
 
     ``spring_rate_n_m`` and ``linear_damping_ns_m`` are *wheel* rates (``K_s``, ``C_s``).
     The damper acts through ``motion_ratio`` = wheel travel / damper travel: damper

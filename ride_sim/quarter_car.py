@@ -1,4 +1,4 @@
-"""Quarter-car ride model, Simms & Crolla eq 38 (``../shared/MODEL.md`` §5), stepped the way
+"""Quarter-car ride model, Simms & Crolla eq 38 (``docs/model.md`` §5), stepped the way
 a hardware-in-the-loop rig runs it.
 
 Equations of motion in deviations from static equilibrium (wheel ``z1``, body ``z2``, road

@@ -11,7 +11,7 @@ the run's random road and records every sample; whoever supplies the damper forc
 so a lockstep run over ROS and :func:`offline_run` compute the same thing: the
 zero-order-hold sampled coupling of :mod:`ride_sim.quarter_car`.
 
-:func:`semi_active_run` drives a session with the adaptive damper (MODEL.md §6) and a
+:func:`semi_active_run` drives a session with the adaptive damper (docs/model.md §6) and a
 controller that sets its valve command from the body and damper velocities at a fixed
 rate (the skyhook ride study, :func:`ride_sim.study.adaptive_study`).
 """

@@ -1,4 +1,4 @@
-"""Continuous semi-active skyhook control of the adaptive damper (MODEL.md §6).
+"""Continuous semi-active skyhook control of the adaptive damper (docs/model.md §6).
 
 Which velocities
 ----------------

@@ -1,5 +1,5 @@
 """Quarter-car ride studies: Simms & Crolla (SAE 2002-01-0319) figures 10, 11 and 13, and
-the adaptive-damper study (MODEL.md §6, :func:`adaptive_study`).
+the adaptive-damper study (docs/model.md §6, :func:`adaptive_study`).
 
 Pure physics and numpy (no argparse, no ROS); ``damper-hil ride-study`` is a thin front end
 and ``docs/ride_study.md`` reports the results.  Conventions as in
@@ -79,7 +79,7 @@ ALL_REPRESENTATIONS = REPRESENTATIONS + EXTRA_REPRESENTATIONS
 LABELS = {"linear": "linear", "14speed": "14-speed", "nonlinear": "non-linear",
           "incompressible": "incompressible"}
 
-#: Output keys of CONTRACT.md (figures 10 and 13), SI units (m, m/s², N).
+#: Output keys of docs/interfaces.md §3 (figures 10 and 13), SI units (m, m/s², N).
 CONTRACT_KEYS = ("sws_rms", "accel_w_rms", "dtl_rms",
                  "sws_peak_pos", "sws_peak_neg", "accel_w_peak_pos", "accel_w_peak_neg",
                  "dtl_peak_pos", "dtl_peak_neg")

@@ -1,4 +1,4 @@
-"""The adaptive damper (MODEL.md §6): solenoid bypass in parallel with the piston valve,
+"""The adaptive damper (docs/model.md §6): solenoid bypass in parallel with the piston valve,
 solenoid lag, parameters, and the command plumbing of the stepper, batch simulator and
 emulator core.
 

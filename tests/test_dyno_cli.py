@@ -1,4 +1,4 @@
-"""Virtual dyno command line and measured-data files (CONTRACT.md "Measured-data files",
+"""Virtual dyno command line and measured-data files (docs/interfaces.md §2,
 "Command line").
 
 End-to-end checks run ``python -m damper_emulator.cli`` in a subprocess (exit status,

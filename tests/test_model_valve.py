@@ -12,7 +12,7 @@ from scipy.optimize import brentq
 from damper_emulator.model import valve as V
 from damper_emulator.model.valve_table import build_valve_tables
 
-NU = 21e-6  # MODEL.md §2.3
+NU = 21e-6  # docs/model.md §2.3
 
 
 def _eq19(q_leak, valve):
@@ -89,7 +89,7 @@ def test_linear_extension_h0_h1(valve):
     k_leak, k_port, k_spring, dp0, _ = valve
     b0, b1, _, _ = V.blow_off_coefficients(k_leak, k_spring, dp0, NU)
     h0 = b0 ** 1.75 * NU ** 0.25 * (k_leak + k_port)  # eq 47
-    h1 = 1.75 * NU ** 0.25 * b0 ** 0.75 * (k_leak / b1 + k_port)  # MODEL.md note
+    h1 = 1.75 * NU ** 0.25 * b0 ** 0.75 * (k_leak / b1 + k_port)  # docs/model.md §2.2 (eq 48)
     assert V.pressure_drop_open(b0, *valve[:4], NU, V.FORM_EXACT) == pytest.approx(h0, rel=1e-9)
     assert V.pressure_drop_closed(b0, k_leak, k_port, NU) == pytest.approx(h0, rel=1e-12)
     below = V.pressure_drop_open(0.5 * b0, *valve[:4], NU, V.FORM_CARDANO)

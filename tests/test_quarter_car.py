@@ -1,4 +1,4 @@
-"""Quarter-car ride model (MODEL.md §5, eq 38): discretisation, coupling, plug-ins, config.
+"""Quarter-car ride model (docs/model.md §5, eq 38): discretisation, coupling, plug-ins, config.
 
 The references are derived here independently of ``ride_sim``: modal solutions from numpy's
 eigen-decomposition, a closed-form discretisation through ``A⁻¹``, the 2-DOF frequency

@@ -1,4 +1,4 @@
-"""Classical damper representations (MODEL.md §4): linear rate and '14-speed' table."""
+"""Classical damper representations (docs/model.md §4): linear rate and '14-speed' table."""
 
 import math
 

@@ -247,7 +247,7 @@ def test_road_group_defaults_and_validation(tmp_path):
 
 
 # --------------------------------------------------------------------------------------
-# the adaptive damper (MODEL.md §6): passive sport / comfort and skyhook
+# the adaptive damper (docs/model.md §6): passive sport / comfort and skyhook
 
 
 @pytest.mark.parametrize("command", [1.0, 0.0])

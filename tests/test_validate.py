@@ -1,5 +1,5 @@
-"""Validation of the compressible model against measured data (MODEL.md §3, eqs 34–35) and
-the ``damper-hil validate`` command line (CONTRACT.md "Command line").
+"""Validation of the compressible model against measured data (docs/model.md §3, eqs 34–35) and
+the ``damper-hil validate`` command line (docs/interfaces.md §3).
 
 Reference data come from the virtual dyno; the expectations are independent of the
 validator: the force noise the dyno added (its r.m.s. is the noise's standard deviation)
@@ -204,7 +204,7 @@ def test_cli_duplicate_base_names(sine_files, tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------------------
-# wrong units of force and time (CONTRACT.md: refused with one line naming file and row)
+# wrong units of force and time (docs/interfaces.md §2: refused with one line naming file and row)
 
 
 def _rewritten(src, dest, time_factor=1.0, force_factor=1.0, velocity=True):

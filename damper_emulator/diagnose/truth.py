@@ -3,7 +3,7 @@ lacks, for testing and benchmarking ``diagnose``.
 
 The truth is the project's own compressible model with one ``damper.extensions`` group
 switched on (:mod:`damper_emulator.model.extensions`), run over the paper's identification
-and validation protocol (MODEL.md §3): a quasi-static triangle, an exponential chirp with
+and validation protocol (docs/model.md §3): a quasi-static triangle, an exponential chirp with
 growing velocity amplitude, and the validation sines (1 Hz and 3 Hz at 50 mm, 12 Hz at
 5 mm), with Gaussian noise on the force.  :data:`EXAMPLE_EFFECTS` holds one parameter set
 per family (chosen by us: visible in the protocol, physically plausible); nothing in the
@@ -33,7 +33,7 @@ from damper_emulator.params import (EXTENSION_TYPES, ExtensionParams, ModelConfi
 @dataclass(frozen=True)
 class Protocol:
     """The dyno protocol of a diagnosis: identification files (fit) and validation sines
-    (held out).  Defaults: the paper's (MODEL.md §3) as the virtual dyno runs it
+    (held out).  Defaults: the paper's (docs/model.md §3) as the virtual dyno runs it
     (``damper-hil dyno`` defaults: quasi-static 4 mm/s over ±75 mm twice, 150 s; chirp
     0.5–16 Hz in 60 s at 0.05–1.5 m/s; the three validation sines)."""
 

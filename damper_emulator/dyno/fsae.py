@@ -4,7 +4,7 @@ The vendor files (one gzip CSV per run, columns ``Timestamp, Force (V), Force (N
 Displacement (V), Displacement (mm), Temperature (V), Temperature (C)``, 300 Hz) are read
 at run time from wherever the user keeps them; the project ships none of them.
 :func:`read_fsae_ttx25` converts one into the project's measured-data convention
-(CONTRACT.md "Measured-data files", MODEL.md §1):
+(docs/interfaces.md §2, docs/model.md §1):
 
 ``time`` [s]
     seconds since the file's first ``Timestamp`` (ISO wall clock); strictly increasing or
@@ -34,7 +34,7 @@ at run time from wherever the user keeps them; the project ships none of them.
 The sign convention comes from the data (``tools/fsae_survey.py`` and
 ``docs/measured/fsae_ttx25_data.md`` give the evidence): (a) with this convention the
 force at rest and the mid-stroke average of the two strokes are negative (the gas charge
-pushes the rod out, MODEL.md ``F_static = -A_rod P_gas``) and scale with the nitrogen
+pushes the rod out, docs/model.md ``F_static = -A_rod P_gas``) and scale with the nitrogen
 charge through zero at zero charge, which fixes the force sign; (b) the damper dissipates
 energy, ``∮ F dx > 0`` on every cycle of every file, which then fixes the displacement sign.
 """
@@ -260,7 +260,7 @@ def cycle_work(data: MeasuredData, starts: np.ndarray | None = None) -> np.ndarr
 
 def export_fsae_csv(source: str | Path | MeasuredData, out_dir: str | Path, *,
                     compress: bool = False) -> Path:
-    """Write one run as a measured-data CSV (CONTRACT.md) under ``out_dir`` (created if
+    """Write one run as a measured-data CSV (docs/interfaces.md) under ``out_dir`` (created if
     missing), for ``damper-hil validate``/``identify``.
 
     ``source`` is a vendor file (read with :func:`read_fsae_ttx25`) or data it returned.

@@ -1,4 +1,4 @@
-"""Measured-data CSV files: dyno data in and out (CONTRACT.md "Measured-data files").
+"""Measured-data CSV files: dyno data in and out (docs/interfaces.md §2).
 
 A measured-data file is a CSV with a header row.  Required columns: ``time`` [s],
 ``displacement`` [m, extension positive], ``force`` [N, rebound positive]; optional:

@@ -1,4 +1,4 @@
-"""Motion histories of the virtual dyno's test protocols (MODEL.md §3–4).
+"""Motion histories of the virtual dyno's test protocols (docs/model.md §3–4).
 
 Each protocol returns ``(time [s], stroke [m, extension +], velocity [m/s])`` sampled at
 ``rate_hz``; the velocity is the exact derivative of the stroke, not a finite difference.

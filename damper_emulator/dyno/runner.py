@@ -1,8 +1,8 @@
 """Virtual dyno: run the test protocols on the compressible model and write the results.
 
-Each ``run_*`` function simulates one protocol (MODEL.md §3–4) on a :class:`DamperModel`,
+Each ``run_*`` function simulates one protocol (docs/model.md §3–4) on a :class:`DamperModel`,
 optionally adds Gaussian force noise (a seeded :class:`numpy.random.Generator`, like a load
-cell's), writes the measured-data CSV (CONTRACT.md) and its PNG plot into ``out_dir`` and
+cell's), writes the measured-data CSV (docs/interfaces.md) and its PNG plot into ``out_dir`` and
 returns a small JSON-ready summary: ``files`` (names written, relative to ``out_dir``),
 peak forces [N], peak velocities [m/s] and, for sines, the dissipated energy per cycle [J].
 
@@ -169,7 +169,7 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 
                      amplitude: float = 0.075, cycles: int = 2, rate: float = 50.0,
                      noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
                      engine: Engine = None) -> dict[str, Any]:
-    """Quasi-static test (constant-velocity triangle, MODEL.md §3): writes
+    """Quasi-static test (constant-velocity triangle, docs/model.md §3): writes
     ``quasi_static.csv`` and ``quasi_static.png``.
 
     Summary adds ``friction_estimate_n``: half the difference between the mean forces
@@ -205,7 +205,7 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
               v_end: float = 1.5, rate: float = 1000.0, noise_std: float = 0.0,
               seed: int | None = 0, progress: Progress = None,
               engine: Engine = None) -> dict[str, Any]:
-    """Exponential sine chirp with growing velocity amplitude (MODEL.md §3): writes
+    """Exponential sine chirp with growing velocity amplitude (docs/model.md §3): writes
     ``chirp.csv`` and ``chirp.png``."""
     rng = _rng(noise_std, seed)
     for name, val in (("chirp start frequency [Hz]", f_start),
@@ -239,7 +239,7 @@ def fourteen_speed_table(model: DamperModel, points: int = 14, amplitude: float 
                          rate: float = 1000.0, noise_std: float = 0.0,
                          rng: np.random.Generator | None = None, engine: Engine = None,
                          ) -> tuple[dict[str, np.ndarray], list[str]]:
-    """Simulate an N-speed test (MODEL.md §4) and return its table (columns
+    """Simulate an N-speed test (docs/model.md §4) and return its table (columns
     :data:`FOURTEEN_SPEED_COLUMNS`) and the fault names seen.
 
     For each frequency a sine of ``amplitude`` is simulated (one settle cycle dropped);
@@ -268,7 +268,7 @@ def run_fourteen_speed(model: DamperModel, out_dir: str | Path, points: int = 14
                        cycles: int = 2, rate: float = 1000.0, noise_std: float = 0.0,
                        seed: int | None = 0, progress: Progress = None,
                        engine: Engine = None) -> dict[str, Any]:
-    """N-speed test ('14-speed', MODEL.md §4): writes ``14speed.csv`` (columns
+    """N-speed test ('14-speed', docs/model.md §4): writes ``14speed.csv`` (columns
     :data:`FOURTEEN_SPEED_COLUMNS`) and ``14speed.png``."""
     rng = _rng(noise_std, seed)
     if isinstance(points, bool) or not isinstance(points, int) or points < 2:

@@ -1,4 +1,4 @@
-"""Identification of a damper from a quasi-static and a chirp test (MODEL.md §3).
+"""Identification of a damper from a quasi-static and a chirp test (docs/model.md §3).
 
 ``identify`` alternates the two fits of the paper until they agree: the quasi-static fit
 (eq 37) gives the gas spring and friction the chirp fit needs; the chirp fit gives the

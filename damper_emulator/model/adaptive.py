@@ -1,8 +1,8 @@
-"""The adaptive damper's solenoid bypass (MODEL.md §6): the project's 'normal' and 'comfort'
+"""The adaptive damper's solenoid bypass (docs/model.md §6): the project's 'normal' and 'comfort'
 settings of the paper's triple-rate damper.
 
 The paper's damper is a triple-rate adaptive unit whose softer settings open an extra bypass
-flow path with a solenoid; only 'sport' is parameterised (MODEL.md §2.3).  We model the
+flow path with a solenoid; only 'sport' is parameterised (docs/model.md §2.3).  We model the
 bypass as one short circular orifice **in parallel with the piston valve**, driven by the
 same pressure difference ``Δp = p_reb − p_com`` as the valve flow ``Q_pv`` of eq 2, so the
 flow the rebound chamber loses in eq 2 becomes ``Q_pv(Δp) + Q_b(Δp)``.
@@ -22,7 +22,7 @@ taken in the rationalised form (no cancellation when the laminar term dominates)
     dQ_b/dΔp = A² / √(a² + 4 b A² |Δp|)          (finite at Δp = 0: A²/a)
 
 and ``Q_b ≡ 0`` when ``A = 0``.  Flow is positive from the rebound to the compression
-chamber, like ``Q_pv`` (MODEL.md §1).
+chamber, like ``Q_pv`` (docs/model.md §1).
 
 Valve command ``c ∈ [0, 1]``: 0 = 'comfort' (softest), 0.5 = 'normal', 1 = 'sport' (bypass
 closed: the paper's damper).  The open area is piecewise linear in ``c`` through

@@ -7,14 +7,14 @@ The state is the rebound-chamber pressure ``p_reb``.  Eq 2,
 
     dp_reb/dt = (ẋ (A_pt − A_rod) − Q_pv(Δp)) (1 − α p_reb) / ((L_pt − X0 − x)(A_pt − A_rod) α),
 
-is stiff near ``Δp = 0`` (MODEL.md note), so each step is integrated by backward Euler —
+is stiff near ``Δp = 0`` (docs/model.md §2.1), so each step is integrated by backward Euler —
 unconditionally stable — on sub-steps no longer than ``numerics.max_substep_s``, with the
 stroke and velocity interpolated linearly between the previous and the current sample.  The
 implicit equation is solved in the valve-table coordinate ``z`` (see
 :mod:`damper_emulator.model.valve_table`), in which it is monotonic, by Newton's method
 safeguarded with bisection.  ``P_com`` is algebraic (eq 3) and the force is eq 4.
 
-**Adaptive damper** (MODEL.md §6, :mod:`damper_emulator.model.adaptive`).  The valve flow of
+**Adaptive damper** (docs/model.md §6, :mod:`damper_emulator.model.adaptive`).  The valve flow of
 eq 2 is ``Q_pv(Δp) + Q_b(Δp)``: the solenoid bypass in parallel with the piston valve, open
 by the *effective* valve command, which follows the commanded one
 (:meth:`DamperStepper.set_valve_command`, 0 comfort .. 1 sport) through the solenoid's
@@ -165,7 +165,7 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area, p_com
 
     Solves ``R(z) = p_com + Δp(z) − p_old − k (ẋ A − Q(z)) (1 − α p(z)) = 0`` with
     ``k = h / (V_reb α)``; ``R`` increases with ``z``.  ``Q = Q_pv + Q_b``: the piston valve
-    and, when ``bp_area`` [m²] > 0, the solenoid bypass in parallel (MODEL.md §6; ``Q_b``
+    and, when ``bp_area`` [m²] > 0, the solenoid bypass in parallel (docs/model.md §6; ``Q_b``
     increases with ``Δp``, so ``R`` still increases with ``z``); with the bypass closed and
     no extension the arithmetic is the paper's model's exactly.  Extensions
     (:mod:`damper_emulator.model.extensions`), each skipped at its neutral value:
@@ -380,7 +380,7 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
     seconds after the previous one; returns ``(force [N], fault flags)``.
 
     The effective valve command first follows the commanded one over ``dt`` (solenoid lag,
-    MODEL.md §6); the bypass it opens is held over the step.  Invalid input (non-finite,
+    docs/model.md §6); the bypass it opens is held over the step.  Invalid input (non-finite,
     ``dt <= 0``) leaves the state untouched and returns the last force; a stroke beyond
     the travel is clamped.  The force is always finite.  The model extensions in use
     (:mod:`damper_emulator.model.extensions`) act inside the same sub-steps.
@@ -770,7 +770,7 @@ class DamperStepper:
         """Command the valve: 0 comfort (softest) .. 0.5 normal .. 1 sport (bypass closed).
 
         The effective command follows it through the solenoid lag from the next
-        :meth:`step` on (MODEL.md §6).  Raises ``ValueError`` unless ``0 <= command <= 1``.
+        :meth:`step` on (docs/model.md §6).  Raises ``ValueError`` unless ``0 <= command <= 1``.
         Without a ``damper.adaptive`` group the command is kept but changes nothing.
         """
         self.state[S_CMD] = check_valve_command(command)

@@ -24,7 +24,7 @@ off, the step's arithmetic is the paper's model's.  Families as in the ``diagnos
 ``cavitation`` — the rebound chamber's absolute pressure cannot fall below ``p_cav``: where
     the implicit solve would go below it the pressure is held at ``p_cav`` and a cavity of
     the oil volume that would have been stretched, ``V_reb α (p_cav − p)``, opens; it grows
-    by ``(Q − Q_in) h`` and the pressure rises again only once it has refilled (MODEL.md
+    by ``(Q − Q_in) h`` and the pressure rises again only once it has refilled (docs/model.md
     note on cavitation).
 ``valve_dynamics`` — the piston-valve flow lags its quasi-static value at the present Δp,
     ``τ_v dQ/dt = Q_pv(Δp) − Q`` (the blow-off disc opens and closes late), backward Euler

@@ -1,4 +1,4 @@
-"""Classical damper representations (MODEL.md §4), for comparison with the hysteretic model.
+"""Classical damper representations (docs/model.md §4), for comparison with the hysteretic model.
 
 - :class:`LinearDamper`: a single rate, ``F = F_static + c ẋ``.
 - :class:`TableDamper`: a monotone force–velocity look-up, e.g. the '14-speed' curve: peak
@@ -259,7 +259,7 @@ class TableDamper:
 def fourteen_speed_damper(model, points: int = 14, amplitude_m: float = 0.025,
                           v_min: float = 0.025, v_max: float = 1.5, cycles: int = 2,
                           rate: float = 1000.0) -> TableDamper:
-    """The '14-speed' representation of ``model`` (a ``DamperModel``), MODEL.md §4.
+    """The '14-speed' representation of ``model`` (a ``DamperModel``), docs/model.md §4.
 
     Runs the N-speed test on the compressible model with the virtual dyno
     (:func:`damper_emulator.dyno.runner.fourteen_speed_table`: ``points`` sines of

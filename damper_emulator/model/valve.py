@@ -142,7 +142,7 @@ def pressure_drop_closed(q_tot, k_leak, k_port, nu_m2_s):
 @kernel
 def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, form):
     """Pressure drop with the blow-off valve open: eq 27 above the blow-off flow, its
-    linear extension eqs 29/47 below it (``H1`` as corrected in MODEL.md)."""
+    linear extension eqs 29/47 below it (``H1`` as corrected in docs/model.md §2.2)."""
     nu4 = nu_m2_s ** 0.25
     b0, b1, b2, b3 = blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s)
     if q_tot.real >= b0.real:
@@ -152,7 +152,7 @@ def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, for
             q_leak = leak_flow_cardano(q_tot, b0, b1, b2, b3)
         return nu4 * (k_leak * q_leak ** FLOW_EXPONENT + k_port * q_tot ** FLOW_EXPONENT)
     h0 = b0 ** FLOW_EXPONENT * nu4 * (k_leak + k_port)  # eq 47
-    h1 = FLOW_EXPONENT * nu4 * b0 ** 0.75 * (k_leak / b1 + k_port)  # MODEL.md note on eq 48
+    h1 = FLOW_EXPONENT * nu4 * b0 ** 0.75 * (k_leak / b1 + k_port)  # docs/model.md §2.2, eq 48
     return h0 + h1 * (q_tot - b0)  # eq 29
 
 

@@ -192,7 +192,7 @@ def build_valve_table(valve, annulus_area_m2: float, nu_m2_s: float, form: str,
         raise ValveTableError(
             f"{label}: Δp(Q) is not strictly increasing near Q = {qb:.3g} m³/s "
             f"(velocity {qb / annulus_area_m2:.3g} m/s), so it cannot be inverted "
-            "(MODEL.md §2.1)")
+            "(docs/model.md §2.1)")
     valve = tuple(float(v) for v in valve)
     scale = valve[3]
     z_max = math.log1p((dp[-1] / scale) ** (1.0 / FLOW_EXPONENT))

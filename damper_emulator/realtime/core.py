@@ -119,7 +119,7 @@ class EmulatorCore:
     def __init__(self, model: DamperModel, params: EmulatorParams):
         self.model = model
         self.params = params
-        # the initial valve command, settled (MODEL.md §6; no effect without a bypass)
+        # the initial valve command, settled (docs/model.md §6; no effect without a bypass)
         self.stepper = DamperStepper(model, valve_command=params.valve_command)
         #: force at rest at the static position (eq 30's gas force), the passive baseline
         self.static_force_n = self.stepper.force_n

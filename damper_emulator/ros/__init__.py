@@ -4,5 +4,5 @@ launcher of the closed-loop demo (:mod:`.launch`).
 
 Only this package imports rclpy; the physics and the real-time logic they wrap live in
 :mod:`damper_emulator.model`, :mod:`damper_emulator.realtime` and :mod:`ride_sim`.
-Topics and message types: ``../shared/CONTRACT.md`` "ROS 2 interface" and :mod:`.topics`.
+Topics and message types: ``docs/interfaces.md`` §5 and :mod:`.topics`.
 """

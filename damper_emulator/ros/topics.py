@@ -1,4 +1,4 @@
-"""Topic names, message types and QoS of the project's ROS 2 interface (CONTRACT.md)."""
+"""Topic names, message types and QoS of the project's ROS 2 interface (docs/interfaces.md)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,76 @@
+"""The project documents itself: no file points outside the repository (except to the
+measured data, which we may not copy), and every relative link in the Markdown resolves."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+#: the only thing outside the repository a file may name: the measured dyno data
+ALLOWED_OUTSIDE = "shared/data/measured"
+#: Markdown link targets: ``[text](target)``, without the scheme-qualified ones
+LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def _tracked() -> list[Path]:
+    try:
+        out = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True,
+                             check=True).stdout.split()
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    return [REPO / f for f in out if (REPO / f).is_file()]
+
+
+def _text(path: Path) -> str | None:
+    try:
+        return path.read_text(encoding="utf-8")
+    except (UnicodeDecodeError, OSError):
+        return None          # binary (plots, bags)
+
+
+def test_no_file_refers_to_documents_outside_the_repository():
+    bad = []
+    for path in _tracked():
+        text = _text(path)
+        if text is None or path == Path(__file__):
+            continue
+        for n, line in enumerate(text.splitlines(), 1):
+            outside = "shared/" in line or '"shared"' in line
+            measured = ALLOWED_OUTSIDE in line or '"shared" / "data" / "measured"' in line
+            if (outside and not measured) or re.search(r"\b(MODEL|CONTRACT)\.md\b", line):
+                bad.append(f"{path.relative_to(REPO)}:{n}: {line.strip()}")
+    assert not bad, "\n".join(bad)
+
+
+def test_every_relative_markdown_link_resolves():
+    bad = []
+    for path in _tracked():
+        if path.suffix != ".md":
+            continue
+        for target in LINK.findall(_text(path) or ""):
+            if re.match(r"[a-z]+:", target) or target.startswith("#"):
+                continue
+            file_part = target.split("#", 1)[0]
+            if not (path.parent / file_part).exists():
+                bad.append(f"{path.relative_to(REPO)}: {target}")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_model_and_interface_documents_cover_what_the_code_cites():
+    """Every ``docs/model.md §N`` a file cites exists as a heading of docs/model.md."""
+    model = (REPO / "docs" / "model.md").read_text(encoding="utf-8")
+    headings = set(re.findall(r"^#+ (\d+(?:\.\d+)?)\.? ", model, flags=re.M))
+    interfaces = (REPO / "docs" / "interfaces.md").read_text(encoding="utf-8")
+    iface_headings = set(re.findall(r"^#+ (\d+)\. ", interfaces, flags=re.M))
+    bad = []
+    for path in _tracked():
+        text = _text(path) or ""
+        for doc, sec in re.findall(r"(model|interfaces)\.md`*,? §(\d+(?:\.\d+)?)", text):
+            if sec not in (headings if doc == "model" else iface_headings):
+                bad.append(f"{path.relative_to(REPO)}: {doc}.md §{sec}")
+    assert headings and iface_headings
+    assert not bad, "\n".join(bad)

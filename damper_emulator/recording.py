@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from damper_emulator import force_message
 from damper_emulator.bag import BagError, cdr_fast, open_bag
 # the topic names only: damper_emulator.ros.topics imports no rclpy
 from damper_emulator.ros.topics import DIAGNOSTICS, FORCE, RIDE_STATE, STATE, VALVE_COMMAND
@@ -143,8 +144,8 @@ def read_recording(path: str | Path) -> Recording:
         m = js[FORCE]
         _lacking(path, FORCE, raw[FORCE], m.has("position", 0) & m.has("velocity", 0)
                  & m.has("effort", 0), "position[0], velocity[0] or effort[0]")
-        status = np.nan_to_num(m.entry("effort", 1), nan=0.0).astype(np.int64)
-        age = np.nan_to_num(m.entry("position", 1), nan=-1.0)
+        status = force_message.status_column(m)
+        age = force_message.age_column(m)
         force = DamperOutput(raw[FORCE].log_ns, m.stamp_ns, m.position[:, 0],
                              m.velocity[:, 0], m.effort[:, 0], status, age)
     if RIDE_STATE in js:

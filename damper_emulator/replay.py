@@ -107,6 +107,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from damper_emulator import force_message
 from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages
 from damper_emulator.bag.cdr_fast import JointStates, RawTopic
 from damper_emulator.model.compressible import (DamperModel, DamperStepper, _simulate,
@@ -295,16 +296,6 @@ def _run_model(model: DamperModel, stamp_ns: np.ndarray, x: np.ndarray, v: np.nd
     return force, flags
 
 
-def _status(force: JointStates) -> np.ndarray:
-    s = force.entry("effort", 1)
-    return np.where(np.isfinite(s), s, 0.0).astype(np.int64)
-
-
-def _age(force: JointStates) -> np.ndarray:
-    a = force.entry("position", 1)
-    return np.where(np.isnan(a), -1.0, a)
-
-
 def detect_trigger(data: BagData) -> str:
     """``"input"`` if every recorded force stamp is a state stamp, else ``"timer"``."""
     return "input" if np.isin(data.force.stamp_ns, data.state.stamp_ns).all() else "timer"
@@ -407,8 +398,8 @@ def _match_inputs(data: BagData, params: EmulatorParams, model: DamperModel,
 def _emulate_timer(data: BagData, model: DamperModel, params: EmulatorParams) -> Replayed:
     f = data.force
     n = len(f)
-    rec_status = _status(f)
-    age = _age(f)
+    rec_status = force_message.status_column(f)
+    age = force_message.age_column(f)
     fault = (rec_status & _FAULT) != 0
     ticks = np.flatnonzero(~fault)
     x_t, v_t, counts = _match_inputs(data, params, model, ticks, age)
@@ -469,7 +460,7 @@ def compare(data: BagData, rep: Replayed, settle_s: float = 0.1) -> Comparison:
     node's model state at the first recorded tick is not the quasi-steady state the
     replay starts from, and the two converge within some 30 ms.
     """
-    rec_status = _status(data.force)
+    rec_status = force_message.status_column(data.force)
     sel = np.flatnonzero(rep.model & (rep.recorded >= 0))
     r = rep.recorded[sel]
     sel = sel[(rec_status[r] & _FAULT) == 0]
@@ -521,12 +512,10 @@ def write_replay_bag(path: str | os.PathLike[str], data: BagData, rep: Replayed,
     """
     path = Path(path)
     _prepare_bag_dir(path, data.path)
-    n = rep.stamp_ns.size
     rows = cdr_fast.encode_joint_states(
-        rep.stamp_ns, [params.name, f"{params.name}/status"],
-        np.column_stack([rep.stroke_m, rep.input_age_s]),
-        np.column_stack([rep.velocity_m_s, np.zeros(n)]),
-        np.column_stack([rep.force_n, rep.status.astype(float)]))
+        rep.stamp_ns, [params.name, force_message.status_name(params.name)],
+        *force_message.columns(rep.force_n, rep.status, rep.stroke_m, rep.velocity_m_s,
+                               rep.input_age_s))
     forces = cdr_fast.rows_to_bytes(rows)
     states = data.state_raw.all_data()
     # one flush at close: nothing for the background thread to do; no fsync (a replay is

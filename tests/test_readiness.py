@@ -20,7 +20,6 @@ import textwrap
 import time
 from pathlib import Path
 
-import pytest
 
 from damper_emulator.model import jit
 

@@ -17,7 +17,8 @@
 ``/damper/force`` carries, besides the contract's ``name[0]`` / ``position[0]`` /
 ``velocity[0]`` / ``effort[0]``, a second entry ``name[1] = "<name>/status"`` whose
 ``effort[1]`` is the :class:`~damper_emulator.realtime.core.Status` bits of that output and
-``position[1]`` the input age [s] (so a recording tells fault outputs from model outputs).
+``position[1]`` the input age [s] (so a recording tells fault outputs from model outputs);
+the layout is :mod:`damper_emulator.force_message`'s.
 ``/diagnostics`` reports loop timing, input age, rejected inputs and faults every
 ``diagnostics_period_s``.
 """
@@ -38,6 +39,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
+from damper_emulator import force_message
 from damper_emulator.model import jit
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import (DEFAULT_PARAMS_FILE, ParameterError, config_from_mapping,
@@ -140,7 +142,6 @@ class EmulatorNode(LifecycleNode):
                                      if self.params.sched_fifo else 0)
         self.exit_status = 0
         p = self.params
-        self._status_name = f"{p.name}/status"
         self._force_pub = None
         self._diag_pub = None
         self._diag_timer = None
@@ -363,13 +364,10 @@ class EmulatorNode(LifecycleNode):
         self._last = out
         msg = JointState()
         set_stamp(msg.header.stamp, stamp)
-        msg.name = [self.params.name, self._status_name]
-        x = out.stroke_m if math.isfinite(out.stroke_m) else 0.0
-        v = out.velocity_m_s if math.isfinite(out.velocity_m_s) else 0.0
-        age = out.input_age_s if math.isfinite(out.input_age_s) else -1.0
-        msg.position = [x, age]
-        msg.velocity = [v, 0.0]
-        msg.effort = [out.force_n, float(int(out.status))]
+        f = force_message.fields(self.params.name, out.force_n, int(out.status), out.stroke_m,
+                                 out.velocity_m_s, out.input_age_s)
+        msg.name, msg.position, msg.velocity, msg.effort = (f.name, f.position, f.velocity,
+                                                            f.effort)
         self._force_pub.publish(msg)
 
     def _on_set_parameters(self, params) -> SetParametersResult:

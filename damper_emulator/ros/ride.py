@@ -31,6 +31,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from damper_emulator import force_message
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
@@ -114,7 +115,7 @@ class RideNode(Node):
         if not msg.effort:
             return
         force = float(msg.effort[0])
-        status = int(msg.effort[1]) if len(msg.effort) > 1 and math.isfinite(msg.effort[1]) else 0
+        status = force_message.status_of(msg.effort)
         if not math.isfinite(force):
             self.faults |= NON_FINITE_FORCE
             return

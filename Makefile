@@ -18,6 +18,7 @@ demo: $(STAMP)
 	$(BIN)/damper-hil demo --out demo_out
 
 test: $(STAMP)
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)

@@ -39,7 +39,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from machine import cpu_name
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -100,7 +99,7 @@ def run(args) -> list[dict]:
         sentinels = (_start_sentinels(args.duration + SENTINEL_MARGIN_S, out)
                      if args.host else [])
         started = time.monotonic()
-        proc = subprocess.Popen([sys.executable, "-m", "damper_emulator.cli", "demo",
+        proc = subprocess.Popen([sys.executable, "-m", "damper_hil.cli", "demo",
                                  "--duration", str(args.duration), "--out", str(out / "demo")],
                                 cwd=ROOT, env=env, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True)

@@ -37,16 +37,20 @@ import sys
 import time
 
 import numpy as np
+from machine import cpu_name  # noqa: E402  (same folder)
 
 from damper_emulator.diagnose.selection import diagnose
-from damper_emulator.diagnose.truth import (EXAMPLE_EFFECTS, REALISTIC, REALISTIC_FINE,
-                                            Protocol,
-                                            example_config, simulate_session)
+from damper_emulator.diagnose.truth import (
+    EXAMPLE_EFFECTS,
+    REALISTIC,
+    REALISTIC_FINE,
+    Protocol,
+    example_config,
+    simulate_session,
+)
 from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import EXTENSION_FAMILIES, load_config
-
-from machine import cpu_name  # noqa: E402  (same folder)
 
 NOISE_N = 4.0
 INERTIA_KG = 6.0

@@ -14,14 +14,13 @@ import statistics
 import time
 
 import numpy as np
+from machine import cpu_name  # noqa: E402  (same folder)
 
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel, simulate
 from damper_emulator.params import load_config
-
-from machine import cpu_name  # noqa: E402  (same folder)
 
 
 def main() -> None:

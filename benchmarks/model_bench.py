@@ -19,7 +19,6 @@ import statistics
 import time
 
 import numpy as np
-
 from machine import cpu_name
 
 from damper_emulator.dyno.protocols import chirp

@@ -23,7 +23,6 @@ import statistics
 import time
 
 import numpy as np
-
 from machine import cpu_name
 
 

@@ -9,12 +9,27 @@ The CAN layer is pure Python (no rclpy):
 - :mod:`can_bridge.bus`: python-can buses, :class:`ResilientBus`.
 """
 
-from can_bridge.bus import (BusConfig, CanBusError, ResilientBus, open_bus,
-                            socketcan_available, socketcan_problem)
+from can_bridge.bus import (
+                            BusConfig,
+                            CanBusError,
+                            ResilientBus,
+                            open_bus,
+                            socketcan_available,
+                            socketcan_problem,
+)
 from can_bridge.codec import Decoded, EncodedFrame, Encoder, FrameCounters, Receiver
 from can_bridge.crc import crc8_sae_j1850
-from can_bridge.dbc import (DEFAULT_DBC, REQUIRED_SIGNALS, DbcError, ForceStatus, bus_load,
-                            cycle_time_s, frame_bits, load_database, messages_for)
+from can_bridge.dbc import (
+                            DEFAULT_DBC,
+                            REQUIRED_SIGNALS,
+                            DbcError,
+                            ForceStatus,
+                            bus_load,
+                            cycle_time_s,
+                            frame_bits,
+                            load_database,
+                            messages_for,
+)
 
 __all__ = [
     "BusConfig",

@@ -20,10 +20,13 @@ import re
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import can
+
+from damper_emulator.errors import UserError, one_line
 
 __all__ = [
     "BusConfig",
@@ -43,13 +46,8 @@ MAX_BITRATE = 1_000_000
 _RECV_SLICE_S = 0.2
 
 
-class CanBusError(RuntimeError):
+class CanBusError(UserError, RuntimeError):
     """A CAN bus cannot be opened (one line: interface, channel, cause, remedy)."""
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 @dataclass(frozen=True)
@@ -94,23 +92,23 @@ class BusConfig:
     def __post_init__(self) -> None:
         if not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= 0x7FF
                    for i in self.receive_ids):
-            raise ValueError(f"receive_ids must be 11-bit identifiers, got {self.receive_ids!r}")
+            raise UserError(f"receive_ids must be 11-bit identifiers, got {self.receive_ids!r}")
         if self.interface not in can.VALID_INTERFACES:
-            raise ValueError(f"can interface {self.interface!r} is not a python-can interface "
+            raise UserError(f"can interface {self.interface!r} is not a python-can interface "
                              f"(one of {', '.join(sorted(can.VALID_INTERFACES))})")
         if not isinstance(self.channel, str) or not self.channel.strip():
-            raise ValueError(f"can channel must be a non-empty string, got {self.channel!r}")
+            raise UserError(f"can channel must be a non-empty string, got {self.channel!r}")
         if (isinstance(self.bitrate, bool) or not isinstance(self.bitrate, int)
                 or not 0 < self.bitrate <= MAX_BITRATE):
-            raise ValueError(f"can bitrate must be an integer 1..{MAX_BITRATE} bit/s, "
+            raise UserError(f"can bitrate must be an integer 1..{MAX_BITRATE} bit/s, "
                              f"got {self.bitrate!r}")
         if not isinstance(self.receive_own_messages, bool):
-            raise ValueError("receive_own_messages must be a bool, got "
+            raise UserError("receive_own_messages must be a bool, got "
                              f"{self.receive_own_messages!r}")
         if self.interface == "udp_multicast":
             _split_udp_channel(self.channel)
             if self.receive_own_messages:
-                raise ValueError("udp_multicast does not support receive_own_messages=True "
+                raise UserError("udp_multicast does not support receive_own_messages=True "
                                  "(it delivers the bus's own frames anyway)")
 
     def bus_kwargs(self) -> dict[str, Any]:
@@ -147,13 +145,13 @@ def _split_udp_channel(channel: str) -> tuple[str, int | None]:
     if port_text is not None:
         port = int(port_text) if port_text.isdigit() else -1
         if not 0 < port < 65536:
-            raise ValueError(f"udp_multicast channel {channel!r}: port must be 1..65535")
+            raise UserError(f"udp_multicast channel {channel!r}: port must be 1..65535")
     try:
         address = ipaddress.ip_address(group.split("%")[0])
     except ValueError:
         address = None
     if address is None or not address.is_multicast:
-        raise ValueError(f"udp_multicast channel must be a multicast group, optionally with a "
+        raise UserError(f"udp_multicast channel must be a multicast group, optionally with a "
                          f"port ([ff11::1]:43113), got {channel!r}")
     return group, port
 
@@ -204,8 +202,8 @@ def _open_failure(cfg: BusConfig, exc: BaseException) -> str:
             return (f"{where}: no network interface {cfg.channel} (create it: ip link add "
                     f"dev {cfg.channel} type vcan && ip link set up {cfg.channel})")
     if cfg.interface == "udp_multicast" and "msgpack" in str(exc):
-        return f"{where}: udp_multicast needs the msgpack package ({_one_line(exc)})"
-    return f"{where}: {_one_line(exc)}"
+        return f"{where}: udp_multicast needs the msgpack package ({one_line(exc, with_type=True)})"
+    return f"{where}: {one_line(exc, with_type=True)}"
 
 
 def open_bus(cfg: BusConfig) -> can.BusABC:
@@ -294,10 +292,10 @@ class ResilientBus:
                  backoff_max_s: float = 5.0,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if not (math.isfinite(backoff_initial_s) and backoff_initial_s >= 0):
-            raise ValueError(f"backoff_initial_s must be finite and >= 0, got "
+            raise UserError(f"backoff_initial_s must be finite and >= 0, got "
                              f"{backoff_initial_s!r}")
         if not (math.isfinite(backoff_max_s) and backoff_max_s >= backoff_initial_s):
-            raise ValueError(f"backoff_max_s must be finite and >= backoff_initial_s, got "
+            raise UserError(f"backoff_max_s must be finite and >= backoff_initial_s, got "
                              f"{backoff_max_s!r}")
         self.config = cfg
         self._backoff_initial = float(backoff_initial_s)
@@ -388,7 +386,7 @@ class ResilientBus:
                 return      # the other thread has handled this bus's failure already
             bus, self._bus = self._bus, None
             self._record_failure(f"CAN bus {self.config.label}: {what} failed: "
-                                 f"{_one_line(exc)}")
+                                 f"{one_line(exc, with_type=True)}")
         try:
             bus.shutdown()
         except Exception:  # already broken; nothing more to do
@@ -427,7 +425,7 @@ class ResilientBus:
             self.tx_dropped += 1
             if _is_congestion(exc):
                 self.last_error = (f"CAN bus {self.config.label}: transmit queue full: "
-                                   f"{_one_line(exc)}")
+                                   f"{one_line(exc, with_type=True)}")
             else:
                 self._fail(generation, "send", exc)
             return False
@@ -499,7 +497,7 @@ class ResilientBus:
             except Exception as exc:
                 _log.debug("shutting down %s: %s", self.config.label, exc)
 
-    def __enter__(self) -> "ResilientBus":
+    def __enter__(self) -> ResilientBus:
         return self
 
     def __exit__(self, *exc_info: object) -> None:

@@ -22,14 +22,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable, NamedTuple
+from typing import Any, NamedTuple
 
 from cantools.database.can import Database, Message
 
 from can_bridge.crc import crc8_sae_j1850
-from can_bridge.dbc import (CHECKSUM_SIGNAL, COUNTER_SIGNAL, check_message, checksum_byte,
-                            cycle_time_s)
+from can_bridge.dbc import (
+    CHECKSUM_SIGNAL,
+    COUNTER_SIGNAL,
+    check_message,
+    checksum_byte,
+    cycle_time_s,
+)
 
 __all__ = ["EncodedFrame", "Encoder", "Decoded", "FrameCounters", "Receiver"]
 
@@ -93,7 +99,7 @@ class FrameCounters:
         """Frames dropped as invalid: ``length + checksum + counter``."""
         return self.length + self.checksum + self.counter
 
-    def copy(self) -> "FrameCounters":
+    def copy(self) -> FrameCounters:
         """An independent copy (a snapshot for diagnostics)."""
         return dataclasses.replace(self)
 

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import enum
 import os
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import cantools
 from cantools.database.can import Database, Message, Signal
+
+from damper_emulator.errors import UserError, one_line
 
 __all__ = [
     "DEFAULT_DBC",
@@ -65,13 +67,8 @@ class ForceStatus(enum.IntFlag):
     FORCE_SATURATED = 128   # bridge: Force saturated to the signal range
 
 
-class DbcError(ValueError):
+class DbcError(UserError):
     """The CAN database cannot be read or lacks what the project needs (one line)."""
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text or type(exc).__name__
 
 
 def checksum_byte(signal: Signal) -> int | None:
@@ -110,19 +107,19 @@ def check_message(message: Message, data_signals: Iterable[str] = ()) -> None:
     names = {s.name for s in message.signals}
     missing = [n for n in (*data_signals, COUNTER_SIGNAL, CHECKSUM_SIGNAL) if n not in names]
     if missing:
-        raise ValueError(f"message {message.name} lacks signal(s) {', '.join(missing)}")
+        raise UserError(f"message {message.name} lacks signal(s) {', '.join(missing)}")
     if message.is_container or message.is_multiplexed():
-        raise ValueError(f"message {message.name}: containers and multiplexing are not "
+        raise UserError(f"message {message.name}: containers and multiplexing are not "
                          "supported")
     counter = message.get_signal_by_name(COUNTER_SIGNAL)
     if counter.length != 4 or counter.is_signed or counter.is_float:
-        raise ValueError(f"message {message.name}: {COUNTER_SIGNAL} must be a 4-bit unsigned "
+        raise UserError(f"message {message.name}: {COUNTER_SIGNAL} must be a 4-bit unsigned "
                          f"integer, not {counter.length} bits"
                          f"{' signed' if counter.is_signed else ''}")
     checksum = message.get_signal_by_name(CHECKSUM_SIGNAL)
     index = checksum_byte(checksum)
     if index is None or checksum.is_signed or index >= message.length:
-        raise ValueError(f"message {message.name}: {CHECKSUM_SIGNAL} must be a byte-aligned "
+        raise UserError(f"message {message.name}: {CHECKSUM_SIGNAL} must be a byte-aligned "
                          f"unsigned 8-bit signal (start bit {checksum.start}, "
                          f"{checksum.length} bits)")
 
@@ -156,7 +153,7 @@ def load_database(path: str | os.PathLike[str] | None = None, *,
     try:
         db = cantools.database.load_file(path, database_format="dbc", strict=True)
     except Exception as exc:  # cantools/textparser raise several unrelated types
-        raise DbcError(f"{path}: cannot read the DBC: {_one_line(exc)}") from exc
+        raise DbcError(f"{path}: cannot read the DBC: {one_line(exc)}") from exc
     for name, signals in required.items():
         try:
             message = db.get_message_by_name(name)
@@ -233,7 +230,7 @@ def frame_bits(dlc: int, extended: bool = False) -> int:
     int
     """
     if isinstance(dlc, bool) or not isinstance(dlc, int) or not 0 <= dlc <= 8:
-        raise ValueError(f"dlc must be an integer 0..8 (classic CAN), got {dlc!r}")
+        raise UserError(f"dlc must be an integer 0..8 (classic CAN), got {dlc!r}")
     stuffable = (54 if extended else 34) + 8 * dlc
     fixed = 13
     return stuffable + fixed + (stuffable - 1) // 4
@@ -266,7 +263,7 @@ def bus_load(db: Database, bitrate_bps: float,
         A named message not in the database.
     """
     if not bitrate_bps > 0:
-        raise ValueError(f"bitrate_bps must be positive, got {bitrate_bps!r}")
+        raise UserError(f"bitrate_bps must be positive, got {bitrate_bps!r}")
     if messages is None:
         chosen = [m for m in db.messages if cycle_time_s(m)]
     else:
@@ -275,8 +272,8 @@ def bus_load(db: Database, bitrate_bps: float,
     for message in chosen:
         period = cycle_time_s(message)
         if period is None:
-            raise ValueError(f"message {message.name} has no cycle time (GenMsgCycleTime)")
+            raise UserError(f"message {message.name} has no cycle time (GenMsgCycleTime)")
         if message.is_fd or message.length > 8:
-            raise ValueError(f"message {message.name}: CAN FD frames are not supported")
+            raise UserError(f"message {message.name}: CAN FD frames are not supported")
         bits_per_s += frame_bits(message.length, message.is_extended_frame) / period
     return bits_per_s / bitrate_bps

@@ -19,8 +19,8 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Optional
 
 import can
 import numpy as np
@@ -29,11 +29,12 @@ from can_bridge.bus import BusConfig, ResilientBus
 from can_bridge.codec import Encoder, Receiver
 from can_bridge.core import FORCE, STATE
 from can_bridge.dbc import ForceStatus
+from damper_emulator.errors import DamperHilError
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
 
 
-class OverCanError(RuntimeError):
+class OverCanError(DamperHilError, RuntimeError):
     """The run over CAN could not be completed (one line: what is missing)."""
 
 
@@ -59,7 +60,7 @@ class OverCanResult:
 def run_over_can(t: np.ndarray, x: np.ndarray, v: np.ndarray, bus_cfg: BusConfig, db, *,
                  settle_gap_s: float = 0.1, connect_timeout_s: float = 20.0,
                  drain_timeout_s: float = 1.0,
-                 progress: Optional[Callable[[str], None]] = None) -> OverCanResult:
+                 progress: Callable[[str], None] | None = None) -> OverCanResult:
     """Send the history ``(t, x, v)`` (uniform ``t`` [s], stroke [m], velocity [m/s]) as
     ``DAMPER_STATE`` frames at its own rate and collect the forces.
 

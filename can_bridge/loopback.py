@@ -14,9 +14,9 @@ same samples, quantised as the DBC quantises them (:attr:`Loopback.comparisons`)
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Callable, Optional
 
 import numpy as np
 
@@ -69,7 +69,7 @@ class Loopback:
 
     def __init__(self, bus: BusConfig, workdir: Path, params_file: Path | None = None, *,
                  start_nodes: bool = True, domain_id: int | None = None,
-                 progress: Optional[Callable[[str], None]] = None):
+                 progress: Callable[[str], None] | None = None):
         self.bus = bus
         self.db = load_database()
         self.workdir = Path(workdir)
@@ -80,7 +80,7 @@ class Loopback:
         self.comparisons: list[dict] = []
         self._nodes: list[NodeProcess] = []
 
-    def __enter__(self) -> "Loopback":
+    def __enter__(self) -> Loopback:
         if self.start_nodes:
             env = ros_environment(self.domain_id)
             logs = self.workdir / "logs"

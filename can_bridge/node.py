@@ -25,15 +25,20 @@ from std_msgs.msg import Float64
 from can_bridge.bus import BusConfig, CanBusError, ResilientBus, open_bus
 from can_bridge.core import BridgeCore
 from can_bridge.dbc import load_database
-from can_bridge.settings import (NODE_NAME, bridge_params_from_mapping,
-                                 default_bridge_mapping)
+from can_bridge.settings import NODE_NAME, bridge_params_from_mapping, default_bridge_mapping
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import (NotReadyError, executor_priority,
-                                        SubscriptionThread, control_qos,
-                                        declare_parameters, publish_diagnostics, set_stamp,
-                                        wait_until_active)
+from damper_emulator.ros.common import (
+    NotReadyError,
+    SubscriptionThread,
+    control_qos,
+    declare_parameters,
+    executor_priority,
+    publish_diagnostics,
+    set_stamp,
+    wait_until_active,
+)
 
 #: A CAN timestamp further than this from the wall clock is not trusted as a stamp [s].
 STAMP_TRUST_S = 1.0

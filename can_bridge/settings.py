@@ -2,15 +2,16 @@
 
 Defaults live in ``config/bridge.yaml``.  The names are the node's own, without a group
 (docs/interfaces.md §5: ``can_interface``, ``can_channel``, ``mode``); every value is
-checked by the project's one rule checker (:func:`damper_emulator.params.check_value`) and a bad one gives a
-one-line :class:`~damper_emulator.params.ParameterError`.
+checked by the project's one rule checker (:func:`damper_emulator.params.check_value`) and
+a bad one gives a one-line :class:`~damper_emulator.params.ParameterError`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from damper_emulator.params import ParameterError, build_group, check_value, read_yaml, rule
 
@@ -47,7 +48,7 @@ class BridgeParams:
                                     "fail_safe_command [s]", 0.1)
     fail_safe_command: float = rule(("closed", 0.0, 1.0),
                                     "controller: valve command while the controller is "
-                                    "silent (0 comfort .. 1 sport)", 1.0)
+                                    "silent [-] (0 comfort .. 1 sport)", 1.0)
     backoff_initial_s: float = rule("positive", "first wait before reopening a failed bus "
                                                 "[s]", 0.1)
     backoff_max_s: float = rule("positive", "longest wait between reopen attempts [s]", 5.0)

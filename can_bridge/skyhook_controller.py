@@ -13,8 +13,8 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Callable, Optional
 
 import can
 
@@ -50,7 +50,7 @@ class SkyhookStats:
 
 def run_skyhook(bus_cfg: BusConfig, db, params: SkyhookParams, rates: SkyhookRates,
                 stop: threading.Event, *, motion_timeout_s: float = MOTION_TIMEOUT_S,
-                log: Optional[Callable[[str], None]] = None) -> SkyhookStats:
+                log: Callable[[str], None] | None = None) -> SkyhookStats:
     """Run the controller until ``stop`` is set; returns its statistics."""
     receiver = Receiver(db, [MOTION])
     encoder = Encoder(db, COMMAND)

@@ -16,8 +16,9 @@ node and the replay write them (:func:`fields`), the ride node reads one message
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 

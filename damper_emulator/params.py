@@ -20,19 +20,21 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import yaml
 
+from damper_emulator.errors import UserError
 from damper_emulator.model.valve import VALVE_FORMS
 
 #: Default parameter file: the paper's 'sport' damper.
 DEFAULT_PARAMS_FILE = Path(__file__).resolve().parent.parent / "config" / "sport.yaml"
 
 
-class ParameterError(ValueError):
+class ParameterError(UserError):
     """A parameter file or value is invalid; the message is one line."""
 
 
@@ -79,13 +81,16 @@ def _pos(doc: str) -> Any:
     return field(metadata={"rule": "positive", "doc": doc})
 
 
-def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING) -> Any:
+def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING, *,
+         runtime: bool = False) -> Any:
     """A dataclass field checked by :func:`check_value`: ``rule`` is ``"positive"``,
     ``"non-negative"``, ``"bool"``, ``"text"``, ``("range", lo, hi)`` (lo exclusive),
     ``("closed", lo, hi)``,
     ``("int_range", lo, hi)``, ``("choices", names)``, ``"band"`` or ``"positive_list"``;
-    ``doc`` says what the value is, with its unit."""
-    return field(default=default, metadata={"rule": kind, "doc": doc})
+    ``doc`` says what the value is, with its unit in brackets (``[m]``; ``[-]``
+    dimensionless); ``runtime``: a running node accepts a change of it (otherwise it needs
+    a restart)."""
+    return field(default=default, metadata={"rule": kind, "doc": doc, "runtime": runtime})
 
 
 @dataclass(frozen=True)
@@ -349,7 +354,8 @@ class NumericsParams:
         "rule": "positive", "doc": "a step longer than this (a gap in the input) restarts "
         "from quasi-steady equilibrium at the new sample [s]"})
     newton_tolerance: float = field(default=1e-10, metadata={
-        "rule": "positive", "doc": "convergence of the implicit solve (table coordinate)"})
+        "rule": "positive",
+        "doc": "convergence of the implicit solve, in the table coordinate [-]"})
     newton_max_iterations: int = field(default=60, metadata={
         "rule": ("int_range", 4, 1000), "doc": "iteration cap of the implicit solve"})
     travel_margin_m: float = field(default=1e-4, metadata={
@@ -364,11 +370,100 @@ class ModelConfig:
     numerics: NumericsParams = NumericsParams()
     source: str = "<memory>"
 
-    def replace_damper(self, **changes: Any) -> "ModelConfig":
+    def replace_damper(self, **changes: Any) -> ModelConfig:
         """A copy with some damper parameters changed (validated)."""
         cfg = dataclasses.replace(self, damper=dataclasses.replace(self.damper, **changes))
         validate(cfg)
         return cfg
+
+
+# --------------------------------------------------------------------------------------
+# The schema, read back: what the ROS descriptors and the parameter reference are made of
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """One parameter as its group's schema declares it (:func:`field_specs`).
+
+    ``type`` is the ROS 2 parameter type's name (``double``, ``integer``, ``bool``,
+    ``string``, ``double_array``); ``lo``/``hi`` bound a number (``lo_open``: ``lo``
+    excluded; ``None``: unbounded); ``choices`` the allowed strings; ``default`` ``None``
+    when the group has none (the value comes from the params file)."""
+
+    key: str
+    type: str
+    unit: str
+    description: str
+    constraint: str
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    choices: tuple[str, ...] = ()
+    default: Any = None
+    runtime: bool = False
+
+
+#: the unit in a description: the first ``[...]`` after a space (not an index, ``name[0]``)
+_UNIT = re.compile(r"(?:^|\s)\[([^\[\]]*)\]")
+
+
+def _spec(f: dataclasses.Field, key: str) -> FieldSpec:
+    kind_rule, doc = f.metadata["rule"], f.metadata["doc"]
+    kind = kind_rule[0] if isinstance(kind_rule, tuple) else kind_rule
+    unit_match = _UNIT.search(doc)
+    unit = unit_match.group(1) if unit_match and kind not in ("bool", "text", "choices") \
+        else ""
+    default = None if f.default is dataclasses.MISSING else f.default
+    if isinstance(default, tuple):
+        default = list(default)
+    common = {"key": key, "unit": unit, "description": doc, "default": default,
+              "runtime": bool(f.metadata.get("runtime", False))}
+    if kind == "bool":
+        return FieldSpec(type="bool", constraint="true or false", **common)
+    if kind == "text":
+        return FieldSpec(type="string", constraint="text", **common)
+    if kind == "choices":
+        return FieldSpec(type="string", constraint="one of " + ", ".join(kind_rule[1]),
+                         choices=tuple(kind_rule[1]), **common)
+    if kind in ("band", "positive_list"):
+        what = "two increasing positive numbers" if kind == "band" else "positive numbers"
+        return FieldSpec(type="double_array", constraint=what, lo=0.0, lo_open=True, **common)
+    if kind == "int_range":
+        return FieldSpec(type="integer", constraint=f"integer in [{kind_rule[1]}, "
+                         f"{kind_rule[2]}]", lo=kind_rule[1], hi=kind_rule[2], **common)
+    if kind == "positive":
+        return FieldSpec(type="double", constraint="> 0", lo=0.0, lo_open=True, **common)
+    if kind == "non-negative":
+        return FieldSpec(type="double", constraint=">= 0", lo=0.0, **common)
+    if kind == "range":
+        return FieldSpec(type="double", constraint=f"in ({kind_rule[1]:g}, {kind_rule[2]:g}]",
+                         lo=kind_rule[1], hi=kind_rule[2], lo_open=True, **common)
+    if kind == "closed":
+        return FieldSpec(type="double", constraint=f"in [{kind_rule[1]:g}, {kind_rule[2]:g}]",
+                         lo=kind_rule[1], hi=kind_rule[2], **common)
+    raise AssertionError(f"{key}: rule {kind_rule!r} has no spec")  # a bug in the schema
+
+
+#: the group type of each nested rule
+_NESTED = {"group": lambda f: ValveParams, "adaptive": lambda f: AdaptiveParams,
+           "extensions": lambda f: ExtensionParams,
+           "extension": lambda f: EXTENSION_TYPES[f.name]}
+
+
+def field_specs(cls: type, prefix: str) -> list[FieldSpec]:
+    """Every parameter of the group ``cls`` (a dataclass of :func:`rule` fields), nested
+    groups flattened to dotted keys under ``prefix`` (``damper.rebound.k_leak``), in
+    declaration order."""
+    out: list[FieldSpec] = []
+    for f in fields(cls):
+        key = f"{prefix}.{f.name}" if prefix else f.name
+        nested = _NESTED.get(f.metadata["rule"]) if isinstance(f.metadata["rule"], str) \
+            else None
+        if nested is not None:
+            out.extend(field_specs(nested(f), key))
+        else:
+            out.append(_spec(f, key))
+    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -464,8 +559,9 @@ def check_extensions(ext: ExtensionParams | None, where: str) -> None:
         group = getattr(ext, f.name)
         if group is not None:
             if not isinstance(group, EXTENSION_TYPES[f.name]):
+                names = ", ".join(g.name for g in fields(EXTENSION_TYPES[f.name]))
                 raise ParameterError(f"{where}: damper.extensions.{f.name} must be a mapping "
-                                     f"of {', '.join(g.name for g in fields(EXTENSION_TYPES[f.name]))}")
+                                     f"of {names}")
             _check_fields(group, f"damper.extensions.{f.name}", where)
 
 

@@ -47,7 +47,8 @@ Semantics
    in the bag; the stamps are wall-clock times taken when the force is published, after
    the input was taken and the model stepped, and that delay varies by tens of µs (more
    when the loop runs late).  On the demo bags this leaves some 7 to 14 N r.m.s. (0.4 to
-   0.8 % of the force) between replay and recording, in spikes where the valve opens.  Output: the recorded stamp, log time and layout, the replayed force,
+   0.8 % of the force) between replay and recording, in spikes where the valve opens.
+   Output: the recorded stamp, log time and layout, the replayed force,
    status = the recorded ``REJECTED`` bit | ``MODEL`` from the replayed step.
 3. **Parameters.**  The damper: ``--params`` (default ``config/sport.yaml``); the emulator
    (``name``, ``input_mode``, ``max_extrapolation_s``, ``fault_mode``,
@@ -101,24 +102,34 @@ import math
 import os
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from damper_emulator import force_message
 from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages
 from damper_emulator.bag.cdr_fast import JointStates, RawTopic
-from damper_emulator.model.compressible import (DamperModel, DamperStepper, _simulate,
-                                                _simulate_commanded, new_state)
+from damper_emulator.errors import UserError
+from damper_emulator.model.compressible import (
+    DamperModel,
+    DamperStepper,
+    _simulate,
+    _simulate_commanded,
+    new_state,
+)
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.core import Status, fault_output, input_ok, stroke_window
+from damper_emulator.realtime.settings import (
+    DEFAULT_EMULATOR_FILE,
+    EmulatorParams,
+    default_emulator_mapping,
+    emulator_params_from_mapping,
+)
 from damper_emulator.recording import read_valve_commands
 from damper_emulator.ros.topics import FORCE, STATE, VALVE_COMMAND
-from damper_emulator.realtime.settings import (DEFAULT_EMULATOR_FILE, EmulatorParams,
-                                               default_emulator_mapping,
-                                               emulator_params_from_mapping)
 
 __all__ = [
     "BagData",
@@ -312,7 +323,7 @@ def emulate(data: BagData, model: DamperModel, params: EmulatorParams,
         return _emulate_input(data, model, params)
     if trigger == "timer":
         return _emulate_timer(data, model, params)
-    raise ValueError(f"trigger must be 'timer' or 'input', got {trigger!r}")
+    raise UserError(f"trigger must be 'timer' or 'input', got {trigger!r}")
 
 
 def _emulate_input(data: BagData, model: DamperModel, params: EmulatorParams) -> Replayed:

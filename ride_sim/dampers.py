@@ -42,11 +42,11 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel, DamperStepper, Fault
 from damper_emulator.model.incompressible import incompressible_force
 from damper_emulator.model.jit import kernel
-from damper_emulator.model.representations import (LinearDamper, TableDamper,
-                                                   fourteen_speed_damper)
+from damper_emulator.model.representations import LinearDamper, TableDamper, fourteen_speed_damper
 from damper_emulator.params import ModelConfig
 
 
@@ -342,7 +342,7 @@ def make_damper(kind: str, model: DamperModel | None = None, *, car=None,
     """
     kinds = ("linear", "14speed", "incompressible", "compressible", "nonlinear")
     if kind not in kinds:
-        raise ValueError(f"damper kind {kind!r} must be one of {', '.join(kinds)}")
+        raise UserError(f"damper kind {kind!r} must be one of {', '.join(kinds)}")
     if model is None:
         model = DamperModel()
     if kind == "linear":

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from damper_emulator.errors import UserError
 from ride_sim.params import QuarterCarParams
 
 
@@ -50,7 +51,7 @@ def transfer_functions(params: QuarterCarParams, f_hz,
     """
     f = np.asarray(f_hz, dtype=float)
     if not np.isfinite(f).all() or (f < 0).any():
-        raise ValueError("frequencies must be finite and >= 0 Hz")
+        raise UserError("frequencies must be finite and >= 0 Hz")
     c = params.linear_damping_ns_m if damping_ns_m is None else float(damping_ns_m)
     s = 2j * np.pi * f
     mw, mb = params.unsprung_mass_kg, params.sprung_mass_kg
@@ -71,7 +72,7 @@ def response_psd(h, road_psd) -> np.ndarray:
     h = np.asarray(h)
     s = np.asarray(road_psd, dtype=float)
     if h.shape != s.shape:
-        raise ValueError(f"transfer function and road PSD differ in shape ({h.shape} and "
+        raise UserError(f"transfer function and road PSD differ in shape ({h.shape} and "
                          f"{s.shape})")
     return np.abs(h) ** 2 * s
 
@@ -83,13 +84,13 @@ def rms_from_psd(f_hz, psd, band: tuple[float, float] | None = None) -> float:
     f = np.asarray(f_hz, dtype=float)
     p = np.asarray(psd, dtype=float)
     if f.ndim != 1 or p.shape != f.shape or f.size < 2:
-        raise ValueError("f_hz and psd must be 1-D arrays of equal length >= 2")
+        raise UserError("f_hz and psd must be 1-D arrays of equal length >= 2")
     if not (np.diff(f) > 0).all():
-        raise ValueError("f_hz must be strictly increasing")
+        raise UserError("f_hz must be strictly increasing")
     if band is not None:
         lo, hi = float(band[0]), float(band[1])
         if not lo < hi:
-            raise ValueError(f"band ({lo:g}, {hi:g}) Hz must have f_lo < f_hi")
+            raise UserError(f"band ({lo:g}, {hi:g}) Hz must have f_lo < f_hi")
         lo, hi = max(lo, f[0]), min(hi, f[-1])
         if not lo < hi:
             return 0.0

@@ -68,6 +68,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import signal as sps
 
+from damper_emulator.errors import UserError
+
 __all__ = [
     "BAND_LIMIT_Q",
     "DESIGN",
@@ -94,7 +96,7 @@ Start = Literal["rest", "steady"]
 def _require_positive(owner: str, **values: float) -> None:
     for key, value in values.items():
         if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f"{owner}: {key} must be finite and positive, got {value}")
+            raise UserError(f"{owner}: {key} must be finite and positive, got {value}")
 
 
 @dataclass(frozen=True)
@@ -234,7 +236,7 @@ def _constants(name: str) -> WeightingConstants:
     try:
         return WEIGHTINGS[name]
     except (KeyError, TypeError):
-        raise ValueError(
+        raise UserError(
             f"unknown weighting {name!r}; known: {', '.join(sorted(WEIGHTINGS))}") from None
 
 
@@ -300,7 +302,7 @@ def frequency_weighting(name: str, f: ArrayLike) -> np.complex128 | NDArray[np.c
     c = _constants(name)
     f_arr = np.asarray(f, dtype=np.float64)
     if not np.all(np.isfinite(f_arr)):
-        raise ValueError("frequencies must be finite")
+        raise UserError("frequencies must be finite")
     h = _analogue_response(c, f_arr)
     return h[()] if h.ndim == 0 else h
 
@@ -312,9 +314,9 @@ def frequency_weighting(name: str, f: ArrayLike) -> np.complex128 | NDArray[np.c
 def _check_fs(fs: float, settings: DigitalDesignSettings) -> float:
     fs = float(fs)
     if not math.isfinite(fs) or fs <= 0.0:
-        raise ValueError(f"sampling rate must be finite and positive, got {fs}")
+        raise UserError(f"sampling rate must be finite and positive, got {fs}")
     if fs < settings.min_fs_hz:
-        raise ValueError(f"sampling rate {fs} Hz is below the minimum {settings.min_fs_hz} Hz "
+        raise UserError(f"sampling rate {fs} Hz is below the minimum {settings.min_fs_hz} Hz "
                          "for the ISO 2631-1 weightings")
     return fs
 
@@ -440,9 +442,9 @@ def weighting_sos(name: str, fs: float,
 def _as_signal(x: ArrayLike, what: str) -> NDArray[np.float64]:
     arr = np.asarray(x, dtype=np.float64)
     if arr.ndim != 1:
-        raise ValueError(f"{what} must be 1-D, got shape {arr.shape}")
+        raise UserError(f"{what} must be 1-D, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what} must be finite")
+        raise UserError(f"{what} must be finite")
     return arr
 
 
@@ -506,7 +508,7 @@ class WeightingFilter:
         else:
             x0 = float(initial_input)
             if not math.isfinite(x0):
-                raise ValueError("initial input must be finite")
+                raise UserError("initial input must be finite")
             self._zi = sps.sosfilt_zi(self._sos) * x0
 
     def process(self, chunk: ArrayLike) -> NDArray[np.float64]:
@@ -560,7 +562,7 @@ def weight_signal(name: str, signal: ArrayLike, fs: float, *,
         For an unknown name, a signal that is not 1-D and finite, or an unusable ``fs``.
     """
     if start not in ("rest", "steady"):
-        raise ValueError(f"start must be 'rest' or 'steady', got {start!r}")
+        raise UserError(f"start must be 'rest' or 'steady', got {start!r}")
     x = _as_signal(signal, "signal")
     filt = WeightingFilter(name, fs)
     if start == "steady" and x.size:

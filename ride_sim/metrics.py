@@ -22,6 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import signal as sps
 
+from damper_emulator.errors import UserError
+
 __all__ = [
     "RUNNING_RMS",
     "RunningRmsConstants",
@@ -57,18 +59,18 @@ RUNNING_RMS = RunningRmsConstants()
 def _signal(x: ArrayLike) -> NDArray[np.float64]:
     arr = np.asarray(x, dtype=np.float64)
     if arr.ndim != 1:
-        raise ValueError(f"signal must be 1-D, got shape {arr.shape}")
+        raise UserError(f"signal must be 1-D, got shape {arr.shape}")
     if arr.size == 0:
-        raise ValueError("signal must not be empty")
+        raise UserError("signal must not be empty")
     if not np.all(np.isfinite(arr)):
-        raise ValueError("signal must be finite")
+        raise UserError("signal must be finite")
     return arr
 
 
 def _rate(fs: float) -> float:
     fs = float(fs)
     if not (math.isfinite(fs) and fs > 0.0):
-        raise ValueError(f"sampling rate must be finite and positive, got {fs}")
+        raise UserError(f"sampling rate must be finite and positive, got {fs}")
     return fs
 
 
@@ -122,7 +124,7 @@ def crest_factor(x: ArrayLike) -> float:
     a = _signal(x)
     a_rms = rms(a)
     if a_rms == 0.0:
-        raise ValueError("crest factor of an all-zero signal is undefined")
+        raise UserError("crest factor of an all-zero signal is undefined")
     return float(np.max(np.abs(a))) / a_rms
 
 
@@ -162,7 +164,7 @@ def running_rms(x: ArrayLike, fs: float, *,
     fs = _rate(fs)
     tau = float(integration_time_s)
     if not (math.isfinite(tau) and tau > 0.0):
-        raise ValueError(f"integration time must be finite and positive, got {tau}")
+        raise UserError(f"integration time must be finite and positive, got {tau}")
     squares = a * a
     if averaging == "linear":
         n = max(1, round(tau * fs))
@@ -172,7 +174,7 @@ def running_rms(x: ArrayLike, fs: float, *,
         alpha = math.exp(-1.0 / (tau * fs))
         mean_square = sps.lfilter([1.0 - alpha], [1.0, -alpha], squares)
     else:
-        raise ValueError(f"averaging must be 'linear' or 'exponential', got {averaging!r}")
+        raise UserError(f"averaging must be 'linear' or 'exponential', got {averaging!r}")
     return np.sqrt(np.maximum(mean_square, 0.0))
 
 

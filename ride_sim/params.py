@@ -24,8 +24,9 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from damper_emulator.params import (build_group, check_value as _check, node_parameters,
-                                    read_yaml, rule as _rule)
+from damper_emulator.params import build_group, node_parameters, read_yaml
+from damper_emulator.params import check_value as _check
+from damper_emulator.params import rule as _rule
 
 #: Default parameter file: the paper's front quarter car.
 DEFAULT_QUARTER_CAR_FILE = Path(__file__).resolve().parent.parent / "config" / "quarter_car.yaml"

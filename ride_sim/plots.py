@@ -7,8 +7,9 @@ m/s², DTL kN, time s, frequency Hz.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import signal as sps
@@ -16,8 +17,14 @@ from scipy import signal as sps
 from damper_emulator.dyno.plots import decorate, new_figure
 from ride_sim.frequency_domain import transfer_functions
 from ride_sim.iso2631 import frequency_weighting, weight_signal
-from ride_sim.study import (LABELS, PAPER_FIGURE_10, StudyResult, StudySettings,
-                            band_at_speed, band_sensitivity)
+from ride_sim.study import (
+    LABELS,
+    PAPER_FIGURE_10,
+    StudyResult,
+    StudySettings,
+    band_at_speed,
+    band_sensitivity,
+)
 
 #: Resolution of the study figures [dpi] (modest PNGs for the docs).
 DPI = 100
@@ -269,7 +276,7 @@ def plot_pothole(path: str | Path, result: StudyResult,
 
 
 # --------------------------------------------------------------------------------------
-# the adaptive damper (ride_sim.study.adaptive_study)
+# the adaptive damper (ride_sim.adaptive_study)
 
 ADAPTIVE_COLOURS = {"sport": "C3", "comfort": "C0", "skyhook": "C2"}
 
@@ -277,7 +284,7 @@ ADAPTIVE_COLOURS = {"sport": "C3", "comfort": "C0", "skyhook": "C2"}
 def plot_adaptive_bars(path: str | Path, doc: Mapping[str, Any]) -> Path:
     """SWS, Wk-weighted body acceleration and DTL r.m.s. per case of an adaptive study:
     mean over seeds (bar), ± std (error bar), each seed (dots), ratio to passive sport."""
-    from ride_sim.study import ADAPTIVE_KEYS
+    from ride_sim.adaptive_study import ADAPTIVE_KEYS
 
     cases = list(doc["cases"])
     panels = {"sws_rms": ("SWS r.m.s. [mm]", 1e3), "accel_w_rms":

@@ -44,6 +44,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.linalg import expm
 
+from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import step as _compressible_step
 from damper_emulator.model.jit import kernel
 from ride_sim.dampers import CompressibleSpec, DamperPlugin, StatelessSpec, stateless_force
@@ -242,11 +243,11 @@ class QuarterCar:
         validate_quarter_car(params)
         dt_s = float(dt_s)
         if not (math.isfinite(dt_s) and dt_s > 0):
-            raise ValueError(f"time step must be a positive number of seconds, got {dt_s!r}")
+            raise UserError(f"time step must be a positive number of seconds, got {dt_s!r}")
         if not math.isfinite(static_force_n):
-            raise ValueError(f"static force must be finite, got {static_force_n!r}")
+            raise UserError(f"static force must be finite, got {static_force_n!r}")
         if not (math.isfinite(internal_damping_ns_m) and internal_damping_ns_m >= 0):
-            raise ValueError(f"internal damping must be >= 0 N s/m, got "
+            raise UserError(f"internal damping must be >= 0 N s/m, got "
                              f"{internal_damping_ns_m!r}")
         self.params = params
         self.dt_s = dt_s
@@ -275,7 +276,7 @@ class QuarterCar:
         """Static equilibrium (all zero, road at 0), or the given ``(z1, z1', z2, z2')``."""
         s = np.zeros(4) if state is None else np.asarray(state, dtype=float).reshape(4)
         if not np.isfinite(s).all():
-            raise ValueError(f"quarter-car state must be finite, got {s!r}")
+            raise UserError(f"quarter-car state must be finite, got {s!r}")
         self._s[:] = s
 
     def damper_motion(self) -> tuple[float, float]:
@@ -356,11 +357,11 @@ def simulate(params: QuarterCarParams, damper: DamperPlugin, road_height_m,
     """
     road = np.ascontiguousarray(road_height_m, dtype=float)
     if road.ndim != 1 or road.size == 0:
-        raise ValueError(f"road height must be a non-empty 1-D array, got shape {road.shape}")
+        raise UserError(f"road height must be a non-empty 1-D array, got shape {road.shape}")
     bad = ~np.isfinite(road)
     if bad.any():
         i = int(np.argmax(bad))
-        raise ValueError(f"road height sample {i} is {road[i]} (must be finite)")
+        raise UserError(f"road height sample {i} is {road[i]} (must be finite)")
     car = QuarterCar(params, dt_s, damper.static_force_n)
     car.reset(initial_state)
     n = road.size
@@ -389,7 +390,7 @@ def simulate(params: QuarterCarParams, damper: DamperPlugin, road_height_m,
                 x, v = car.damper_motion()
                 force = float(damper.force(x, v, car.dt_s))
                 if not math.isfinite(force):
-                    raise ValueError(f"damper {damper.name!r} returned a non-finite force "
+                    raise UserError(f"damper {damper.name!r} returned a non-finite force "
                                      f"{force!r} at sample {k}")
                 fault = int(getattr(damper, "last_fault", 0))
             u0, u1 = _road_pair(road, k)

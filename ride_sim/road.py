@@ -49,13 +49,16 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Sequence
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter1d
+
+from damper_emulator.errors import UserError
 
 FloatArray = NDArray[np.float64]
 
@@ -130,7 +133,7 @@ BUMP_SHAPES = ("cosine", "half_sine")
 _TWO_PI = 2.0 * math.pi
 
 
-class RoadError(ValueError):
+class RoadError(UserError):
     """A road, a road parameter, a speed profile or a profile file is invalid (one line)."""
 
 
@@ -357,7 +360,7 @@ class RoadRoughness:
         """:func:`band_variance` of this road over the band [m²]."""
         return band_variance(self.roughness, self.waviness, band_cycles_per_m)
 
-    def random_road(self, length_m: float, **kwargs) -> "RoadProfile":
+    def random_road(self, length_m: float, **kwargs) -> RoadProfile:
         """:func:`random_road` of this spectrum (keyword arguments are passed on)."""
         kwargs.setdefault("name", f"{self.name} seed {kwargs.get('seed', DEFAULT_SEED)}")
         return random_road(self.roughness, self.waviness, length_m, **kwargs)
@@ -947,7 +950,7 @@ class SpeedProfile:
         object.__setattr__(self, "_distance_knots_m", knots)
 
     @classmethod
-    def constant(cls, speed_m_s: float, duration_s: float) -> "SpeedProfile":
+    def constant(cls, speed_m_s: float, duration_s: float) -> SpeedProfile:
         """Constant speed from ``t = 0`` to ``duration_s``."""
         speed = _non_negative(speed_m_s, "speed_m_s")
         duration = _positive(duration_s, "duration_s")

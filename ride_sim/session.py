@@ -13,20 +13,29 @@ zero-order-hold sampled coupling of :mod:`ride_sim.quarter_car`.
 
 :func:`semi_active_run` drives a session with the adaptive damper (docs/model.md §6) and a
 controller that sets its valve command from the body and damper velocities at a fixed
-rate (the skyhook ride study, :func:`ride_sim.study.adaptive_study`).
+rate (the skyhook ride study, :func:`ride_sim.adaptive_study.adaptive_study`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
+from damper_emulator.errors import UserError
 from ride_sim.params import QuarterCarParams, RideRunParams, RoadParams
-from ride_sim.quarter_car import (O_SIZE, Z2D, QuarterCar, RideResult, _record, _result,
-                                  _road_pair, simulate)
+from ride_sim.quarter_car import (
+    O_SIZE,
+    Z2D,
+    QuarterCar,
+    RideResult,
+    _record,
+    _result,
+    _road_pair,
+    simulate,
+)
 from ride_sim.study import _start_state, metrics, random_road_input
 
 
@@ -75,15 +84,15 @@ class RideSession:
 
     @classmethod
     def on_road(cls, car: QuarterCarParams, heights: np.ndarray, n_lead: int, dt_s: float,
-                static_force_n: float) -> "RideSession":
+                static_force_n: float) -> RideSession:
         """A session on given road heights (one per sample, e.g.
         :func:`ride_sim.study.random_road_input`) whose first ``n_lead`` samples are the
         lead-in the metrics leave out."""
         heights = np.ascontiguousarray(heights, dtype=float)
         if heights.ndim != 1 or heights.size < 2 or not np.isfinite(heights).all():
-            raise ValueError("road heights must be a finite 1-D array of at least 2 samples")
+            raise UserError("road heights must be a finite 1-D array of at least 2 samples")
         if not 0 <= n_lead < heights.size:
-            raise ValueError(f"lead-in of {n_lead} samples must be shorter than the road "
+            raise UserError(f"lead-in of {n_lead} samples must be shorter than the road "
                              f"({heights.size} samples)")
         self = cls.__new__(cls)
         self._setup(car, heights, int(n_lead), dt_s, static_force_n)
@@ -147,7 +156,7 @@ class RideSession:
     def metrics(self) -> dict[str, float]:
         """:func:`ride_sim.study.metrics` over the evaluated samples run so far."""
         if self.k <= self.n_lead + 1:
-            raise ValueError("the ride stopped before the evaluated part began")
+            raise UserError("the ride stopped before the evaluated part began")
         return metrics(self.result(), self.n_lead, self.k)
 
 
@@ -189,7 +198,7 @@ def semi_active_run(car: QuarterCarParams, heights: np.ndarray, n_lead: int, dt_
     """
     period = int(update_period_samples)
     if period < 1:
-        raise ValueError(f"update period must be at least one sample, got {period}")
+        raise UserError(f"update period must be at least one sample, got {period}")
     session = RideSession.on_road(car, heights, n_lead, dt_s, damper.static_force_n)
     n = session.n
     command = np.empty(n)

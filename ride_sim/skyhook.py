@@ -45,8 +45,15 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from damper_emulator.params import (ParameterError, build_group, check_value, node_parameters,
-                                    read_yaml, rule)
+from damper_emulator.errors import UserError
+from damper_emulator.params import (
+    ParameterError,
+    build_group,
+    check_value,
+    node_parameters,
+    read_yaml,
+    rule,
+)
 
 #: Default parameter file.
 DEFAULT_SKYHOOK_FILE = Path(__file__).resolve().parent.parent / "config" / "skyhook.yaml"
@@ -114,7 +121,7 @@ def equivalent_rates(model, reference_velocity_m_s: float) -> SkyhookRates:
 
     v = float(reference_velocity_m_s)
     if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"reference velocity must be positive, got {reference_velocity_m_s!r}")
+        raise UserError(f"reference velocity must be positive, got {reference_velocity_m_s!r}")
     f0 = quasi_steady_force(model, 0.0)
 
     def rate(velocity: float, command: float) -> float:

@@ -1,5 +1,5 @@
 """Quarter-car ride studies: Simms & Crolla (SAE 2002-01-0319) figures 10, 11 and 13, and
-the adaptive-damper study (docs/model.md §6, :func:`adaptive_study`).
+the adaptive-damper study (docs/model.md §6: :mod:`ride_sim.adaptive_study`).
 
 Pure physics and numpy (no argparse, no ROS); ``damper-hil ride-study`` is a thin front end
 and ``docs/ride_study.md`` reports the results.  Conventions as in
@@ -58,11 +58,13 @@ import functools
 import math
 import os
 import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
+from damper_emulator.errors import UserError
 from ride_sim import road as rd
 from ride_sim.dampers import TablePlugin, make_damper
 from ride_sim.frequency_domain import transfer_functions
@@ -148,7 +150,7 @@ def _quiet(_msg: str) -> None:
 # dampers
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def default_model():
     """The sport damper (``config/sport.yaml``), built once per process."""
     from damper_emulator.model.compressible import DamperModel
@@ -174,7 +176,7 @@ def make_representation(kind: str, car: QuarterCarParams, model=None, points: in
         table = fourteen_speed_table(model, points) if table is None else table
         return TablePlugin(table, name=f"{points}-speed")
     if kind not in ALL_REPRESENTATIONS:
-        raise ValueError(f"representation {kind!r} must be one of "
+        raise UserError(f"representation {kind!r} must be one of "
                          f"{', '.join(ALL_REPRESENTATIONS)}")
     return make_damper(kind, model, car=car)
 
@@ -195,7 +197,7 @@ class StudySettings:
     source: str = "<memory>"
 
     @classmethod
-    def from_config(cls, cfg: RideConfig, **road_overrides: Any) -> "StudySettings":
+    def from_config(cls, cfg: RideConfig, **road_overrides: Any) -> StudySettings:
         """Settings of ``cfg`` with some ``road`` fields replaced (``None`` = keep)."""
         changes = {k: v for k, v in road_overrides.items() if v is not None}
         road = dataclasses.replace(cfg.road, **changes)
@@ -214,16 +216,16 @@ def check_road(road: RoadParams) -> None:
     """Raise ``ValueError`` (one line) for road settings a study cannot run."""
     lo, hi = road.band_cycles_per_m
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(f"band [{lo:g}, {hi:g}] cycles/m must satisfy 0 < n_min < n_max")
+        raise UserError(f"band [{lo:g}, {hi:g}] cycles/m must satisfy 0 < n_min < n_max")
     for name in ("speed_m_s", "length_m", "pothole_speed_m_s"):
         value = getattr(road, name)
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name.replace('_m_s', '').replace('_m', '')} must be a "
+            raise UserError(f"{name.replace('_m_s', '').replace('_m', '')} must be a "
                              f"positive number, got {value!r}")
     if not all(math.isfinite(v) and v > 0 for v in road.sweep_speeds_m_s):
-        raise ValueError(f"sweep speeds must be positive, got {road.sweep_speeds_m_s!r}")
+        raise UserError(f"sweep speeds must be positive, got {road.sweep_speeds_m_s!r}")
     if isinstance(road.seeds, bool) or not isinstance(road.seeds, int) or road.seeds < 1:
-        raise ValueError(f"seeds must be a positive integer, got {road.seeds!r}")
+        raise UserError(f"seeds must be a positive integer, got {road.seeds!r}")
 
 
 def band_at_speed(road: RoadParams, speed_m_s: float) -> tuple[float, float]:
@@ -604,7 +606,7 @@ def figure13(settings: StudySettings, *, representations: Sequence[str] = ALL_RE
     i0 = max(0, int(round((t_edge - road.window_before_s) / dt)))
     i1 = min(heights.size, int(round((t_edge + road.window_after_s) / dt)))
     if i1 - i0 < 2:
-        raise ValueError("the pothole r.m.s. window holds fewer than 2 samples")
+        raise UserError("the pothole r.m.s. window holds fewer than 2 samples")
     doc: dict[str, Any] = {
         "figure": 13,
         "title": f"pothole {road.pothole_depth_m * 1e3:g} mm deep, "
@@ -645,148 +647,6 @@ def figure13(settings: StudySettings, *, representations: Sequence[str] = ALL_RE
         traces[kind] = res
     doc["elapsed_s"] = round(time.perf_counter() - started, 3)
     return StudyResult(doc, traces)
-
-
-# --------------------------------------------------------------------------------------
-# the adaptive damper: passive sport, passive comfort, skyhook
-
-#: Cases of :func:`adaptive_study`, in order, and their labels.
-ADAPTIVE_CASES = ("sport", "comfort", "skyhook")
-ADAPTIVE_LABELS = {"sport": "passive sport (c = 1)", "comfort": "passive comfort (c = 0)",
-                   "skyhook": "skyhook"}
-#: The metrics the adaptive study reports (SI: m, m/s², N).
-ADAPTIVE_KEYS = ("sws_rms", "accel_w_rms", "dtl_rms")
-#: Valve commands of the passive cases.
-_PASSIVE_COMMAND = {"sport": 1.0, "comfort": 0.0}
-
-
-def _ratio_stats(values: Sequence[float]) -> dict[str, float]:
-    x = np.asarray(values, dtype=float)
-    return {"mean": float(x.mean()), "std": float(x.std(ddof=1)) if x.size > 1 else 0.0,
-            "min": float(x.min()), "max": float(x.max())}
-
-
-def adaptive_study(settings: StudySettings, skyhook, *, model=None,
-                   progress: Progress = _quiet, keep_traces: bool = True) -> StudyResult:
-    """The adaptive damper on ``road.length_m`` of random road at ``road.speed_m_s``,
-    ``road.seeds`` seeds: passive sport, passive comfort and skyhook (:data:`ADAPTIVE_CASES`).
-
-    Parameters
-    ----------
-    settings : StudySettings
-    skyhook : ride_sim.skyhook.SkyhookParams
-        The controller (``config/skyhook.yaml``); its rate is rounded to a whole number of
-        samples (the update rate used is in the document).
-    model : DamperModel, optional
-        The damper, with a ``damper.adaptive`` group (default ``config/sport.yaml``).
-
-    Returns
-    -------
-    StudyResult
-        ``doc[case]``: every :data:`OUTPUT_KEYS` mean, ``spread`` (std, min, max over
-        seeds), ``per_seed``; ``doc["ratio_to_sport"][case][key]`` per-seed ratios to
-        passive sport (mean, std, min, max).  Traces of seed 0 (the three rides and the
-        skyhook commands) for the plots.
-    """
-    from ride_sim.dampers import CompressiblePlugin
-    from ride_sim.session import semi_active_run
-    from ride_sim.skyhook import resolve_rates, skyhook_command
-
-    started = time.perf_counter()
-    road, car, dt = settings.road, settings.car, settings.dt_s
-    speed = road.speed_m_s
-    band = band_at_speed(road, speed)
-    check_random_road(road, speed, dt)
-    model = default_model() if model is None else model
-    if not model.adaptive:
-        raise ValueError(f"damper '{model.cfg.damper.name}' has no bypass "
-                         "(damper.adaptive group): the valve command has no effect")
-    rates = resolve_rates(skyhook, model)
-    period = max(1, int(round(1.0 / (skyhook.rate_hz * dt))))
-
-    def skyhook_law(body_velocity: float, damper_velocity: float) -> float:
-        return skyhook_command(body_velocity, damper_velocity, skyhook.c_sky_ns_m, rates,
-                               skyhook.deadband_m_s)
-
-    per_seed: dict[str, list] = {c: [] for c in ADAPTIVE_CASES}
-    faults = {c: 0 for c in ADAPTIVE_CASES}
-    command_stats: list[dict[str, float]] = []
-    traces: dict[str, Any] = {}
-    for seed in range(road.seeds):
-        heights, n_lead, n_eval = random_road_input(road, speed, seed, dt, band)
-        progress(f"adaptive, seed {seed + 1}/{road.seeds}: {road.length_m:g} m at {speed:g} "
-                 f"m/s ({n_lead + n_eval} steps) x {len(ADAPTIVE_CASES)} cases")
-        for case in ADAPTIVE_CASES:
-            if case == "skyhook":
-                damper = CompressiblePlugin(model, name="skyhook")
-                law, every = skyhook_law, period
-            else:
-                command = _PASSIVE_COMMAND[case]
-                damper = CompressiblePlugin(model, name=case, valve_command=command)
-                law, every = (lambda vb, vd, c=command: c), n_lead + n_eval
-            out = semi_active_run(car, heights, n_lead, dt, damper, law, every)
-            per_seed[case].append(out.metrics)
-            faults[case] |= out.result.fault_bits
-            if case == "skyhook":
-                ev = slice(n_lead, n_lead + n_eval)
-                c, ce = out.command[ev], out.effective_command[ev]
-                command_stats.append({"mean": float(c.mean()),
-                                      "effective_mean": float(ce.mean()),
-                                      "fraction_comfort": float(np.mean(c == 0.0)),
-                                      "fraction_sport": float(np.mean(c == 1.0))})
-            if keep_traces and seed == 0:
-                traces[case] = out
-                traces["window"] = (n_lead, n_lead + n_eval)
-    doc: dict[str, Any] = {
-        "figure": "adaptive",
-        "title": f"adaptive damper: {road.length_m:g} m of random road (G = {road.roughness:g}, "
-                 f"p = {road.waviness:g}) at {speed:g} m/s, {road.seeds} seeds",
-        "units": {"sws": "m", "accel": "m/s^2", "dtl": "N", "rates": "N s/m (damper side)"},
-        "settings": settings.as_dict(),
-        "band_cycles_per_m": list(band),
-        "cases": list(ADAPTIVE_CASES),
-        "labels": dict(ADAPTIVE_LABELS),
-        "damper": {"name": model.cfg.damper.name,
-                   "adaptive": dataclasses.asdict(model.cfg.damper.adaptive)},
-        "controller": {**dataclasses.asdict(skyhook), "rates_ns_m": rates._asdict(),
-                       "update_period_samples": period,
-                       "update_rate_hz": 1.0 / (period * dt)},
-        "coupling": "every case through ride_sim.session.semi_active_run: damper sampled "
-                    "once per step, force and valve command held (zero-order hold)",
-    }
-    for case in ADAPTIVE_CASES:
-        doc[case] = _summary(per_seed[case], None)
-        doc[case]["fault_bits"] = faults[case]
-        if case in _PASSIVE_COMMAND:
-            doc[case]["valve_command"] = _PASSIVE_COMMAND[case]
-    doc["skyhook"]["valve_command"] = {
-        k: _ratio_stats([m[k] for m in command_stats]) for k in command_stats[0]}
-    doc["ratio_to_sport"] = {
-        case: {key: _ratio_stats([a[key] / b[key] for a, b in
-                                  zip(per_seed[case], per_seed["sport"])])
-               for key in ADAPTIVE_KEYS}
-        for case in ADAPTIVE_CASES if case != "sport"}
-    doc["elapsed_s"] = round(time.perf_counter() - started, 3)
-    return StudyResult(doc, traces)
-
-
-def adaptive_table(doc: Mapping[str, Any]) -> str:
-    """Plain-text table of an :func:`adaptive_study` document: per case the mean ± std over
-    seeds of the three r.m.s. metrics and the mean per-seed ratio to passive sport."""
-    head = (f"{'case':<24}{'SWS rms [mm]':>16}{'accel Wk rms [m/s2]':>22}{'DTL rms [kN]':>16}"
-            f"{'ratios to sport (SWS / Wk / DTL)':>36}")
-    lines = [head]
-    for case in doc["cases"]:
-        e = doc[case]
-        cells = []
-        for key, scale, fmt in (("sws_rms", 1e3, ".2f"), ("accel_w_rms", 1.0, ".3f"),
-                                ("dtl_rms", 1e-3, ".3f")):
-            cells.append(f"{e[key] * scale:{fmt}} ± {e['spread'][key]['std'] * scale:{fmt}}")
-        r = doc.get("ratio_to_sport", {}).get(case)
-        ratio = " / ".join(f"{r[k]['mean']:.3f}" for k in ADAPTIVE_KEYS) if r else "1"
-        lines.append(f"{doc['labels'][case]:<24}{cells[0]:>16}{cells[1]:>22}{cells[2]:>16}"
-                     f"{ratio:>36}")
-    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------------------
@@ -853,7 +713,7 @@ def figure11(settings: StudySettings, *, representations: Sequence[str] = REPRES
         check_random_road(road, v, dt)
     workers = (os.cpu_count() or 1) if workers is None else int(workers)
     if workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers}")
+        raise UserError(f"workers must be a positive integer, got {workers}")
     table_v = table_f = None
     if "14speed" in representations:
         progress(f"building the {settings.points}-speed table on the hysteretic model ...")

@@ -18,13 +18,30 @@ import pytest
 from scipy.optimize import brentq
 
 from damper_emulator.dyno.protocols import chirp
-from damper_emulator.model.adaptive import (bypass_area, bypass_coefficients, bypass_flow,
-                                            bypass_pressure_drop, solenoid_lag)
-from damper_emulator.model.compressible import (DamperModel, DamperStepper, Fault,
-                                                quasi_steady_force, simulate)
+from damper_emulator.model.adaptive import (
+    bypass_area,
+    bypass_coefficients,
+    bypass_flow,
+    bypass_pressure_drop,
+    solenoid_lag,
+)
+from damper_emulator.model.compressible import (
+    DamperModel,
+    DamperStepper,
+    Fault,
+    quasi_steady_force,
+    simulate,
+)
 from damper_emulator.model.valve import form_code, pressure_drop
-from damper_emulator.params import (DEFAULT_PARAMS_FILE, ParameterError, config_from_mapping,
-                                    config_to_mapping, load_config, read_yaml, save_config)
+from damper_emulator.params import (
+    DEFAULT_PARAMS_FILE,
+    ParameterError,
+    config_from_mapping,
+    config_to_mapping,
+    load_config,
+    read_yaml,
+    save_config,
+)
 
 RHO, CD, LENGTH, D_COMFORT, D_NORMAL, T63 = 870.0, 0.7, 3e-3, 3.3e-3, 2.6e-3, 12e-3
 
@@ -382,8 +399,10 @@ def test_replace_damper_validates_the_group(sport_cfg):
 
 def test_emulator_core_passes_the_valve_command(sport_model):
     from damper_emulator.realtime.core import EmulatorCore
-    from damper_emulator.realtime.settings import (default_emulator_mapping,
-                                                   emulator_params_from_mapping)
+    from damper_emulator.realtime.settings import (
+        default_emulator_mapping,
+        emulator_params_from_mapping,
+    )
 
     params = emulator_params_from_mapping({**default_emulator_mapping(), "trigger": "input",
                                            "valve_command": 0.5}, "e.yaml")

@@ -24,12 +24,24 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.rosbag2.storage_mcap import McapReader
 from rosbags.typesys import Stores, get_typestore
 
-from damper_emulator.bag import BagError, BagWriter, Qos, messages, open_bag, read_messages, topic_counts
+from damper_emulator.bag import (
+    BagError,
+    BagWriter,
+    Qos,
+    messages,
+    open_bag,
+    read_messages,
+    topic_counts,
+)
 from damper_emulator.bag import writer as writer_mod
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 MAGIC = b"\x89MCAP0\r\n"
-JS, F64, DIAG = "sensor_msgs/msg/JointState", "std_msgs/msg/Float64", "diagnostic_msgs/msg/DiagnosticArray"
+JS, F64, DIAG = (
+    "sensor_msgs/msg/JointState",
+    "std_msgs/msg/Float64",
+    "diagnostic_msgs/msg/DiagnosticArray",
+)
 T0 = 1_700_000_000_000_000_000
 CHILD = Path(__file__).with_name("bag_kill_child.py")
 
@@ -69,7 +81,8 @@ def read_mcap(bag: Path):
 
 
 def walk_records(data: bytes):
-    """Opcodes and lengths of the top-level records, checking the file ends right after the footer."""
+    """Opcodes and lengths of the top-level records; the file must end right after the
+    footer."""
     assert data[:8] == MAGIC and data[-8:] == MAGIC
     pos, ops = 8, []
     while True:
@@ -170,8 +183,13 @@ def test_message_helpers_round_trip():
 def test_round_trip_three_topics(tmp_path):
     bag = tmp_path / "run"
     qos_js = Qos(reliability="reliable", durability="volatile", history="keep_last", depth=10)
-    qos_f = Qos(reliability="best_effort", durability="transient_local", history="keep_last", depth=1,
-                deadline_ns=1_500_000_000)
+    qos_f = Qos(
+        reliability="best_effort",
+        durability="transient_local",
+        history="keep_last",
+        depth=1,
+        deadline_ns=1_500_000_000,
+    )
     expected = {}
     with BagWriter(bag, flush_period_s=0.05, custom_data={"run": "unit", "model": "sport"}) as w:
         c_js = w.add_topic("/damper/state", JS, qos=qos_js)
@@ -214,8 +232,11 @@ def test_round_trip_three_topics(tmp_path):
         for (ts, msg), (_, i) in zip(got, exp):
             check_value(topic, ts, msg, i)
     by_topic = {c.topic: c for c in conns}
-    for topic, msgtype, qos in (("/damper/state", JS, qos_js), ("/damper/force", F64, qos_f),
-                                ("/diagnostics", DIAG, Qos())):
+    for topic, msgtype, qos in (
+        ("/damper/state", JS, qos_js),
+        ("/damper/force", F64, qos_f),
+        ("/diagnostics", DIAG, Qos()),
+    ):
         conn = by_topic[topic]
         assert conn.msgtype == msgtype
         assert conn.digest == TS.hash_rihs01(msgtype)
@@ -236,14 +257,22 @@ def test_round_trip_three_topics(tmp_path):
         assert ch.message_encoding == "cdr" and sc.encoding == "ros2msg" and sc.name == msgtype
         assert sc.data.decode() == TS.generate_msgdef(msgtype, ros_version=2)[0]
         assert ch.metadata["topic_type_hash"] == TS.hash_rihs01(msgtype)
-        assert [Qos.from_rosbags(q) for q in parse_qos(ch.metadata["offered_qos_profiles"])] == [qos]
-    for (tp, ts, data), (_, _, msg) in zip(raw[:50], msgs[:50]):
+        assert [Qos.from_rosbags(q) for q in parse_qos(ch.metadata["offered_qos_profiles"])] == [
+            qos
+        ]
+    for (tp, _ts, data), (_, _, msg) in zip(raw[:50], msgs[:50]):
         assert bytes(TS.serialize_cdr(msg, by_topic[tp].msgtype)) == data
 
     # metadata.yaml as rosbag2 (Jazzy) writes it
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    assert meta["version"] == 9 and meta["storage_identifier"] == "mcap" and meta["ros_distro"] == "jazzy"
-    assert meta["relative_file_paths"] == ["run_0.mcap"] and meta["files"][0]["path"] == "run_0.mcap"
+    assert (
+        meta["version"] == 9
+        and meta["storage_identifier"] == "mcap"
+        and meta["ros_distro"] == "jazzy"
+    )
+    assert (
+        meta["relative_file_paths"] == ["run_0.mcap"] and meta["files"][0]["path"] == "run_0.mcap"
+    )
     assert meta["message_count"] == len(msgs) and meta["files"][0]["message_count"] == len(msgs)
     assert meta["starting_time"]["nanoseconds_since_epoch"] == msgs[0][1]
     assert meta["duration"]["nanoseconds"] == msgs[-1][1] - msgs[0][1]
@@ -338,7 +367,9 @@ def test_valid_after_every_flush_while_open(tmp_path):
             assert [(tp, ts) for tp, ts, _ in raw] == written
             counts = topic_counts(bag)
             assert sum(counts.values()) == len(written)
-            meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+            meta = yaml.safe_load((bag / "metadata.yaml").read_text())[
+                "rosbag2_bagfile_information"
+            ]
             assert meta["message_count"] == len(written)
         assert {c.topic: c.msgcount for c in conns}["/damper/force"] == 3 * 400
     finally:
@@ -373,7 +404,9 @@ def test_growth_keeps_the_file_readable(tmp_path, monkeypatch):
     real_grow = w._grow
     w._grow = lambda needed: (grows.append(needed), real_grow(needed))[1]
     c = w.add_topic("/damper/state", JS)
-    payload = messages.joint_state(T0, ["d"] * 20, np.arange(20.0), np.arange(20.0), np.arange(20.0))
+    payload = messages.joint_state(
+        T0, ["d"] * 20, np.arange(20.0), np.arange(20.0), np.arange(20.0)
+    )
     n = 0
     for k in range(40):
         for _ in range(25):  # ~12 kB per flush
@@ -401,7 +434,9 @@ def test_growth_keeps_the_file_readable(tmp_path, monkeypatch):
     storage = McapReader(mcap_file(bag))
     storage.open()
     try:
-        assert storage.chunks and storage.metadata.message_count == n  # read via the summary's index
+        assert (
+            storage.chunks and storage.metadata.message_count == n
+        )  # read via the summary's index
     finally:
         storage.close()
     msgs, _ = read_rosbags(bag)
@@ -452,8 +487,12 @@ def test_sigkill_loses_at_most_half_a_second(tmp_path):
     children = []
     for k in range(len(delays)):
         bag = tmp_path / f"kill{k}"
-        proc = subprocess.Popen([sys.executable, str(CHILD), str(bag), "2000"], stdout=subprocess.PIPE,
-                                text=True, env=env)
+        proc = subprocess.Popen(
+            [sys.executable, str(CHILD), str(bag), "2000"],
+            stdout=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
         children.append((bag, proc))
     try:
         outputs = []
@@ -486,7 +525,7 @@ def test_sigkill_loses_at_most_half_a_second(tmp_path):
         assert all(a[0] < b[0] for a, b in zip(got, got[1:]))
         for (ts, i), (_, _, m) in zip(got, msgs):
             assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == ts and m.velocity[0] == i
-        # exactly what the child wrote, in order (a message written but not yet printed may be extra)
+        # exactly what the child wrote, in order (one written but not yet printed may be extra)
         assert got[: len(reported)] == reported[: len(got)]
         assert len(got) <= len(reported) + 1
         lost_s = (reported[-1][0] - got[-1][0]) / 1e9

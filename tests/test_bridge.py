@@ -24,12 +24,20 @@ from types import SimpleNamespace
 import can
 import numpy as np
 import pytest
+from ros_probe import Probe  # noqa: E402
 
-from can_bridge import (BusConfig, Encoder, ForceStatus, Receiver, ResilientBus, load_database,
-                        socketcan_available, socketcan_problem)
+from can_bridge import (
+    BusConfig,
+    Encoder,
+    ForceStatus,
+    Receiver,
+    ResilientBus,
+    load_database,
+    socketcan_available,
+    socketcan_problem,
+)
 from can_bridge.core import COMMAND, FORCE, MOTION, STATE, BridgeCore
 from can_bridge.settings import BridgeParams
-from ros_probe import Probe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 #: each set-up its own ROS domain (tests/test_nodes.py uses 120..126; the benchmark 138, 139)
@@ -38,7 +46,7 @@ DOMAINS = {"dyno": 130, "lone": 131, "sine": 132, "chirp": 133, "controller": 13
 #: each bus set-up its own udp_multicast group and port (offset 0..9 within this process's
 #: block of ports)
 OFFSETS = {"dyno": 0, "lone": 1, "sine": 2, "chirp": 3, "controller": 4, "external": 5}
-CLI = [sys.executable, "-m", "damper_emulator.cli"]
+CLI = [sys.executable, "-m", "damper_hil.cli"]
 STROKE_STEP = 1e-5           # DAMPER_STATE.Stroke / DAMPER_FORCE.StrokeUsed resolution [m]
 VELOCITY_STEP = 2e-4         # DAMPER_STATE.Velocity resolution [m/s]
 

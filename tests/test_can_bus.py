@@ -8,8 +8,17 @@ import time
 import can
 import pytest
 
-from can_bridge import (BusConfig, CanBusError, Encoder, Receiver, ResilientBus, load_database,
-                        open_bus, socketcan_available, socketcan_problem)
+from can_bridge import (
+    BusConfig,
+    CanBusError,
+    Encoder,
+    Receiver,
+    ResilientBus,
+    load_database,
+    open_bus,
+    socketcan_available,
+    socketcan_problem,
+)
 
 
 class FakeClock:

@@ -5,9 +5,19 @@ import random
 import cantools
 import pytest
 
-from can_bridge import (DEFAULT_DBC, DbcError, Encoder, FrameCounters, Receiver, bus_load,
-                        crc8_sae_j1850, cycle_time_s, frame_bits, load_database,
-                        messages_for)
+from can_bridge import (
+    DEFAULT_DBC,
+    DbcError,
+    Encoder,
+    FrameCounters,
+    Receiver,
+    bus_load,
+    crc8_sae_j1850,
+    cycle_time_s,
+    frame_bits,
+    load_database,
+    messages_for,
+)
 
 MESSAGES = {  # name: (frame id, cycle [s], {signal: (unit, min, max, step)})
     "DAMPER_STATE": (0x100, 0.001, {"Stroke": ("m", -0.32768, 0.32767, 1e-5),

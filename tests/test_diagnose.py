@@ -20,16 +20,27 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from damper_emulator.cli import main
-from damper_emulator.diagnose.selection import (FLOOR_FORCE_FRACTION, MIN_SCORE,
-                                                STRUCTURE_RATIO, diagnose, noise_level,
-                                                structure_ratio)
-from damper_emulator.diagnose.truth import (EXAMPLE_EFFECTS, REALISTIC, Protocol,
-                                            example_config, simulate_session, write_session)
+from damper_emulator.diagnose.selection import (
+    FLOOR_FORCE_FRACTION,
+    MIN_SCORE,
+    STRUCTURE_RATIO,
+    diagnose,
+    noise_level,
+    structure_ratio,
+)
+from damper_emulator.diagnose.truth import (
+    EXAMPLE_EFFECTS,
+    REALISTIC,
+    Protocol,
+    example_config,
+    simulate_session,
+    write_session,
+)
 from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import EXTENSION_FAMILIES, load_config, save_config
 from damper_emulator.validation import validate_file
+from damper_hil.cli import main
 
 #: a shorter chirp and one quasi-static cycle keep the suite quick; the rest as the paper
 PROTOCOL = Protocol(chirp_duration_s=12.0, qs_cycles=1)

@@ -74,3 +74,22 @@ def test_the_model_and_interface_documents_cover_what_the_code_cites():
                 bad.append(f"{path.relative_to(REPO)}: {doc}.md §{sec}")
     assert headings and iface_headings
     assert not bad, "\n".join(bad)
+
+
+def test_the_parameter_reference_is_generated_from_the_schema():
+    from damper_hil import param_reference
+
+    assert param_reference.main(["--check"]) == 0, (
+        "docs/parameters.md is out of date: python -m damper_hil.param_reference")
+
+
+def test_every_number_in_the_schema_states_its_unit_and_rule():
+    from damper_emulator.params import field_specs
+    from damper_hil.param_reference import _groups
+
+    missing = [s.key for group, _, _, cls, _ in _groups() for s in field_specs(cls, group)
+               if s.type in ("double", "double_array") and not s.unit]
+    assert not missing, missing
+    # every spec says what its rule is (none falls through to a bare type)
+    assert all(s.constraint for group, _, _, cls, _ in _groups()
+               for s in field_specs(cls, group))

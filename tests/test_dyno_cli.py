@@ -1,7 +1,7 @@
 """Virtual dyno command line and measured-data files (docs/interfaces.md §2,
 "Command line").
 
-End-to-end checks run ``python -m damper_emulator.cli`` in a subprocess (exit status,
+End-to-end checks run ``python -m damper_hil.cli`` in a subprocess (exit status,
 exactly what reaches stderr); the others call ``main()`` in-process to stay fast.
 """
 
@@ -15,14 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from damper_emulator.cli import main
-from damper_emulator.dyno.measured import (MeasuredDataError, read_measured_csv,
-                                           write_measured_csv)
+from damper_emulator.dyno.measured import MeasuredDataError, read_measured_csv, write_measured_csv
 from damper_emulator.params import DEFAULT_PARAMS_FILE
+from damper_hil.cli import main
 
 
 def run_cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "damper_emulator.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "damper_hil.cli", *map(str, args)],
                           capture_output=True, text=True, timeout=300, cwd=cwd)
 
 
@@ -240,8 +239,12 @@ def test_reader_row_numbers_skip_blank_lines_after_a_fast_read(tmp_path):
 def test_fast_and_field_by_field_reads_agree(tmp_path):
     """numpy's read (all columns numeric) and the field-by-field one (forced by a parser)
     give the same floats, blank lines, CRLF and extra columns included."""
-    from damper_emulator.dyno.measured import (OPTIONAL_COLUMNS, REQUIRED_COLUMNS,
-                                               parse_number, read_csv_table)
+    from damper_emulator.dyno.measured import (
+        OPTIONAL_COLUMNS,
+        REQUIRED_COLUMNS,
+        parse_number,
+        read_csv_table,
+    )
     rng = np.random.default_rng(5)
     values = rng.normal(0.0, 1.0, (200, 3)) * [1.0, 1e-2, 1e3]
     body = "".join(f"{float(a)!r},{b:.17g},note,{c:.6e}\r\n" + ("\r\n" if k % 50 == 0 else "")

@@ -22,13 +22,24 @@ from scipy.optimize import brentq
 from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, example_config, with_extension
 from damper_emulator.dyno.protocols import chirp, quasi_static, sine
 from damper_emulator.model import compressible as cm
-from damper_emulator.model.compressible import (DamperModel, DamperStepper, quasi_steady_force,
-                                                simulate)
+from damper_emulator.model.compressible import (
+    DamperModel,
+    DamperStepper,
+    quasi_steady_force,
+    simulate,
+)
 from damper_emulator.model.extensions import P_ATM, heat_rise
 from damper_emulator.model.valve import form_code, pressure_drop
-from damper_emulator.params import (EXTENSION_TYPES, ExtensionParams, ParameterError,
-                                    SeriesComplianceParams, config_from_mapping,
-                                    config_to_mapping, load_config, save_config)
+from damper_emulator.params import (
+    EXTENSION_TYPES,
+    ExtensionParams,
+    ParameterError,
+    SeriesComplianceParams,
+    config_from_mapping,
+    config_to_mapping,
+    load_config,
+    save_config,
+)
 
 LUGRE = EXAMPLE_EFFECTS["lugre_friction"]["params"]
 LOW_GAS = {"gas_pressure_static_pa": 1.5e6}     # the cavitation example's gas charge

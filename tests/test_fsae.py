@@ -13,9 +13,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from damper_emulator.dyno.fsae import (FORCE_N_PER_V, STROKE_M, FsaeRunInfo, cycle_starts,
-                                       cycle_work, export_fsae_csv, fsae_files,
-                                       parse_fsae_name, read_fsae_ttx25)
+from damper_emulator.dyno.fsae import (
+    FORCE_N_PER_V,
+    STROKE_M,
+    FsaeRunInfo,
+    cycle_starts,
+    cycle_work,
+    export_fsae_csv,
+    fsae_files,
+    parse_fsae_name,
+    read_fsae_ttx25,
+)
 from damper_emulator.dyno.measured import MeasuredDataError, read_measured_csv
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "measured" / "fsae_ttx25"
@@ -125,7 +133,7 @@ def test_every_exported_run_passes_the_unit_checks_and_fails_them_in_kn_and_ms(r
     written in kN or in ms."""
     from damper_emulator.dyno.measured import write_measured_csv
 
-    for name, d in runs.items():
+    for d in runs.values():
         read_measured_csv(export_fsae_csv(d, tmp_path / "ok"))  # raises if refused
         for unit, time_s, force_n in (("kilonewtons", d.time, d.force * 1e-3),
                                       ("milliseconds", d.time * 1e3, d.force)):

@@ -12,8 +12,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from damper_emulator.dyno.protocols import chirp, sine
-from damper_emulator.model.compressible import (DamperModel, DamperStepper, Fault,
-                                                simulate)
+from damper_emulator.model.compressible import DamperModel, DamperStepper, Fault, simulate
 from damper_emulator.model.incompressible import incompressible_force
 from damper_emulator.model.valve import pressure_drop_array
 

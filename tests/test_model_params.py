@@ -5,8 +5,14 @@ import math
 import pytest
 import yaml
 
-from damper_emulator.params import (DEFAULT_PARAMS_FILE, ParameterError, config_from_mapping,
-                                    load_config, read_yaml, save_config)
+from damper_emulator.params import (
+    DEFAULT_PARAMS_FILE,
+    ParameterError,
+    config_from_mapping,
+    load_config,
+    read_yaml,
+    save_config,
+)
 
 
 def test_sport_file_holds_the_papers_parameters(sport_cfg):

@@ -111,7 +111,8 @@ def test_smoothing_eq28_limits():
 @pytest.mark.parametrize("form", V.VALVE_FORMS)
 def test_smoothed_curve_continuous_and_strictly_increasing(valve, form):
     b0 = _b0(valve)
-    q = np.sort(np.concatenate((np.linspace(0, 2e-3, 20001), b0 * (1 + np.linspace(-1e-6, 1e-6, 11)))))
+    near_b0 = b0 * (1 + np.linspace(-1e-6, 1e-6, 11))
+    q = np.sort(np.concatenate((np.linspace(0, 2e-3, 20001), near_b0)))
     dp = V.pressure_drop_array(q, valve, NU, form)
     assert dp[0] == 0.0
     assert np.all(np.diff(dp) > 0)

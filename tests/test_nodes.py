@@ -16,6 +16,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 from rclpy.context import Context  # noqa: E402
+from ros_probe import Probe  # noqa: E402
 from rosbags.rosbag2 import Reader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -24,7 +25,6 @@ from damper_emulator.realtime.core import Status  # noqa: E402
 from damper_emulator.ros import topics  # noqa: E402
 from damper_emulator.ros.common import control_qos  # noqa: E402
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment  # noqa: E402
-from ros_probe import Probe  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 #: each test its own domain: 110 + offset (>= 102 would clash with the 0..101 range? no:
@@ -58,7 +58,7 @@ def read_bag(path: Path) -> dict[str, list]:
 
 
 def test_closed_loop_demo_writes_a_bag_rosbags_reads(tmp_path):
-    from damper_emulator.hil_demo import run_demo
+    from damper_hil.hil_demo import run_demo
 
     summary = run_demo(tmp_path, 5.0, domain_id=DOMAINS["demo"], progress=lambda _s: None)
     msgs = read_bag(tmp_path / "bag")
@@ -274,7 +274,7 @@ def test_bad_parameters_exit_with_one_line(tmp_path):
                           (["-p", "emulator.fault_mode:=brake"], "emulator.fault_mode"),
                           (["-p", "emulator.no_such_thing:=1.0"], "emulator.no_such_thing"),
                           (["-p", "damper.gas_gamma:=7.0"], "damper.gas_gamma")):
-        r = subprocess.run([sys.executable, "-m", "damper_emulator.cli", "emulate",
+        r = subprocess.run([sys.executable, "-m", "damper_hil.cli", "emulate",
                             "--ros-args", *params], env=env, capture_output=True, text=True,
                            timeout=120)
         assert r.returncode == 2, r.stderr

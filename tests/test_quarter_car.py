@@ -14,11 +14,21 @@ from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.model.incompressible import incompressible_force
 from damper_emulator.model.representations import LinearDamper
 from damper_emulator.params import ParameterError
-from ride_sim.dampers import (CompressiblePlugin, DamperPlugin, IncompressiblePlugin,
-                              LinearPlugin, TablePlugin, make_damper)
+from ride_sim.dampers import (
+    CompressiblePlugin,
+    DamperPlugin,
+    IncompressiblePlugin,
+    LinearPlugin,
+    TablePlugin,
+    make_damper,
+)
 from ride_sim.frequency_domain import response_psd, rms_from_psd, transfer_functions
-from ride_sim.params import (DEFAULT_QUARTER_CAR_FILE, QuarterCarParams, load_quarter_car,
-                             load_ride_config)
+from ride_sim.params import (
+    DEFAULT_QUARTER_CAR_FILE,
+    QuarterCarParams,
+    load_quarter_car,
+    load_ride_config,
+)
 from ride_sim.quarter_car import QuarterCar, discretise, simulate
 
 DT = 1e-3

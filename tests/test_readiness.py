@@ -20,7 +20,6 @@ import textwrap
 import time
 from pathlib import Path
 
-
 from damper_emulator.model import jit
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -131,12 +130,12 @@ def test_cold_emulate_is_active_before_its_first_force(tmp_path):
     """A cold start: `damper-hil emulate` compiles while configuring, answers `active`
     over its lifecycle service, and publishes its first force only then; from that force
     on the outputs flow without a stall."""
+    from ros_probe import Probe
     from sensor_msgs.msg import JointState
 
     from damper_emulator.ros import topics
     from damper_emulator.ros.common import control_qos
     from damper_emulator.ros.launch import NodeProcess, node_command
-    from ros_probe import Probe
 
     env = _cold_env(tmp_path, DOMAINS["cold_emulate"])
     started = time.monotonic()
@@ -193,7 +192,7 @@ def test_demo_with_an_empty_numba_cache_holds_real_time(tmp_path):
     ride loop must keep pace with the wall clock."""
     env = _cold_env(tmp_path, DOMAINS["cold_demo"])
     out = tmp_path / "demo"
-    proc = subprocess.run([sys.executable, "-m", "damper_emulator.cli", "demo",
+    proc = subprocess.run([sys.executable, "-m", "damper_hil.cli", "demo",
                            "--duration", "5", "--out", str(out)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=600)
     figures = ""

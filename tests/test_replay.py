@@ -9,10 +9,10 @@ tick logic (hold / extrapolate, input timeout, fault output).  No ROS processes.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 
 from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages, open_bag
-from damper_emulator.cli import main
 from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.settings import default_emulator_mapping
 from damper_emulator.recording import read_recording
 from damper_emulator.replay import REPLAY_BAG, load_emulator_params, read_bag, run_replay
+from damper_hil.cli import main
 
 JS = "sensor_msgs/msg/JointState"
 T0 = 1_700_000_000_000_000_000      # wall-clock epoch of the timer bags [ns]
@@ -449,7 +449,7 @@ def test_the_shipped_sample_bag_replays_within_one_percent(tmp_path):
     reads it and the offline replay reproduces the recorded force within 1 % r.m.s."""
     from rosbags.rosbag2 import Reader
 
-    from damper_emulator.cli import main as cli_main
+    from damper_hil.cli import main as cli_main
 
     bag = Path(__file__).resolve().parent.parent / "bags" / "demo_5s"
     with Reader(bag) as reader:

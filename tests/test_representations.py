@@ -6,9 +6,13 @@ import numpy as np
 import pytest
 
 from damper_emulator.model.incompressible import incompressible_force
-from damper_emulator.model.representations import (LinearDamper, TableDamper,
-                                                   fourteen_speed_damper, linear_best_fit,
-                                                   linear_from_model)
+from damper_emulator.model.representations import (
+    LinearDamper,
+    TableDamper,
+    fourteen_speed_damper,
+    linear_best_fit,
+    linear_from_model,
+)
 
 #: a digressive table with a steep low-speed part, like a real damper's
 V = np.array([-1.5, -0.6, -0.1, -0.02, 0.0, 0.02, 0.1, 0.6, 1.5])

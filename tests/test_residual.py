@@ -6,8 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from damper_emulator.diagnose import (plot_residual, residual_features,
-                                      residual_record)
+from damper_emulator.diagnose import plot_residual, residual_features, residual_record
 from damper_emulator.diagnose.residual import binned_r2
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import simulate

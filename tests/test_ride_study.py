@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from damper_emulator.cli import main
-from ride_sim import study
+from damper_hil.cli import main
+from ride_sim import adaptive_study, study
 from ride_sim.params import load_ride_config
 
 RMS_KEYS = ("sws_rms", "accel_w_rms", "dtl_rms")
@@ -302,7 +302,8 @@ def test_semi_active_run_holds_the_command_between_updates(cfg):
 def adaptive_doc(cfg):
     from ride_sim.skyhook import load_skyhook
 
-    return study.adaptive_study(_settings(cfg, seeds=2, length_m=200.0), load_skyhook()).doc
+    settings = _settings(cfg, seeds=2, length_m=200.0)
+    return adaptive_study.adaptive_study(settings, load_skyhook()).doc
 
 
 def test_adaptive_study_physics(adaptive_doc):
@@ -327,7 +328,7 @@ def test_adaptive_study_document(adaptive_doc):
     assert d["cases"] == ["sport", "comfort", "skyhook"]
     for case in d["cases"]:
         assert d[case]["seeds"] == 2 and len(d[case]["per_seed"]) == 2
-        for key in study.ADAPTIVE_KEYS:
+        for key in adaptive_study.ADAPTIVE_KEYS:
             x = [m[key] for m in d[case]["per_seed"]]
             assert d[case][key] == pytest.approx(np.mean(x))
             assert d[case]["spread"][key]["std"] == pytest.approx(np.std(x, ddof=1))
@@ -336,7 +337,7 @@ def test_adaptive_study_document(adaptive_doc):
         ratio = [a["dtl_rms"] / b["dtl_rms"] for a, b in zip(d[case]["per_seed"],
                                                               d["sport"]["per_seed"])]
         assert d["ratio_to_sport"][case]["dtl_rms"]["mean"] == pytest.approx(np.mean(ratio))
-    assert "skyhook" in study.adaptive_table(d)
+    assert "skyhook" in adaptive_study.adaptive_table(d)
 
 
 def test_cli_adaptive_writes_json_and_plots(tmp_path, capsys):
@@ -350,7 +351,7 @@ def test_cli_adaptive_writes_json_and_plots(tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert doc["figure"] == "adaptive" and doc["settings"]["road"]["length_m"] == 120.0
     for case in ("sport", "comfort", "skyhook"):
-        for key in study.ADAPTIVE_KEYS:
+        for key in adaptive_study.ADAPTIVE_KEYS:
             assert math.isfinite(doc[case][key]) and "std" in doc[case]["spread"][key]
     assert sorted(doc["report_files"]) == ["ride_adaptive_bars.png",
                                            "ride_adaptive_history.png"]

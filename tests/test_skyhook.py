@@ -10,9 +10,17 @@ import pytest
 
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import ParameterError, read_yaml
-from ride_sim.skyhook import (DEFAULT_SKYHOOK_FILE, SkyhookParams, SkyhookRates, check_rates,
-                              equivalent_rates, load_skyhook, resolve_rates, skyhook_command,
-                              skyhook_from_mapping)
+from ride_sim.skyhook import (
+    DEFAULT_SKYHOOK_FILE,
+    SkyhookParams,
+    SkyhookRates,
+    check_rates,
+    equivalent_rates,
+    load_skyhook,
+    resolve_rates,
+    skyhook_command,
+    skyhook_from_mapping,
+)
 
 #: hand-made rates: rebound soft 1000 / firm 5000, compression soft 800 / firm 2000 N s/m
 RATES = SkyhookRates(1000.0, 5000.0, 800.0, 2000.0)

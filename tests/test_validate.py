@@ -14,13 +14,17 @@ import math
 import numpy as np
 import pytest
 
-from damper_emulator.cli import main
 from damper_emulator.dyno import runner
 from damper_emulator.dyno.measured import MeasuredData, write_measured_csv
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import DEFAULT_PARAMS_FILE
-from damper_emulator.validation import (dominant_frequency, estimate_velocity,
-                                        savgol_window, validate_file)
+from damper_emulator.validation import (
+    dominant_frequency,
+    estimate_velocity,
+    savgol_window,
+    validate_file,
+)
+from damper_hil.cli import main
 
 
 def dyno_sine(model, frequency, amplitude, cycles=3, rate=1000.0, noise_std=0.0, seed=0,

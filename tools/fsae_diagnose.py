@@ -33,10 +33,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from fsae_identify import ALPHA_BOUNDS, FIXED, run_cli  # noqa: E402  (same folder)
 
 from damper_emulator.dyno.fsae import export_fsae_csv, read_fsae_ttx25
 from damper_emulator.dyno.measured import MeasuredData
-from fsae_identify import ALPHA_BOUNDS, FIXED, run_cli  # noqa: E402  (same folder)
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured" / "fsae_ttx25"

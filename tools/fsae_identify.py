@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from damper_emulator.cli import main as cli
 from damper_emulator.dyno.fsae import export_fsae_csv, parse_fsae_name
 from damper_emulator.params import load_config, save_config
+from damper_hil.cli import main as cli
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured" / "fsae_ttx25"
@@ -137,7 +137,10 @@ def tables(results: dict[str, dict], temps: dict[str, float]) -> str:
     row("P_gas,static (100 psi run)", qs("gas_pressure_static_pa", 1e-6, "MPa"))
     row("V_gas,static", qs("gas_volume_static_m3", 1e6, "cm³"))
     row("F_friction", qs("friction_force_n", 1.0, "N"))
-    row("α [1/Pa]", lambda d: f"{(d['alpha_fit'] or {}).get('alpha_per_pa', d['fixed']['oil_compressibility_per_pa']):.3g}")
+    def alpha(d):
+        fixed = d["fixed"]["oil_compressibility_per_pa"]
+        return f"{(d['alpha_fit'] or {}).get('alpha_per_pa', fixed):.3g}"
+    row("α [1/Pa]", alpha)
     for side in ("rebound", "compression"):
         for key in ("k_leak", "k_port", "k_spring", "preload_pa", "smoothing_g"):
             def fn(doc, side=side, key=key):

@@ -33,11 +33,20 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from scipy.signal import medfilt, savgol_filter
 
-from damper_emulator.dyno.fsae import (CONNECTING_ROD_M, CRANK_RADIUS_M, FORCE_N_PER_V,
-                                       PSI_TO_PA,
-                                       SAVGOL_POLYORDER, SAVGOL_WINDOW, STROKE_M,
-                                       cycle_starts, cycle_work, fsae_files,
-                                       parse_fsae_name, read_fsae_ttx25)
+from damper_emulator.dyno.fsae import (
+    CONNECTING_ROD_M,
+    CRANK_RADIUS_M,
+    FORCE_N_PER_V,
+    PSI_TO_PA,
+    SAVGOL_POLYORDER,
+    SAVGOL_WINDOW,
+    STROKE_M,
+    cycle_starts,
+    cycle_work,
+    fsae_files,
+    parse_fsae_name,
+    read_fsae_ttx25,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured" / "fsae_ttx25"
@@ -142,13 +151,18 @@ def survey_file(path: Path, root: Path):
         nxt = int(s[min(np.searchsorted(s, b) + 1, len(s) - 1)])
         lag_r.append(reversal_lag(x, f, a + (b - a) // 2, nxt if nxt > b else b, top=False))
         d1, d2 = dwell(x, v, a, b)
-        dw_top.append(d1); dw_bot.append(d2)
-        vmax.append(v[sl].max()); vmin.append(v[sl].min())
-        fmax.append(f[sl].max()); fmin.append(f[sl].min())
+        dw_top.append(d1)
+        dw_bot.append(d2)
+        vmax.append(v[sl].max())
+        vmin.append(v[sl].min())
+        fmax.append(f[sl].max())
+        fmin.append(f[sl].min())
         mid = np.abs(x[sl]) < MID_WINDOW_M
         ext, com = mid & (v[sl] > 0), mid & (v[sl] < 0)
-        f_ext.append(f[sl][ext].mean()); f_com.append(f[sl][com].mean())
-        v_ext.append(v[sl][ext].mean()); v_com.append(v[sl][com].mean())
+        f_ext.append(f[sl][ext].mean())
+        f_com.append(f[sl][com].mean())
+        v_ext.append(v[sl][ext].mean())
+        v_com.append(v[sl][com].mean())
         t_cyc.append(temp[sl].mean())
         tm_cyc.append(0.5 * (t[a] + t[b]))
         f_avg.append(0.5 * (f_ext[-1] + f_com[-1]))

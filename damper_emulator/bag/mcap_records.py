@@ -133,7 +133,9 @@ def chunk_prefix_size() -> int:
 def message_index(channel_id: int, entries: Sequence[tuple[int, int]]) -> bytes:
     """MessageIndex record: ``(log_time, offset in the chunk's records)`` pairs."""
     flat = [v for pair in entries for v in pair]
-    body = _U16.pack(channel_id) + _U32.pack(16 * len(entries)) + struct.pack(f"<{len(flat)}Q", *flat)
+    body = (
+        _U16.pack(channel_id) + _U32.pack(16 * len(entries)) + struct.pack(f"<{len(flat)}Q", *flat)
+    )
     return record(OP_MESSAGE_INDEX, body)
 
 

@@ -30,6 +30,8 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from damper_emulator.errors import UserError
+
 __all__ = [
     "BagError",
     "deserialize",
@@ -47,8 +49,8 @@ FLOAT64 = "std_msgs/msg/Float64"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 
 
-class BagError(Exception):
-    """A bag could not be written or read; the message is one line naming the bag and the problem."""
+class BagError(UserError):
+    """A bag could not be written or read; one line naming the bag and the problem."""
 
 
 @functools.cache

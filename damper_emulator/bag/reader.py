@@ -15,16 +15,12 @@ from types import TracebackType
 from rosbags.interfaces import Connection, ConnectionExtRosbag2
 from rosbags.rosbag2 import Reader
 
+from damper_emulator.errors import one_line
+
 from .messages import BagError, deserialize, typestore
 from .writer import Qos
 
 __all__ = ["Bag", "TopicInfo", "open_bag", "read_messages", "topic_counts"]
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    first = text[0] if text else ""
-    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
 
 
 @dataclass(frozen=True)
@@ -66,14 +62,14 @@ class Bag:
             self._reader = Reader(path)
             self._reader.open()
         except Exception as exc:  # noqa: BLE001 - rosbags raises many kinds
-            raise BagError(f"bag {path}: cannot open: {_one_line(exc)}") from None
+            raise BagError(f"bag {path}: cannot open: {one_line(exc, with_type=True)}") from None
         try:
             self._connections: list[Connection] = list(self._reader.connections)
             counts: dict[str, int] = {}
             start, end = None, None
             storages = getattr(self._reader.storage, "storages", None)
             if storages is not None:
-                # counts and times from the MCAP itself: metadata.yaml of a killed bag may lag a flush
+                # counts and times from the MCAP itself: a killed bag's metadata.yaml may lag
                 for storage in storages:
                     for conn in storage.connections:
                         counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
@@ -98,7 +94,9 @@ class Bag:
                 )
         except Exception as exc:  # noqa: BLE001
             self.close()
-            raise BagError(f"bag {path}: cannot read its topics: {_one_line(exc)}") from None
+            raise BagError(
+                f"bag {path}: cannot read its topics: {one_line(exc, with_type=True)}"
+            ) from None
         self.topics: dict[str, TopicInfo] = topics
         self.message_count: int = sum(t.count for t in topics.values())
         #: first and last message timestamp in ns (None for an empty bag)
@@ -117,10 +115,12 @@ class Bag:
         except BagError:
             raise
         except Exception as exc:  # noqa: BLE001
-            raise BagError(f"bag {self.path}: cannot read messages: {_one_line(exc)}") from None
+            raise BagError(
+                f"bag {self.path}: cannot read messages: {one_line(exc, with_type=True)}"
+            ) from None
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
-        """Yield ``(topic, timestamp_ns, msg)`` in timestamp order, decoded with the Jazzy typestore.
+        """Yield ``(topic, timestamp_ns, msg)`` in timestamp order (Jazzy typestore).
 
         Parameters
         ----------
@@ -136,7 +136,9 @@ class Bag:
         known = typestore().types
         for conn in conns:
             if conn.msgtype not in known:
-                raise BagError(f"bag {self.path}: topic {conn.topic} has unknown message type {conn.msgtype}")
+                raise BagError(
+                    f"bag {self.path}: topic {conn.topic} has unknown message type {conn.msgtype}"
+                )
         if not conns:
             return
         types = {conn.topic: conn.msgtype for conn in conns}
@@ -192,7 +194,7 @@ def open_bag(path: str | os.PathLike[str]) -> Bag:
 def read_messages(
     path: str | os.PathLike[str], topics: Iterable[str] | None = None
 ) -> Iterator[tuple[str, int, object]]:
-    """Yield ``(topic, timestamp_ns, msg)`` of a bag in timestamp order (see :meth:`Bag.messages`)."""
+    """Yield ``(topic, timestamp_ns, msg)`` of a bag in timestamp order (:meth:`Bag.messages`)."""
     with open_bag(path) as bag:
         yield from bag.messages(topics)
 

@@ -103,13 +103,7 @@ from types import TracebackType
 
 import yaml
 from rosbags.interfaces import Qos as RosbagsQos
-from rosbags.interfaces import (
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
-)
+from rosbags.interfaces import QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2.metadata import dump_qos_v9
 
 from . import mcap_records as rec
@@ -302,14 +296,18 @@ class BagWriter:
         fsync: bool = True,
     ) -> None:
         self.path = Path(path)
-        if isinstance(flush_period_s, bool) or not isinstance(flush_period_s, (int, float)) or not (
-            math.isfinite(flush_period_s) and flush_period_s > 0
+        if (
+            isinstance(flush_period_s, bool)
+            or not isinstance(flush_period_s, (int, float))
+            or not (math.isfinite(flush_period_s) and flush_period_s > 0)
         ):
             raise BagError(f"bag {self.path}: flush_period_s must be a positive number of seconds")
         custom = dict(custom_data or {})
         for key, value in custom.items():
             if not isinstance(key, str) or not isinstance(value, str):
-                raise BagError(f"bag {self.path}: custom_data must map str to str, got {key!r}: {value!r}")
+                raise BagError(
+                    f"bag {self.path}: custom_data must map str to str, got {key!r}: {value!r}"
+                )
         self._custom_data = custom
         self._flush_period = float(flush_period_s)
         self._fsync = bool(fsync)
@@ -319,17 +317,23 @@ class BagWriter:
                 if not self.path.is_dir():
                     raise BagError(f"bag {self.path}: exists and is not a directory")
                 if any(self.path.iterdir()):
-                    raise BagError(f"bag {self.path}: directory exists and is not empty, not overwriting")
+                    raise BagError(
+                        f"bag {self.path}: directory exists and is not empty, not overwriting"
+                    )
             else:
                 self.path.mkdir(parents=True)
         except OSError as exc:
-            raise BagError(f"bag {self.path}: cannot create the directory: {exc.strerror or exc}") from None
+            raise BagError(
+                f"bag {self.path}: cannot create the directory: {exc.strerror or exc}"
+            ) from None
 
         self.mcap_name = f"{self.path.name}_0.mcap"
         self._lock = threading.Lock()  # pending messages, topic registry, closed flag
         self._io_lock = threading.Lock()  # the file and the flushed-state bookkeeping
         self._pending: list[tuple[int, int, bytes]] = []
-        self._held: list[tuple[int, int, bytes]] = []  # under _io_lock: the background flush's hold-back
+        self._held: list[
+            tuple[int, int, bytes]
+        ] = []  # under _io_lock: the background flush's hold-back
         self._warned_order = False
         self._pending_defs: list[bytes] = []
         self._channel_of: dict[Topic, int] = {}
@@ -369,7 +373,9 @@ class BagWriter:
             raise BagError(f"bag {self.path}: cannot write: {exc.strerror or exc}") from None
 
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"bag-flush {self.path.name}", daemon=True)
+        self._thread = threading.Thread(
+            target=self._run, name=f"bag-flush {self.path.name}", daemon=True
+        )
         self._thread.start()
 
     # ------------------------------------------------------------------ API
@@ -402,7 +408,9 @@ class BagWriter:
         (a flush), so it is not meant for a real-time path.
         """
         if not isinstance(name, str) or not name.startswith("/") or len(name) < 2:
-            raise BagError(f"bag {self.path}: topic name must be a string starting with '/', got {name!r}")
+            raise BagError(
+                f"bag {self.path}: topic name must be a string starting with '/', got {name!r}"
+            )
         if qos is None:
             qos = Qos()
         elif not isinstance(qos, Qos):
@@ -462,12 +470,15 @@ class BagWriter:
                 data = bytes(data)
             else:
                 raise BagError(
-                    f"bag {self.path}: message data must be bytes (serialized CDR), got {type(data).__name__}"
+                    f"bag {self.path}: message data must be bytes (serialized CDR), "
+                    f"got {type(data).__name__}"
                 )
         if type(timestamp_ns) is not int:
             timestamp_ns = self._as_int_timestamp(timestamp_ns)
         if not 0 <= timestamp_ns < _U64_LIMIT:
-            raise BagError(f"bag {self.path}: timestamp_ns must be in [0, 2**64), got {timestamp_ns}")
+            raise BagError(
+                f"bag {self.path}: timestamp_ns must be in [0, 2**64), got {timestamp_ns}"
+            )
         with self._lock:
             if self._closed or self._error is not None:
                 self._check_open()
@@ -592,7 +603,9 @@ class BagWriter:
         if end + rec.RECORD_HEADER_SIZE > self._reserve_end:
             self._grow(end + rec.RECORD_HEADER_SIZE - start)
         rest = self._reserve_end - end - rec.RECORD_HEADER_SIZE
-        self._pwrite(block[rec.RECORD_HEADER_SIZE :] + rec.pad(rest), start + rec.RECORD_HEADER_SIZE)
+        self._pwrite(
+            block[rec.RECORD_HEADER_SIZE :] + rec.pad(rest), start + rec.RECORD_HEADER_SIZE
+        )
         self._pwrite(block[: rec.RECORD_HEADER_SIZE], start)
         self._pos = end
 
@@ -613,7 +626,9 @@ class BagWriter:
         self._write_tail(new_end)
         self._reserve_end = new_end
 
-    def _build_chunks(self, pending: list[tuple[int, int, bytes]], base: int) -> tuple[bytes, list[bytes]]:
+    def _build_chunks(
+        self, pending: list[tuple[int, int, bytes]], base: int
+    ) -> tuple[bytes, list[bytes]]:
         """Chunk + MessageIndex records for ``pending`` (sorted) placed at file offset ``base``."""
         pack = rec.MESSAGE_PREFIX.pack
         seq = self._seq
@@ -652,7 +667,13 @@ class BagWriter:
                 offset += len(mi)
             indexes.append(
                 rec.chunk_index(
-                    start_time, t, chunk_start, len(chunk), index_offsets, offset - index_start, len(body)
+                    start_time,
+                    t,
+                    chunk_start,
+                    len(chunk),
+                    index_offsets,
+                    offset - index_start,
+                    len(body),
                 )
             )
         return b"".join(parts), indexes
@@ -684,7 +705,9 @@ class BagWriter:
             return
         try:
             head = b"".join(defs)
-            chunks, indexes = self._build_chunks(pending, self._pos + len(head)) if pending else (b"", [])
+            chunks, indexes = (
+                self._build_chunks(pending, self._pos + len(head)) if pending else (b"", [])
+            )
             self._append(head + chunks)
             if self._fsync:
                 os.fdatasync(self._fd)
@@ -696,9 +719,12 @@ class BagWriter:
                 if pending[0][0] < self._end and not self._warned_order:
                     self._warned_order = True
                     _log.warning(
-                        "bag %s: a message stamped %d ns arrived after one stamped %d ns was written; "
+                        "bag %s: a message stamped %d ns arrived after one stamped %d ns was "
+                        "written; "
                         "until it is closed, rosbags cannot read this bag (closed, it reads fine)",
-                        self.path, pending[0][0], self._end,
+                        self.path,
+                        pending[0][0],
+                        self._end,
                     )
                 self._message_count += len(pending)
                 self._start = min(self._start, pending[0][0])
@@ -709,11 +735,15 @@ class BagWriter:
             raise BagError(f"bag {self.path}: {self._error}") from None
 
     def _finish(self) -> None:
-        """Replace PAD/DataEnd/Footer by the final summary and truncate (caller holds ``_io_lock``)."""
+        """Replace PAD/DataEnd/Footer by the final summary and truncate (under ``_io_lock``)."""
         try:
             meta = rec.metadata(
                 "rosbag2",
-                {"serialized_metadata": _dump_yaml(self._metadata()["rosbag2_bagfile_information"])},
+                {
+                    "serialized_metadata": _dump_yaml(
+                        self._metadata()["rosbag2_bagfile_information"]
+                    )
+                },
             )
             metadata_offset = self._pos
             self._append(meta)

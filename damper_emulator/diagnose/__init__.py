@@ -4,7 +4,11 @@
 record and the features that trace it to an effect (friction, drift, stiffness, harmonics).
 """
 
-from damper_emulator.diagnose.residual import (ResidualRecord, plot_residual,
-                                               residual_features, residual_record)
+from damper_emulator.diagnose.residual import (
+                                               ResidualRecord,
+                                               plot_residual,
+                                               residual_features,
+                                               residual_record,
+)
 
 __all__ = ["ResidualRecord", "plot_residual", "residual_features", "residual_record"]

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from damper_emulator.dyno.measured import MeasuredData
+from damper_emulator.errors import UserError
 from damper_emulator.params import EXTENSION_FAMILIES, ModelConfig
 
 #: Friction scale of the friction candidate's bounds when the identified friction is
@@ -269,6 +270,6 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
         known = {c.effect for c in out}
         unknown = [e for e in effects if e not in known]
         if unknown:
-            raise ValueError(f"unknown effect {unknown[0]!r} (one of {', '.join(known)})")
+            raise UserError(f"unknown effect {unknown[0]!r} (one of {', '.join(known)})")
         out = [c for c in out if c.effect in effects]
     return out

@@ -25,8 +25,8 @@ figures reported are always from the full model.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -34,8 +34,7 @@ from scipy.optimize import least_squares
 from damper_emulator.diagnose.candidates import Candidate, Parameter
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
-from damper_emulator.params import (EXTENSION_TYPES, ExtensionParams, ModelConfig,
-                                    ParameterError)
+from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ModelConfig, ParameterError
 from damper_emulator.validation import record_velocity, simulate_measured
 
 
@@ -381,8 +380,8 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
        identification again without the samples where the pre-fitted effect acts (an open
        cavity corrupts the valve fit, an engaged end stop the gas spring's), or with the
        configuration the candidate names (``Candidate.identify_as``: an isothermal gas for
-       a gas that exchanges heat), and the pre-fit again on it; the start of step 3 is whichever of the two fits the
-       records better.
+       a gas that exchanges heat), and the pre-fit again on it; the start of step 3 is
+       whichever of the two fits the records better.
     3. **Joint fit** of every free parameter — :func:`base_parameters` of ``cfg`` (bounds
        around the identified values), each accepted effect's and the candidate's — from
        there, ``nfev`` evaluations of the weighted residual ``w_f (F_sim − F_meas)``

@@ -83,8 +83,8 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
 
 def plot_ranking(path: Path, diag: Diagnosis) -> Path:
     """Held-out r.m.s. reduction and ΔBIC of every candidate."""
-    from damper_emulator.dyno.plots import new_figure, save
     from damper_emulator.diagnose.selection import MAX_DELTA_BIC, MIN_SCORE
+    from damper_emulator.dyno.plots import new_figure, save
 
     ranking = diag.ranking[::-1]
     names = [f"{c.candidate.effect}\n({c.candidate.family})" for c in ranking]

@@ -79,7 +79,7 @@ class ResidualRecord:
     def __len__(self) -> int:
         return int(self.time.size)
 
-    def sliced(self, start: int, stop: int) -> "ResidualRecord":
+    def sliced(self, start: int, stop: int) -> ResidualRecord:
         """The samples ``start:stop`` (the energy keeps its running value)."""
         arrays = {f: getattr(self, f)[start:stop] for f in
                   ("time", "displacement", "velocity", "acceleration", "temperature",

@@ -64,16 +64,26 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, as_completed
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Optional, Sequence
+from typing import Any
 
 import numpy as np
 
-from damper_emulator.diagnose.candidates import Candidate, candidates as make_candidates
-from damper_emulator.diagnose.joint import (JOINT_NFEV, Record, base_parameters, joint_fit,
-                                            lag1, make_record, model_of)
+from damper_emulator.diagnose.candidates import Candidate
+from damper_emulator.diagnose.candidates import candidates as make_candidates
+from damper_emulator.diagnose.joint import (
+    JOINT_NFEV,
+    Record,
+    base_parameters,
+    joint_fit,
+    lag1,
+    make_record,
+    model_of,
+)
 from damper_emulator.dyno.measured import MeasuredData
+from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import ModelConfig
 from damper_emulator.validation import rms
@@ -101,7 +111,7 @@ MAX_EFFECTS = 2
 #: r.m.s. (data without noise would otherwise get an infinite weight)
 MIN_NOISE_FRACTION = 1e-3
 
-Progress = Optional[Callable[[str], None]]
+Progress = Callable[[str], None] | None
 
 def noise_level(r: np.ndarray) -> float:
     """Robust standard deviation of the white part of ``r`` [N]: the median absolute
@@ -261,7 +271,7 @@ class StepFit:
         return model_of(self.cfg, self.out["base_values"],
                         list(zip(self.candidates, self.out["values"])))
 
-    def score_against(self, ref: "StepFit", floor_reached: bool) -> None:
+    def score_against(self, ref: StepFit, floor_reached: bool) -> None:
         """Held-out gain and ΔBIC against ``ref`` (module docstring, steps 4–6)."""
         sse0 = ref.sse_held
         self.score = 1.0 - math.sqrt(self.sse_held / sse0) if sse0 > 0 else 0.0
@@ -410,7 +420,7 @@ class _LocalPool:
         self.jobs = jobs
         self.pool: Executor | None = None
 
-    def __enter__(self) -> "_LocalPool":
+    def __enter__(self) -> _LocalPool:
         if self.jobs > 1:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
@@ -461,14 +471,14 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     say = progress or (lambda msg: None)
     t_start = time.perf_counter()
     if not fit_data or not held_out_data:
-        raise ValueError("diagnose needs identification files (quasi-static, chirp) and at "
+        raise UserError("diagnose needs identification files (quasi-static, chirp) and at "
                          "least one held-out validation file")
     names = [d.name or d.path for d in (*fit_data, *held_out_data)]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise ValueError(f"two data files share the name {dup[0]!r}; names must differ")
+        raise UserError(f"two data files share the name {dup[0]!r}; names must differ")
     if base.cfg.damper.extensions is not None:
-        raise ValueError("diagnose needs the identified model without damper.extensions")
+        raise UserError("diagnose needs the identified model without damper.extensions")
     cfg = base.cfg
     records = ([make_record(d, False) for d in fit_data]
                + [make_record(d, True) for d in held_out_data])

@@ -16,18 +16,25 @@ The same data come from the command line with a params file holding the extensio
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.measured import MeasuredData, write_measured_csv
-from damper_emulator.dyno.runner import sine_file_name
+from damper_emulator.dyno.simulated import sine_file_name
+from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel, simulate
-from damper_emulator.params import (EXTENSION_TYPES, ExtensionParams, ModelConfig,
-                                    load_config, validate)
+from damper_emulator.params import (
+    EXTENSION_TYPES,
+    ExtensionParams,
+    ModelConfig,
+    load_config,
+    validate,
+)
 
 
 @dataclass(frozen=True)
@@ -122,7 +129,7 @@ def with_extensions(cfg: ModelConfig, extensions: Mapping[str, Mapping[str, Any]
         damper = dataclasses.replace(damper, **base_changes)
     for name in extensions:
         if name not in EXTENSION_TYPES:
-            raise ValueError(f"unknown extension {name!r} (one of "
+            raise UserError(f"unknown extension {name!r} (one of "
                              f"{', '.join(EXTENSION_TYPES)})")
     groups = {name: EXTENSION_TYPES[name](**params) for name, params in extensions.items()}
     damper = dataclasses.replace(damper, extensions=ExtensionParams(**groups) if groups

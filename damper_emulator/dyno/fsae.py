@@ -49,8 +49,13 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
-from damper_emulator.dyno.measured import (MeasuredData, read_csv_table, short_text,
-                                           write_measured_csv)
+from damper_emulator.dyno.measured import (
+    MeasuredData,
+    read_csv_table,
+    short_text,
+    write_measured_csv,
+)
+from damper_emulator.errors import UserError
 
 #: load-cell slope, the same for every file [N/V] (SOURCE.md)
 FORCE_N_PER_V = 198.38
@@ -135,7 +140,7 @@ def parse_fsae_name(name: str | Path) -> FsaeRunInfo:
     stem = _stem(name)
     m = _NAME_RE.match(stem)
     if m is None:
-        raise ValueError(f"{Path(name).name}: not an FSAE run name "
+        raise UserError(f"{Path(name).name}: not an FSAE run name "
                          "(t<trial>_<a>_<b>_<c>_<d>_s<speed>_n<cycles>_<psi>psi"
                          "[_with_heat_gun])")
     g = m.groupdict()

@@ -18,11 +18,13 @@ import gzip
 import io
 import math
 import warnings
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
+
+from damper_emulator.errors import UserError
 
 #: Columns every file must have, in the order they are written.
 REQUIRED_COLUMNS = ("time", "displacement", "force")
@@ -69,7 +71,7 @@ MAX_VELOCITY_GAIN = math.sqrt(1000.0)
 _GZIP_MAGIC = b"\x1f\x8b"
 
 
-class MeasuredDataError(ValueError):
+class MeasuredDataError(UserError):
     """A measured-data file is unreadable or malformed; the message is one line."""
 
 

@@ -7,8 +7,9 @@ Units on every axis: force kN, velocity m/s, displacement mm, time s.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from matplotlib import patheffects

@@ -10,13 +10,15 @@ import math
 
 import numpy as np
 
+from damper_emulator.errors import UserError
+
 #: Relative size of floating-point round-off in the analytic velocities.
 ROUND_OFF = 1e-12
 
 
 def _times(duration_s: float, rate_hz: float) -> np.ndarray:
     if not (duration_s > 0 and rate_hz > 0):
-        raise ValueError("duration and sample rate must be positive")
+        raise UserError("duration and sample rate must be positive")
     return np.arange(int(round(duration_s * rate_hz)) + 1) / rate_hz
 
 
@@ -27,7 +29,7 @@ def quasi_static(velocity_m_s: float = 0.004, amplitude_m: float = 0.075, cycles
     The paper's quasi-static test (4 mm/s); the default lasts 150 s.
     """
     if velocity_m_s <= 0 or amplitude_m <= 0 or cycles < 1:
-        raise ValueError("quasi-static velocity, amplitude and cycles must be positive")
+        raise UserError("quasi-static velocity, amplitude and cycles must be positive")
     period = 4.0 * amplitude_m / velocity_m_s
     t = _times(cycles * period, rate_hz)
     # phase in [0, 4): 0→1 rising from 0 to A, 1→3 falling to −A, 3→4 rising to 0
@@ -46,9 +48,9 @@ def chirp(f_start_hz: float = 0.5, f_end_hz: float = 16.0, duration_s: float = 6
     from ``v_start`` to ``v_end``; ``x = A sin φ``.
     """
     if not (0 < f_start_hz < f_end_hz):
-        raise ValueError("chirp needs 0 < f_start < f_end")
+        raise UserError("chirp needs 0 < f_start < f_end")
     if not (v_start_m_s > 0 and v_end_m_s > 0):
-        raise ValueError("chirp velocity amplitudes must be positive")
+        raise UserError("chirp velocity amplitudes must be positive")
     t = _times(duration_s, rate_hz)
     k = math.log(f_end_hz / f_start_hz) / duration_s
     phase = 2.0 * math.pi * f_start_hz * np.expm1(k * t) / k
@@ -67,9 +69,9 @@ def sine(frequency_hz: float, amplitude_m: float, cycles: float = 3, rate_hz: fl
     lead-in of ``start_cycles`` periods (negative times, to discard).  The lead-in is rounded
     up to whole samples so that one sample falls exactly on ``t = 0``."""
     if frequency_hz <= 0 or amplitude_m <= 0 or cycles <= 0 or rate_hz <= 0:
-        raise ValueError("sine frequency, amplitude, cycles and sample rate must be positive")
+        raise UserError("sine frequency, amplitude, cycles and sample rate must be positive")
     if start_cycles < 0:
-        raise ValueError("sine lead-in cycles must not be negative")
+        raise UserError("sine lead-in cycles must not be negative")
     lead = int(math.ceil(start_cycles * rate_hz / frequency_hz - 1e-9))
     t = np.arange(-lead, int(round(cycles * rate_hz / frequency_hz)) + 1) / rate_hz
     w = 2.0 * math.pi * frequency_hz
@@ -85,5 +87,5 @@ def fourteen_speed_frequencies(points: int = 14, amplitude_m: float = 0.025,
     """Frequencies [Hz] of an N-speed test: peak velocities spaced geometrically from
     ``v_min`` to ``v_max`` at the fixed displacement amplitude."""
     if points < 2 or not (0 < v_min_m_s < v_max_m_s) or amplitude_m <= 0:
-        raise ValueError("N-speed test needs points >= 2, 0 < v_min < v_max, amplitude > 0")
+        raise UserError("N-speed test needs points >= 2, 0 < v_min < v_max, amplitude > 0")
     return np.geomspace(v_min_m_s, v_max_m_s, points) / (2.0 * math.pi * amplitude_m)

@@ -1,5 +1,6 @@
 """Virtual dyno: run the test protocols on the compressible model and write the results.
 
+The simulations themselves are :mod:`damper_emulator.dyno.simulated`'s (re-exported here).
 Each ``run_*`` function simulates one protocol (docs/model.md §3–4) on a :class:`DamperModel`,
 optionally adds Gaussian force noise (a seeded :class:`numpy.random.Generator`, like a load
 cell's), writes the measured-data CSV (docs/interfaces.md) and its PNG plot into ``out_dir`` and
@@ -13,68 +14,40 @@ peak forces [N], peak velocities [m/s] and, for sines, the dissipated energy per
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any
 
 import numpy as np
 
 from damper_emulator.dyno import plots, protocols
 from damper_emulator.dyno.measured import write_measured_csv
-from damper_emulator.model.compressible import DamperModel, Fault, simulate
+from damper_emulator.dyno.simulated import (
+    FOURTEEN_SPEED_COLUMNS,
+    Engine,
+    add_noise,
+    check_travel,
+    fault_names,
+    finite_positive,
+    fourteen_speed_table,
+    simulate_sine,
+    sine_file_name,
+)
+from damper_emulator.errors import UserError
+from damper_emulator.model.compressible import DamperModel, simulate
 
-Progress = Optional[Callable[[Path], None]]
-#: What produces the forces of a protocol: ``engine(model, t, x, v)`` → an object with
-#: ``force_n`` and ``faults`` arrays (default :func:`simulate`, the offline model; the
-#: loopback dyno passes one that runs the samples over CAN, :mod:`can_bridge.loopback`).
-Engine = Optional[Callable[..., Any]]
+Progress = Callable[[Path], None] | None
 
-#: columns of ``14speed.csv``
-FOURTEEN_SPEED_COLUMNS = ("frequency_hz", "peak_velocity_rebound_m_s", "peak_force_rebound_n",
-                          "peak_velocity_compression_m_s", "peak_force_compression_n")
-
-
-def sine_file_name(frequency_hz: float) -> str:
-    """``sine_<f>hz.csv`` with ``<f>`` formatted ``%g`` (``sine_3hz.csv``, ``sine_0.5hz.csv``)."""
-    return f"sine_{frequency_hz:g}hz.csv"
 
 
 # --------------------------------------------------------------------------------------
 # helpers
 
 
-def _finite_positive(name: str, value: float) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a positive number, got {value!r}")
-
-
 def _rng(noise_std: float, seed: int | None) -> np.random.Generator:
     if not (math.isfinite(noise_std) and noise_std >= 0):
-        raise ValueError(f"force noise standard deviation must be >= 0 N, got {noise_std!r}")
+        raise UserError(f"force noise standard deviation must be >= 0 N, got {noise_std!r}")
     return np.random.default_rng(seed)
-
-
-def _add_noise(force: np.ndarray, noise_std: float, rng: np.random.Generator) -> np.ndarray:
-    if noise_std > 0:
-        return force + rng.normal(0.0, noise_std, force.size)
-    return force
-
-
-def _check_travel(model: DamperModel, x: np.ndarray, what: str) -> None:
-    """One-line error when a protocol's stroke leaves the damper's physical travel."""
-    lo, hi = model.stroke_limits_m
-    margin = model.cfg.numerics.travel_margin_m
-    x_max, x_min = float(np.max(x)), float(np.min(x))
-    if x_max >= hi - margin:
-        raise ValueError(f"{what} reaches {x_max:.4g} m of extension, beyond the damper's "
-                         f"travel {hi:.4g} m (pressure_tube_length_m − x0_m)")
-    if x_min <= lo + margin:
-        raise ValueError(f"{what} reaches {-x_min:.4g} m of compression, beyond the damper's "
-                         f"travel {-lo:.4g} m (gas volume / rod area)")
-
-
-def _fault_names(faults: np.ndarray) -> list[str]:
-    bits = Fault(int(np.bitwise_or.reduce(faults))) if faults.size else Fault.NONE
-    return [f.name for f in Fault if f and f in bits]
 
 
 def _energy(x: np.ndarray, f: np.ndarray) -> float:
@@ -113,29 +86,6 @@ def _force_summary(v: np.ndarray, f: np.ndarray) -> dict[str, float]:
 # protocols
 
 
-def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles: int = 3,
-                  rate: float = 1000.0, settle_cycles: int = 1, engine: Engine = None):
-    """Simulate ``x = A sin(2π f t)`` for ``settle_cycles + cycles`` periods and return the
-    recorded part ``(t, x, v, F, faults)``, ``t`` starting at exactly 0.
-
-    The lead-in lets the pressures settle from the quasi-steady initial state.
-    """
-    _finite_positive("sine frequency [Hz]", frequency)
-    _finite_positive("sine amplitude [m]", amplitude)
-    _finite_positive("sine cycles", cycles)
-    _finite_positive("sample rate [Hz]", rate)
-    if not (settle_cycles >= 0 and math.isfinite(settle_cycles)):
-        raise ValueError(f"settle cycles must be >= 0, got {settle_cycles!r}")
-    if rate <= 4.0 * frequency:
-        raise ValueError(f"sample rate {rate:g} Hz is too low for a {frequency:g} Hz sine "
-                         "(need more than 4 samples per period)")
-    t, x, v = protocols.sine(frequency, amplitude, cycles, rate, start_cycles=settle_cycles)
-    _check_travel(model, x, f"sine amplitude {amplitude:g} m")
-    res = (engine or simulate)(model, t, x, v)
-    k = int(np.searchsorted(t, 0.0))  # protocols.sine puts a sample on t = 0
-    return (t[k:], x[k:], v[k:], res.force_n[k:], res.faults[k:])
-
-
 def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitude: float,
              cycles: int = 3, rate: float = 1000.0, settle_cycles: int = 1,
              noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
@@ -150,7 +100,7 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
     out = _out(out_dir)
     t, x, v, f, faults = simulate_sine(model, frequency, amplitude, cycles, rate,
                                        settle_cycles, engine)
-    f = _add_noise(f, noise_std, rng)
+    f = add_noise(f, noise_std, rng)
     name = sine_file_name(frequency)
     csv_path = _write(out, name, progress, t, x, v, f)
     png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
@@ -162,7 +112,7 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
             "samples": int(t.size), "duration_s": float(t[-1]),
             **_force_summary(v, f),
             "energy_per_cycle_j": _energy(x, f) / cycles,
-            "faults": _fault_names(faults)}
+            "faults": fault_names(faults)}
 
 
 def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 0.004,
@@ -180,12 +130,12 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 
     for name, val in (("quasi-static velocity [m/s]", velocity),
                       ("quasi-static amplitude [m]", amplitude), ("cycles", cycles),
                       ("sample rate [Hz]", rate)):
-        _finite_positive(name, val)
+        finite_positive(name, val)
     out = _out(out_dir)
     t, x, v = protocols.quasi_static(velocity, amplitude, cycles, rate)
-    _check_travel(model, x, f"quasi-static amplitude {amplitude:g} m")
+    check_travel(model, x, f"quasi-static amplitude {amplitude:g} m")
     res = (engine or simulate)(model, t, x, v)
-    f = _add_noise(res.force_n, noise_std, rng)
+    f = add_noise(res.force_n, noise_std, rng)
     csv_path = _write(out, "quasi_static.csv", progress, t, x, v, f)
     png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
                 f"Quasi-static test, {velocity * 1e3:g} mm/s, ±{amplitude * 1e3:g} mm "
@@ -197,7 +147,7 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 
             "velocity_m_s": float(velocity), "amplitude_m": float(amplitude),
             "cycles": cycles, "rate_hz": float(rate), "samples": int(t.size),
             "duration_s": float(t[-1] - t[0]), **_force_summary(v, f),
-            "friction_estimate_n": friction, "faults": _fault_names(res.faults)}
+            "friction_estimate_n": friction, "faults": fault_names(res.faults)}
 
 
 def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
@@ -212,15 +162,15 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
                       ("chirp end frequency [Hz]", f_end), ("chirp duration [s]", duration),
                       ("chirp start velocity [m/s]", v_start),
                       ("chirp end velocity [m/s]", v_end), ("sample rate [Hz]", rate)):
-        _finite_positive(name, val)
+        finite_positive(name, val)
     if rate <= 4.0 * f_end:
-        raise ValueError(f"sample rate {rate:g} Hz is too low for a chirp up to {f_end:g} Hz "
+        raise UserError(f"sample rate {rate:g} Hz is too low for a chirp up to {f_end:g} Hz "
                          "(need more than 4 samples per period)")
     out = _out(out_dir)
     t, x, v = protocols.chirp(f_start, f_end, duration, v_start, v_end, rate)
-    _check_travel(model, x, "chirp displacement")
+    check_travel(model, x, "chirp displacement")
     res = (engine or simulate)(model, t, x, v)
-    f = _add_noise(res.force_n, noise_std, rng)
+    f = add_noise(res.force_n, noise_std, rng)
     csv_path = _write(out, "chirp.csv", progress, t, x, v, f)
     png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
                 f"Chirp {f_start:g}–{f_end:g} Hz in {duration:g} s, velocity amplitude "
@@ -231,36 +181,7 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
             "duration_s": float(duration), "v_start_m_s": float(v_start),
             "v_end_m_s": float(v_end), "rate_hz": float(rate), "samples": int(t.size),
             **_force_summary(v, f), "peak_displacement_m": float(np.abs(x).max()),
-            "dissipated_energy_j": _energy(x, f), "faults": _fault_names(res.faults)}
-
-
-def fourteen_speed_table(model: DamperModel, points: int = 14, amplitude: float = 0.025,
-                         v_min: float = 0.025, v_max: float = 1.5, cycles: int = 2,
-                         rate: float = 1000.0, noise_std: float = 0.0,
-                         rng: np.random.Generator | None = None, engine: Engine = None,
-                         ) -> tuple[dict[str, np.ndarray], list[str]]:
-    """Simulate an N-speed test (docs/model.md §4) and return its table (columns
-    :data:`FOURTEEN_SPEED_COLUMNS`) and the fault names seen.
-
-    For each frequency a sine of ``amplitude`` is simulated (one settle cycle dropped);
-    the peak rebound force (max F) is paired with the peak rebound velocity (max v) and
-    the peak compression force (min F) with the peak compression velocity (min v).
-    """
-    _finite_positive("N-speed cycles", cycles)
-    if rng is None:
-        rng = np.random.default_rng(0)
-    freqs = protocols.fourteen_speed_frequencies(points, amplitude, v_min, v_max)
-    rows = []
-    faults = np.zeros(0, dtype=np.int64)
-    for freq in freqs:
-        t, x, v, f, flt = simulate_sine(model, float(freq), amplitude, cycles, rate, 1,
-                                        engine)
-        f = _add_noise(f, noise_std, rng)
-        rows.append((freq, v.max(), f.max(), v.min(), f.min()))
-        faults = np.concatenate([faults, flt])
-    arr = np.array(rows, dtype=float)
-    return ({c: arr[:, i] for i, c in enumerate(FOURTEEN_SPEED_COLUMNS)},
-            _fault_names(faults))
+            "dissipated_energy_j": _energy(x, f), "faults": fault_names(res.faults)}
 
 
 def run_fourteen_speed(model: DamperModel, out_dir: str | Path, points: int = 14,
@@ -272,7 +193,7 @@ def run_fourteen_speed(model: DamperModel, out_dir: str | Path, points: int = 14
     :data:`FOURTEEN_SPEED_COLUMNS`) and ``14speed.png``."""
     rng = _rng(noise_std, seed)
     if isinstance(points, bool) or not isinstance(points, int) or points < 2:
-        raise ValueError(f"N-speed points must be an integer >= 2, got {points!r}")
+        raise UserError(f"N-speed points must be an integer >= 2, got {points!r}")
     out = _out(out_dir)
     table, faults = fourteen_speed_table(model, points, amplitude, v_min, v_max, cycles, rate,
                                          noise_std, rng, engine)
@@ -297,5 +218,5 @@ def read_fourteen_speed_csv(path: str | Path) -> dict[str, np.ndarray]:
     data = np.genfromtxt(path, delimiter=",", names=True, dtype=float)
     missing = [c for c in FOURTEEN_SPEED_COLUMNS if c not in (data.dtype.names or ())]
     if missing:
-        raise ValueError(f"{path}: missing column '{missing[0]}' of an N-speed table")
+        raise UserError(f"{path}: missing column '{missing[0]}' of an N-speed table")
     return {c: np.atleast_1d(data[c]) for c in FOURTEEN_SPEED_COLUMNS}

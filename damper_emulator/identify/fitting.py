@@ -9,11 +9,13 @@ from the Jacobian at the optimum.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
+
+from damper_emulator.errors import UserError
 
 
 @dataclass(frozen=True)
@@ -97,7 +99,7 @@ def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     free = (np.ones(start.size, bool) if fixed is None
             else ~np.asarray(fixed, dtype=bool))
     if not free.any():
-        raise ValueError("every parameter is fixed: nothing to fit")
+        raise UserError("every parameter is fixed: nothing to fit")
     if not free.all():
         return _fit_subset(residual_and_jacobian, names, start, log_scaled, lower, upper,
                            measured, free, penalty_rows)

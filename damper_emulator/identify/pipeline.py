@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Callable, Mapping, Optional, Sequence, Union
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -21,8 +21,13 @@ from scipy.signal import savgol_coeffs, savgol_filter
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.identify.fitting import FitResult
 from damper_emulator.identify.quasi_static import IdentificationError, fit_quasi_static
-from damper_emulator.identify.valves import (MIN_SPEED_FRACTION, effective_variance_weights,
-                                             fit_valve, hysteresis_filter, start_values)
+from damper_emulator.identify.valves import (
+    MIN_SPEED_FRACTION,
+    effective_variance_weights,
+    fit_valve,
+    hysteresis_filter,
+    start_values,
+)
 from damper_emulator.model.compressible import DamperModel, simulate
 from damper_emulator.model.gas import compression_chamber_pressure
 from damper_emulator.model.incompressible import valve_pressure_drop
@@ -54,8 +59,8 @@ JOIN_GAP_S = 1.0
 #: protocol's (the same noise and flow range assumed).  See :func:`thin_selection`.
 MAX_VALVE_FIT_SAMPLES = 50_000
 
-Progress = Optional[Callable[[str], None]]
-Tests = Union[MeasuredData, Sequence[MeasuredData]]
+Progress = Callable[[str], None] | None
+Tests = MeasuredData | Sequence[MeasuredData]
 
 
 @dataclass(frozen=True)
@@ -72,7 +77,7 @@ class Identification:
     #: the flow, pressure drop and sample masks of the last round (arrays, for plots)
     series: dict = dataclasses.field(default_factory=dict, repr=False)
     #: the α search of :func:`identify` with ``fit_alpha`` (``None`` when α was fixed)
-    alpha_fit: Optional[dict] = None
+    alpha_fit: dict | None = None
     #: chirp samples usable by the valve fits, per direction, before
     #: :func:`thin_selection` (``chirp_samples`` when nothing was dropped)
     chirp_samples_usable: dict = dataclasses.field(default_factory=dict)
@@ -234,11 +239,11 @@ def chirp_simulation_rms(cfg: ModelConfig, chirp: MeasuredData) -> float:
 def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
              progress: Progress = None, correct_compressibility: bool = True,
              hysteresis_filter_on: bool = True,
-             start_factors: Optional[dict] = None,
-             fixed: Optional[Mapping[str, Mapping[str, float]]] = None,
+             start_factors: dict | None = None,
+             fixed: Mapping[str, Mapping[str, float]] | None = None,
              fit_alpha: bool = False,
-             alpha_bounds_per_pa: Optional[tuple[float, float]] = None,
-             exclude: Optional[tuple[Optional[np.ndarray], Optional[np.ndarray]]] = None
+             alpha_bounds_per_pa: tuple[float, float] | None = None,
+             exclude: tuple[np.ndarray | None, np.ndarray | None] | None = None
              ) -> Identification:
     """Identify gas spring, friction and both valves (see the module docstring).
 
@@ -282,7 +287,7 @@ def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Id
     if not 0 < lo < hi:
         raise IdentificationError(f"α bounds must satisfy 0 < lower < upper, got ({lo:g}, {hi:g})")
     joined, _ = join_tests(chirp)
-    tried: dict[float, tuple[float, Optional[Identification]]] = {}
+    tried: dict[float, tuple[float, Identification | None]] = {}
 
     def score(log_alpha: float) -> float:
         alpha = float(np.exp(log_alpha))
@@ -411,7 +416,8 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
                 compression=ValveParams(*map(float, fits["compression"].values))))
             validate(cfg)
         except ParameterError as exc:
-            raise IdentificationError(f"the fitted parameters are not a valid damper: {exc}")
+            raise IdentificationError(
+                f"the fitted parameters are not a valid damper: {exc}") from None
         if previous is not None and np.all(np.abs(current / previous - 1) < ROUND_TOLERANCE):
             break
         previous = current

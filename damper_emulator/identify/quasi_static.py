@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from damper_emulator.errors import UserError
 from damper_emulator.identify.fitting import FitResult, fit
 from damper_emulator.model.gas import compression_chamber_pressure
 
@@ -25,7 +26,7 @@ GAS_BOUND_FACTOR = 20.0
 GAS_TRAVEL_MARGIN = 1.05
 
 
-class IdentificationError(ValueError):
+class IdentificationError(UserError):
     """The data cannot support the fit (one-line message)."""
 
 

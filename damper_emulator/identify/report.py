@@ -11,8 +11,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable, Optional
 
 import numpy as np
 
@@ -114,7 +114,7 @@ def _chirp_residual(path: Path, ident: Identification, chirp: MeasuredData) -> P
 
 
 def write_report(out_dir: str | Path, ident: Identification,
-                 progress: Optional[Callable[[Path], None]] = None) -> list[Path]:
+                 progress: Callable[[Path], None] | None = None) -> list[Path]:
     """Write the report figures into ``out_dir``.
 
     The test data are those :func:`identify` used (joined when several files were given).

@@ -24,9 +24,13 @@ import numpy as np
 
 from damper_emulator.identify.fitting import FitResult, fit
 from damper_emulator.identify.quasi_static import IdentificationError
-from damper_emulator.model.valve import (FLOW_EXPONENT, blow_off_coefficients,
-                                         pressure_drop_array,
-                                         pressure_drop_jacobian, pressure_drop_slope)
+from damper_emulator.model.valve import (
+    FLOW_EXPONENT,
+    blow_off_coefficients,
+    pressure_drop_array,
+    pressure_drop_jacobian,
+    pressure_drop_slope,
+)
 
 NAMES = ("k_leak", "k_port", "k_spring", "preload_pa", "smoothing_g")
 #: Samples slower than this fraction of the direction's peak speed are left out: near a

@@ -33,18 +33,35 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from damper_emulator.model.jit import kernel
 
-from damper_emulator.model.adaptive import (bypass_area, bypass_coefficients, bypass_flow,
-                                            solenoid_lag)
-from damper_emulator.model.extensions import (AIR_PRESSURE_FLOOR, P_ATM, end_stop_force,
-                                              gas_temperature, groove_window, heat_rise,
-                                              lag_weight, lugre_steady, lugre_update,
-                                              viscosity_scale)
+from damper_emulator.errors import UserError
+from damper_emulator.model.adaptive import (
+    bypass_area,
+    bypass_coefficients,
+    bypass_flow,
+    solenoid_lag,
+)
+from damper_emulator.model.extensions import (
+    AIR_PRESSURE_FLOOR,
+    P_ATM,
+    end_stop_force,
+    gas_temperature,
+    groove_window,
+    heat_rise,
+    lag_weight,
+    lugre_steady,
+    lugre_update,
+    viscosity_scale,
+)
 from damper_emulator.model.gas import compression_chamber_pressure
-from damper_emulator.model.valve_table import (EXTRAPOLATION_LIMIT, build_valve_tables,
-                                               pressure_drop_of_z, table_flow,
-                                               z_of_pressure_drop)
+from damper_emulator.model.jit import kernel
+from damper_emulator.model.valve_table import (
+    EXTRAPOLATION_LIMIT,
+    build_valve_tables,
+    pressure_drop_of_z,
+    table_flow,
+    z_of_pressure_drop,
+)
 from damper_emulator.params import ModelConfig, check_extensions, load_config
 
 
@@ -653,7 +670,7 @@ class DamperModel:
             _pack_extensions(prm, d)
         self.prm = prm
 
-    def with_extensions(self, extensions) -> "DamperModel":
+    def with_extensions(self, extensions) -> DamperModel:
         """This model with its ``damper.extensions`` replaced by ``extensions``
         (:class:`~damper_emulator.params.ExtensionParams` or ``None``), checked; the valve
         tables are shared (extensions do not change them), so this is cheap."""
@@ -670,7 +687,7 @@ class DamperModel:
         new.prm = prm
         return new
 
-    def with_max_substep(self, max_substep_s: float) -> "DamperModel":
+    def with_max_substep(self, max_substep_s: float) -> DamperModel:
         """This model integrated on sub-steps of at most ``max_substep_s`` [s] (the
         ``numerics.max_substep_s`` of a copy; tables shared, cheap)."""
         if max_substep_s == self.prm[P_SUBSTEP]:
@@ -684,7 +701,7 @@ class DamperModel:
         return new
 
     @classmethod
-    def from_file(cls, path=None) -> "DamperModel":
+    def from_file(cls, path=None) -> DamperModel:
         return cls(load_config(path))
 
     @property
@@ -705,9 +722,9 @@ def check_valve_command(value) -> float:
     try:
         c = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"valve command must be a number in [0, 1], got {value!r}") from None
+        raise UserError(f"valve command must be a number in [0, 1], got {value!r}") from None
     if not (math.isfinite(c) and 0.0 <= c <= 1.0):
-        raise ValueError(f"valve command {value!r} outside [0, 1] (0 comfort .. 1 sport)")
+        raise UserError(f"valve command {value!r} outside [0, 1] (0 comfort .. 1 sport)")
     return c
 
 
@@ -781,7 +798,7 @@ class DamperStepper:
         Without that extension it changes nothing."""
         t = math.nan if temperature_c is None else float(temperature_c)
         if temperature_c is not None and not math.isfinite(t):
-            raise ValueError(f"temperature must be finite, got {temperature_c!r}")
+            raise UserError(f"temperature must be finite, got {temperature_c!r}")
         self.state[S_TEMP_IN] = t
 
     @property
@@ -871,7 +888,7 @@ def _check_finite(name: str, arr: np.ndarray) -> None:
     bad = ~np.isfinite(arr)
     if bad.any():
         i = int(np.argmax(bad))
-        raise ValueError(f"{name} sample {i} is {arr[i]} (must be finite)")
+        raise UserError(f"{name} sample {i} is {arr[i]} (must be finite)")
 
 
 def _check_samples(t: np.ndarray, x: np.ndarray, model: DamperModel) -> None:
@@ -881,13 +898,13 @@ def _check_samples(t: np.ndarray, x: np.ndarray, model: DamperModel) -> None:
         dt = np.diff(t)
         if not (dt > 0).all():
             i = int(np.argmax(~(dt > 0))) + 1
-            raise ValueError(f"time is not strictly increasing at sample {i} "
+            raise UserError(f"time is not strictly increasing at sample {i} "
                              f"({t[i - 1]!r} then {t[i]!r})")
     lo, hi = model.stroke_limits_m
     out = (x <= lo) | (x >= hi)
     if out.any():
         i = int(np.argmax(out))
-        raise ValueError(f"stroke sample {i} = {x[i]:.6g} m is beyond the physical travel "
+        raise UserError(f"stroke sample {i} = {x[i]:.6g} m is beyond the physical travel "
                          f"({lo:.4g} m .. {hi:.4g} m: gas volume / L_pt − X0)")
 
 
@@ -927,7 +944,7 @@ def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None,
     t = np.ascontiguousarray(time_s, dtype=float)
     x = np.ascontiguousarray(stroke_m, dtype=float)
     if t.ndim != 1 or x.shape != t.shape or t.size == 0:
-        raise ValueError(f"time and stroke must be 1-D arrays of equal, non-zero length "
+        raise UserError(f"time and stroke must be 1-D arrays of equal, non-zero length "
                          f"(got shapes {t.shape} and {x.shape})")
     _check_samples(t, x, model)
     if velocity_m_s is None:
@@ -935,13 +952,13 @@ def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None,
     else:
         v = np.ascontiguousarray(velocity_m_s, dtype=float)
         if v.shape != t.shape:
-            raise ValueError(f"velocity has shape {v.shape}, time {t.shape}")
+            raise UserError(f"velocity has shape {v.shape}, time {t.shape}")
         _check_finite("velocity", v)
     v_max = model.cfg.numerics.valve_table_max_velocity_m_s
     fast = np.abs(v) > v_max
     if fast.any():
         i = int(np.argmax(fast))
-        raise ValueError(f"velocity sample {i} = {v[i]:.6g} m/s exceeds "
+        raise UserError(f"velocity sample {i} = {v[i]:.6g} m/s exceeds "
                          f"numerics.valve_table_max_velocity_m_s = {v_max:g} m/s")
     n = t.size
     cmd = np.asarray(valve_command, dtype=float)
@@ -949,19 +966,19 @@ def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None,
         check_valve_command(float(cmd))
         cmd = np.full(n, float(cmd))
     elif cmd.shape != t.shape:
-        raise ValueError(f"valve command has shape {cmd.shape}, time {t.shape}")
+        raise UserError(f"valve command has shape {cmd.shape}, time {t.shape}")
     else:
         bad = ~((cmd >= 0.0) & (cmd <= 1.0))
         if bad.any():
             i = int(np.argmax(bad))
-            raise ValueError(f"valve command sample {i} = {cmd[i]!r} outside [0, 1]")
+            raise UserError(f"valve command sample {i} = {cmd[i]!r} outside [0, 1]")
         cmd = np.ascontiguousarray(cmd)
     if temperature_c is None:
         temp = np.full(n, math.nan)
     else:
         temp = np.ascontiguousarray(temperature_c, dtype=float)
         if temp.shape != t.shape:
-            raise ValueError(f"temperature has shape {temp.shape}, time {t.shape}")
+            raise UserError(f"temperature has shape {temp.shape}, time {t.shape}")
         _check_finite("temperature", temp)
     force, p_reb, p_com, c_eff = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     faults = np.zeros(n, dtype=np.int64)

@@ -10,7 +10,7 @@ Both expose ``force(velocity)`` [N, rebound +] for a scalar or an array of veloc
 
 Builders from a model: :func:`linear_from_model` (least-squares rate of the incompressible
 curve, eqs 30–32) and :func:`fourteen_speed_damper` (the N-speed test simulated on the
-compressible model by the virtual dyno, :func:`damper_emulator.dyno.runner.
+compressible model by the virtual dyno, :func:`damper_emulator.dyno.simulated.
 fourteen_speed_table`).
 """
 
@@ -18,19 +18,21 @@ from __future__ import annotations
 
 import bisect
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
+
+from damper_emulator.errors import UserError
 
 
 def _finite_number(name: str, value) -> float:
     try:
         out = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
+        raise UserError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(out):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise UserError(f"{name} must be finite, got {value!r}")
     return out
 
 
@@ -38,18 +40,18 @@ def _velocity_array(velocity) -> tuple[np.ndarray, bool]:
     v = np.asarray(velocity, dtype=float)
     if not np.isfinite(v).all():
         bad = v.flat[int(np.argmax(~np.isfinite(v)))] if v.ndim else v
-        raise ValueError(f"damper velocity must be finite, got {float(bad)!r}")
+        raise UserError(f"damper velocity must be finite, got {float(bad)!r}")
     return v, v.ndim == 0
 
 
 def _curve(name: str, values) -> np.ndarray:
     a = np.asarray(values, dtype=float)
     if a.ndim != 1:
-        raise ValueError(f"{name} must be one-dimensional, got shape {a.shape}")
+        raise UserError(f"{name} must be one-dimensional, got shape {a.shape}")
     bad = ~np.isfinite(a)
     if bad.any():
         i = int(np.argmax(bad))
-        raise ValueError(f"{name}[{i}] is {a[i]} (must be finite)")
+        raise UserError(f"{name}[{i}] is {a[i]} (must be finite)")
     return a
 
 
@@ -70,7 +72,7 @@ class LinearDamper:
     def __init__(self, rate_ns_m: float, static_force_n: float = 0.0):
         rate = _finite_number("linear damping rate [N s/m]", rate_ns_m)
         if rate < 0:
-            raise ValueError(f"linear damping rate must be >= 0 N s/m, got {rate_ns_m!r}")
+            raise UserError(f"linear damping rate must be >= 0 N s/m, got {rate_ns_m!r}")
         self.rate_ns_m = rate
         self.static_force_n = _finite_number("static force [N]", static_force_n)
 
@@ -78,7 +80,7 @@ class LinearDamper:
         """Force [N, rebound +] at ``velocity`` [m/s] (scalar → float, array → array)."""
         if isinstance(velocity, float | int) and not isinstance(velocity, bool):
             if not math.isfinite(velocity):
-                raise ValueError(f"damper velocity must be finite, got {velocity!r}")
+                raise UserError(f"damper velocity must be finite, got {velocity!r}")
             return self.static_force_n + self.rate_ns_m * float(velocity)
         v, scalar = _velocity_array(velocity)
         f = self.static_force_n + self.rate_ns_m * v
@@ -104,11 +106,11 @@ def linear_best_fit(velocity, force, static_force_n: float = 0.0) -> float:
     v = _curve("velocity", velocity)
     f = _curve("force", force)
     if v.shape != f.shape:
-        raise ValueError(f"velocity and force differ in length ({v.size} and {f.size})")
+        raise UserError(f"velocity and force differ in length ({v.size} and {f.size})")
     f0 = _finite_number("static force [N]", static_force_n)
     den = float(np.dot(v, v))
     if den == 0.0:
-        raise ValueError("linear best fit needs at least one non-zero velocity")
+        raise UserError("linear best fit needs at least one non-zero velocity")
     return float(np.dot(v, f - f0)) / den
 
 
@@ -125,9 +127,9 @@ def linear_from_model(model, v_max: float, points: int = 201) -> LinearDamper:
     cfg = getattr(model, "cfg", model)
     v_max = _finite_number("v_max [m/s]", v_max)
     if v_max <= 0:
-        raise ValueError(f"v_max must be > 0 m/s, got {v_max!r}")
+        raise UserError(f"v_max must be > 0 m/s, got {v_max!r}")
     if isinstance(points, bool) or not isinstance(points, int) or points < 2:
-        raise ValueError(f"points must be an integer >= 2, got {points!r}")
+        raise UserError(f"points must be an integer >= 2, got {points!r}")
     v = np.linspace(-v_max, v_max, points)
     f = incompressible_force(v, cfg)
     static = float(cfg.damper.static_force_n)
@@ -162,18 +164,18 @@ class TableDamper:
         v = _curve("table velocity", velocity_m_s)
         f = _curve("table force", force_n)
         if v.size != f.size:
-            raise ValueError(f"table velocity and force differ in length ({v.size} and "
+            raise UserError(f"table velocity and force differ in length ({v.size} and "
                              f"{f.size})")
         if v.size < 2:
-            raise ValueError(f"a force–velocity table needs at least 2 points, got {v.size}")
+            raise UserError(f"a force–velocity table needs at least 2 points, got {v.size}")
         dv, df = np.diff(v), np.diff(f)
         if not (dv > 0).all():
             i = int(np.argmax(~(dv > 0))) + 1
-            raise ValueError(f"table velocity is not strictly increasing at point {i} "
+            raise UserError(f"table velocity is not strictly increasing at point {i} "
                              f"({v[i - 1]:.6g} m/s then {v[i]:.6g} m/s)")
         if not (df >= 0).all():
             i = int(np.argmax(~(df >= 0))) + 1
-            raise ValueError(f"table force is not monotonic at point {i}: {f[i - 1]:.6g} N "
+            raise UserError(f"table force is not monotonic at point {i}: {f[i - 1]:.6g} N "
                              f"at {v[i - 1]:.6g} m/s but {f[i]:.6g} N at {v[i]:.6g} m/s")
         v.setflags(write=False)
         f.setflags(write=False)
@@ -188,7 +190,7 @@ class TableDamper:
 
     @classmethod
     def from_branches(cls, rebound_velocity_m_s, rebound_force_n, compression_velocity_m_s,
-                      compression_force_n, static_force_n: float) -> "TableDamper":
+                      compression_force_n, static_force_n: float) -> TableDamper:
         """Table from separate rebound (``ẋ > 0``) and compression (``ẋ < 0``) points, in
         any order, joined through ``(0, static_force_n)``."""
         vr = _curve("rebound velocity", rebound_velocity_m_s)
@@ -197,11 +199,11 @@ class TableDamper:
         fc = _curve("compression force", compression_force_n)
         f0 = _finite_number("static force [N]", static_force_n)
         if vr.size != fr.size or vc.size != fc.size:
-            raise ValueError("each branch needs as many forces as velocities")
+            raise UserError("each branch needs as many forces as velocities")
         if (vr <= 0).any():
-            raise ValueError(f"rebound velocities must be > 0, got {vr[vr <= 0][0]:.6g} m/s")
+            raise UserError(f"rebound velocities must be > 0, got {vr[vr <= 0][0]:.6g} m/s")
         if (vc >= 0).any():
-            raise ValueError(f"compression velocities must be < 0, got "
+            raise UserError(f"compression velocities must be < 0, got "
                              f"{vc[vc >= 0][0]:.6g} m/s")
         v = np.concatenate([vc, [0.0], vr])
         f = np.concatenate([fc, [f0], fr])
@@ -210,9 +212,9 @@ class TableDamper:
 
     @classmethod
     def from_fourteen_speed_table(cls, table: Mapping[str, np.ndarray],
-                                  static_force_n: float) -> "TableDamper":
+                                  static_force_n: float) -> TableDamper:
         """Table from an N-speed test table (the columns of ``14speed.csv``,
-        :data:`damper_emulator.dyno.runner.FOURTEEN_SPEED_COLUMNS`)."""
+        :data:`damper_emulator.dyno.simulated.FOURTEEN_SPEED_COLUMNS`)."""
         return cls.from_branches(table["peak_velocity_rebound_m_s"],
                                  table["peak_force_rebound_n"],
                                  table["peak_velocity_compression_m_s"],
@@ -241,7 +243,7 @@ class TableDamper:
         """:meth:`force` of one velocity in plain Python (about 1 µs instead of 20)."""
         knots = self._knots
         if not math.isfinite(v):
-            raise ValueError(f"damper velocity must be finite, got {v!r}")
+            raise UserError(f"damper velocity must be finite, got {v!r}")
         if v <= knots[0]:
             return float(self.force_n[0]) + self._slope_lo * (v - knots[0])
         if v >= knots[-1]:
@@ -262,22 +264,22 @@ def fourteen_speed_damper(model, points: int = 14, amplitude_m: float = 0.025,
     """The '14-speed' representation of ``model`` (a ``DamperModel``), docs/model.md §4.
 
     Runs the N-speed test on the compressible model with the virtual dyno
-    (:func:`damper_emulator.dyno.runner.fourteen_speed_table`: ``points`` sines of
+    (:func:`damper_emulator.dyno.simulated.fourteen_speed_table`: ``points`` sines of
     ``amplitude_m`` whose peak velocities are spaced geometrically from ``v_min`` to
     ``v_max``; one settle cycle dropped, ``cycles`` recorded at ``rate`` Hz), pairs the
     peak force with the peak velocity per direction and joins both branches through the
     model's static force at ``ẋ = 0``.  The paper uses 14 and 28 points.
     """
-    from damper_emulator.dyno.runner import fourteen_speed_table
+    from damper_emulator.dyno.simulated import fourteen_speed_table
 
     if isinstance(points, bool) or not isinstance(points, int) or points < 2:
-        raise ValueError(f"N-speed points must be an integer >= 2, got {points!r}")
+        raise UserError(f"N-speed points must be an integer >= 2, got {points!r}")
     for name, value in (("amplitude [m]", amplitude_m), ("v_min [m/s]", v_min),
                         ("v_max [m/s]", v_max)):
         if _finite_number(name, value) <= 0:
-            raise ValueError(f"{name} must be > 0, got {value!r}")
+            raise UserError(f"{name} must be > 0, got {value!r}")
     if not v_min < v_max:
-        raise ValueError(f"v_min ({v_min:g} m/s) must be below v_max ({v_max:g} m/s)")
+        raise UserError(f"v_min ({v_min:g} m/s) must be below v_max ({v_max:g} m/s)")
     table, _faults = fourteen_speed_table(model, points, amplitude_m, v_min, v_max, cycles,
                                           rate)
     return TableDamper.from_fourteen_speed_table(table, model.cfg.damper.static_force_n)

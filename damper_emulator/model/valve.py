@@ -19,6 +19,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from damper_emulator.errors import UserError
 from damper_emulator.model.jit import kernel
 
 #: Exponent of the Reybrouck power law ``Δp ∝ Q^(7/4)`` (eqs 8, 9).
@@ -188,7 +190,7 @@ def form_code(form: str) -> int:
     try:
         return VALVE_FORMS.index(form)
     except ValueError:
-        raise ValueError(f"valve form must be one of {VALVE_FORMS}, not {form!r}") from None
+        raise UserError(f"valve form must be one of {VALVE_FORMS}, not {form!r}") from None
 
 
 def pressure_drop_array(q_m3_s, valve, nu_m2_s, form="cardano"):

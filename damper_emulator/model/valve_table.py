@@ -23,11 +23,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from damper_emulator.model.jit import kernel
 from scipy.interpolate import PchipInterpolator
 
-from damper_emulator.model.valve import (FLOW_EXPONENT, form_code, pressure_drop,
-                                         pressure_drop_array)
+from damper_emulator.errors import UserError
+from damper_emulator.model.jit import kernel
+from damper_emulator.model.valve import FLOW_EXPONENT, form_code, pressure_drop, pressure_drop_array
 
 if TYPE_CHECKING:  # pragma: no cover
     from damper_emulator.params import ModelConfig
@@ -41,7 +41,7 @@ _INVERSE_RTOL = 1e-15
 _INVERSE_MAX_ITERATIONS = 200
 
 
-class ValveTableError(ValueError):
+class ValveTableError(UserError):
     """The valve characteristic cannot be tabulated (not invertible or not finite)."""
 
 
@@ -207,7 +207,7 @@ def build_valve_table(valve, annulus_area_m2: float, nu_m2_s: float, form: str,
     return ValveTable(scale, float(z[1] - z[0]), coef, float(q_nodes[-1]), float(dp[-1]))
 
 
-def build_valve_tables(cfg: "ModelConfig") -> tuple[ValveTable, ValveTable]:
+def build_valve_tables(cfg: ModelConfig) -> tuple[ValveTable, ValveTable]:
     """The (rebound, compression) tables of a configuration (cached per valve: a change of
     the gas or of one valve rebuilds only what it changes)."""
     d, n = cfg.damper, cfg.numerics

@@ -11,13 +11,17 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from damper_emulator.realtime.rt import (RealtimeReport, RealtimeRequest, apply_realtime,
-                                         set_thread_name)
+from damper_emulator.realtime.rt import (
+    RealtimeReport,
+    RealtimeRequest,
+    apply_realtime,
+    set_thread_name,
+)
 
 
 @dataclass(frozen=True)

@@ -175,7 +175,7 @@ class ThreadInheritance:
         self._before = thread_ids()
         self._entered = False
 
-    def __enter__(self) -> "ThreadInheritance":
+    def __enter__(self) -> ThreadInheritance:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
             self._entered = True

@@ -8,9 +8,10 @@ FILE`` takes them from there.  Every value is checked with the project's one rul
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from damper_emulator.params import build_group, check_value, node_parameters, read_yaml, rule
 from damper_emulator.realtime.rt import RealtimeRequest
@@ -36,27 +37,29 @@ class EmulatorParams:
                         "samples' stamps (lockstep simulation, replay)", "timer")
     input_mode: str = rule(("choices", INPUT_MODES),
                            "between input samples: hold the stroke, or extrapolate it with "
-                           "the sample's velocity (at most max_extrapolation_s)", "hold")
+                           "the sample's velocity (at most max_extrapolation_s)", "hold",
+                           runtime=True)
     max_extrapolation_s: float = rule("non-negative",
-                                      "longest extrapolation of the stroke [s]", 5e-3)
+                                      "longest extrapolation of the stroke [s]", 5e-3, runtime=True)
     input_timeout_s: float = rule(("range", 0.0, 10.0),
                                   "input older than this is a fault (fault_mode applies) [s]",
-                                  0.02)
+                                  0.02, runtime=True)
     fault_mode: str = rule(("choices", FAULT_MODES),
                            "output while the input is stale: hold the last force, zero, or "
                            "passive (static gas force + passive_rate_ns_m × last velocity)",
-                           "hold")
+                           "hold", runtime=True)
     passive_rate_ns_m: float = rule("non-negative",
                                     "linear rate of the passive fault output, damper side "
-                                    "[N s/m]", 5899.5)
+                                    "[N s/m]", 5899.5, runtime=True)
     max_velocity_m_s: float = rule("positive",
-                                   "input with a larger |velocity| is rejected [m/s]", 10.0)
+                                   "input with a larger |velocity| is rejected [m/s]", 10.0,
+                                   runtime=True)
     stroke_tolerance_m: float = rule("non-negative",
                                      "input stroke this far beyond the damper's travel is "
                                      "rejected [m] (within it, the model clamps and flags)",
-                                     5e-3)
+                                     5e-3, runtime=True)
     valve_command: float = rule(("closed", 0.0, 1.0),
-                                "initial valve command, 0 softest .. 1 firmest ('sport')",
+                                "initial valve command [-], 0 softest .. 1 firmest ('sport')",
                                 1.0)
     sched_fifo: bool = rule("bool", "run the loop thread under SCHED_FIFO when permitted",
                             True)
@@ -73,7 +76,7 @@ class EmulatorParams:
                                    "through /dev/cpu_dma_latency when permitted (0: idle CPUs "
                                    "poll; -1: no request)", 0)
     diagnostics_period_s: float = rule(("range", 0.0, 60.0),
-                                       "period of /diagnostics [s]", 1.0)
+                                       "period of /diagnostics [s]", 1.0, runtime=True)
     stats_window_s: float = rule(("range", 0.0, 3600.0),
                                  "loop periods kept for the statistics [s]", 120.0)
     stats_file: str = rule("text", "write the loop periods and counters here (.npz) at "
@@ -85,10 +88,9 @@ class EmulatorParams:
                                cpu_dma_latency_us=self.cpu_dma_latency_us)
 
 
-#: Parameters that may change while the node runs; the others need a restart.
-RUNTIME_PARAMETERS = ("input_mode", "max_extrapolation_s", "input_timeout_s", "fault_mode",
-                      "passive_rate_ns_m", "max_velocity_m_s", "stroke_tolerance_m",
-                      "diagnostics_period_s")
+#: Parameters that may change while the node runs (``rule(..., runtime=True)`` in the
+#: schema); the others need a restart.
+RUNTIME_PARAMETERS = tuple(f.name for f in fields(EmulatorParams) if f.metadata["runtime"])
 
 
 def emulator_params_from_mapping(data: Mapping[str, Any] | None,

@@ -5,16 +5,18 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Any, Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
+from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from damper_emulator.bag import BagError
+from damper_emulator.errors import DamperHilError
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.rt import RealtimeRequest, ThreadInheritance, apply_realtime
 
@@ -297,7 +299,7 @@ def lifecycle_state_topic(node_name: str) -> str:
     return f"/{node_name.strip('/')}/{LIFECYCLE_STATE_TOPIC}"
 
 
-class NotReadyError(RuntimeError):
+class NotReadyError(DamperHilError, RuntimeError):
     """A managed node did not become active in time (one line, naming the node and the
     state last seen)."""
 
@@ -376,7 +378,7 @@ class ReadinessProbe:
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
 
-    def __enter__(self) -> "ReadinessProbe":
+    def __enter__(self) -> ReadinessProbe:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -42,18 +42,35 @@ from std_msgs.msg import Float64
 from damper_emulator import force_message
 from damper_emulator.model import jit
 from damper_emulator.model.compressible import DamperModel
-from damper_emulator.params import (DEFAULT_PARAMS_FILE, ParameterError, config_from_mapping,
-                                    node_parameters, read_yaml)
+from damper_emulator.params import (
+    DEFAULT_PARAMS_FILE,
+    ParameterError,
+    config_from_mapping,
+    node_parameters,
+    read_yaml,
+)
 from damper_emulator.realtime.core import EmulatorCore, Output, Status
 from damper_emulator.realtime.loop import LoopStats, PeriodicLoop
-from damper_emulator.realtime.settings import (RUNTIME_PARAMETERS, default_emulator_mapping,
-                                               emulator_params_from_mapping)
+from damper_emulator.realtime.settings import (
+    RUNTIME_PARAMETERS,
+    default_emulator_mapping,
+    emulator_params_from_mapping,
+)
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import (SubscriptionThread, control_qos, executor_priority,
-                                        declare_parameters, latched_qos,
-                                        lifecycle_state_topic,
-                                        plain_value, publish_diagnostics, set_stamp, stamp_ns,
-                                        take_all, unflatten)
+from damper_emulator.ros.common import (
+    SubscriptionThread,
+    control_qos,
+    declare_parameters,
+    executor_priority,
+    latched_qos,
+    lifecycle_state_topic,
+    plain_value,
+    publish_diagnostics,
+    set_stamp,
+    stamp_ns,
+    take_all,
+    unflatten,
+)
 
 NODE_NAME = "damper_emulator"
 #: The managed node's own parameter: configure and activate at start.
@@ -452,5 +469,5 @@ class EmulatorNode(LifecycleNode):
             level, message = DiagnosticStatus.ERROR, "input timeout: fault output"
         elif status_bits & Status.NO_INPUT:
             level, message = DiagnosticStatus.WARN, "no input yet"
-        publish_diagnostics(self, self._diag_pub, f"{NODE_NAME}: {self.params.name}", level, message,
-                            self.params.name, values)
+        publish_diagnostics(self, self._diag_pub, f"{NODE_NAME}: {self.params.name}", level,
+                            message, self.params.name, values)

@@ -11,8 +11,8 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import yaml
 
@@ -37,9 +37,9 @@ def ros_environment(domain_id: int | None = None,
 def node_command(subcommand: str, params: Mapping[str, object] | None = None,
                  params_files: Sequence[str | Path] = (),
                  extra: Sequence[str] = ()) -> list[str]:
-    """``python -m damper_emulator.cli SUBCOMMAND [extra] --ros-args --params-file F -p
+    """``python -m damper_hil.cli SUBCOMMAND [extra] --ros-args --params-file F -p
     name:=value ...`` (values written as ROS 2 YAML scalars)."""
-    cmd = [sys.executable, "-m", "damper_emulator.cli", subcommand, *extra]
+    cmd = [sys.executable, "-m", "damper_hil.cli", subcommand, *extra]
     ros: list[str] = []
     for f in params_files:
         ros += ["--params-file", str(f)]
@@ -126,7 +126,7 @@ class NodeProcess:
             return ""
         return "\n".join(text[-lines:])
 
-    def __enter__(self) -> "NodeProcess":
+    def __enter__(self) -> NodeProcess:
         return self
 
     def __exit__(self, *exc) -> None:

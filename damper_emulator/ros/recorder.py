@@ -10,17 +10,17 @@ first message, with the QoS its publisher offers (``offered_qos_profiles``).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from rclpy.duration import Duration
 from rclpy.node import Node
 
 from damper_emulator.bag import BagWriter, Qos
-from damper_emulator.ros import topics
+from damper_emulator.errors import UserError
 from damper_emulator.realtime.rt import RealtimeRequest
-from damper_emulator.ros.common import (SubscriptionThread, control_qos, executor_priority,
-                                        log_info)
+from damper_emulator.ros import topics
+from damper_emulator.ros.common import SubscriptionThread, control_qos, executor_priority, log_info
 
 NODE_NAME = "damper_hil_recorder"
 #: SCHED_FIFO priority (when permitted) of the recorder's input and DDS threads: below the
@@ -59,7 +59,7 @@ class RecorderNode(Node):
         names = list(record_topics or topics.TYPES)
         unknown = [t for t in names if t not in topics.TYPES]
         if unknown:
-            raise ValueError(f"cannot record {unknown[0]}: known topics are "
+            raise UserError(f"cannot record {unknown[0]}: known topics are "
                              f"{', '.join(topics.TYPES)}")
         self.writer = BagWriter(bag_path, flush_period_s=flush_period_s,
                                 custom_data={"recorded_by": "damper-hil record"})

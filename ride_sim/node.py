@@ -32,15 +32,21 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from damper_emulator import force_message
+from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import (NotReadyError, control_qos, executor_priority,
-                                        set_stamp, stamp_ns,
-                                        take_all, wait_until_active)
+from damper_emulator.ros.common import (
+    NotReadyError,
+    control_qos,
+    executor_priority,
+    set_stamp,
+    stamp_ns,
+    take_all,
+    wait_until_active,
+)
 from damper_emulator.ros.emulator import load_node_model
-from damper_emulator.model.compressible import DamperStepper
 from ride_sim import quarter_car as qc
 from ride_sim.params import DEFAULT_QUARTER_CAR_FILE, ride_config_from_mapping
 from ride_sim.session import RideSession

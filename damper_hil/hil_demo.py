@@ -2,7 +2,7 @@
 simulation, the CAN bridge and the recorder as separate ROS 2 processes on this machine
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, own ``ROS_DOMAIN_ID``), with the skyhook
 controller as its own process on the CAN bus, then a report from the recorded bag
-(:mod:`damper_emulator.hil_report`).
+(:mod:`damper_hil.hil_report`).
 
 The control loop of ``control: skyhook``: ride_sim → ``/ride/state`` → bridge (controller
 mode) → ``VEHICLE_MOTION`` frames → skyhook process → ``VALVE_COMMAND`` frames → bridge →
@@ -17,20 +17,21 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from can_bridge.loopback import default_bus
-from damper_emulator.hil_report import write_report
+from damper_emulator.errors import DamperHilError
 from damper_emulator.recording import read_recording
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
+from damper_hil.hil_report import write_report
 from ride_sim.params import load_ride_config
 
 #: Seconds allowed beyond the ride's own length for start-up and shut-down.
 START_STOP_ALLOWANCE_S = 120.0
 
 
-class DemoError(RuntimeError):
+class DemoError(DamperHilError, RuntimeError):
     """The demo could not complete (one line, with the failing node's log)."""
 
 

@@ -1,0 +1,116 @@
+"""The dyno protocols simulated on the model, as arrays: no files, no plots.
+
+:mod:`damper_emulator.dyno.runner` writes them (CSV and PNG); the classical representations
+(:mod:`damper_emulator.model.representations`) and the ride studies use the N-speed table
+directly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from damper_emulator.dyno import protocols
+from damper_emulator.errors import UserError
+from damper_emulator.model.compressible import DamperModel, Fault, simulate
+
+#: What produces the forces of a protocol: ``engine(model, t, x, v)`` → an object with
+#: ``force_n`` and ``faults`` arrays (default :func:`simulate`, the offline model; the
+#: loopback dyno passes one that runs the samples over CAN, :mod:`can_bridge.loopback`).
+Engine = Callable[..., Any] | None
+
+#: columns of ``14speed.csv``
+FOURTEEN_SPEED_COLUMNS = ("frequency_hz", "peak_velocity_rebound_m_s", "peak_force_rebound_n",
+                          "peak_velocity_compression_m_s", "peak_force_compression_n")
+
+
+def sine_file_name(frequency_hz: float) -> str:
+    """``sine_<f>hz.csv`` with ``<f>`` formatted ``%g`` (``sine_3hz.csv``, ``sine_0.5hz.csv``)."""
+    return f"sine_{frequency_hz:g}hz.csv"
+
+
+
+def finite_positive(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise UserError(f"{name} must be a positive number, got {value!r}")
+
+
+def add_noise(force: np.ndarray, noise_std: float, rng: np.random.Generator) -> np.ndarray:
+    if noise_std > 0:
+        return force + rng.normal(0.0, noise_std, force.size)
+    return force
+
+
+def check_travel(model: DamperModel, x: np.ndarray, what: str) -> None:
+    """One-line error when a protocol's stroke leaves the damper's physical travel."""
+    lo, hi = model.stroke_limits_m
+    margin = model.cfg.numerics.travel_margin_m
+    x_max, x_min = float(np.max(x)), float(np.min(x))
+    if x_max >= hi - margin:
+        raise UserError(f"{what} reaches {x_max:.4g} m of extension, beyond the damper's "
+                         f"travel {hi:.4g} m (pressure_tube_length_m − x0_m)")
+    if x_min <= lo + margin:
+        raise UserError(f"{what} reaches {-x_min:.4g} m of compression, beyond the damper's "
+                         f"travel {-lo:.4g} m (gas volume / rod area)")
+
+
+def fault_names(faults: np.ndarray) -> list[str]:
+    bits = Fault(int(np.bitwise_or.reduce(faults))) if faults.size else Fault.NONE
+    return [f.name for f in Fault if f and f in bits]
+
+
+
+def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles: int = 3,
+                  rate: float = 1000.0, settle_cycles: int = 1, engine: Engine = None):
+    """Simulate ``x = A sin(2π f t)`` for ``settle_cycles + cycles`` periods and return the
+    recorded part ``(t, x, v, F, faults)``, ``t`` starting at exactly 0.
+
+    The lead-in lets the pressures settle from the quasi-steady initial state.
+    """
+    finite_positive("sine frequency [Hz]", frequency)
+    finite_positive("sine amplitude [m]", amplitude)
+    finite_positive("sine cycles", cycles)
+    finite_positive("sample rate [Hz]", rate)
+    if not (settle_cycles >= 0 and math.isfinite(settle_cycles)):
+        raise UserError(f"settle cycles must be >= 0, got {settle_cycles!r}")
+    if rate <= 4.0 * frequency:
+        raise UserError(f"sample rate {rate:g} Hz is too low for a {frequency:g} Hz sine "
+                         "(need more than 4 samples per period)")
+    t, x, v = protocols.sine(frequency, amplitude, cycles, rate, start_cycles=settle_cycles)
+    check_travel(model, x, f"sine amplitude {amplitude:g} m")
+    res = (engine or simulate)(model, t, x, v)
+    k = int(np.searchsorted(t, 0.0))  # protocols.sine puts a sample on t = 0
+    return (t[k:], x[k:], v[k:], res.force_n[k:], res.faults[k:])
+
+
+
+def fourteen_speed_table(model: DamperModel, points: int = 14, amplitude: float = 0.025,
+                         v_min: float = 0.025, v_max: float = 1.5, cycles: int = 2,
+                         rate: float = 1000.0, noise_std: float = 0.0,
+                         rng: np.random.Generator | None = None, engine: Engine = None,
+                         ) -> tuple[dict[str, np.ndarray], list[str]]:
+    """Simulate an N-speed test (docs/model.md §4) and return its table (columns
+    :data:`FOURTEEN_SPEED_COLUMNS`) and the fault names seen.
+
+    For each frequency a sine of ``amplitude`` is simulated (one settle cycle dropped);
+    the peak rebound force (max F) is paired with the peak rebound velocity (max v) and
+    the peak compression force (min F) with the peak compression velocity (min v).
+    """
+    finite_positive("N-speed cycles", cycles)
+    if rng is None:
+        rng = np.random.default_rng(0)
+    freqs = protocols.fourteen_speed_frequencies(points, amplitude, v_min, v_max)
+    rows = []
+    faults = np.zeros(0, dtype=np.int64)
+    for freq in freqs:
+        t, x, v, f, flt = simulate_sine(model, float(freq), amplitude, cycles, rate, 1,
+                                        engine)
+        f = add_noise(f, noise_std, rng)
+        rows.append((freq, v.max(), f.max(), v.min(), f.min()))
+        faults = np.concatenate([faults, flt])
+    arr = np.array(rows, dtype=float)
+    return ({c: arr[:, i] for i, c in enumerate(FOURTEEN_SPEED_COLUMNS)},
+            fault_names(faults))

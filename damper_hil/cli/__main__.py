@@ -1,0 +1,7 @@
+"""``python -m damper_hil.cli``."""
+
+import sys
+
+from damper_hil.cli import main
+
+sys.exit(main())

@@ -1,0 +1,78 @@
+"""What the subcommands of ``damper-hil`` share: the program name, argument types,
+the help formatter and small output helpers."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from damper_emulator.errors import UserError
+
+PROG = "damper-hil"
+
+
+#: the paper's validation sines (docs/model.md §3): (frequency [Hz], amplitude [m])
+PAPER_SINES = ((1.0, 0.05), (3.0, 0.05), (12.0, 0.005))
+
+
+class CliError(UserError):
+    """A user error detected by the command line itself (one-line message)."""
+
+
+# --------------------------------------------------------------------------------------
+
+
+def number_type(kind: str, test: Callable[[float], bool], cast: Callable = float):
+    def parse(text: str):
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}") from None
+        if not (math.isfinite(value) and test(value)):
+            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}")
+        return value
+    return parse
+
+
+positive_float = number_type("a positive number", lambda v: v > 0)
+non_negative_float = number_type("a number >= 0", lambda v: v >= 0)
+positive_int = number_type("a positive integer", lambda v: v >= 1, int)
+non_negative_int = number_type("an integer >= 0", lambda v: v >= 0, int)
+point_count = number_type("an integer >= 2", lambda v: v >= 2, int)
+
+
+class Formatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions and epilogs keep their line breaks; option help is wrapped."""
+
+
+def say_wrote(path: Path) -> None:
+    print(f"wrote {path}", file=sys.stderr, flush=True)
+
+
+def check_unique_names(paths: Sequence[Path]) -> None:
+    """Results are keyed by base name: refuse two files with the same one, before any
+    work."""
+    seen: dict[str, Path] = {}
+    for p in paths:
+        if p.name in seen:
+            raise CliError(f"two data files have the base name {p.name!r} ({seen[p.name]} "
+                           f"and {p}): results are keyed by base name")
+        seen[p.name] = p
+
+
+def write_json(path: Path, doc: dict[str, Any]) -> None:
+    path.write_text(json.dumps(doc, indent=2) + "\n")
+    say_wrote(path)
+
+
+def load_model(params: Path | None):
+    from damper_emulator.model.compressible import DamperModel
+    from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config
+
+    cfg = load_config(params)
+    return DamperModel(cfg), str(params if params is not None else DEFAULT_PARAMS_FILE)

@@ -1,0 +1,68 @@
+"""``damper-hil replay``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from damper_hil.cli.common import PROG, CliError, Formatter
+
+
+def add_parser(sub) -> None:
+    replay = sub.add_parser(
+        "replay", formatter_class=Formatter,
+        help="offline replay of a recorded bag through the emulator's model (no ROS)",
+        description="Replay /damper/state of a recorded bag through the damper model as the\n"
+                    "emulator node did, and compare with the recorded /damper/force.\n\n"
+                    "The trigger is detected from the bag: every force stamp a state stamp\n"
+                    "-> 'input' (one force per state sample, as in lockstep); else 'timer'\n"
+                    "(one force per recorded tick: the tick's input sample is found by its\n"
+                    "velocity and stroke, fault ticks give the fault output, the model steps\n"
+                    "by the stamp differences).  Writes into --out DIR: replay_bag/ (the\n"
+                    "state copied, the replayed force), replay.json and replay.png (recorded\n"
+                    "and replayed force, their difference).  Same bag, same output.\n\n"
+                    "replay.json: bag, trigger, forces, compared (model outputs compared),\n"
+                    "rms_N and max_abs_N of replayed - recorded, relative_rms (to the\n"
+                    "recorded force's r.m.s.), elapsed_s, recorded_duration_s,\n"
+                    "speed_vs_real_time, counts.  See damper_emulator/replay.py.",
+        epilog="examples:\n"
+               f"  {PROG} replay demo_out/bag --out replay_out\n"
+               f"  {PROG} replay demo_out/bag --out replay_out --json replay.json "
+               "--params fitted.yaml")
+    replay.add_argument("bag", metavar="BAG", type=Path,
+                        help="rosbag2 bag directory with /damper/state and /damper/force")
+    replay.add_argument("--out", metavar="DIR", type=Path, required=True,
+                        help="output directory (created if missing; an earlier replay's "
+                             "replay_bag/ there is replaced)")
+    replay.add_argument("--json", metavar="FILE", type=Path, default=None,
+                        help="also write the results to FILE (always: DIR/replay.json)")
+    replay.add_argument("--params", metavar="PARAMS.yaml", type=Path, default=None,
+                        help="damper parameter file (default: config/sport.yaml)")
+    replay.add_argument("--emulator-params", metavar="FILE", type=Path, default=None,
+                        help="params file with an 'emulator' group overriding "
+                             "config/emulator.yaml (input_mode, fault_mode, ...)")
+    replay.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from damper_emulator.bag import BagError
+    from damper_emulator.replay import run_replay
+
+    def progress(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    print(f"replaying {args.bag} ...", file=sys.stderr, flush=True)
+    try:
+        doc = run_replay(args.bag, args.out, json_path=args.json, params_file=args.params,
+                         emulator_params_file=args.emulator_params, progress=progress)
+    except BagError as exc:
+        raise CliError(str(exc)) from None
+    rms = (f"r.m.s. {doc['rms_N']:.3g} N, max {doc['max_abs_N']:.3g} N"
+           if doc["rms_N"] is not None else "no model output to compare")
+    print(f"replayed {doc['forces']} forces ({doc['trigger']} trigger, "
+          f"{doc['recorded_duration_s']:.1f} s recorded) in {doc['elapsed_s'] * 1e3:.0f} ms "
+          f"({doc['speed_vs_real_time'] or float('inf'):.0f}x real time); {rms} over "
+          f"{doc['compared']} "
+          f"model outputs", file=sys.stderr)
+    return 0

@@ -1,0 +1,104 @@
+"""``damper-hil validate``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from damper_hil.cli.common import (
+    PROG,
+    Formatter,
+    check_unique_names,
+    load_model,
+    say_wrote,
+    write_json,
+)
+
+
+def add_parser(sub) -> None:
+    validate = sub.add_parser(
+        "validate", formatter_class=Formatter,
+        help="compare the compressible model with measured data: r.m.s. force error "
+             "per file",
+        description="Simulate the compressible (hysteretic) model over the displacement\n"
+                    "history of each measured-data file and compare the simulated force\n"
+                    "with the measured one (docs/model.md eqs 34-35):\n"
+                    "  rms_N        = sqrt(mean((F_sim - F_meas)^2))   [N]\n"
+                    "  relative_rms = rms_N / sqrt(mean(F_meas^2))\n"
+                    "Every sample counts, the first cycle included: the simulation starts\n"
+                    "in quasi-steady equilibrium at the first sample.  The velocity is the\n"
+                    "file's velocity column, or else a Savitzky-Golay derivative of the\n"
+                    "displacement (cubic, window 1/20 of the dominant period).\n\n"
+                    "Results are written to the JSON file (--json) as\n"
+                    '  {"params_file": ..., "files": {NAME: {"rms_N": .., "relative_rms": ..,\n'
+                    "   samples, peak forces, velocity source, ...}}}\n"
+                    "(NAME: the file's base name) and printed as a table on stdout.",
+        epilog="examples:\n"
+               f"  {PROG} validate --params config/sport.yaml out/sine_1hz.csv "
+               "out/sine_3hz.csv\n"
+               f"  {PROG} validate --params fitted.yaml --report val_out data/*.csv")
+    validate.add_argument("data", metavar="DATA.csv", type=Path, nargs="+",
+                          help="measured-data files (CSV or .csv.gz: time [s], "
+                               "displacement [m], force [N], optional velocity [m/s]); "
+                               "base names must differ")
+    validate.add_argument("--params", metavar="PARAMS.yaml", type=Path, required=True,
+                          help="damper parameter file to validate (ROS 2 params YAML)")
+    validate.add_argument("--json", metavar="FILE", type=Path, default=None,
+                          help="results file (default: validation.json in the --report "
+                               "directory when given, else in the current directory)")
+    validate.add_argument("--report", metavar="DIR", type=Path, default=None,
+                          help="also write figures into DIR (created if missing): per file "
+                               "validate_<name>.png (measured and simulated force-velocity "
+                               "and force-displacement loops, force error vs time) and "
+                               "validation_summary.png (relative r.m.s. per file)")
+    validate.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    paths: list[Path] = args.data
+    check_unique_names(paths)
+    from damper_emulator import validation, validation_report
+    from damper_emulator.dyno.measured import read_measured_csv
+
+    json_path: Path = args.json if args.json is not None else (
+        (args.report if args.report is not None else Path(".")) / "validation.json")
+    model, params_file = load_model(args.params)
+    datasets = [read_measured_csv(p) for p in paths]  # a malformed file fails before work
+    results: dict[str, Any] = {}
+    n = len(datasets)
+    for k, data in enumerate(datasets, 1):
+        print(f"[{k}/{n}] validating {data.name} ({len(data)} samples, "
+              f"{data.duration_s:.3g} s) ...", file=sys.stderr, flush=True)
+        results[data.name] = validation.validate_file(model, data)
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(json_path, {
+        "params_file": params_file,
+        "files": {name: validation.json_summary(r) for name, r in results.items()},
+    })
+    if args.report is not None:
+        report: Path = args.report
+        report.mkdir(parents=True, exist_ok=True)
+        label = f"{args.params.name}, damper '{model.cfg.damper.name}'"
+        for name, r in results.items():
+            png = report / f"validate_{validation.report_stem(name)}.png"
+            say_wrote(validation_report.plot_validation(
+                png, r, title=f"{name} vs compressible model ({label}): "
+                              f"{validation_report.rms_caption(r)}"))
+        say_wrote(validation_report.plot_relative_rms_summary(
+            report / "validation_summary.png", results,
+            title=f"Validation of {args.params.name}: relative r.m.s. force error per file "
+                  "(label: r.m.s. in N)"))
+    width = max(len("file"), *(len(name) for name in results))
+    print(f"{'file':<{width}}  {'samples':>8}  {'rms [N]':>9}  {'relative':>9}  "
+          f"{'peak F meas [N]':>17}  {'peak F sim [N]':>17}")
+    for name, r in results.items():
+        rel = (f"{100.0 * r['relative_rms']:8.3f}%" if r["relative_rms"] is not None
+               else f"{'-':>9}")
+        print(f"{name:<{width}}  {r['samples']:>8d}  {r['rms_N']:>9.3f}  {rel}  "
+              f"{r['peak_force_measured_rebound_n']:>+8.0f}/"
+              f"{r['peak_force_measured_compression_n']:<+8.0f}  "
+              f"{r['peak_force_simulated_rebound_n']:>+8.0f}/"
+              f"{r['peak_force_simulated_compression_n']:<+8.0f}")
+    return 0

@@ -1,0 +1,141 @@
+"""The parameter reference, ``docs/parameters.md``, generated from the schema.
+
+Every parameter group is a dataclass whose fields declare their rule, description (with the
+unit) and whether a running node accepts a change (:func:`damper_emulator.params.rule`);
+:func:`damper_emulator.params.field_specs` reads that back.  This module writes it as one
+table per group, with the value of the project's default params file.
+
+``python -m damper_hil.param_reference`` rewrites the file; ``--check`` exits 1 when it is
+out of date (a test runs that).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from damper_emulator.params import FieldSpec, field_specs
+
+REPO = Path(__file__).resolve().parents[1]
+OUTPUT = REPO / "docs" / "parameters.md"
+
+
+def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
+    """``(group, params file, who reads it, dataclass, loader of the defaults)``."""
+    from can_bridge.settings import BridgeParams, bridge_params_from_mapping
+    from damper_emulator.params import DamperParams, NumericsParams, load_config
+    from damper_emulator.realtime.settings import EmulatorParams
+    from ride_sim.params import (
+        QuarterCarParams,
+        RideRunParams,
+        RoadParams,
+        SimulationParams,
+        load_ride_config,
+    )
+    from ride_sim.skyhook import SkyhookParams, load_skyhook
+
+    ride = load_ride_config
+    return [
+        ("damper", "config/sport.yaml", "every node and subcommand that runs the model",
+         DamperParams, lambda: load_config().damper),
+        ("numerics", "config/sport.yaml", "the model's numerical settings", NumericsParams,
+         lambda: load_config().numerics),
+        ("emulator", "config/emulator.yaml", "the `damper_emulator` node, `replay`",
+         EmulatorParams, EmulatorParams),
+        ("", "config/bridge.yaml", "the `can_bridge` node (parameters without a group)",
+         BridgeParams, lambda: bridge_params_from_mapping(None)),
+        ("quarter_car", "config/quarter_car.yaml", "the ride node and `ride-study`",
+         QuarterCarParams, lambda: ride().quarter_car),
+        ("simulation", "config/quarter_car.yaml", "the ride node and `ride-study`",
+         SimulationParams, lambda: ride().simulation),
+        ("road", "config/quarter_car.yaml", "`ride-study` and the ride node", RoadParams,
+         lambda: ride().road),
+        ("ride", "config/quarter_car.yaml", "the ride node", RideRunParams,
+         lambda: ride().ride),
+        ("skyhook", "config/skyhook.yaml", "`skyhook`, `ride-study --figure adaptive`",
+         SkyhookParams, load_skyhook),
+    ]
+
+
+def _value(obj: Any, key: str) -> Any:
+    for part in key.split("."):
+        if obj is None:
+            return None
+        obj = getattr(obj, part)
+    return obj
+
+
+def _fmt(value: Any) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+    if dataclasses.is_dataclass(value):
+        return "(group)"
+    return f"`{value}`" if isinstance(value, str) and value else (str(value) or "''")
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def render() -> str:
+    """The whole document."""
+    lines = [
+        "# Parameter reference",
+        "",
+        "Generated from the parameter schema by `python -m damper_hil.param_reference`;",
+        "do not edit by hand (a test checks it is up to date). Each group is a dataclass",
+        "whose fields declare their type, unit, rule and description",
+        "(`damper_emulator.params.rule`); the loaders, the checks, the ROS 2 parameter",
+        "descriptors and this page all come from it. *Default* is the value in the",
+        "project's params file (or the group's own default). *Run time*: a running node",
+        "accepts a change with `ros2 param set` (the others need a restart). Units are SI;",
+        "`-` is dimensionless.",
+        "",
+    ]
+    for group, path, who, cls, defaults in _groups():
+        specs: list[FieldSpec] = field_specs(cls, group)
+        obj = defaults()
+        lines += [f"## `{group or 'can_bridge'}`", "",
+                  f"In `{path}`; read by {who}. "
+                  f"{_cell((cls.__doc__ or '').strip().splitlines()[0])}", "",
+                  "| parameter | type | unit | rule | default | run time | description |",
+                  "|---|---|---|---|---|---|---|"]
+        for s in specs:
+            key = s.key[len(group) + 1:] if group else s.key
+            lines.append(f"| `{s.key}` | {s.type} | {_cell(s.unit) or ' '} | "
+                         f"{_cell(s.constraint)} | {_cell(_fmt(_value(obj, key)))} | "
+                         f"{'yes' if s.runtime else 'no'} | {_cell(s.description)} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="write docs/parameters.md from the schema")
+    ap.add_argument("--check", action="store_true",
+                    help="exit 1 when docs/parameters.md is not what the schema gives")
+    args = ap.parse_args(argv)
+    text = render()
+    if args.check:
+        current = OUTPUT.read_text(encoding="utf-8") if OUTPUT.exists() else ""
+        if current != text:
+            print(f"{OUTPUT} is out of date: run python -m damper_hil.param_reference",
+                  file=sys.stderr)
+            return 1
+        return 0
+    OUTPUT.write_text(text, encoding="utf-8")
+    print(f"wrote {OUTPUT}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,165 @@
+"""The layers depend downward only (docs/interfaces.md §1, README "Source layout").
+
+The import graph of the installed packages, read from their source (every ``import``,
+also inside functions; not those under ``if TYPE_CHECKING:``):
+
+* packages: ``damper_emulator`` (the damper) ← ``ride_sim`` (the quarter car) ←
+  ``can_bridge`` (the CAN side) ← ``damper_hil`` (the application: CLI, demo, reports);
+  nothing imports a package above its own;
+* no module imports itself back through others (no cycle; a submodule's dependence on its
+  own package ``__init__`` does not count: Python imports it first anyway);
+* the physics and data cores import no ROS, no plotting and no application code, directly
+  or through other modules.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+#: bottom to top; a package may import only those before it
+PACKAGES = ("damper_emulator", "ride_sim", "can_bridge", "damper_hil")
+#: the cores: modules (and sub-packages) that must stay free of ROS, plots and the app
+CORES = ("damper_emulator.errors", "damper_emulator.params", "damper_emulator.model",
+         "damper_emulator.realtime", "damper_emulator.bag", "damper_emulator.force_message",
+         "damper_emulator.dyno.measured", "damper_emulator.dyno.protocols",
+         "damper_emulator.identify.quasi_static", "damper_emulator.identify.valves",
+         "damper_emulator.identify.fitting", "damper_emulator.diagnose.joint",
+         "damper_emulator.diagnose.candidates", "damper_emulator.diagnose.selection",
+         "ride_sim.quarter_car", "ride_sim.road", "ride_sim.iso2631", "ride_sim.params",
+         "ride_sim.frequency_domain", "ride_sim.metrics", "ride_sim.dampers",
+         "can_bridge.codec", "can_bridge.bus", "can_bridge.crc", "can_bridge.dbc")
+#: what a core may not reach
+FORBIDDEN = ("rclpy", "matplotlib", "damper_hil", "damper_emulator.ros", "ride_sim.node",
+             "can_bridge.node", "launch")
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        root = Path(importlib.import_module(pkg).__file__).parent
+        for f in root.rglob("*.py"):
+            parts = f.relative_to(root.parent).with_suffix("").parts
+            name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            out[name] = f
+    return out
+
+
+def _type_checking_lines(tree: ast.AST) -> set[int]:
+    lines: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            for child in node.body:
+                lines.update(range(child.lineno, (child.end_lineno or child.lineno) + 1))
+    return lines
+
+
+def _graph() -> tuple[dict[str, set[str]], dict[str, set[str]]]:
+    """``(internal, external)``: per module, the project modules and the top-level
+    third-party modules it imports."""
+    mods = _modules()
+    internal: dict[str, set[str]] = defaultdict(set)
+    external: dict[str, set[str]] = defaultdict(set)
+    for name, path in mods.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        skip = _type_checking_lines(tree)
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in ast.walk(tree):
+            if not isinstance(node, (ast.Import, ast.ImportFrom)) or node.lineno in skip:
+                continue
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                if node.level:
+                    base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                    mod = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    mod = node.module or ""
+                # ``from P import x``: the submodule P.x if there is one, else P
+                targets = [f"{mod}.{a.name}" if f"{mod}.{a.name}" in mods else mod
+                           for a in node.names]
+            for t in targets:
+                if t.split(".")[0] not in PACKAGES:
+                    external[name].add(t)
+                    continue
+                while t not in mods and "." in t:
+                    t = t.rpartition(".")[0]
+                # a module's own ancestors are imported first by Python in any case
+                if t != name and not name.startswith(t + "."):
+                    internal[name].add(t)
+    return internal, external
+
+
+MODULES = _modules()
+GRAPH, EXTERNAL = _graph()
+
+
+def test_packages_depend_downward_only():
+    bad = sorted(f"{a} imports {b}" for a, deps in GRAPH.items() for b in deps
+                 if PACKAGES.index(b.split(".")[0]) > PACKAGES.index(a.split(".")[0]))
+    assert not bad, "\n".join(bad)
+
+
+def test_no_module_imports_itself_back():
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[list[str]] = []
+
+    def visit(v: str) -> None:         # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in GRAPH.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                cycles.append(sorted(comp))
+
+    for v in sorted(set(GRAPH) | {w for d in GRAPH.values() for w in d}):
+        if v not in index:
+            visit(v)
+    assert not cycles, cycles
+
+
+def _reach(start: str) -> set[str]:
+    seen, todo = set(), [m for m in MODULES if m == start or m.startswith(start + ".")]
+    while todo:
+        m = todo.pop()
+        if m in seen:
+            continue
+        seen.add(m)
+        todo.extend(GRAPH.get(m, ()))
+    return seen
+
+
+@pytest.mark.parametrize("core", CORES)
+def test_cores_reach_no_ros_plots_or_application(core):
+    reached = _reach(core)
+    assert reached, f"{core}: no such module"
+    bad = sorted({f"{m} → {x}" for m in reached for x in (*GRAPH.get(m, ()), *EXTERNAL.get(m, ()))
+                  if any(x == f or x.startswith(f + ".") for f in FORBIDDEN)})
+    assert not bad, "\n".join(bad)
+
+
+def test_the_graph_is_real():
+    """The walk sees what we know is there (guards against a walk that finds nothing)."""
+    assert "damper_emulator.model.compressible" in GRAPH["damper_emulator.replay"]
+    assert "rclpy" in EXTERNAL["damper_emulator.ros.emulator"]
+    assert any(d.startswith("ride_sim") for d in GRAPH["damper_hil.hil_demo"])

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -38,12 +39,13 @@ def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
     )
     from ride_sim.skyhook import SkyhookParams, load_skyhook
 
-    ride = load_ride_config
+    # each params file read once for all its groups
+    model, ride = functools.cache(load_config), functools.cache(load_ride_config)
     return [
         ("damper", "config/sport.yaml", "every node and subcommand that runs the model",
-         DamperParams, lambda: load_config().damper),
+         DamperParams, lambda: model().damper),
         ("numerics", "config/sport.yaml", "the model's numerical settings", NumericsParams,
-         lambda: load_config().numerics),
+         lambda: model().numerics),
         ("emulator", "config/emulator.yaml", "the `damper_emulator` node, `replay`",
          EmulatorParams, EmulatorParams),
         ("", "config/bridge.yaml", "the `can_bridge` node (parameters without a group)",

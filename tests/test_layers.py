@@ -58,10 +58,13 @@ def _type_checking_lines(tree: ast.AST) -> set[int]:
     return lines
 
 
+MODULES = _modules()
+
+
 def _graph() -> tuple[dict[str, set[str]], dict[str, set[str]]]:
     """``(internal, external)``: per module, the project modules and the top-level
     third-party modules it imports."""
-    mods = _modules()
+    mods = MODULES
     internal: dict[str, set[str]] = defaultdict(set)
     external: dict[str, set[str]] = defaultdict(set)
     for name, path in mods.items():
@@ -94,7 +97,7 @@ def _graph() -> tuple[dict[str, set[str]], dict[str, set[str]]]:
     return internal, external
 
 
-MODULES = _modules()
+
 GRAPH, EXTERNAL = _graph()
 
 

@@ -344,10 +344,10 @@ def active_samples(records: Sequence[Record], without: DamperModel, with_: Dampe
 
 
 def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
-               masks: Sequence[np.ndarray]) -> dict[str, float] | None:
+               masks: Sequence[np.ndarray] | None = None) -> dict[str, float] | None:
     """The paper's parameters identified again (``identify``, the staged fits) on
-    ``records`` without the samples ``masks`` (where an effect acts); ``None`` when that
-    identification fails."""
+    ``records`` with ``cfg`` (its data sheet values), without the samples ``masks`` (where
+    an effect acts; ``None``: every sample); ``None`` when that identification fails."""
     from damper_emulator.identify.pipeline import identify
     from damper_emulator.identify.quasi_static import IdentificationError
 
@@ -355,7 +355,8 @@ def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
     chirp = [r.data for r in records[n_quasi_static:]]
     if not qs or not chirp:
         return None
-    exclude = (np.concatenate(masks[:n_quasi_static]), np.concatenate(masks[n_quasi_static:]))
+    exclude = (None if masks is None else
+               (np.concatenate(masks[:n_quasi_static]), np.concatenate(masks[n_quasi_static:])))
     try:
         ident = identify(qs, chirp, cfg, exclude=exclude)
     except (IdentificationError, ParameterError, ValueError):
@@ -413,17 +414,16 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
         pre_values, pre_cost, n = prefit(base_values, start_values)
         evaluations += n
         if not accepted:
-            without = model_of(cfg, base_values, [])
-            with_ = model_of(cfg, base_values, [(candidate, pre_values)])
             if candidate.identify_as is not None:
-                masks = [np.zeros(r.data.force.size, dtype=bool) for r in records]
-            elif candidate.may_act is not None:
-                masks = [candidate.may_act(r.data) for r in records]
+                new_base = reidentify(candidate.identify_as(cfg), records, n_quasi_static)
             else:
-                masks = active_samples(records, without, with_)
-            new_base = (reidentify(candidate.identify_as(cfg) if candidate.identify_as
-                                   else cfg, records, n_quasi_static, masks)
-                        if masks is not None else None)
+                masks = ([candidate.may_act(r.data) for r in records]
+                         if candidate.may_act is not None
+                         else active_samples(records, model_of(cfg, base_values, []),
+                                             model_of(cfg, base_values,
+                                                      [(candidate, pre_values)])))
+                new_base = (reidentify(cfg, records, n_quasi_static, masks)
+                            if masks is not None else None)
             if new_base is not None:
                 alt_values, alt_cost, n = prefit(new_base, [*start_values, pre_values])
                 evaluations += n

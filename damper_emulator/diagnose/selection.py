@@ -124,42 +124,48 @@ def noise_level(r: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
 
 
+def _mean_square(residuals: Sequence[np.ndarray]) -> float:
+    """Mean square over all samples of ``residuals`` [N²]."""
+    n = sum(r.size for r in residuals)
+    return sum(float(np.dot(r, r)) for r in residuals) / max(n, 1)
+
+
+def _noise_square(residuals: Sequence[np.ndarray]) -> float:
+    """Square of the pooled noise level of ``residuals`` (each file's :func:`noise_level`,
+    weighted by its samples) [N²]."""
+    n = sum(r.size for r in residuals)
+    return sum(noise_level(r) ** 2 * r.size for r in residuals) / max(n, 1)
+
+
+def pooled_rms(residuals: Sequence[np.ndarray]) -> float:
+    return math.sqrt(_mean_square(residuals))
+
+
 def structure_ratio(residuals: Sequence[np.ndarray]) -> float:
     """Pooled r.m.s. over the pooled noise level of ``residuals`` (1 for white noise)."""
-    sse = sum(float(np.dot(r, r)) for r in residuals)
-    n = sum(r.size for r in residuals)
-    noise = math.sqrt(sum(noise_level(r) ** 2 * r.size for r in residuals) / max(n, 1))
-    return math.sqrt(sse / max(n, 1)) / noise if noise > 0 else math.inf
+    noise = math.sqrt(_noise_square(residuals))
+    return pooled_rms(residuals) / noise if noise > 0 else math.inf
 
 
 def explained_fraction(before: Sequence[np.ndarray], after: Sequence[np.ndarray]) -> float:
     """Fraction of the structured power (mean square less the noise level's square, pooled)
-    of residuals ``before`` that is gone ``after``; noise levels from ``after``."""
-    n = sum(r.size for r in before)
-    noise2 = sum(noise_level(r) ** 2 * r.size for r in after) / max(n, 1)
-    p0 = sum(float(np.dot(r, r)) for r in before) / max(n, 1) - noise2
-    p1 = sum(float(np.dot(r, r)) for r in after) / max(n, 1) - noise2
+    of residuals ``before`` that is gone ``after`` (the same files); noise levels from
+    ``after``."""
+    noise2 = _noise_square(after)
+    p0 = _mean_square(before) - noise2
+    p1 = _mean_square(after) - noise2
     if p0 <= 0.0:
         return 0.0
     return 1.0 - max(p1, 0.0) / p0
-
 
 
 def floor_level(held: Sequence[Record], residuals: Sequence[np.ndarray]) -> tuple[float, float]:
     """``(floor, noise)`` [N] of the held-out files for the model with ``residuals``:
     ``max(FLOOR_FORCE_FRACTION × pooled force r.m.s., FLOOR_NOISE_FACTOR × pooled noise
     level)`` and that noise level."""
-    n = sum(r.size for r in residuals)
-    noise = math.sqrt(sum(noise_level(r) ** 2 * r.size for r in residuals) / max(n, 1))
-    f2 = sum(float(np.dot(rec.data.force[rec.start:], rec.data.force[rec.start:]))
-             for rec in held)
-    force_rms = math.sqrt(f2 / max(n, 1))
+    noise = math.sqrt(_noise_square(residuals))
+    force_rms = pooled_rms([rec.data.force[rec.start:] for rec in held])
     return max(FLOOR_FORCE_FRACTION * force_rms, FLOOR_NOISE_FACTOR * noise), noise
-
-
-def pooled_rms(residuals: Sequence[np.ndarray]) -> float:
-    n = sum(r.size for r in residuals)
-    return math.sqrt(sum(float(np.dot(r, r)) for r in residuals) / max(n, 1))
 
 
 @dataclass(frozen=True)

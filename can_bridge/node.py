@@ -25,7 +25,12 @@ from std_msgs.msg import Float64
 from can_bridge.bus import BusConfig, CanBusError, ResilientBus, open_bus
 from can_bridge.core import BridgeCore
 from can_bridge.dbc import load_database
-from can_bridge.settings import NODE_NAME, bridge_params_from_mapping, default_bridge_mapping
+from can_bridge.settings import (
+    NODE_NAME,
+    BridgeParams,
+    bridge_params_from_mapping,
+    default_bridge_mapping,
+)
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros import topics
@@ -54,12 +59,7 @@ class BridgeNode(Node):
     def __init__(self):
         super().__init__(NODE_NAME)
         defaults = default_bridge_mapping()
-        overrides = getattr(self, "_parameter_overrides", {})
-        unknown = sorted(n for n in overrides if n not in defaults and "." not in n
-                         and not self.has_parameter(n))
-        if unknown:
-            raise ParameterError(f"node {NODE_NAME}: unknown parameter {unknown[0]}")
-        values = declare_parameters(self, defaults, ())
+        values = declare_parameters(self, defaults, {"": BridgeParams})
         p = self.params = bridge_params_from_mapping(values, f"node {NODE_NAME} parameters")
         #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal scheduling)
         self.dds_priority = p.dds_priority

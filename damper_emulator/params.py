@@ -407,7 +407,8 @@ class FieldSpec:
 _UNIT = re.compile(r"(?:^|\s)\[([^\[\]]*)\]")
 
 
-def _spec(f: dataclasses.Field, key: str) -> FieldSpec:
+def field_spec(f: dataclasses.Field, key: str) -> FieldSpec:
+    """The :class:`FieldSpec` of one :func:`rule` field, named ``key``."""
     kind_rule, doc = f.metadata["rule"], f.metadata["doc"]
     kind = kind_rule[0] if isinstance(kind_rule, tuple) else kind_rule
     unit_match = _UNIT.search(doc)
@@ -462,7 +463,7 @@ def field_specs(cls: type, prefix: str) -> list[FieldSpec]:
         if nested is not None:
             out.extend(field_specs(nested(f), key))
         else:
-            out.append(_spec(f, key))
+            out.append(field_spec(f, key))
     return out
 
 

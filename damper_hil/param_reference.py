@@ -118,7 +118,31 @@ def render() -> str:
                          f"{_cell(s.constraint)} | {_cell(_fmt(_value(obj, key)))} | "
                          f"{'yes' if s.runtime else 'no'} | {_cell(s.description)} |")
         lines.append("")
+    lines += _protocol_tables()
     return "\n".join(lines)
+
+
+def _protocol_tables() -> list[str]:
+    """The settings of ``damper-hil dyno``'s protocols, one table per protocol, from their
+    schemas (:data:`damper_emulator.dyno.protocols.PROTOCOLS`), with the option that sets
+    each."""
+    from damper_emulator.dyno.protocols import PROTOCOLS
+    from damper_hil.cli.dyno import option_dest
+
+    lines = ["## `damper-hil dyno` protocols", "",
+             "Command-line options, not ROS parameters; `diagnose`'s simulated sessions use "
+             "the same defaults.", ""]
+    for name, cls in PROTOCOLS.items():
+        lines += [f"### `--protocol {name}`", "",
+                  _cell(" ".join((cls.__doc__ or "").split())), "",
+                  "| option | setting | type | unit | rule | default | description |",
+                  "|---|---|---|---|---|---|---|"]
+        for s in field_specs(cls, ""):
+            lines.append(f"| `--{option_dest(s.key).replace('_', '-')}` | `{s.key}` | "
+                         f"{s.type} | {_cell(s.unit) or ' '} | {_cell(s.constraint)} | "
+                         f"{_cell(_fmt(s.default))} | {_cell(s.description)} |")
+        lines.append("")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

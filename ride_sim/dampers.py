@@ -42,6 +42,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel, DamperStepper, Fault
 from damper_emulator.model.incompressible import incompressible_force
@@ -318,7 +319,7 @@ class CompressiblePlugin:
 
 
 def make_damper(kind: str, model: DamperModel | None = None, *, car=None,
-                rate_ns_m: float | None = None, points: int = 14,
+                rate_ns_m: float | None = None, points: int = FourteenSpeed.points,
                 valve_command: float = 1.0) -> DamperPlugin:
     """A damper plug-in by kind.
 

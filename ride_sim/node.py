@@ -48,7 +48,14 @@ from damper_emulator.ros.common import (
 )
 from damper_emulator.ros.emulator import load_node_model
 from ride_sim import quarter_car as qc
-from ride_sim.params import DEFAULT_QUARTER_CAR_FILE, ride_config_from_mapping
+from ride_sim.params import (
+    DEFAULT_QUARTER_CAR_FILE,
+    QuarterCarParams,
+    RideRunParams,
+    RoadParams,
+    SimulationParams,
+    ride_config_from_mapping,
+)
 from ride_sim.session import RideSession
 
 NODE_NAME = "ride_sim"
@@ -57,7 +64,10 @@ NODE_NAME = "ride_sim"
 NON_FINITE_FORCE = 1 << 16
 #: How long the ride waits at the end for its subscribers to acknowledge the last samples [s].
 ACK_TIMEOUT_S = 2.0
-GROUPS = ("quarter_car", "simulation", "road", "ride")
+#: the ride's parameter groups (group → dataclass)
+RIDE_SCHEMA: dict[str, type] = {"quarter_car": QuarterCarParams, "simulation": SimulationParams,
+                                "road": RoadParams, "ride": RideRunParams}
+GROUPS = tuple(RIDE_SCHEMA)
 
 
 def _ride_defaults() -> dict:
@@ -73,7 +83,7 @@ class RideNode(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        values, model = load_node_model(self, _ride_defaults())
+        values, model = load_node_model(self, _ride_defaults(), RIDE_SCHEMA)
         cfg = ride_config_from_mapping({g: values[g] for g in GROUPS},
                                        f"node {NODE_NAME} parameters")
         self.cfg = cfg

@@ -24,9 +24,11 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.params import build_group, node_parameters, read_yaml
 from damper_emulator.params import check_value as _check
 from damper_emulator.params import rule as _rule
+from ride_sim.road import AMPLITUDE_METHODS
 
 #: Default parameter file: the paper's front quarter car.
 DEFAULT_QUARTER_CAR_FILE = Path(__file__).resolve().parent.parent / "config" / "quarter_car.yaml"
@@ -35,8 +37,6 @@ DEFAULT_QUARTER_CAR_FILE = Path(__file__).resolve().parent.parent / "config" / "
 DAMPER_KINDS = ("linear", "14speed", "incompressible", "compressible", "nonlinear")
 #: How the synthesised band follows the speed in a speed sweep (:class:`RoadParams`).
 BAND_SCALINGS = ("spatial", "temporal")
-#: Random-road synthesis methods (:func:`ride_sim.road.random_road`).
-AMPLITUDE_METHODS = ("deterministic", "random")
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,8 @@ class SimulationParams:
                           "over each step", 1e-3)
     damper: str = _rule(("choices", DAMPER_KINDS), "damper representation", "compressible")
     fourteen_speed_points: int = _rule(("int_range", 2, 1000),
-                                       "points of the N-speed test table", 14)
+                                       "points of the N-speed test table",
+                                       FourteenSpeed.points)
 
 
 @dataclass(frozen=True)

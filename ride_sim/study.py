@@ -64,6 +64,7 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.errors import UserError
 from ride_sim import road as rd
 from ride_sim.dampers import TablePlugin, make_damper
@@ -159,7 +160,7 @@ def default_model():
 
 
 @functools.lru_cache(maxsize=16)
-def fourteen_speed_table(model, points: int = 14):
+def fourteen_speed_table(model, points: int = FourteenSpeed.points):
     """The N-speed table of ``model`` (a ``DamperModel``), built once per process and
     model (the N-speed test is simulated on the hysteretic model)."""
     from damper_emulator.model.representations import fourteen_speed_damper
@@ -167,8 +168,8 @@ def fourteen_speed_table(model, points: int = 14):
     return fourteen_speed_damper(model, points=points)
 
 
-def make_representation(kind: str, car: QuarterCarParams, model=None, points: int = 14,
-                        table=None):
+def make_representation(kind: str, car: QuarterCarParams, model=None,
+                        points: int = FourteenSpeed.points, table=None):
     """A damper plug-in for one of :data:`ALL_REPRESENTATIONS` (``table``: a prebuilt
     14-speed :class:`~damper_emulator.model.representations.TableDamper`)."""
     model = default_model() if model is None else model
@@ -193,7 +194,7 @@ class StudySettings:
     car: QuarterCarParams
     road: RoadParams
     dt_s: float = 1e-3
-    points: int = 14
+    points: int = FourteenSpeed.points
     source: str = "<memory>"
 
     @classmethod

@@ -439,6 +439,66 @@ class TestDynoBridge:
         checked = tap.checked(FORCE, t0, t1)
         assert checked.total.dropped == 0 and checked.total.accepted == len(forces)
 
+    def test_every_parameter_is_described_over_the_services(self, dyno_rig):
+        """``ros2 param describe`` over the real services: every parameter of both nodes
+        has its real type, a description with its unit, its rule and its limits, and only
+        the schema's run-time parameters are writable."""
+        import math as m
+
+        from rcl_interfaces.msg import ParameterType as T
+        from rcl_interfaces.srv import DescribeParameters, ListParameters
+
+        probe = dyno_rig.probe
+
+        def call(srv_type, name, request):
+            client = probe.node.create_client(srv_type, name)
+            assert probe.spin_until(client.service_is_ready, 30), name
+            fut = client.call_async(request)
+            assert probe.spin_until(fut.done, 10), name
+            return fut.result()
+
+        described = {}
+        for node in ("damper_emulator", "can_bridge"):
+            names = call(ListParameters, f"/{node}/list_parameters",
+                         ListParameters.Request()).result.names
+            names = [n for n in names                                 # not rclpy's own
+                     if n not in ("use_sim_time", "start_type_description_service")]
+            assert len(names) > (50 if node == "damper_emulator" else 15), names
+            for d in call(DescribeParameters, f"/{node}/describe_parameters",
+                          DescribeParameters.Request(names=names)).descriptors:
+                described[(node, d.name)] = d
+        for (node, name), d in described.items():
+            assert d.description and not d.dynamic_typing, (node, name)
+            assert d.type in (T.PARAMETER_DOUBLE, T.PARAMETER_INTEGER, T.PARAMETER_BOOL,
+                              T.PARAMETER_STRING, T.PARAMETER_DOUBLE_ARRAY), (node, name)
+            if d.type == T.PARAMETER_DOUBLE and name != "autostart":
+                # a physical quantity: its unit in brackets, [-] when dimensionless
+                assert "[" in d.description and d.additional_constraints, (node, name, d)
+            if d.type == T.PARAMETER_INTEGER:
+                assert len(d.integer_range) == 1, (node, name)
+        emu = {name: d for (node, name), d in described.items() if node == "damper_emulator"}
+        bridge = {name: d for (node, name), d in described.items() if node == "can_bridge"}
+        # limits a reader knows without the code: 1 <= γ <= 5/3 (isothermal .. monatomic),
+        # SCHED_FIFO priorities 1..99, a valve command in [0, 1], a friction force >= 0
+        gamma = emu["damper.gas_gamma"].floating_point_range[0]
+        assert (gamma.from_value, gamma.to_value) == (1.0, 5.0 / 3.0)
+        prio = emu["emulator.priority"].integer_range[0]
+        assert (prio.from_value, prio.to_value) == (1, 99)
+        cmd = bridge["fail_safe_command"].floating_point_range[0]
+        assert (cmd.from_value, cmd.to_value) == (0.0, 1.0)
+        friction = emu["damper.friction_force_n"]
+        assert friction.floating_point_range[0].from_value == 0.0
+        assert m.isinf(friction.floating_point_range[0].to_value)
+        assert "[N]" in friction.description
+        assert emu["emulator.fault_mode"].type == T.PARAMETER_STRING
+        assert "passive" in emu["emulator.fault_mode"].additional_constraints
+        # writable at run time: some of the emulator's own settings, nothing else
+        writable = sorted(n for n, d in emu.items() if not d.read_only)
+        assert "emulator.fault_mode" in writable and "emulator.input_timeout_s" in writable
+        assert not [n for n in writable if not n.startswith("emulator.")], writable
+        assert emu["emulator.rate_hz"].read_only and emu["damper.gas_gamma"].read_only
+        assert all(d.read_only for d in bridge.values())
+
     def test_bad_frames_are_dropped_and_counted_in_diagnostics(self, dyno_rig, db):
         tap, enc, probe, diags = dyno_rig.tap, dyno_rig.enc, dyno_rig.probe, dyno_rig.diags
         n = 3

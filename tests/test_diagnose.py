@@ -36,6 +36,7 @@ from damper_emulator.diagnose.truth import (
     simulate_session,
     write_session,
 )
+from damper_emulator.dyno.protocols import Chirp, QuasiStatic
 from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import EXTENSION_FAMILIES, load_config, save_config
@@ -43,7 +44,7 @@ from damper_emulator.validation import validate_file
 from damper_hil.cli import main
 
 #: a shorter chirp and one quasi-static cycle keep the suite quick; the rest as the paper
-PROTOCOL = Protocol(chirp_duration_s=12.0, qs_cycles=1)
+PROTOCOL = Protocol(chirp=Chirp(duration_s=12.0), quasi_static=QuasiStatic(cycles=1))
 NOISE_N = 4.0
 #: for each single effect, two candidates that take part of it when it is absent
 CONFUSABLE = {

@@ -273,7 +273,11 @@ def test_bad_parameters_exit_with_one_line(tmp_path):
                           (["--params-file", str(missing)], f"{missing}: cannot read"),
                           (["-p", "emulator.fault_mode:=brake"], "emulator.fault_mode"),
                           (["-p", "emulator.no_such_thing:=1.0"], "emulator.no_such_thing"),
-                          (["-p", "damper.gas_gamma:=7.0"], "damper.gas_gamma")):
+                          (["-p", "damper.gas_gamma:=7.0"], "damper.gas_gamma"),
+                          (["-p", "emulator.rate_hz:=fast"], "emulator.rate_hz must be a "
+                                                             "double"),
+                          (["-p", "emulator.priority:=2.5"], "emulator.priority must be an "
+                                                             "integer")):
         r = subprocess.run([sys.executable, "-m", "damper_hil.cli", "emulate",
                             "--ros-args", *params], env=env, capture_output=True, text=True,
                            timeout=120)
@@ -315,6 +319,17 @@ def test_node_damper_gets_a_bypass_only_from_its_own_file(params_file, has_bypas
     assert (model.cfg.damper.adaptive is not None) == has_bypass
     soft, firm = (quasi_steady_force(model, 0.5, c) for c in (0.0, 1.0))
     assert (soft < firm - 1.0) == has_bypass
+
+
+def test_node_takes_an_integer_written_for_a_real_parameter(tmp_path):
+    """YAML reads ``friction_force_n: 30`` as an integer; the typed (double) parameter
+    takes it as 30.0, as every other reader of the file does."""
+    path = tmp_path / "int.yaml"
+    path.write_text("damper_emulator:\n  ros__parameters:\n    damper:\n"
+                    "      friction_force_n: 30\n      gas_gamma: 1\n")
+    d = _node_model(path).cfg.damper
+    assert d.friction_force_n == 30.0 and isinstance(d.friction_force_n, float)
+    assert d.gas_gamma == 1.0
 
 
 def test_node_runs_the_extension_a_diagnose_params_file_names(tmp_path):

@@ -40,36 +40,27 @@ from damper_emulator.params import (
 @dataclass(frozen=True)
 class Protocol:
     """The dyno protocol of a diagnosis: identification files (fit) and validation sines
-    (held out).  Defaults: the paper's (docs/model.md §3) as the virtual dyno runs it
-    (``damper-hil dyno`` defaults: quasi-static 4 mm/s over ±75 mm twice, 150 s; chirp
-    0.5–16 Hz in 60 s at 0.05–1.5 m/s; the three validation sines)."""
+    (held out).  Defaults: the paper's (docs/model.md §3) as the virtual dyno runs them
+    (:mod:`damper_emulator.dyno.protocols`: quasi-static 4 mm/s over ±75 mm twice, 150 s;
+    chirp 0.5–16 Hz in 60 s at 0.05–1.5 m/s; the three validation sines)."""
 
-    qs_velocity_m_s: float = 0.004
-    qs_amplitude_m: float = 0.075
-    qs_cycles: int = 2
-    qs_rate_hz: float = 50.0
-    chirp_f_start_hz: float = 0.5
-    chirp_f_end_hz: float = 16.0
-    chirp_duration_s: float = 60.0
-    chirp_v_start_m_s: float = 0.05
-    chirp_v_end_m_s: float = 1.5
-    rate_hz: float = 1000.0
+    quasi_static: protocols.QuasiStatic = protocols.QuasiStatic()
+    chirp: protocols.Chirp = protocols.Chirp()
     #: validation sines: (frequency [Hz], amplitude [m])
-    sines: tuple[tuple[float, float], ...] = ((1.0, 0.05), (3.0, 0.05), (12.0, 0.005))
-    sine_cycles: int = 3
-    #: lead-in cycles simulated before each sine's record starts
-    sine_settle_cycles: int = 1
+    sines: tuple[tuple[float, float], ...] = protocols.PAPER_SINES
+    #: recorded cycles, sample rate and lead-in of each validation sine
+    sine: protocols.Sine = protocols.Sine()
 
     def histories(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """``{file name: (t, x, v)}`` of every test, identification files first."""
+        q, c, s = self.quasi_static, self.chirp, self.sine
         out = {"quasi_static.csv": protocols.quasi_static(
-                   self.qs_velocity_m_s, self.qs_amplitude_m, self.qs_cycles, self.qs_rate_hz),
-               "chirp.csv": protocols.chirp(
-                   self.chirp_f_start_hz, self.chirp_f_end_hz, self.chirp_duration_s,
-                   self.chirp_v_start_m_s, self.chirp_v_end_m_s, self.rate_hz)}
+                   q.velocity_m_s, q.amplitude_m, q.cycles, q.rate_hz),
+               "chirp.csv": protocols.chirp(c.f_start_hz, c.f_end_hz, c.duration_s,
+                                            c.v_start_m_s, c.v_end_m_s, c.rate_hz)}
         for f, a in self.sines:
-            out[sine_file_name(f)] = protocols.sine(f, a, self.sine_cycles, self.rate_hz,
-                                               start_cycles=self.sine_settle_cycles)
+            out[sine_file_name(f)] = protocols.sine(f, a, s.cycles, s.rate_hz,
+                                                    start_cycles=s.settle_cycles)
         return out
 
 

@@ -2,15 +2,80 @@
 
 Each protocol returns ``(time [s], stroke [m, extension +], velocity [m/s])`` sampled at
 ``rate_hz``; the velocity is the exact derivative of the stroke, not a finite difference.
+
+The settings of each protocol and their defaults (the paper's tests) are one schema per
+protocol, :class:`QuasiStatic`, :class:`Chirp`, :class:`Sine` and :class:`FourteenSpeed`
+(:data:`PROTOCOLS`); the functions' defaults, ``damper-hil dyno``'s options and the
+diagnosis's protocol all come from them.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from damper_emulator.errors import UserError
+from damper_emulator.params import rule
+
+#: the largest count of cycles or test speeds a protocol takes
+MAX_COUNT = 100_000
+
+
+@dataclass(frozen=True)
+class QuasiStatic:
+    """The quasi-static test (docs/model.md §3): a constant-velocity triangle."""
+
+    velocity_m_s: float = rule("positive", "constant stroke velocity [m/s]", 0.004)
+    amplitude_m: float = rule("positive", "displacement amplitude [m]", 0.075)
+    cycles: int = rule(("int_range", 1, MAX_COUNT), "recorded cycles", 2)
+    rate_hz: float = rule("positive", "sample rate [Hz]", 50.0)
+
+
+@dataclass(frozen=True)
+class Chirp:
+    """The identification chirp (docs/model.md §3): an exponential sweep whose velocity
+    amplitude grows exponentially."""
+
+    f_start_hz: float = rule("positive", "start frequency [Hz]", 0.5)
+    f_end_hz: float = rule("positive", "end frequency [Hz]", 16.0)
+    duration_s: float = rule("positive", "sweep duration [s]", 60.0)
+    v_start_m_s: float = rule("positive", "velocity amplitude at the start [m/s]", 0.05)
+    v_end_m_s: float = rule("positive", "velocity amplitude at the end [m/s]", 1.5)
+    rate_hz: float = rule("positive", "sample rate [Hz]", 1000.0)
+
+
+@dataclass(frozen=True)
+class Sine:
+    """A sine test ``x = A sin(2π f t)``; a lead-in is simulated and not recorded."""
+
+    frequency_hz: float = rule("positive", "frequency [Hz]", 1.0)
+    amplitude_m: float = rule("positive", "displacement amplitude [m]", 0.05)
+    cycles: int = rule(("int_range", 1, MAX_COUNT), "recorded cycles", 3)
+    rate_hz: float = rule("positive", "sample rate [Hz]", 1000.0)
+    settle_cycles: int = rule(("int_range", 0, MAX_COUNT),
+                              "lead-in cycles simulated but not recorded", 1)
+
+
+@dataclass(frozen=True)
+class FourteenSpeed:
+    """The N-speed test (docs/model.md §4): sines of one amplitude whose peak velocities
+    are spaced geometrically."""
+
+    points: int = rule(("int_range", 2, MAX_COUNT), "number of test speeds", 14)
+    amplitude_m: float = rule("positive", "displacement amplitude [m]", 0.025)
+    v_min_m_s: float = rule("positive", "lowest peak velocity [m/s]", 0.025)
+    v_max_m_s: float = rule("positive", "highest peak velocity [m/s]", 1.5)
+    cycles: int = rule(("int_range", 1, MAX_COUNT), "recorded cycles per speed", 2)
+    rate_hz: float = rule("positive", "sample rate [Hz]", 1000.0)
+
+
+#: the protocols of ``damper-hil dyno --protocol`` and their schemas
+PROTOCOLS: dict[str, type] = {"sine": Sine, "quasi-static": QuasiStatic, "chirp": Chirp,
+                              "14-speed": FourteenSpeed}
+#: the paper's validation sines (docs/model.md §3): (frequency [Hz], amplitude [m])
+PAPER_SINES: tuple[tuple[float, float], ...] = ((1.0, 0.05), (3.0, 0.05), (12.0, 0.005))
 
 #: Relative size of floating-point round-off in the analytic velocities.
 ROUND_OFF = 1e-12
@@ -22,8 +87,9 @@ def _times(duration_s: float, rate_hz: float) -> np.ndarray:
     return np.arange(int(round(duration_s * rate_hz)) + 1) / rate_hz
 
 
-def quasi_static(velocity_m_s: float = 0.004, amplitude_m: float = 0.075, cycles: int = 2,
-                 rate_hz: float = 50.0):
+def quasi_static(velocity_m_s: float = QuasiStatic.velocity_m_s,
+                 amplitude_m: float = QuasiStatic.amplitude_m,
+                 cycles: int = QuasiStatic.cycles, rate_hz: float = QuasiStatic.rate_hz):
     """Constant-velocity triangle: 0 → +A → −A → 0 per cycle at ``velocity_m_s``.
 
     The paper's quasi-static test (4 mm/s); the default lasts 150 s.
@@ -39,8 +105,9 @@ def quasi_static(velocity_m_s: float = 0.004, amplitude_m: float = 0.075, cycles
     return t, x, v
 
 
-def chirp(f_start_hz: float = 0.5, f_end_hz: float = 16.0, duration_s: float = 60.0,
-          v_start_m_s: float = 0.05, v_end_m_s: float = 1.5, rate_hz: float = 1000.0):
+def chirp(f_start_hz: float = Chirp.f_start_hz, f_end_hz: float = Chirp.f_end_hz,
+          duration_s: float = Chirp.duration_s, v_start_m_s: float = Chirp.v_start_m_s,
+          v_end_m_s: float = Chirp.v_end_m_s, rate_hz: float = Chirp.rate_hz):
     """Exponential sine sweep whose velocity amplitude grows exponentially.
 
     Frequency ``f(t) = f0 (f1/f0)^(t/T)``, phase ``φ = 2π f0 T (e^(t ln(f1/f0)/T) − 1) /
@@ -63,8 +130,8 @@ def chirp(f_start_hz: float = 0.5, f_end_hz: float = 16.0, duration_s: float = 6
     return t, x, v
 
 
-def sine(frequency_hz: float, amplitude_m: float, cycles: float = 3, rate_hz: float = 1000.0,
-         start_cycles: float = 0.0):
+def sine(frequency_hz: float, amplitude_m: float, cycles: float = Sine.cycles,
+         rate_hz: float = Sine.rate_hz, start_cycles: float = 0.0):
     """``x = A sin(2π f t)`` for ``cycles`` periods from ``t = 0``, optionally preceded by a
     lead-in of ``start_cycles`` periods (negative times, to discard).  The lead-in is rounded
     up to whole samples so that one sample falls exactly on ``t = 0``."""
@@ -82,8 +149,10 @@ def sine(frequency_hz: float, amplitude_m: float, cycles: float = 3, rate_hz: fl
     return t, amplitude_m * np.sin(w * t), v
 
 
-def fourteen_speed_frequencies(points: int = 14, amplitude_m: float = 0.025,
-                               v_min_m_s: float = 0.025, v_max_m_s: float = 1.5) -> np.ndarray:
+def fourteen_speed_frequencies(points: int = FourteenSpeed.points,
+                               amplitude_m: float = FourteenSpeed.amplitude_m,
+                               v_min_m_s: float = FourteenSpeed.v_min_m_s,
+                               v_max_m_s: float = FourteenSpeed.v_max_m_s) -> np.ndarray:
     """Frequencies [Hz] of an N-speed test: peak velocities spaced geometrically from
     ``v_min`` to ``v_max`` at the fixed displacement amplitude."""
     if points < 2 or not (0 < v_min_m_s < v_max_m_s) or amplitude_m <= 0:

@@ -22,6 +22,7 @@ import numpy as np
 
 from damper_emulator.dyno import plots, protocols
 from damper_emulator.dyno.measured import write_measured_csv
+from damper_emulator.dyno.protocols import Chirp, FourteenSpeed, QuasiStatic, Sine
 from damper_emulator.dyno.simulated import (
     FOURTEEN_SPEED_COLUMNS,
     Engine,
@@ -87,7 +88,8 @@ def _force_summary(v: np.ndarray, f: np.ndarray) -> dict[str, float]:
 
 
 def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitude: float,
-             cycles: int = 3, rate: float = 1000.0, settle_cycles: int = 1,
+             cycles: int = Sine.cycles, rate: float = Sine.rate_hz,
+             settle_cycles: int = Sine.settle_cycles,
              noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
              engine: Engine = None) -> dict[str, Any]:
     """Sine test ``x = A sin(2π f t)``: writes ``sine_<f>hz.csv`` and ``sine_<f>hz.png``.
@@ -115,8 +117,10 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
             "faults": fault_names(faults)}
 
 
-def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 0.004,
-                     amplitude: float = 0.075, cycles: int = 2, rate: float = 50.0,
+def run_quasi_static(model: DamperModel, out_dir: str | Path,
+                     velocity: float = QuasiStatic.velocity_m_s,
+                     amplitude: float = QuasiStatic.amplitude_m,
+                     cycles: int = QuasiStatic.cycles, rate: float = QuasiStatic.rate_hz,
                      noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
                      engine: Engine = None) -> dict[str, Any]:
     """Quasi-static test (constant-velocity triangle, docs/model.md §3): writes
@@ -150,9 +154,10 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path, velocity: float = 
             "friction_estimate_n": friction, "faults": fault_names(res.faults)}
 
 
-def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
-              f_end: float = 16.0, duration: float = 60.0, v_start: float = 0.05,
-              v_end: float = 1.5, rate: float = 1000.0, noise_std: float = 0.0,
+def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_start_hz,
+              f_end: float = Chirp.f_end_hz, duration: float = Chirp.duration_s,
+              v_start: float = Chirp.v_start_m_s, v_end: float = Chirp.v_end_m_s,
+              rate: float = Chirp.rate_hz, noise_std: float = 0.0,
               seed: int | None = 0, progress: Progress = None,
               engine: Engine = None) -> dict[str, Any]:
     """Exponential sine chirp with growing velocity amplitude (docs/model.md §3): writes
@@ -184,9 +189,13 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = 0.5,
             "dissipated_energy_j": _energy(x, f), "faults": fault_names(res.faults)}
 
 
-def run_fourteen_speed(model: DamperModel, out_dir: str | Path, points: int = 14,
-                       amplitude: float = 0.025, v_min: float = 0.025, v_max: float = 1.5,
-                       cycles: int = 2, rate: float = 1000.0, noise_std: float = 0.0,
+def run_fourteen_speed(model: DamperModel, out_dir: str | Path,
+                       points: int = FourteenSpeed.points,
+                       amplitude: float = FourteenSpeed.amplitude_m,
+                       v_min: float = FourteenSpeed.v_min_m_s,
+                       v_max: float = FourteenSpeed.v_max_m_s,
+                       cycles: int = FourteenSpeed.cycles, rate: float = FourteenSpeed.rate_hz,
+                       noise_std: float = 0.0,
                        seed: int | None = 0, progress: Progress = None,
                        engine: Engine = None) -> dict[str, Any]:
     """N-speed test ('14-speed', docs/model.md §4): writes ``14speed.csv`` (columns

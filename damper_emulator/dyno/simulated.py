@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.dyno import protocols
+from damper_emulator.dyno.protocols import FourteenSpeed, Sine
 from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel, Fault, simulate
 
@@ -63,8 +64,9 @@ def fault_names(faults: np.ndarray) -> list[str]:
 
 
 
-def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles: int = 3,
-                  rate: float = 1000.0, settle_cycles: int = 1, engine: Engine = None):
+def simulate_sine(model: DamperModel, frequency: float, amplitude: float,
+                  cycles: int = Sine.cycles, rate: float = Sine.rate_hz,
+                  settle_cycles: int = Sine.settle_cycles, engine: Engine = None):
     """Simulate ``x = A sin(2π f t)`` for ``settle_cycles + cycles`` periods and return the
     recorded part ``(t, x, v, F, faults)``, ``t`` starting at exactly 0.
 
@@ -87,9 +89,12 @@ def simulate_sine(model: DamperModel, frequency: float, amplitude: float, cycles
 
 
 
-def fourteen_speed_table(model: DamperModel, points: int = 14, amplitude: float = 0.025,
-                         v_min: float = 0.025, v_max: float = 1.5, cycles: int = 2,
-                         rate: float = 1000.0, noise_std: float = 0.0,
+def fourteen_speed_table(model: DamperModel, points: int = FourteenSpeed.points,
+                         amplitude: float = FourteenSpeed.amplitude_m,
+                         v_min: float = FourteenSpeed.v_min_m_s,
+                         v_max: float = FourteenSpeed.v_max_m_s,
+                         cycles: int = FourteenSpeed.cycles,
+                         rate: float = FourteenSpeed.rate_hz, noise_std: float = 0.0,
                          rng: np.random.Generator | None = None, engine: Engine = None,
                          ) -> tuple[dict[str, np.ndarray], list[str]]:
     """Simulate an N-speed test (docs/model.md §4) and return its table (columns

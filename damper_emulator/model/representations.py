@@ -23,6 +23,7 @@ from collections.abc import Mapping
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.errors import UserError
 
 
@@ -258,9 +259,12 @@ class TableDamper:
                 f"{self.velocity_m_s[0]:.4g}..{self.velocity_m_s[-1]:.4g} m/s)")
 
 
-def fourteen_speed_damper(model, points: int = 14, amplitude_m: float = 0.025,
-                          v_min: float = 0.025, v_max: float = 1.5, cycles: int = 2,
-                          rate: float = 1000.0) -> TableDamper:
+def fourteen_speed_damper(model, points: int = FourteenSpeed.points,
+                          amplitude_m: float = FourteenSpeed.amplitude_m,
+                          v_min: float = FourteenSpeed.v_min_m_s,
+                          v_max: float = FourteenSpeed.v_max_m_s,
+                          cycles: int = FourteenSpeed.cycles,
+                          rate: float = FourteenSpeed.rate_hz) -> TableDamper:
     """The '14-speed' representation of ``model`` (a ``DamperModel``), docs/model.md §4.
 
     Runs the N-speed test on the compressible model with the virtual dyno

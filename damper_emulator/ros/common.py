@@ -3,21 +3,24 @@ until SIGINT / SIGTERM with one-line errors."""
 
 from __future__ import annotations
 
+import math
 import sys
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
+from rclpy.parameter import Parameter as RclpyParameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from damper_emulator.bag import BagError
 from damper_emulator.errors import DamperHilError
-from damper_emulator.params import ParameterError
+from damper_emulator.params import FieldSpec, ParameterError, field_specs
 from damper_emulator.realtime.rt import RealtimeRequest, ThreadInheritance, apply_realtime
 
 PROG = "damper-hil"
@@ -69,34 +72,118 @@ def unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def declare_parameters(node: Node, defaults: Mapping[str, Any],
-                       groups: Iterable[str]) -> dict[str, Any]:
-    """Declare every parameter of ``defaults`` (nested mapping) on ``node``, taking the value
-    of a ``--params-file`` override where one is given, and return the nested mapping of
-    the values in effect.
+#: ROS 2 parameter type of each schema type (:attr:`damper_emulator.params.FieldSpec.type`)
+_ROS_TYPES = {"double": ParameterType.PARAMETER_DOUBLE,
+              "integer": ParameterType.PARAMETER_INTEGER,
+              "bool": ParameterType.PARAMETER_BOOL,
+              "string": ParameterType.PARAMETER_STRING,
+              "double_array": ParameterType.PARAMETER_DOUBLE_ARRAY}
 
-    Overrides in ``groups`` that match no known parameter are refused
-    (:class:`ParameterError`, one line naming the parameter); other groups belong to other
-    nodes sharing the file and are ignored.
+
+def parameter_overrides(node: Node) -> Mapping[str, Any]:
+    """The values given to ``node`` by ``--params-file`` and ``-p`` (name → rclpy
+    ``Parameter``).
+
+    rclpy keeps them in a private attribute and offers no public accessor; they are read
+    here, in this one place, for two things rclpy does not do: refuse a parameter of ours
+    that no schema declares (rclpy ignores it without a word), and take an integer written
+    for a real-valued parameter (``stiffness: 200000``) as that real."""
+    return getattr(node, "_parameter_overrides", {})
+
+
+def schema_specs(schema: Mapping[str, type]) -> dict[str, FieldSpec]:
+    """Every parameter of the groups in ``schema`` (group name → its dataclass; ``""``: the
+    parameters without a group), by dotted name."""
+    return {spec.key: spec for group, cls in schema.items()
+            for spec in field_specs(cls, group)}
+
+
+def parameter_descriptor(spec: FieldSpec) -> ParameterDescriptor:
+    """The ROS 2 descriptor of one schema entry: its real type, description (unit in
+    brackets), the rule as ``additional_constraints``, the bounds as a
+    ``floating_point_range`` / ``integer_range`` (an open bound, ``> 0``, is given as the
+    closed one and refused by the rule), and ``read_only`` unless a running node accepts a
+    change (:func:`damper_emulator.params.rule`'s ``runtime``)."""
+    descriptor = ParameterDescriptor(type=_ROS_TYPES[spec.type], description=spec.description,
+                                     additional_constraints=spec.constraint,
+                                     read_only=not spec.runtime)
+    if spec.type == "double" and (spec.lo is not None or spec.hi is not None):
+        descriptor.floating_point_range = [FloatingPointRange(
+            from_value=-math.inf if spec.lo is None else float(spec.lo),
+            to_value=math.inf if spec.hi is None else float(spec.hi), step=0.0)]
+    elif spec.type == "integer" and spec.lo is not None and spec.hi is not None:
+        descriptor.integer_range = [IntegerRange(from_value=int(spec.lo),
+                                                 to_value=int(spec.hi), step=1)]
+    return descriptor
+
+
+def _as_schema_type(value: Any, spec: FieldSpec) -> Any:
+    """``value`` as the schema's ROS type where that loses nothing: an integer for a real
+    (YAML's ``200000``), a tuple or a list of integers for a real array."""
+    def number(v: Any) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    if spec.type == "double" and number(value):
+        return float(value)
+    if spec.type == "double_array" and isinstance(value, (list, tuple)) \
+            and all(number(v) for v in value):
+        return [float(v) for v in value]
+    return plain_value(value)
+
+
+def _ros_type(value: Any) -> int:
+    """The ROS 2 parameter type rclpy gives ``value`` (``PARAMETER_NOT_SET``: none)."""
+    try:
+        return RclpyParameter.Type.from_parameter_value(value).value
+    except TypeError:
+        return ParameterType.PARAMETER_NOT_SET
+
+
+def declare_parameters(node: Node, defaults: Mapping[str, Any],
+                       schema: Mapping[str, type]) -> dict[str, Any]:
+    """Declare every parameter of ``defaults`` (nested mapping) on ``node`` with its
+    schema's descriptor (:func:`parameter_descriptor`), taking the value of a
+    ``--params-file`` / ``-p`` override where one is given, and return the nested mapping
+    of the values in effect.
+
+    ``schema`` maps each group to its dataclass (``""``: parameters without a group).
+    Overrides in those groups that match no known parameter are refused; other groups
+    belong to other nodes sharing the file and are ignored.  A value of the wrong type or
+    outside the descriptor's range is refused too.  Each refusal is a
+    :class:`ParameterError` of one line naming the parameter.
     """
+    specs = schema_specs(schema)
     flat = flatten(defaults)
-    overrides = getattr(node, "_parameter_overrides", {})
-    prefixes = tuple(f"{g}." for g in groups)
-    unknown = sorted(n for n in overrides if n.startswith(prefixes) and n not in flat)
+    overrides = parameter_overrides(node)
+    where = f"node {node.get_name()} parameters"
+    prefixes = tuple(f"{g}." for g in schema if g)
+
+    def ours(name: str) -> bool:
+        return name.startswith(prefixes) or ("" in schema and "." not in name)
+
+    unknown = sorted(n for n in overrides
+                     if ours(n) and n not in flat and not node.has_parameter(n))
     if unknown:
         raise ParameterError(f"node {node.get_name()}: unknown parameter {unknown[0]}")
     values: dict[str, Any] = {}
     for name, default in flat.items():
-        descriptor = ParameterDescriptor(dynamic_typing=True)
-        param = node.declare_parameter(name, _ros_value(default), descriptor)
+        spec = specs[name]          # a KeyError here is a default that no schema declares
+        given = overrides[name].value if name in overrides else default
+        value = _as_schema_type(given, spec)
+        # rclpy types a parameter by the value it is declared with: check it is the
+        # schema's type first
+        if _ros_type(value) != _ROS_TYPES[spec.type]:
+            article = "an" if spec.type == "integer" else "a"
+            raise ParameterError(f"{where}: {name} must be {article} "
+                                 f"{spec.type.replace('_', ' ')}, got {value!r}")
+        try:
+            param = node.declare_parameter(name, value, parameter_descriptor(spec),
+                                           ignore_override=True)
+        except InvalidParameterValueException:
+            raise ParameterError(f"{where}: {name} = {value!r} must be {spec.constraint} "
+                                 f"({spec.description})") from None
         values[name] = plain_value(param.value)
     return unflatten(values)
-
-
-def _ros_value(value: Any) -> Any:
-    if isinstance(value, tuple):
-        return list(value)
-    return value
 
 
 def plain_value(value: Any) -> Any:

@@ -44,6 +44,8 @@ from damper_emulator.model import jit
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import (
     DEFAULT_PARAMS_FILE,
+    DamperParams,
+    NumericsParams,
     ParameterError,
     config_from_mapping,
     node_parameters,
@@ -53,6 +55,7 @@ from damper_emulator.realtime.core import EmulatorCore, Output, Status
 from damper_emulator.realtime.loop import LoopStats, PeriodicLoop
 from damper_emulator.realtime.settings import (
     RUNTIME_PARAMETERS,
+    EmulatorParams,
     default_emulator_mapping,
     emulator_params_from_mapping,
 )
@@ -64,6 +67,7 @@ from damper_emulator.ros.common import (
     executor_priority,
     latched_qos,
     lifecycle_state_topic,
+    parameter_overrides,
     plain_value,
     publish_diagnostics,
     set_stamp,
@@ -86,9 +90,15 @@ def _damper_defaults() -> dict:
     return {"damper": body["damper"], "numerics": body["numerics"]}
 
 
-def load_node_model(node: Node, extra: dict | None = None) -> tuple[dict, DamperModel]:
-    """Declare the damper (``damper``, ``numerics``) and ``extra`` parameter groups on
-    ``node``; returns ``(values, model)``.
+#: the schema of the model's parameter groups (group → dataclass)
+MODEL_SCHEMA: dict[str, type] = {"damper": DamperParams, "numerics": NumericsParams}
+
+
+def load_node_model(node: Node, extra: dict | None = None,
+                    extra_schema: dict[str, type] | None = None) -> tuple[dict, DamperModel]:
+    """Declare the damper (``damper``, ``numerics``) and ``extra`` parameter groups (their
+    defaults; ``extra_schema``: their dataclasses) on ``node``, each with its schema's
+    descriptor; returns ``(values, model)``.
 
     The defaults are config/sport.yaml's; when the given parameters name another damper
     (``damper.name``) but give no ``damper.adaptive.*``, that damper has no bypass (its valve
@@ -97,14 +107,14 @@ def load_node_model(node: Node, extra: dict | None = None) -> tuple[dict, Damper
     model extensions they name on.
     """
     defaults = {**_damper_defaults(), **(extra or {})}
-    overrides = getattr(node, "_parameter_overrides", {})
+    overrides = parameter_overrides(node)
     ext = {n[len(EXTENSIONS_PREFIX):]: p.value for n, p in overrides.items()
            if n.startswith(EXTENSIONS_PREFIX)}
     if ext:  # model extensions (issue 7) exist only where a params file gives them
         defaults["damper"] = {**defaults["damper"],
                               "extensions": unflatten({k: plain_value(v)
                                                       for k, v in ext.items()})}
-    values = declare_parameters(node, defaults, defaults.keys())
+    values = declare_parameters(node, defaults, {**MODEL_SCHEMA, **(extra_schema or {})})
     damper = dict(values["damper"])
     named = overrides.get("damper.name")
     if named is not None and named.value != defaults["damper"]["name"] and \
@@ -147,7 +157,8 @@ class EmulatorNode(LifecycleNode):
                 type=ParameterType.PARAMETER_BOOL, read_only=True,
                 description="configure and activate at start (false: wait for a lifecycle "
                             "manager's transitions)")).value)
-        values, model = load_node_model(self, {"emulator": default_emulator_mapping()})
+        values, model = load_node_model(self, {"emulator": default_emulator_mapping()},
+                                        {"emulator": EmulatorParams})
         self.params = emulator_params_from_mapping(values["emulator"],
                                                    f"node {NODE_NAME} parameters")
         self.model = model
@@ -388,14 +399,17 @@ class EmulatorNode(LifecycleNode):
         self._force_pub.publish(msg)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
+        """Accept a run-time change of the ``emulator`` group where its schema allows one
+        (rclpy has already refused the read-only parameters, see
+        :func:`~damper_emulator.ros.common.parameter_descriptor`) and the group's rules
+        hold; the loop takes the new values at its next tick."""
         changes = {}
         for p in params:
             key = p.name.removeprefix("emulator.")
             if key == p.name or key not in RUNTIME_PARAMETERS:
                 return SetParametersResult(
                     successful=False,
-                    reason=f"{p.name} is read-only while the node runs (restart it with a "
-                           f"new params file); changeable: "
+                    reason=f"{p.name} does not change while the node runs; changeable: "
                            + ", ".join(f"emulator.{k}" for k in RUNTIME_PARAMETERS))
             changes[key] = p.value
         try:

@@ -4,6 +4,7 @@ the help formatter and small output helpers."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -12,12 +13,9 @@ from pathlib import Path
 from typing import Any
 
 from damper_emulator.errors import UserError
+from damper_emulator.params import ParameterError, check_value, field_spec
 
 PROG = "damper-hil"
-
-
-#: the paper's validation sines (docs/model.md §3): (frequency [Hz], amplitude [m])
-PAPER_SINES = ((1.0, 0.05), (3.0, 0.05), (12.0, 0.005))
 
 
 class CliError(UserError):
@@ -36,6 +34,22 @@ def number_type(kind: str, test: Callable[[float], bool], cast: Callable = float
         if not (math.isfinite(value) and test(value)):
             raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}")
         return value
+    return parse
+
+
+def schema_type(f: dataclasses.Field, option: str) -> Callable[[str], Any]:
+    """The argparse ``type`` of an option that sets the schema field ``f`` (a number;
+    :func:`damper_emulator.params.rule`): the text as the field's type, checked by the
+    field's rule; a broken rule is argparse's usage error naming ``option``."""
+    spec = field_spec(f, option)
+    cast = int if spec.type == "integer" else float
+    what = f"an {spec.constraint}" if spec.type == "integer" else f"a number {spec.constraint}"
+
+    def parse(text: str) -> Any:
+        try:
+            return check_value(cast(text), f, option, "")
+        except (ValueError, ParameterError):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
     return parse
 
 

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from damper_hil.cli.common import CliError, Formatter, positive_float
+from ride_sim.params import CLOCKS, RideRunParams
 
 
 def add_parser(sub) -> None:
@@ -22,10 +23,12 @@ def add_parser(sub) -> None:
                     "DURATION seconds of road, and writes under DIR: bag/ (rosbag2, MCAP),\n"
                     "ride_metrics.json, skyhook.json, demo.json, report.md, ride.png,\n"
                     "damper.png, control.png, loop.png and logs/.")
-    demo.add_argument("--duration", metavar="S", type=positive_float, default=20.0,
-                      help="road time [s] (default: 20; at least 5 at 20 m/s)")
-    demo.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
-                      help="ride clock (default: realtime)")
+    demo.add_argument("--duration", metavar="S", type=positive_float,
+                      default=RideRunParams.duration_s,
+                      help=f"road time [s] (default: ride.duration_s, "
+                           f"{RideRunParams.duration_s:g}; at least 5 at 20 m/s)")
+    demo.add_argument("--clock", choices=CLOCKS, default=RideRunParams.clock,
+                      help=f"ride clock (default: ride.clock, {RideRunParams.clock})")
     demo.add_argument("--control", choices=("skyhook", "passive"), default="skyhook",
                       help="skyhook: the reference skyhook controller commands the adaptive "
                            "damper over CAN; passive: the damper stays at sport (the bridge "

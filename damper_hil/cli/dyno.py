@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
 
+from damper_emulator.dyno.protocols import PROTOCOLS
+from damper_emulator.params import field_spec
 from damper_hil.cli.common import (
     PROG,
     CliError,
@@ -14,24 +17,52 @@ from damper_hil.cli.common import (
     load_model,
     non_negative_float,
     non_negative_int,
-    point_count,
-    positive_float,
-    positive_int,
     say_wrote,
+    schema_type,
     write_json,
 )
 
-#: protocol → {option dest: default}; an option that is not listed does not apply
+#: unit suffixes of the schema's field names, left out of the option names
+_UNIT_SUFFIXES = ("_m_s", "_hz", "_s", "_m")
+
+
+def option_dest(name: str) -> str:
+    """The option (its ``dest``) of a protocol schema field: the name without its unit,
+    ``f_start_hz`` → ``f_start`` (``--f-start``)."""
+    for suffix in _UNIT_SUFFIXES:
+        if name.endswith(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
+#: protocol → {option dest: default}, from the protocols' schemas; an option that is not
+#: listed does not apply
 PROTOCOL_DEFAULTS: dict[str, dict[str, Any]] = {
-    "sine": {"frequency": 1.0, "amplitude": 0.05, "cycles": 3, "rate": 1000.0,
-             "settle_cycles": 1},
-    "quasi-static": {"velocity": 0.004, "amplitude": 0.075, "cycles": 2, "rate": 50.0},
-    "chirp": {"f_start": 0.5, "f_end": 16.0, "duration": 60.0, "v_start": 0.05,
-              "v_end": 1.5, "rate": 1000.0},
-    "14-speed": {"points": 14, "amplitude": 0.025, "v_min": 0.025, "v_max": 1.5,
-                 "cycles": 2, "rate": 1000.0},
-}
-_PROTOCOL_OPTIONS = sorted({k for d in PROTOCOL_DEFAULTS.values() for k in d})
+    name: {option_dest(f.name): f.default for f in dataclasses.fields(cls)}
+    for name, cls in PROTOCOLS.items()}
+#: option dest → [(protocol, its schema field)], in order of first appearance
+_PROTOCOL_OPTIONS: dict[str, list[tuple[str, dataclasses.Field]]] = {}
+for _name, _cls in PROTOCOLS.items():
+    for _f in dataclasses.fields(_cls):
+        _PROTOCOL_OPTIONS.setdefault(option_dest(_f.name), []).append((_name, _f))
+
+
+def _add_protocol_options(group) -> None:
+    """One option per protocol setting: its type and rule, description, unit and the
+    default of each protocol it applies to, all from the schema."""
+    for dest, users in _PROTOCOL_OPTIONS.items():
+        option = "--" + dest.replace("_", "-")
+        first = users[0][1]
+        spec = field_spec(first, option)
+        if len(users) == len(PROTOCOLS):
+            where, defaults = "", ", ".join(f"{n} {f.default:g}" for n, f in users)
+        else:
+            where = "".join(f"[{n}] " for n, _ in users)
+            defaults = ", ".join(f"{n} {f.default:g}" for n, f in users) \
+                if len({f.default for _, f in users}) > 1 else f"{first.default:g}"
+        group.add_argument(option, dest=dest, metavar=(spec.unit or "N").upper(),
+                           type=schema_type(first, option),
+                           help=f"{where}{spec.description} (default: {defaults})")
 
 
 def add_parser(sub) -> None:
@@ -68,37 +99,7 @@ def add_parser(sub) -> None:
                            "(default: 0, no noise)")
     dyno.add_argument("--seed", metavar="S", type=non_negative_int, default=0,
                       help="seed of the force-noise generator (default: 0)")
-    g = dyno.add_argument_group("protocol options (default: per protocol)")
-    g.add_argument("--frequency", metavar="HZ", type=positive_float,
-                   help="[sine] frequency [Hz] (default: 1)")
-    g.add_argument("--amplitude", metavar="M", type=positive_float,
-                   help="displacement amplitude [m]: [sine] 0.05, [quasi-static] 0.075, "
-                        "[14-speed] 0.025")
-    g.add_argument("--cycles", metavar="N", type=positive_int,
-                   help="recorded cycles: [sine] 3, [quasi-static] 2, [14-speed] 2 per "
-                        "frequency")
-    g.add_argument("--settle-cycles", metavar="N", type=non_negative_int,
-                   help="[sine] lead-in cycles simulated but not recorded (default: 1)")
-    g.add_argument("--rate", metavar="HZ", type=positive_float,
-                   help="sample rate [Hz]: [quasi-static] 50, others 1000")
-    g.add_argument("--velocity", metavar="M/S", type=positive_float,
-                   help="[quasi-static] constant stroke velocity [m/s] (default: 0.004)")
-    g.add_argument("--f-start", metavar="HZ", type=positive_float,
-                   help="[chirp] start frequency [Hz] (default: 0.5)")
-    g.add_argument("--f-end", metavar="HZ", type=positive_float,
-                   help="[chirp] end frequency [Hz] (default: 16)")
-    g.add_argument("--duration", metavar="S", type=positive_float,
-                   help="[chirp] sweep duration [s] (default: 60)")
-    g.add_argument("--v-start", metavar="M/S", type=positive_float,
-                   help="[chirp] velocity amplitude at the start [m/s] (default: 0.05)")
-    g.add_argument("--v-end", metavar="M/S", type=positive_float,
-                   help="[chirp] velocity amplitude at the end [m/s] (default: 1.5)")
-    g.add_argument("--points", metavar="N", type=point_count,
-                   help="[14-speed] number of test speeds (default: 14)")
-    g.add_argument("--v-min", metavar="M/S", type=positive_float,
-                   help="[14-speed] lowest peak velocity [m/s] (default: 0.025)")
-    g.add_argument("--v-max", metavar="M/S", type=positive_float,
-                   help="[14-speed] highest peak velocity [m/s] (default: 1.5)")
+    _add_protocol_options(dyno.add_argument_group("protocol options (default: per protocol)"))
     c = dyno.add_argument_group(
         "loopback dyno over CAN (the protocol in real time against emulator + bridge)")
     c.add_argument("--over-can", action="store_true",
@@ -128,9 +129,9 @@ def _protocol_options(args: argparse.Namespace) -> dict[str, Any]:
     """The options of ``args.protocol``, defaults filled in; an option given for another
     protocol is an error."""
     defaults = PROTOCOL_DEFAULTS[args.protocol]
-    for dest in _PROTOCOL_OPTIONS:
+    for dest, users in _PROTOCOL_OPTIONS.items():
         if dest not in defaults and getattr(args, dest) is not None:
-            users = [p for p, d in PROTOCOL_DEFAULTS.items() if dest in d]
+            users = [p for p, _ in users]
             raise CliError(f"--{dest.replace('_', '-')} does not apply to --protocol "
                            f"{args.protocol} (only to {', '.join(users)})")
     return {dest: (getattr(args, dest) if getattr(args, dest) is not None else default)

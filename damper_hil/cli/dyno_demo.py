@@ -8,14 +8,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from damper_hil.cli.common import (
-    PAPER_SINES,
-    Formatter,
-    load_model,
-    positive_float,
-    say_wrote,
-    write_json,
-)
+from damper_emulator.dyno.protocols import PAPER_SINES, Chirp
+from damper_hil.cli.common import Formatter, load_model, positive_float, say_wrote, write_json
 
 
 def add_parser(sub) -> None:
@@ -26,8 +20,9 @@ def add_parser(sub) -> None:
                     "the quasi-static test, the chirp, the paper's validation sines\n"
                     "(1 Hz / 0.05 m, 3 Hz / 0.05 m, 12 Hz / 0.005 m) with an overlay plot\n"
                     "(paper_sines.png) and the 14-speed test; writes demo.json.")
-    dyno_demo.add_argument("--duration", metavar="S", type=positive_float, default=60.0,
-                           help="chirp duration [s] (default: 60)")
+    dyno_demo.add_argument("--duration", metavar="S", type=positive_float,
+                           default=Chirp.duration_s,
+                           help=f"chirp duration [s] (default: {Chirp.duration_s:g})")
     dyno_demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
                            help="output directory (created if missing; default: demo_out)")
     dyno_demo.set_defaults(handler=run)

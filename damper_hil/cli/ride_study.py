@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
@@ -15,8 +16,10 @@ from damper_hil.cli.common import (
     positive_float,
     positive_int,
     say_wrote,
+    schema_type,
     write_json,
 )
+from ride_sim.params import AMPLITUDE_METHODS, BAND_SCALINGS, RoadParams
 
 
 def add_parser(sub) -> None:
@@ -60,25 +63,35 @@ def add_parser(sub) -> None:
     ride.add_argument("--config", metavar="CONFIG.yaml", type=Path, default=None,
                       help="quarter-car params file with an optional 'road' group "
                            "(default: config/quarter_car.yaml)")
-    ride.add_argument("--seeds", metavar="N", type=positive_int, default=None,
-                      help="[10, 11, adaptive] road seeds 0..N-1, the same for every "
-                           "damper (default: road.seeds, 5)")
-    ride.add_argument("--length", metavar="M", type=positive_float, default=None,
-                      help="[10, 11, adaptive] length of random road evaluated [m] "
-                           "(default: 500)")
+    road = {f.name: f for f in dataclasses.fields(RoadParams)}
+    ride.add_argument("--seeds", metavar="N", type=schema_type(road["seeds"], "--seeds"),
+                      default=None,
+                      help=f"[10, 11, adaptive] road seeds 0..N-1, the same for every "
+                           f"damper (default: road.seeds, {RoadParams.seeds})")
+    ride.add_argument("--length", metavar="M", default=None,
+                      type=schema_type(road["length_m"], "--length"),
+                      help=f"[10, 11, adaptive] {road['length_m'].metadata['doc']} "
+                           f"(default: road.length_m, {RoadParams.length_m:g})")
+    sweep = " ".join(f"{v:g}" for v in RoadParams.sweep_speeds_m_s)
     ride.add_argument("--speed", metavar="V", type=positive_float, nargs="+", default=None,
-                      help="speed [m/s]: [10, adaptive] one value (default 20), [13] one "
-                           "value (default 10), [11] the sweep's speeds (default 5 10 ... 35)")
+                      help=f"speed [m/s]: [10, adaptive] one value (default: road.speed_m_s, "
+                           f"{RoadParams.speed_m_s:g}), [13] one value (default: "
+                           f"road.pothole_speed_m_s, {RoadParams.pothole_speed_m_s:g}), [11] "
+                           f"the sweep's speeds (default: road.sweep_speeds_m_s, {sweep})")
     ride.add_argument("--band", metavar=("NMIN", "NMAX"), type=positive_float, nargs=2,
                       default=None,
                       help="[10, 11, adaptive] synthesised road band [cycles/m] (default: "
-                           "0.01 0.8, the band the paper's figure 10 implies)")
-    ride.add_argument("--band-scaling", choices=("temporal", "spatial"), default=None,
-                      help="[11] keep the band fixed in Hz as at 20 m/s (temporal, default) "
-                           "or in cycles/m (spatial)")
-    ride.add_argument("--amplitudes", choices=("deterministic", "random"), default=None,
+                           "road.band_cycles_per_m, "
+                           + " ".join(f"{v:g}" for v in RoadParams.band_cycles_per_m)
+                           + ", the band the paper's figure 10 implies)")
+    ride.add_argument("--band-scaling", choices=BAND_SCALINGS, default=None,
+                      help="[11] keep the band fixed in Hz as at 20 m/s (temporal) or in "
+                           f"cycles/m (spatial) (default: road.band_scaling, "
+                           f"{RoadParams.band_scaling})")
+    ride.add_argument("--amplitudes", choices=AMPLITUDE_METHODS, default=None,
                       help="[10, 11, adaptive] road synthesis: exact spectrum with random "
-                           "phases (deterministic, default) or random amplitudes too")
+                           "phases (deterministic) or random amplitudes too (default: "
+                           f"road.amplitudes, {RoadParams.amplitudes})")
     ride.add_argument("--workers", metavar="N", type=positive_int, default=None,
                       help="[11] worker processes (default: all cores)")
     ride.add_argument("--report", "--out", metavar="DIR", dest="report", type=Path,

@@ -24,7 +24,7 @@ import dataclasses
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 from cantools.database.can import Database, Message
 
@@ -135,6 +135,10 @@ def _signal_coding(signal: Any) -> _SignalCoding:
     return _SignalCoding(signal.name, scale, offset, lo, hi, bool(signal.is_float))
 
 
+#: decoded signal values by name (numbers: decoded without choices)
+_Values = dict[str, float | int]
+
+
 def _get_message(db: Database, name: str) -> Message:
     try:
         return db.get_message_by_name(name)
@@ -178,7 +182,8 @@ class Encoder:
                               if s.name not in (COUNTER_SIGNAL, CHECKSUM_SIGNAL))
         #: Data signal names, in the message's order (the keyword arguments of :meth:`encode`).
         self.signal_names: tuple[str, ...] = tuple(c.name for c in self._codings)
-        self._crc_index = checksum_byte(message.get_signal_by_name(CHECKSUM_SIGNAL))
+        # (an int: check_message() above refuses a checksum without a byte of its own)
+        self._crc_index = cast(int, checksum_byte(message.get_signal_by_name(CHECKSUM_SIGNAL)))
         self._counter = 0
         #: Frames encoded so far.
         self.frames: int = 0
@@ -265,7 +270,8 @@ class _RxMessage:
 
     def __init__(self, message: Message) -> None:
         self.message = message
-        self.crc_index = checksum_byte(message.get_signal_by_name(CHECKSUM_SIGNAL))
+        # (an int: the Receiver has run check_message() on the message)
+        self.crc_index = cast(int, checksum_byte(message.get_signal_by_name(CHECKSUM_SIGNAL)))
         self.counters = FrameCounters()
         self.last_counter: int | None = None
 
@@ -390,7 +396,8 @@ class Receiver:
             counts.checksum += 1
             total.checksum += 1
             return None
-        values = message.decode(data, decode_choices=False, scaling=True)
+        # (the signal values: cantools types decode() with its container form too)
+        values = cast(_Values, message.decode(data, decode_choices=False, scaling=True))
         counter = int(values[COUNTER_SIGNAL])
         last = rx.last_counter
         if last is not None:
@@ -430,11 +437,12 @@ class Receiver:
         KeyError
             Unknown identifier or name.
         """
+        rx: _RxMessage | None
         if isinstance(message, str):
             rx = self._rx(message)
         else:
             rx = self._by_id.get((message, bool(is_extended_id)))
             if rx is None:
                 raise KeyError(f"frame id 0x{message:X} not in this receiver")
-        return dict(rx.message.decode(bytes(data), decode_choices=False, scaling=True,
-                                      allow_truncated=True))
+        return dict(cast(_Values, rx.message.decode(bytes(data), decode_choices=False,
+                                                    scaling=True, allow_truncated=True)))

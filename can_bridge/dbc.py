@@ -12,6 +12,7 @@ import enum
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import cast
 
 import cantools
 from cantools.database.can import Database, Message, Signal
@@ -151,7 +152,9 @@ def load_database(path: str | os.PathLike[str] | None = None, *,
     if not path.is_file():
         raise DbcError(f"{path}: no such CAN database file")
     try:
-        db = cantools.database.load_file(path, database_format="dbc", strict=True)
+        # (a DBC file gives a CAN database: cantools types the result of any format)
+        db = cast(Database, cantools.database.load_file(path, database_format="dbc",
+                                                          strict=True))
     except Exception as exc:  # cantools/textparser raise several unrelated types
         raise DbcError(f"{path}: cannot read the DBC: {one_line(exc)}") from exc
     for name, signals in required.items():

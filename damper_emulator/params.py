@@ -20,15 +20,21 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import yaml
 
 from damper_emulator.errors import UserError
 from damper_emulator.model.valve import VALVE_FORMS
+
+if TYPE_CHECKING:  # pragma: no cover
+    from _typeshed import DataclassInstance
+
+#: a parameter group (a dataclass of :func:`rule` fields)
+_G = TypeVar("_G", bound="DataclassInstance")
 
 #: Default parameter file: the paper's 'sport' damper.
 DEFAULT_PARAMS_FILE = Path(__file__).resolve().parent.parent / "config" / "sport.yaml"
@@ -79,6 +85,13 @@ def read_yaml(path: str | Path) -> Any:
 
 def _pos(doc: str) -> Any:
     return field(metadata={"rule": "positive", "doc": doc})
+
+
+def _required(kind: Any, doc: str) -> Any:
+    """A field of rule ``kind`` with no default, like :func:`_pos`'s.  (mypy's dataclass
+    plugin knows only ``field()``: it takes any other call, :func:`_pos`'s too, for a
+    default, and refuses a plain ``field()`` without one after them.)"""
+    return field(metadata={"rule": kind, "doc": doc})
 
 
 def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING, *,
@@ -277,7 +290,7 @@ class ValveParams:
     preload_pa: float = _pos("blow-off preload Δp0 [Pa], eq 10")
     smoothing_g: float = _pos("transition smoothing exponent G [-], eq 28")
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[float]:
         return iter((self.k_leak, self.k_port, self.k_spring, self.preload_pa, self.smoothing_g))
 
 
@@ -289,17 +302,15 @@ class DamperParams:
     x0_m: float = _pos("piston position at rest X0 [m] (rebound chamber length L_pt − X0)")
     rod_diameter_m: float = _pos("piston rod diameter [m]")
     piston_diameter_m: float = _pos("piston diameter [m]")
-    gas_gamma: float = field(metadata={"rule": ("closed", 1.0, 5.0 / 3.0),
-                                       "doc": "gas polytropic exponent γ [-], eq 3"})
+    gas_gamma: float = _required(("closed", 1.0, 5.0 / 3.0),
+                                 "gas polytropic exponent γ [-], eq 3")
     oil_kinematic_viscosity_m2_s: float = _pos("oil kinematic viscosity ν [m²/s]")
     oil_compressibility_per_pa: float = _pos("oil compressibility α [1/Pa], eq 1")
-    friction_force_n: float = field(metadata={"rule": "non-negative",
-                                              "doc": "Coulomb friction F_friction [N], eq 4"})
+    friction_force_n: float = _required("non-negative", "Coulomb friction F_friction [N], eq 4")
     gas_volume_static_m3: float = _pos("gas volume at the static position V_gas,static [m³]")
     gas_pressure_static_pa: float = _pos("gas pressure at the static position P_gas,static [Pa]")
-    rebound: ValveParams = field(metadata={"rule": "group", "doc": "rebound valve (Δp > 0)"})
-    compression: ValveParams = field(metadata={"rule": "group",
-                                               "doc": "compression valve (Δp < 0)"})
+    rebound: ValveParams = _required("group", "rebound valve (Δp > 0)")
+    compression: ValveParams = _required("group", "compression valve (Δp < 0)")
     name: str = field(default="damper", metadata={"rule": "text", "doc": "damper name"})
     adaptive: AdaptiveParams | None = field(default=None, metadata={
         "rule": "adaptive", "doc": "solenoid bypass of the softer settings (docs/model.md §6); "
@@ -407,7 +418,7 @@ class FieldSpec:
 _UNIT = re.compile(r"(?:^|\s)\[([^\[\]]*)\]")
 
 
-def field_spec(f: dataclasses.Field, key: str) -> FieldSpec:
+def field_spec(f: dataclasses.Field[Any], key: str) -> FieldSpec:
     """The :class:`FieldSpec` of one :func:`rule` field, named ``key``."""
     kind_rule, doc = f.metadata["rule"], f.metadata["doc"]
     kind = kind_rule[0] if isinstance(kind_rule, tuple) else kind_rule
@@ -446,9 +457,10 @@ def field_spec(f: dataclasses.Field, key: str) -> FieldSpec:
 
 
 #: the group type of each nested rule
-_NESTED = {"group": lambda f: ValveParams, "adaptive": lambda f: AdaptiveParams,
-           "extensions": lambda f: ExtensionParams,
-           "extension": lambda f: EXTENSION_TYPES[f.name]}
+_NESTED: dict[str, Callable[[dataclasses.Field[Any]], type]] = {
+    "group": lambda f: ValveParams, "adaptive": lambda f: AdaptiveParams,
+    "extensions": lambda f: ExtensionParams,
+    "extension": lambda f: EXTENSION_TYPES[f.name]}
 
 
 def field_specs(cls: type, prefix: str) -> list[FieldSpec]:
@@ -486,14 +498,15 @@ def node_parameters(doc: Any, where: str, group: str = "damper") -> Mapping[str,
         return doc
     for body in doc.values():
         if isinstance(body, Mapping) and isinstance(body.get("ros__parameters"), Mapping):
-            if group in body["ros__parameters"]:
-                return body["ros__parameters"]
+            params: Mapping[str, Any] = body["ros__parameters"]
+            if group in params:
+                return params
     raise ParameterError(f"{where}: no '{group}' parameters found (expected "
                          f"'<node>: ros__parameters: {group}: ...' or '{group}: ...')")
 
 
-def build_group(cls: type, data: Any, prefix: str, where: str,
-                convert: Callable[[Any, dataclasses.Field, str, str], Any]) -> Any:
+def build_group(cls: type[_G], data: Any, prefix: str, where: str,
+                convert: Callable[[Any, dataclasses.Field[Any], str, str], Any]) -> _G:
     """One parameter group: the dataclass ``cls`` from the mapping ``data``.
 
     Unknown keys and missing keys without a default are refused (one-line
@@ -522,7 +535,7 @@ def _build(cls: type, data: Any, prefix: str, where: str) -> Any:
     return build_group(cls, data, prefix, where, _convert)
 
 
-def _convert(raw: Any, f: dataclasses.Field, key: str, where: str) -> Any:
+def _convert(raw: Any, f: dataclasses.Field[Any], key: str, where: str) -> Any:
     if f.metadata["rule"] == "group":
         return _build(ValveParams, raw, key, where)
     if f.metadata["rule"] == "adaptive":
@@ -673,7 +686,7 @@ def save_config(cfg: ModelConfig, path: str | Path, node: str = "/**") -> None:
 # every group that is not the damper's own).
 
 
-def check_value(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:
+def check_value(value: Any, f: dataclasses.Field[Any], key: str, where: str) -> Any:
     """Coerce and check one value; raise a one-line :class:`ParameterError`."""
     rule, doc = f.metadata["rule"], f.metadata["doc"]
     kind = rule[0] if isinstance(rule, tuple) else rule
@@ -719,7 +732,7 @@ def check_value(value: Any, f: dataclasses.Field, key: str, where: str) -> Any:
     return value
 
 
-def check_list(value: Any, kind: str, key: str, where: str, doc: str) -> tuple:
+def check_list(value: Any, kind: str, key: str, where: str, doc: str) -> tuple[float, ...]:
     """A list of positive numbers; for ``band`` exactly two, increasing."""
     if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__iter__"):
         raise ParameterError(f"{where}: {key} must be a list of numbers, got {value!r}")

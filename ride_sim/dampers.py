@@ -37,7 +37,7 @@ Python loop.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, cast, runtime_checkable
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -49,6 +49,11 @@ from damper_emulator.model.incompressible import incompressible_force
 from damper_emulator.model.jit import kernel
 from damper_emulator.model.representations import LinearDamper, TableDamper, fourteen_speed_damper
 from damper_emulator.params import ModelConfig
+
+if TYPE_CHECKING:  # pragma: no cover
+    from numpy.typing import NDArray
+
+    from ride_sim.params import QuarterCarParams
 
 
 @runtime_checkable
@@ -119,13 +124,15 @@ def table_spec(table: TableDamper, coulomb_n: float = 0.0) -> StatelessSpec:
 
 
 @kernel
-def stateless_force(kind, f0, rate, knots, coef, f_lo, f_hi, slope_lo, slope_hi, coulomb, v):
+def stateless_force(kind: int, f0: float, rate: float, knots: NDArray[np.float64],
+                    coef: NDArray[np.float64], f_lo: float, f_hi: float, slope_lo: float,
+                    slope_hi: float, coulomb: float, v: float) -> float:
     """Force [N] of a :class:`StatelessSpec` at velocity ``v`` [m/s] (compiled)."""
     if kind == 0:
         return f0 + rate * v
     n = knots.size
     if v <= knots[0]:
-        f = f_lo + slope_lo * (v - knots[0])
+        f: float = f_lo + slope_lo * (v - knots[0])
     elif v >= knots[n - 1]:
         f = f_hi + slope_hi * (v - knots[n - 1])
     else:
@@ -225,7 +232,7 @@ class IncompressiblePlugin(_Stateless):
         if cfg is None:
             from damper_emulator.params import load_config
             cfg = load_config()
-        cfg = getattr(cfg, "cfg", cfg)
+        cfg = cast(ModelConfig, getattr(cfg, "cfg", cfg))  # a DamperModel's, or cfg itself
         self.cfg = cfg
         self.name = name
         v_max = cfg.numerics.valve_table_max_velocity_m_s
@@ -318,7 +325,8 @@ class CompressiblePlugin:
         return f"CompressiblePlugin({self.name!r})"
 
 
-def make_damper(kind: str, model: DamperModel | None = None, *, car=None,
+def make_damper(kind: str, model: DamperModel | None = None, *,
+                car: QuarterCarParams | None = None,
                 rate_ns_m: float | None = None, points: int = FourteenSpeed.points,
                 valve_command: float = 1.0) -> DamperPlugin:
     """A damper plug-in by kind.

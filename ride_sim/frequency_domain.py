@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from damper_emulator.errors import UserError
 from ride_sim.params import QuarterCarParams
@@ -36,7 +37,7 @@ class QuarterCarResponse:
     dtl: np.ndarray            # (K_t + C_t s)(X0 − Z1)/X0 [N/m]
 
 
-def transfer_functions(params: QuarterCarParams, f_hz,
+def transfer_functions(params: QuarterCarParams, f_hz: ArrayLike,
                        damping_ns_m: float | None = None) -> QuarterCarResponse:
     """The linear quarter car's responses to road height (continuous time, eq 38).
 
@@ -66,7 +67,7 @@ def transfer_functions(params: QuarterCarParams, f_hz,
     return QuarterCarResponse(f, wheel, body, wheel - body, s ** 2 * body, tyre * (1 - wheel))
 
 
-def response_psd(h, road_psd) -> np.ndarray:
+def response_psd(h: ArrayLike, road_psd: ArrayLike) -> np.ndarray:
     """Output PSD ``|H|² S`` of a transfer function ``h`` and road PSD ``road_psd``
     (same frequencies, same one-sided convention)."""
     h = np.asarray(h)
@@ -74,10 +75,11 @@ def response_psd(h, road_psd) -> np.ndarray:
     if h.shape != s.shape:
         raise UserError(f"transfer function and road PSD differ in shape ({h.shape} and "
                          f"{s.shape})")
-    return np.abs(h) ** 2 * s
+    psd: np.ndarray = np.abs(h) ** 2 * s
+    return psd
 
 
-def rms_from_psd(f_hz, psd, band: tuple[float, float] | None = None) -> float:
+def rms_from_psd(f_hz: ArrayLike, psd: ArrayLike, band: tuple[float, float] | None = None) -> float:
     """R.m.s. ``√∫ psd df`` by the trapezoidal rule over ``band = (f_lo, f_hi)`` [Hz]
     (default: the whole grid).  Band edges between grid points are included by linear
     interpolation of the PSD; the grid must be increasing."""

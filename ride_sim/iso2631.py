@@ -385,7 +385,8 @@ def _design_sos(c: WeightingConstants, fs: float,
     if not (np.all(np.isfinite(zeros)) and math.isfinite(gain)):
         raise RuntimeError(f"{c.name} at fs = {fs} Hz: the least-squares zeros are not finite")
     poles = np.concatenate([poles, np.zeros(zeros.size - poles.size)])
-    return sps.zpk2sos(zeros, poles, gain)
+    sos: NDArray[np.float64] = sps.zpk2sos(zeros, poles, gain)
+    return sos
 
 
 def _check_design(c: WeightingConstants, fs: float, sos: NDArray[np.float64],
@@ -527,6 +528,7 @@ class WeightingFilter:
         x = _as_signal(chunk, "chunk")
         if x.size == 0:
             return x.copy()
+        y: NDArray[np.float64]
         y, self._zi = sps.sosfilt(self._sos, x, zi=self._zi)
         return y
 

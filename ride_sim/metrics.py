@@ -175,7 +175,8 @@ def running_rms(x: ArrayLike, fs: float, *,
         mean_square = sps.lfilter([1.0 - alpha], [1.0, -alpha], squares)
     else:
         raise UserError(f"averaging must be 'linear' or 'exponential', got {averaging!r}")
-    return np.sqrt(np.maximum(mean_square, 0.0))
+    level: NDArray[np.float64] = np.sqrt(np.maximum(mean_square, 0.0))
+    return level
 
 
 def mtvv(x: ArrayLike, fs: float, *,

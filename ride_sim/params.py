@@ -92,8 +92,8 @@ class RoadParams:
     roughness: float = _rule("positive", "road roughness G of eq 39 [m^2 (cycles/m)^(p-1)]",
                              5e-6)
     waviness: float = _rule("positive", "road waviness p of eq 39 [-]", 2.5)
-    band_cycles_per_m: tuple = _rule("band", "synthesised spatial band [n_min, n_max] "
-                                             "[cycles/m]", (0.01, 0.8))
+    band_cycles_per_m: tuple[float, float] = _rule(
+        "band", "synthesised spatial band [n_min, n_max] [cycles/m]", (0.01, 0.8))
     band_scaling: str = _rule(("choices", BAND_SCALINGS),
                               "speed sweep: 'temporal' keeps the band in Hz as at speed_m_s, "
                               "'spatial' keeps it in cycles/m (one road at every speed)",
@@ -106,9 +106,9 @@ class RoadParams:
     seeds: int = _rule(("int_range", 1, 10000), "road seeds per case (0 .. seeds-1)", 5)
     lead_in_s: float = _rule("non-negative", "road driven before the evaluated length (the "
                                              "same periodic road), discarded [s]", 3.0)
-    sweep_speeds_m_s: tuple = _rule("positive_list", "speeds of the speed sweep (figure 11) "
-                                                     "[m/s]",
-                                    (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0))
+    sweep_speeds_m_s: tuple[float, ...] = _rule(
+        "positive_list", "speeds of the speed sweep (figure 11) [m/s]",
+        (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0))
     pothole_speed_m_s: float = _rule("positive", "speed over the pothole [m/s] (figure 13)",
                                      10.0)
     pothole_depth_m: float = _rule("positive", "pothole depth [m]", 0.06)

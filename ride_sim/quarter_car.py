@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm
 
 from damper_emulator.errors import UserError
@@ -55,8 +56,12 @@ from ride_sim.params import QuarterCarParams, validate_quarter_car
 # Layout of the state vector.
 Z1, Z1D, Z2, Z2D = range(4)
 
+#: The kernels' arrays: discretisation matrix, vehicle and state vectors, road, outputs.
+_Vec = NDArray[np.float64]
 
-def continuous_model(params: QuarterCarParams, internal_damping_ns_m: float = 0.0):
+
+def continuous_model(params: QuarterCarParams, internal_damping_ns_m: float = 0.0
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Continuous state-space form of the model above, ``s' = A s + B [f, x0, x0']``.
 
     State ``s = (z1, z1', z2, z2')``; inputs: damper wheel force ``f`` [N], road height
@@ -117,7 +122,7 @@ def _discretise(params: QuarterCarParams, dt_s: float,
 
 
 @kernel
-def _advance(d, s, f, u0, u1):
+def _advance(d: _Vec, s: _Vec, f: float, u0: float, u1: float) -> None:
     """``s ← D (s, f, u0, u1)`` in place (exact step, see :func:`discretise`)."""
     a0, a1, a2, a3 = s[0], s[1], s[2], s[3]
     for i in range(4):
@@ -126,13 +131,14 @@ def _advance(d, s, f, u0, u1):
 
 
 @kernel
-def _motion(q, s):
+def _motion(q: _Vec, s: _Vec) -> tuple[float, float]:
     """Damper stroke and velocity (extension +) of state ``s``."""
     return -(s[0] - s[2]) / q[Q_MR], -(s[1] - s[3]) / q[Q_MR]
 
 
 @kernel
-def _outputs(q, s, damper_force, u0, u1):
+def _outputs(q: _Vec, s: _Vec, damper_force: float, u0: float, u1: float
+             ) -> tuple[float, float, float]:
     """``(sws, body acceleration, dtl)`` at the sample, force held over the next step."""
     f = (damper_force - q[Q_FSTATIC]) / q[Q_MR]
     sws = s[0] - s[2]
@@ -142,7 +148,8 @@ def _outputs(q, s, damper_force, u0, u1):
 
 
 @kernel
-def _record(q, s, k, force, fault, u0, u1, out, faults):
+def _record(q: _Vec, s: _Vec, k: int, force: float, fault: int, u0: float, u1: float,
+            out: _Vec, faults: NDArray[np.int64]) -> None:
     sws, accel, dtl = _outputs(q, s, force, u0, u1)
     x, v = _motion(q, s)
     out[0, k] = s[0]
@@ -163,7 +170,7 @@ def _record(q, s, k, force, fault, u0, u1, out, faults):
 
 
 @kernel
-def _road_pair(road, k):
+def _road_pair(road: _Vec, k: int) -> tuple[float, float]:
     n = road.size
     if k + 1 < n:
         return road[k], road[k + 1]
@@ -173,7 +180,9 @@ def _road_pair(road, k):
 
 
 @kernel
-def _loop_compressible(d, q, road, s, force0, prm, coef_r, coef_c, dstate, out, faults):
+def _loop_compressible(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force0: float, prm: _Vec,
+                       coef_r: _Vec, coef_c: _Vec, dstate: _Vec, out: _Vec,
+                       faults: NDArray[np.int64]) -> None:
     n = road.size
     force = force0
     fault = 0
@@ -188,8 +197,10 @@ def _loop_compressible(d, q, road, s, force0, prm, coef_r, coef_c, dstate, out, 
 
 
 @kernel
-def _loop_stateless(d, q, road, s, force0, kind, f0, rate, knots, coef, f_lo, f_hi,
-                    slope_lo, slope_hi, coulomb, out, faults):
+def _loop_stateless(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force0: float, kind: int, f0: float,
+                    rate: float, knots: _Vec, coef: _Vec, f_lo: float, f_hi: float,
+                    slope_lo: float, slope_hi: float, coulomb: float, out: _Vec,
+                    faults: NDArray[np.int64]) -> None:
     n = road.size
     force = force0
     for k in range(n):
@@ -272,7 +283,7 @@ class QuarterCar:
         """``(z1, z1', z2, z2')`` deviations from static equilibrium [m, m/s] (a copy)."""
         return self._s.copy()
 
-    def reset(self, state=None) -> None:
+    def reset(self, state: ArrayLike | None = None) -> None:
         """Static equilibrium (all zero, road at 0), or the given ``(z1, z1', z2, z2')``."""
         s = np.zeros(4) if state is None else np.asarray(state, dtype=float).reshape(4)
         if not np.isfinite(s).all():
@@ -326,13 +337,15 @@ class RideResult:
         return int(np.bitwise_or.reduce(self.faults)) if self.faults.size else 0
 
 
-def _result(t, road, out, faults, name, dt):
+def _result(t: np.ndarray, road: np.ndarray, out: np.ndarray, faults: np.ndarray, name: str,
+            dt: float) -> RideResult:
     return RideResult(t, road, out[O_SWS], out[O_ACC], out[O_DTL], out[O_Z1], out[O_Z2],
                       out[O_Z1D], out[O_Z2D], out[O_X], out[O_V], out[O_F], faults, name, dt)
 
 
-def simulate(params: QuarterCarParams, damper: DamperPlugin, road_height_m,
-             dt_s: float = 1e-3, *, initial_state=None, compiled: bool = True) -> RideResult:
+def simulate(params: QuarterCarParams, damper: DamperPlugin, road_height_m: ArrayLike,
+             dt_s: float = 1e-3, *, initial_state: ArrayLike | None = None,
+             compiled: bool = True) -> RideResult:
     """Ride simulation over a road height history sampled every ``dt_s``.
 
     The car starts at static equilibrium (or ``initial_state`` ``(z1, z1', z2, z2')``) with

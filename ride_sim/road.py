@@ -52,7 +52,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -142,7 +142,8 @@ class RoadError(UserError):
 
 
 
-def _checked_series(label: str, x, x_name: str, y, y_name: str) -> tuple[np.ndarray, np.ndarray]:
+def _checked_series(label: str, x: ArrayLike, x_name: str, y: ArrayLike, y_name: str
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Two equal-length 1-D float arrays of at least ``MIN_PROFILE_POINTS`` finite samples,
     ``x`` strictly increasing; a one-line :class:`RoadError` naming ``label`` otherwise."""
     xa = _float_array(x, f"{label}: {x_name}")
@@ -234,10 +235,13 @@ def _psd_integral(roughness: float, waviness: float, lo: ArrayLike, hi: ArrayLik
     """``∫_lo^hi G n^(-p) dn`` in closed form [m²] (0 where ``lo == hi``)."""
     lo = np.asarray(lo, dtype=float)
     hi = np.asarray(hi, dtype=float)
+    integral: FloatArray
     if waviness == 1.0:
-        return roughness * np.log(hi / lo)
+        integral = roughness * np.log(hi / lo)
+        return integral
     exponent = 1.0 - waviness
-    return roughness * (lo ** exponent - hi ** exponent) / (waviness - 1.0)
+    integral = roughness * (lo ** exponent - hi ** exponent) / (waviness - 1.0)
+    return integral
 
 
 # --------------------------------------------------------------------------------------
@@ -298,7 +302,7 @@ def temporal_psd(roughness: float, waviness: float, speed_m_s: float, f: ArrayLi
     roughness, waviness = _check_psd_params(roughness, waviness)
     speed = _positive(speed_m_s, "speed_m_s")
     f = _positive_array(f, "frequency f [Hz]")
-    psd = roughness * speed ** (waviness - 1.0) * f ** (-waviness)
+    psd: FloatArray = roughness * speed ** (waviness - 1.0) * f ** (-waviness)
     if band_cycles_per_m is not None:
         lo, hi = _check_band(band_cycles_per_m)
         n = f / speed
@@ -342,7 +346,8 @@ class RoadRoughness:
     @property
     def gd_n0_m3(self) -> float:
         """ISO 8608 ``Gd(n0) = G n0^(-p)`` at ``n0 = 0.1`` cycles/m [m³ = m²/(cycles/m)]."""
-        return self.roughness * ISO_8608_N0_CYCLES_PER_M ** (-self.waviness)
+        gd: float = self.roughness * ISO_8608_N0_CYCLES_PER_M ** (-self.waviness)
+        return gd
 
     def spatial_psd(self, n: ArrayLike, *,
                     band_cycles_per_m: Sequence[float] | None = None) -> FloatArray:
@@ -360,7 +365,7 @@ class RoadRoughness:
         """:func:`band_variance` of this road over the band [m²]."""
         return band_variance(self.roughness, self.waviness, band_cycles_per_m)
 
-    def random_road(self, length_m: float, **kwargs) -> RoadProfile:
+    def random_road(self, length_m: float, **kwargs: Any) -> RoadProfile:
         """:func:`random_road` of this spectrum (keyword arguments are passed on)."""
         kwargs.setdefault("name", f"{self.name} seed {kwargs.get('seed', DEFAULT_SEED)}")
         return random_road(self.roughness, self.waviness, length_m, **kwargs)
@@ -620,7 +625,8 @@ def random_road(roughness: float, waviness: float, length_m: float, *,
     spectrum = np.zeros(n_samples // 2 + 1, dtype=complex)
     spectrum[bins] = coefficients * (n_samples / 2.0)   # irfft divides by N, halves pairs
     height = np.fft.irfft(spectrum, n=n_samples)
-    distance = spacing * np.arange(n_samples)
+    # (float64: numpy's stubs type a float times an int array as floating[Any])
+    distance = cast(FloatArray, spacing * np.arange(n_samples))
     if name is None:
         name = (f"random road G={roughness:g} p={waviness:g} band {n_lo:g}-{n_hi:g} "
                 f"cycles/m seed {seed}")
@@ -639,10 +645,12 @@ def _flat_grid(feature_samples: int, lead_in_m: float, lead_out_m: float,
     n_in = int(math.ceil(lead_in / spacing_m * (1.0 - _SPACING_REL_TOL)))
     n_out = int(math.ceil(lead_out / spacing_m * (1.0 - _SPACING_REL_TOL)))
     index = np.arange(n_in + feature_samples + n_out + 1)
-    return spacing_m * index, index - n_in
+    # (float64 and int64 at run time; numpy's stubs say floating[Any] and the platform int)
+    return cast(FloatArray, spacing_m * index), cast("NDArray[np.int64]", index - n_in)
 
 
-def _feature_grid(length_m, lead_in_m, lead_out_m, spacing_m):
+def _feature_grid(length_m: float, lead_in_m: float, lead_out_m: float, spacing_m: float
+                  ) -> tuple[FloatArray, NDArray[np.int64], int]:
     """Grid of a feature ``length_m`` long (a whole number, at least MIN_PROFILE_POINTS, of
     samples) in a flat road: ``(distance, sample index from the feature start, samples in
     the feature)``."""

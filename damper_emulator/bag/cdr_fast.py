@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from numpy.typing import ArrayLike, NDArray
 
 from damper_emulator.model.jit import plain_kernel
 
@@ -111,7 +112,7 @@ def _parse(data: bytes | memoryview) -> tuple[int, _Layout, tuple[np.ndarray, ..
         nonlocal pos
         align(4)
         need(4)
-        value = u32.unpack_from(mv, base + pos)[0]
+        value: int = u32.unpack_from(mv, base + pos)[0]
         structural.append((base + pos, base + pos + 4))
         pos += 4
         return value
@@ -178,9 +179,8 @@ def _cdr_string(text: str, pos: int) -> tuple[bytes, int]:
     return pad + struct.pack("<I", len(raw)) + raw, pos + len(pad) + 4 + len(raw)
 
 
-def encode_joint_state(stamp_ns: int, names: Sequence[str], position: Sequence[float],
-                       velocity: Sequence[float], effort: Sequence[float],
-                       frame_id: str = "") -> bytes:
+def encode_joint_state(stamp_ns: int, names: Sequence[str], position: ArrayLike,
+                       velocity: ArrayLike, effort: ArrayLike, frame_id: str = "") -> bytes:
     """One JointState as little-endian CDR (the bytes of
     :func:`damper_emulator.bag.messages.joint_state`, without rosbags)."""
     sec, nanosec = _split_stamp(np.asarray([stamp_ns], dtype=np.int64))
@@ -254,7 +254,8 @@ class JointStates:
         input, :func:`damper_emulator.ros.emulator.input_sample`)."""
         per_set = np.array([names.index(name) if name in names else 0
                             for names in self.name_sets] or [0], dtype=np.int64)
-        return per_set[self.name_id]
+        index: np.ndarray = per_set[self.name_id]
+        return index
 
     def entry(self, field: str, index: int | np.ndarray) -> np.ndarray:
         """``field[index]`` per message (``index`` a scalar or per-message array); NaN
@@ -274,7 +275,8 @@ class JointStates:
 
 
 @plain_kernel
-def _gather_rows(buf, offsets, out):  # pragma: no cover - compiled
+def _gather_rows(buf: NDArray[np.uint8], offsets: NDArray[np.int64],
+                 out: NDArray[np.uint8]) -> None:  # pragma: no cover - compiled
     length = out.shape[1]
     for i in range(offsets.size):
         out[i, :] = buf[offsets[i]:offsets[i] + length]
@@ -362,8 +364,8 @@ def decode_joint_states(buf: bytes | np.ndarray, offsets: np.ndarray,
             pieces.append((idx, tuple(values)))
     width = max(1, int(counts.max()) if n else 1)
     out = [np.full((n, width), np.nan) for _ in _FIELDS]
-    for idx, values in pieces:
-        for k, v in enumerate(values):
+    for idx, piece in pieces:
+        for k, v in enumerate(piece):
             out[k][idx, :v.shape[1]] = v
     return JointStates(stamp, out[0], out[1], out[2], counts,
                        tuple(name_sets), name_id)
@@ -397,8 +399,8 @@ def encode_joint_states(stamp_ns: np.ndarray, names: Sequence[str], position: np
             raise ValueError(f"{field} must have shape ({n}, k), got {a.shape}")
         arrays.append(a)
     sec, nanosec = _split_stamp(stamp_ns)
-    template = encode_joint_state(0, names, *(np.zeros(a.shape[1]) for a in arrays),
-                                  frame_id=frame_id)
+    zeros = [np.zeros(a.shape[1]) for a in arrays]
+    template = encode_joint_state(0, names, zeros[0], zeros[1], zeros[2], frame_id=frame_id)
     _, layout, _, _ = _parse(template)
     rows = np.tile(np.frombuffer(template, dtype=np.uint8), (n, 1))
     rows[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
@@ -451,8 +453,10 @@ class _Unsupported(Exception):
 
 
 @plain_kernel
-def _walk_chunks(buf, starts, ends, opcode, content, length, channel,
-                 log_ns):  # pragma: no cover - compiled
+def _walk_chunks(buf: NDArray[np.uint8], starts: NDArray[np.int64], ends: NDArray[np.int64],
+                 opcode: NDArray[np.uint8], content: NDArray[np.int64],
+                 length: NDArray[np.int64], channel: NDArray[np.int64],
+                 log_ns: NDArray[np.int64]) -> int:  # pragma: no cover - compiled
     """Records inside the chunks' record areas ``[starts[j], ends[j])``: opcode, content
     offset and content length of each, and for a Message record its channel id and log
     time; returns how many, or -1 for a record that overruns its chunk."""
@@ -499,7 +503,8 @@ def warm_up() -> None:
 
 
 def _u16(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return buf[at].astype(np.int64) | (buf[at + 1].astype(np.int64) << 8)
+    value: np.ndarray = buf[at].astype(np.int64) | (buf[at + 1].astype(np.int64) << 8)
+    return value
 
 
 def _u64(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -515,7 +520,8 @@ def _string(mv: memoryview, pos: int, end: int) -> tuple[str, int]:
     return bytes(mv[pos + 4:pos + 4 + n]).decode(), pos + 4 + n
 
 
-def _scan_mcap(path: Path, wanted: set[str]) -> tuple[np.ndarray, dict[str, tuple]]:
+def _scan_mcap(path: Path, wanted: set[str]
+               ) -> tuple[np.ndarray, dict[str, tuple[str, np.ndarray, np.ndarray, np.ndarray]]]:
     """Fast scan of one MCAP file: ``(buf, {topic: (msgtype, log_ns, offsets, lengths)})``.
     Raises _Unsupported for what it does not handle."""
     with open(path, "rb") as fh:
@@ -532,6 +538,7 @@ def _scan_mcap(path: Path, wanted: set[str]) -> tuple[np.ndarray, dict[str, tupl
     chunk_ends: list[int] = []
     loose: list[tuple[int, int, int]] = []           # top-level records to look at
     pos = len(magic)
+    opcode: int | NDArray[np.uint8]   # of one top-level record, then of the chunks' records
     while pos + 9 <= size:
         opcode = raw[pos]
         n = int.from_bytes(raw[pos + 1:pos + 9], "little")
@@ -573,6 +580,7 @@ def _scan_mcap(path: Path, wanted: set[str]) -> tuple[np.ndarray, dict[str, tupl
     channel, log_ns = channel[:k], log_ns[:k]
     defs = np.flatnonzero((opcode == rec.OP_SCHEMA) | (opcode == rec.OP_CHANNEL))
     loose += zip(opcode[defs].tolist(), content[defs].tolist(), length[defs].tolist())
+    at: int | np.ndarray        # of one record, then of the messages outside chunks
     for op, at, n in loose:
         end = at + n
         if op == rec.OP_SCHEMA:
@@ -601,7 +609,7 @@ def _scan_mcap(path: Path, wanted: set[str]) -> tuple[np.ndarray, dict[str, tupl
         log = np.concatenate([log, _u64(buf, at + 6).astype(np.int64)])
     if (m_len < 22).any():
         raise _Unsupported("short message record")
-    out: dict[str, tuple] = {}
+    out: dict[str, tuple[str, np.ndarray, np.ndarray, np.ndarray]] = {}
     for cid, (topic, sid, encoding) in channels.items():
         if topic not in wanted:
             continue
@@ -650,6 +658,7 @@ def _fast(path: Path, topics: list[str]) -> dict[str, RawTopic]:
 def _slow(path: Path, topics: list[str]) -> dict[str, RawTopic]:
     from .reader import open_bag
 
+    data: bytes | list[bytes]   # one message's, then one topic's
     with open_bag(path) as bag:
         missing = [t for t in topics if t not in bag.topics]
         if missing:

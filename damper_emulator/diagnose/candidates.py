@@ -88,7 +88,7 @@ class Candidate:
     identify_as: Callable[[ModelConfig], ModelConfig] | None = None
     family: str = field(init=False)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "family", EXTENSION_FAMILIES[self.effect])
 
     def starts(self) -> list[np.ndarray]:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -36,6 +37,9 @@ from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ModelConfig, ParameterError
 from damper_emulator.validation import record_velocity, simulate_measured
+
+if TYPE_CHECKING:  # pragma: no cover
+    from scipy.optimize import OptimizeResult
 
 
 @dataclass(frozen=True)
@@ -143,12 +147,14 @@ class Record:
         :func:`fit_substep`); one line naming the file when it cannot be simulated."""
         if fast:
             model = model.with_max_substep(fit_substep(model, self.velocity))
-        return simulate_measured(model, self.data, self.velocity).force_n
+        force: np.ndarray = simulate_measured(model, self.data, self.velocity).force_n
+        return force
 
     def residual(self, model: DamperModel, fast: bool = False) -> np.ndarray:
         """``F_sim − F_meas`` [N] of ``model`` on this file, from :attr:`start` on."""
         k = self.start
-        return self.simulate(model, fast)[k:] - self.data.force[k:]
+        residual: np.ndarray = self.simulate(model, fast)[k:] - self.data.force[k:]
+        return residual
 
 
 def make_record(data: MeasuredData, held_out: bool) -> Record:
@@ -157,7 +163,7 @@ def make_record(data: MeasuredData, held_out: bool) -> Record:
 
 
 def _get(cfg: ModelConfig, path: str) -> float:
-    obj = cfg.damper
+    obj: Any = cfg.damper  # a group, then the attribute the path names
     for part in path.split("."):
         obj = getattr(obj, part)
     return float(obj)
@@ -192,7 +198,8 @@ def config_with(cfg: ModelConfig, base_values: Mapping[str, float]) -> ModelConf
     import dataclasses
 
     d = cfg.damper
-    top = {k: v for k, v in base_values.items() if "." not in k}
+    # floats by damper field name (mypy cannot match the names to the fields' types)
+    top: dict[str, Any] = {k: v for k, v in base_values.items() if "." not in k}
     valves = {}
     for side in ("rebound", "compression"):
         changes = {k.split(".", 1)[1]: v for k, v in base_values.items()
@@ -263,7 +270,8 @@ class Space:
         for i, p in self.slots:
             v = base_values[p.name] if i < 0 else values[i][p.name]
             u.append(p.to_internal(min(max(v, p.lo), p.hi)))
-        return np.clip((np.array(u) - self.lo) / self.width, 0.0, 1.0)
+        s: np.ndarray = np.clip((np.array(u) - self.lo) / self.width, 0.0, 1.0)
+        return s
 
     def decode(self, s: np.ndarray) -> tuple[dict[str, float], list[dict[str, float]]]:
         base = dict(self.base_values)
@@ -284,17 +292,18 @@ class Space:
         self.evaluations += 1
         try:
             model = self.model(s)
-            return np.concatenate([rec.residual(model, fast=True) * w
-                                   for rec, w in zip(self.records, self.weights)])
+            residuals: np.ndarray = np.concatenate(
+                [rec.residual(model, fast=True) * w for rec, w in zip(self.records, self.weights)])
+            return residuals
         except (ParameterError, ValueError):
             return np.full(self.n, FAILED_COST)
 
-    def solve(self, s0: np.ndarray, nfev: int):
+    def solve(self, s0: np.ndarray, nfev: int) -> OptimizeResult:
         return least_squares(self.residuals, s0, bounds=(0.0, 1.0), method="trf",
                              diff_step=DIFF_STEP, x_scale="jac", max_nfev=nfev,
                              ftol=JOINT_FTOL, xtol=1e-6)
 
-    def std(self, sol, rho: float) -> dict[tuple[int, str], float]:
+    def std(self, sol: OptimizeResult, rho: float) -> dict[tuple[int, str], float]:
         """One standard deviation of each free parameter from the Jacobian at ``sol``,
         inflated by ``(1 + ρ)/(1 − ρ)`` for an AR(1) residual of lag-1 autocorrelation ρ."""
         base, values = self.decode(sol.x)
@@ -397,7 +406,8 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     evaluations = 0
     reidentified = False
     if candidate is not None:
-        def prefit(bv, starts_values):
+        def prefit(bv: Mapping[str, float], starts_values: Sequence[Mapping[str, float]]
+                   ) -> tuple[dict[str, float], float, int]:
             pre = Space(cfg, [], bv, cands, values + [starts_values[0]],
                         [False] * len(accepted) + [True], records, weights)
             starts = [pre.encode(bv, values + [sv]) for sv in starts_values]

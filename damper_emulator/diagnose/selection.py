@@ -64,10 +64,10 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, as_completed
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
@@ -236,6 +236,12 @@ class StepFit:
         return self.candidates[-1] if self.out["effect"] is not None else None
 
     @property
+    def _added(self) -> Candidate:
+        """:attr:`candidate` of a fit that added an effect (every step, ranked fit and
+        ``closest`` of a diagnosis: never a refit, whose ``None`` mypy cannot rule out)."""
+        return cast(Candidate, self.candidate)
+
+    @property
     def effects(self) -> list[str]:
         return list(self.out["effects"])
 
@@ -263,7 +269,8 @@ class StepFit:
 
     @property
     def sse_held(self) -> float:
-        return sum(v["sse"] for v in self.out["held"].values())
+        sse: float = sum(v["sse"] for v in self.out["held"].values())
+        return sse
 
     @property
     def seconds(self) -> float:
@@ -354,13 +361,15 @@ class Diagnosis:
 
     def model_after(self) -> DamperModel:
         """The model after the diagnosis (the identified model when nothing was fitted)."""
-        return self.final.model() if self.final is not None else self.base_model
+        # (base_model: set by diagnose(); None only in a Diagnosis built without it)
+        return (self.final.model() if self.final is not None
+                else cast(DamperModel, self.base_model))
 
     def effects_json(self) -> list[dict[str, Any]]:
         out = []
-        final = self.final
+        final = cast(StepFit, self.final)  # steps[-1] wherever the loop below runs
         for k, st in enumerate(self.steps):
-            c = st.candidate
+            c = st._added
             vals = final.out["values"][k]
             sd = final.out["std"][k]
             out.append({"effect": c.effect, "family": c.family,
@@ -389,8 +398,8 @@ class Diagnosis:
                               if main else None),
             "score": chosen.score if chosen else None,
             "explained_fraction": self.explained,
-            "closest": ({"effect": self.closest.candidate.effect,
-                         "family": self.closest.candidate.family,
+            "closest": ({"effect": self.closest._added.effect,
+                         "family": self.closest._added.family,
                          "score": self.closest.score,
                          "parameters": self.closest.extension}
                         if self.closest else None),
@@ -418,6 +427,11 @@ class Diagnosis:
         return doc
 
 
+#: a task of the pool and its result
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+
 class _LocalPool:
     """The default executor: a fork-based process pool (the workers inherit the compiled
     kernels) of ``jobs`` processes, or this process for one."""
@@ -435,11 +449,12 @@ class _LocalPool:
                                             mp_context=multiprocessing.get_context("fork"))
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         if self.pool is not None:
             self.pool.shutdown(cancel_futures=True)
 
-    def map_unordered(self, fn, tasks):
+    def map_unordered(self, fn: Callable[[_T], _R], tasks: Iterable[_T]
+                      ) -> Iterator[tuple[int, _R]]:
         if self.pool is None:
             for i, t in enumerate(tasks):
                 yield i, fn(t)
@@ -447,7 +462,8 @@ class _LocalPool:
         yield from _unordered(self.pool, fn, tasks)
 
 
-def _unordered(executor: Executor, fn, tasks):
+def _unordered(executor: Executor, fn: Callable[[_T], _R], tasks: Iterable[_T]
+               ) -> Iterator[tuple[int, _R]]:
     futures = {executor.submit(fn, t): i for i, t in enumerate(tasks)}
     for fut in as_completed(futures):
         yield futures[fut], fut.result()
@@ -504,6 +520,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     base_values = {p.name: p.start for p in base_parameters(cfg, [r.data for r in fit])}
 
     def task(present: StepFit | None, effect: str | None) -> FitTask:
+        acc: tuple[tuple[str, Mapping[str, float]], ...]
         if present is None:
             bv, acc = base_values, ()
         else:
@@ -524,7 +541,8 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     rounds: list[list[StepFit]] = []
     steps: list[StepFit] = []
     with _LocalPool(jobs if executor is None else 1) as local:
-        def run(present: StepFit | None, effects_: Sequence[str | None], label: str):
+        def run(present: StepFit | None, effects_: Sequence[str | None], label: str
+                ) -> list[StepFit]:
             tasks = [task(present, e) for e in effects_]
             out: list[StepFit | None] = [None] * len(tasks)
             it = (_unordered(executor, run_fit_task, tasks) if executor is not None
@@ -535,7 +553,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                 say(f"{label} [{n_done}/{len(tasks)}] {e}: held-out r.m.s. "
                     + ", ".join(f"{v['rms']:.1f}" for v in res["held"].values())
                     + f" N ({res['evaluations']} simulations, {res['seconds']:.1f} s)")
-            return out
+            return cast("list[StepFit]", out)  # every task has filled its slot
 
         say(f"round 1: the paper's model refitted and {len(cands)} candidates fitted with "
             f"it ({min(jobs, len(cands) + 1) if executor is None else 'executor'} "
@@ -553,7 +571,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             rounds.append(sorted(fits, key=lambda f: (-f.significant, -f.score)))
             sig = [f for f in fits if f.significant]
             for f in rounds[-1][:3]:
-                say(f"round {len(rounds)}: {f.candidate.effect} gain {100 * f.score:+.1f} %, "
+                say(f"round {len(rounds)}: {f._added.effect} gain {100 * f.score:+.1f} %, "
                     f"ΔBIC {f.delta_bic:.0f}{' (significant)' if f.significant else ''}")
             if small:
                 say(f"round {len(rounds)}: held-out r.m.s. {pooled_rms(held_res):.2f} N is "
@@ -562,8 +580,8 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                 break
             best = max(sig, key=lambda f: f.score)
             steps.append(best)
-            remaining.remove(best.candidate.effect)
-            say(f"added {best.candidate.effect} ({best.candidate.family}): held-out gain "
+            remaining.remove(best._added.effect)
+            say(f"added {best._added.effect} ({best._added.family}): held-out gain "
                 f"{100 * best.score:.1f} %")
             held_best = [r.residual(best.model()) for r in held]
             if (len(steps) >= max_effects or not remaining
@@ -589,7 +607,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                 and pooled_rms(final_held) > floor):
             closest, steps = steps[0], []
     if steps:
-        family, effect = steps[0].candidate.family, steps[0].candidate.effect
+        family, effect = steps[0]._added.family, steps[0]._added.effect
     else:
         family = ("other" if structure_ref > STRUCTURE_RATIO and pooled_rms(ref_held) > floor
                   else "none")
@@ -606,6 +624,6 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     diag.rms_after = {r.name: rms(after[r.name]) for r in records}
     diag.structure_after = structure_ratio([after[r.name] for r in held])
     diag.seconds = time.perf_counter() - t_start
-    say(f"diagnosis: {family}" + (f" ({', '.join(s.candidate.effect for s in steps)})"
+    say(f"diagnosis: {family}" + (f" ({', '.join(s._added.effect for s in steps)})"
                                   if steps else "") + f" in {diag.seconds:.1f} s")
     return diag

@@ -21,8 +21,10 @@ import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, TextIO
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from damper_emulator.errors import UserError
 
@@ -75,6 +77,10 @@ class MeasuredDataError(UserError):
     """A measured-data file is unreadable or malformed; the message is one line."""
 
 
+#: ``fail(message, row=None)``: the one-line error of a file (see :class:`CsvTable`)
+_Fail = Callable[..., MeasuredDataError]
+
+
 @dataclass(frozen=True)
 class MeasuredData:
     """One measured-data file, as arrays of equal length (SI units)."""
@@ -100,10 +106,11 @@ class MeasuredData:
         """The measured velocity, or the numerical derivative of the displacement [m/s]."""
         if self.velocity is not None:
             return self.velocity
-        return np.gradient(self.displacement, self.time)
+        derivative: np.ndarray = np.gradient(self.displacement, self.time)
+        return derivative
 
 
-def open_text(path: Path):
+def open_text(path: Path) -> TextIO:
     """Text stream of a plain or gzip-compressed file."""
     with open(path, "rb") as fh:
         magic = fh.read(2)
@@ -117,7 +124,7 @@ def short_text(value: str) -> str:
     return value if len(value) <= 40 else value[:37] + "..."
 
 
-def parse_number(text: str, column: str, row: int, fail) -> float:
+def parse_number(text: str, column: str, row: int, fail: _Fail) -> float:
     """A finite number from one CSV field; otherwise the error ``fail(message, row)``
     returns, naming the column and what the field holds."""
     text = text.strip()
@@ -137,16 +144,16 @@ class CsvTable:
 
     #: parsed values per column present in the file, in the order of the column spec (a
     #: list, or a float array where every column is numeric)
-    values: dict[str, list | np.ndarray]
+    values: Mapping[str, list[Any] | np.ndarray]
     #: number of data rows (blank lines not counted)
     rows: int
     #: ``fail(message, row=None)`` → a one-line :class:`MeasuredDataError` naming the file
     #: and, with ``row`` (1-based data row), the row and its line in the file
-    fail: Callable[..., MeasuredDataError]
+    fail: _Fail
 
 
 def read_csv_table(path: str | Path, required: Sequence[str], optional: Sequence[str] = (),
-                   parsers: Mapping[str, Callable] | None = None,
+                   parsers: Mapping[str, Callable[[str, str, int, _Fail], Any]] | None = None,
                    kind: str = "measured-data file") -> CsvTable:
     """Read the named columns of a CSV file (or ``.csv.gz``) with a header row.
 
@@ -212,7 +219,7 @@ def read_csv_table(path: str | Path, required: Sequence[str], optional: Sequence
                     read_fast = True
                     return CsvTable({c: fast[:, k].copy() for k, c in enumerate(cols)},
                                     fast.shape[0], fail)
-            values: dict[str, list] = {c: [] for c in cols}
+            values: dict[str, list[Any]] = {c: [] for c in cols}
             need = max(index.values()) + 1
             row = 0
             for fields_ in rows:
@@ -310,14 +317,15 @@ def read_measured_csv(path: str | Path) -> MeasuredData:
     return data
 
 
-def _check_magnitude(values, limit, column, unit, hint, fail) -> None:
+def _check_magnitude(values: np.ndarray, limit: float, column: str, unit: str, hint: str,
+                     fail: _Fail) -> None:
     i = int(np.argmax(np.abs(values)))
     if abs(values[i]) > limit:
         raise fail(f"{column} {values[i]:.6g} exceeds {limit:g} {unit} in magnitude: {hint}",
                    i + 1)
 
 
-def _check_time_unit(data: MeasuredData, fail) -> None:
+def _check_time_unit(data: MeasuredData, fail: _Fail) -> None:
     """Refuse time in milliseconds.
 
     Raises
@@ -353,7 +361,7 @@ def _check_time_unit(data: MeasuredData, fail) -> None:
                    "(or velocity is in mm/s, expected m/s)", i + 1)
 
 
-def _check_force_unit(data: MeasuredData, fail) -> None:
+def _check_force_unit(data: MeasuredData, fail: _Fail) -> None:
     """Refuse force in kilonewtons.
 
     Raises
@@ -380,8 +388,9 @@ def _check_force_unit(data: MeasuredData, fail) -> None:
                    f"{MIN_DAMPING_N_S_M:g} N·s/m: {hint}", i + 1)
 
 
-def write_measured_csv(path: str | Path, time, displacement, force, velocity=None,
-                       temperature=None) -> Path:
+def write_measured_csv(path: str | Path, time: ArrayLike, displacement: ArrayLike,
+                       force: ArrayLike, velocity: ArrayLike | None = None,
+                       temperature: ArrayLike | None = None) -> Path:
     """Write a measured-data CSV (gzip-compressed when ``path`` ends in ``.gz``).
 
     Columns ``time,displacement[,velocity],force[,temperature]`` in SI units, values

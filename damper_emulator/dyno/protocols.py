@@ -89,7 +89,8 @@ def _times(duration_s: float, rate_hz: float) -> np.ndarray:
 
 def quasi_static(velocity_m_s: float = QuasiStatic.velocity_m_s,
                  amplitude_m: float = QuasiStatic.amplitude_m,
-                 cycles: int = QuasiStatic.cycles, rate_hz: float = QuasiStatic.rate_hz):
+                 cycles: int = QuasiStatic.cycles, rate_hz: float = QuasiStatic.rate_hz
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Constant-velocity triangle: 0 → +A → −A → 0 per cycle at ``velocity_m_s``.
 
     The paper's quasi-static test (4 mm/s); the default lasts 150 s.
@@ -107,7 +108,8 @@ def quasi_static(velocity_m_s: float = QuasiStatic.velocity_m_s,
 
 def chirp(f_start_hz: float = Chirp.f_start_hz, f_end_hz: float = Chirp.f_end_hz,
           duration_s: float = Chirp.duration_s, v_start_m_s: float = Chirp.v_start_m_s,
-          v_end_m_s: float = Chirp.v_end_m_s, rate_hz: float = Chirp.rate_hz):
+          v_end_m_s: float = Chirp.v_end_m_s, rate_hz: float = Chirp.rate_hz
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exponential sine sweep whose velocity amplitude grows exponentially.
 
     Frequency ``f(t) = f0 (f1/f0)^(t/T)``, phase ``φ = 2π f0 T (e^(t ln(f1/f0)/T) − 1) /
@@ -131,7 +133,8 @@ def chirp(f_start_hz: float = Chirp.f_start_hz, f_end_hz: float = Chirp.f_end_hz
 
 
 def sine(frequency_hz: float, amplitude_m: float, cycles: float = Sine.cycles,
-         rate_hz: float = Sine.rate_hz, start_cycles: float = 0.0):
+         rate_hz: float = Sine.rate_hz, start_cycles: float = 0.0
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``x = A sin(2π f t)`` for ``cycles`` periods from ``t = 0``, optionally preceded by a
     lead-in of ``start_cycles`` periods (negative times, to discard).  The lead-in is rounded
     up to whole samples so that one sample falls exactly on ``t = 0``."""

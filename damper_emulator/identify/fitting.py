@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -56,7 +57,7 @@ class FitResult:
     #: standard errors are then not meaningful)
     at_bound: tuple[str, ...] = ()
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {
             "parameters": {n: float(v) for n, v in zip(self.names, self.values)},
             "std_errors": {n: float(s) for n, s in zip(self.names, self.std_errors)},
@@ -72,9 +73,9 @@ class FitResult:
 
 
 def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-        names: Sequence[str], start: np.ndarray, log_scaled: Sequence[bool],
+        names: Sequence[str], start: np.ndarray, log_scaled: Sequence[bool] | np.ndarray,
         lower: np.ndarray, upper: np.ndarray, measured: np.ndarray,
-        fixed: Sequence[bool] | None = None, penalty_rows: int = 0) -> FitResult:
+        fixed: Sequence[bool] | np.ndarray | None = None, penalty_rows: int = 0) -> FitResult:
     """Minimise ``Σ r(θ)²`` from ``start`` within ``[lower, upper]`` (natural scale).
 
     Parameters
@@ -105,15 +106,15 @@ def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
                            measured, free, penalty_rows)
     log_mask = np.asarray(log_scaled, dtype=bool)
 
-    def to_u(theta):
+    def to_u(theta: np.ndarray) -> np.ndarray:
         return np.where(log_mask, np.log(np.where(log_mask, theta, 1.0)), theta)
 
-    def to_theta(u):
+    def to_theta(u: np.ndarray) -> np.ndarray:
         return np.where(log_mask, np.exp(u), u)
 
     cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
-    def evaluate(u):
+    def evaluate(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         key = u.tobytes()
         if key not in cache:
             cache.clear()
@@ -148,10 +149,12 @@ def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
                      (), at_bound)
 
 
-def _fit_subset(residual_and_jacobian, names, start, log_scaled, lower, upper, measured,
+def _fit_subset(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                names: Sequence[str], start: np.ndarray, log_scaled: Sequence[bool] | np.ndarray,
+                lower: np.ndarray, upper: np.ndarray, measured: np.ndarray,
                 free: np.ndarray, penalty_rows: int) -> FitResult:
     """:func:`fit` over the free parameters only, reported over all of them."""
-    def residual(theta_free):
+    def residual(theta_free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         theta = start.copy()
         theta[free] = theta_free
         r, jac = residual_and_jacobian(theta)

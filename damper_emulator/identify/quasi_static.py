@@ -12,7 +12,10 @@ its force at the measured velocities is passed in as ``valve_force_n`` and inclu
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from damper_emulator.errors import UserError
 from damper_emulator.identify.fitting import FitResult, fit
@@ -26,17 +29,23 @@ GAS_BOUND_FACTOR = 20.0
 GAS_TRAVEL_MARGIN = 1.05
 
 
+#: a stroke: one value, or an array of them (the force has its type)
+_X = TypeVar("_X", float, NDArray[np.float64])
+
+
 class IdentificationError(UserError):
     """The data cannot support the fit (one-line message)."""
 
 
-def gas_force(x_m, p_gas_pa, v_gas_m3, rod_area_m2, gamma):
+def gas_force(x_m: _X, p_gas_pa: float, v_gas_m3: float, rod_area_m2: float, gamma: float
+              ) -> _X:
     """Gas-spring force ``−A_rod P_com(x)`` [N] (eqs 3, 37)."""
     return -rod_area_m2 * compression_chamber_pressure(x_m, p_gas_pa, v_gas_m3, rod_area_m2,
                                                        gamma)
 
 
-def start_values(x, v, force, rod_area_m2, gamma):
+def start_values(x: np.ndarray, v: np.ndarray, force: np.ndarray, rod_area_m2: float,
+                 gamma: float) -> np.ndarray:
     """Start values from the data: ``F ≈ c0 + c1 x + c2 sgn ẋ`` by linear least squares;
     ``P = −c0/A_rod``, ``V = γ A_rod² P / c1`` (the slope of eq 37 at x = 0),
     ``F_friction = c2``."""
@@ -54,8 +63,8 @@ def start_values(x, v, force, rod_area_m2, gamma):
     return np.array([p, gamma * rod_area_m2 ** 2 * p / c1, max(c2, 0.0)])
 
 
-def fit_quasi_static(x, v, force, rod_area_m2: float, gamma: float,
-                     valve_force_n=None) -> FitResult:
+def fit_quasi_static(x: np.ndarray, v: np.ndarray, force: np.ndarray, rod_area_m2: float,
+                     gamma: float, valve_force_n: ArrayLike | None = None) -> FitResult:
     """Fit eq 37 (plus a known valve force) to quasi-static data.
 
     Parameters
@@ -84,7 +93,7 @@ def fit_quasi_static(x, v, force, rod_area_m2: float, gamma: float,
     start = start_values(x, v, target, rod_area_m2, gamma)
     sgn = np.sign(v)
 
-    def residual(theta):
+    def residual(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p, vol, fr = theta
         fg = gas_force(x, p, vol, rod_area_m2, gamma)
         r = fg + fr * sgn - target

@@ -20,7 +20,10 @@ Start values come from the data: the measured pressure drop ``Δp = (F − F_gas
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from damper_emulator.identify.fitting import FitResult, fit
 from damper_emulator.identify.quasi_static import IdentificationError
@@ -61,12 +64,13 @@ MONOTONIC_PENALTY = 1e3
 COMPLEX_STEP = 1e-20
 
 
-def hysteresis_filter(velocity, acceleration):
+def hysteresis_filter(velocity: ArrayLike, acceleration: ArrayLike) -> np.ndarray:
     """The paper's filter: keep samples where velocity and acceleration differ in sign."""
-    return np.asarray(velocity) * np.asarray(acceleration) < 0
+    keep: np.ndarray = np.asarray(velocity) * np.asarray(acceleration) < 0
+    return keep
 
 
-def start_values(q, dp, nu_m2_s):
+def start_values(q: np.ndarray, dp: np.ndarray, nu_m2_s: float) -> np.ndarray:
     """Valve start values ``(k_leak, k_port, k_spring, preload_pa, G)`` from measured
     ``Δp(Q)`` of one direction (see the module docstring)."""
     order = np.argsort(q)
@@ -96,14 +100,15 @@ def start_values(q, dp, nu_m2_s):
     return np.array([k_total - k_port, k_port, k_spring, preload, G_START])
 
 
-def extension_intercept_excess(theta, nu_m2_s) -> tuple[float, np.ndarray]:
+def extension_intercept_excess(theta: ArrayLike, nu_m2_s: float) -> tuple[float, np.ndarray]:
     """``ρ − (1 − INTERCEPT_MARGIN)`` with ``ρ = H1 B0 / H0 = (7/4)(K_leak/B1 + K_port) /
     (K_leak + K_port)`` (eqs 29, 47 and the corrected eq 48), and its gradient with respect
     to the five valve parameters (complex step)."""
-    def rho(th):
+    def rho(th: np.ndarray) -> complex:
         k_leak, k_port, k_spring, preload = th[0], th[1], th[2], th[3]
         _b0, b1, _b2, _b3 = blow_off_coefficients(k_leak, k_spring, preload, nu_m2_s)
-        return FLOW_EXPONENT * (k_leak / b1 + k_port) / (k_leak + k_port)
+        value: complex = FLOW_EXPONENT * (k_leak / b1 + k_port) / (k_leak + k_port)
+        return value
 
     theta = np.asarray(theta, dtype=float)
     value = float(np.real(rho(theta)))
@@ -116,8 +121,9 @@ def extension_intercept_excess(theta, nu_m2_s) -> tuple[float, np.ndarray]:
     return value - (1.0 - INTERCEPT_MARGIN), grad
 
 
-def effective_variance_weights(q, flow_sd_m3_s, force_sd_n, area_m2, valve, nu_m2_s,
-                               form="cardano"):
+def effective_variance_weights(q: np.ndarray, flow_sd_m3_s: float | np.ndarray,
+                               force_sd_n: float, area_m2: float, valve: Iterable[float],
+                               nu_m2_s: float, form: str = "cardano") -> np.ndarray:
     """Weights that account for noise in the flow as well as in the force.
 
     The compressibility-corrected flow carries the noise of the pressure derivative
@@ -130,8 +136,10 @@ def effective_variance_weights(q, flow_sd_m3_s, force_sd_n, area_m2, valve, nu_m
     return force_sd_n / np.sqrt(force_sd_n ** 2 + slope ** 2)
 
 
-def fit_valve(q, dp_measured, area_m2: float, nu_m2_s: float, form: str = "cardano",
-              start=None, weights=None, fixed=None) -> FitResult:
+def fit_valve(q: np.ndarray, dp_measured: np.ndarray, area_m2: float, nu_m2_s: float,
+              form: str = "cardano", start: ArrayLike | None = None,
+              weights: ArrayLike | None = None, fixed: Mapping[str, float] | None = None
+              ) -> FitResult:
     """Fit one valve direction's ``Δp(Q)`` to measured pressure drops.
 
     The residual is in force units: ``(A_pt − A_rod)(Δp_model − Δp_measured)`` [N].
@@ -167,7 +175,7 @@ def fit_valve(q, dp_measured, area_m2: float, nu_m2_s: float, form: str = "carda
 
     scale_n = float(np.sqrt(np.mean((area_m2 * dp_measured) ** 2)))
 
-    def residual(theta):
+    def residual(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r = w * (pressure_drop_array(q, theta, nu_m2_s, form) - dp_measured)
         jac = w[:, None] * pressure_drop_jacobian(q, theta, nu_m2_s, form)
         # penalty row: the eq 29 extension must not fall below zero at Q = 0

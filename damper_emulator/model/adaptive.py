@@ -62,6 +62,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from damper_emulator.model.jit import kernel
 
@@ -89,7 +90,7 @@ def circle_area(diameter_m: float) -> float:
 
 
 @kernel
-def bypass_flow(dp, area, a, b):
+def bypass_flow(dp: float, area: float, a: float, b: float) -> tuple[float, float]:
     """Bypass flow ``Q_b`` [m³/s] (rebound → compression +) at ``Δp`` [Pa] through the open
     area ``area`` [m²], and ``dQ_b/dΔp``; ``(0, 0)`` when the bypass is closed."""
     if area <= 0.0:
@@ -100,7 +101,7 @@ def bypass_flow(dp, area, a, b):
 
 
 @kernel
-def bypass_area(command, area_comfort, area_normal):
+def bypass_area(command: float, area_comfort: float, area_normal: float) -> float:
     """Open area [m²] at the (effective) command ``c``: piecewise linear through
     ``(0, A_comfort)``, ``(0.5, A_normal)``, ``(1, 0)``; 0 for ``c >= 1``."""
     if command >= 1.0:
@@ -113,7 +114,7 @@ def bypass_area(command, area_comfort, area_normal):
 
 
 @kernel
-def solenoid_lag(effective, commanded, dt, t63):
+def solenoid_lag(effective: float, commanded: float, dt: float, t63: float) -> float:
     """The effective command after ``dt`` [s] of the first-order lag with time constant
     ``t63`` [s] (``t63 <= 0``: no lag), exact for a command held over the step."""
     if effective == commanded:
@@ -125,7 +126,8 @@ def solenoid_lag(effective, commanded, dt, t63):
     return commanded
 
 
-def bypass_pressure_drop(flow_m3_s, area_m2: float, a: float, b: float):
+def bypass_pressure_drop(flow_m3_s: ArrayLike, area_m2: float, a: float, b: float
+                         ) -> NDArray[np.float64]:
     """Forward law ``Δp = (a Q + b Q|Q|)/A²`` [Pa] (numpy; for checks and plots)."""
-    q = np.asarray(flow_m3_s, dtype=float)
+    q: NDArray[np.float64] = np.asarray(flow_m3_s, dtype=float)
     return (a * q + b * q * np.abs(q)) / area_m2 ** 2

@@ -31,8 +31,11 @@ import dataclasses
 import enum
 import math
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from damper_emulator.errors import UserError
 from damper_emulator.model.adaptive import (
@@ -62,7 +65,17 @@ from damper_emulator.model.valve_table import (
     table_flow,
     z_of_pressure_drop,
 )
-from damper_emulator.params import ModelConfig, check_extensions, load_config
+from damper_emulator.params import (
+    BypassGrooveParams,
+    DamperParams,
+    EndStopParams,
+    ExtensionParams,
+    LugreFrictionParams,
+    ModelConfig,
+    ViscosityTemperatureParams,
+    check_extensions,
+    load_config,
+)
 
 
 class Fault(enum.IntFlag):
@@ -85,6 +98,9 @@ class Fault(enum.IntFlag):
 #: Variable-step BDF2 is zero-stable for step ratios below 1 + √2; a larger jump in the
 #: sub-step (a pause in the input) restarts with one backward-Euler step.
 BDF2_MAX_STEP_RATIO = 1.0 + math.sqrt(2.0)
+
+#: The kernels' arrays: packed parameters, valve-table coefficients, state, samples.
+_Vec = NDArray[np.float64]
 
 # The same bits as plain ints for the compiled kernel.
 _INVALID_INPUT = int(Fault.INVALID_INPUT)
@@ -129,7 +145,8 @@ _VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
 
 
 @kernel
-def _valve_state(z, prm, coef_r, coef_c):
+def _valve_state(z: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec
+                 ) -> tuple[float, float, float, float, bool]:
     """Signed Δp [Pa], dΔp/dz, signed Q_pv [m³/s], dQ/dz, beyond-table flag at ``z``."""
     if z >= 0.0:
         dp, ddp = pressure_drop_of_z(z, prm[P_SCALE_R])
@@ -141,7 +158,7 @@ def _valve_state(z, prm, coef_r, coef_c):
 
 
 @kernel
-def _z_of(prm, dp, visc):
+def _z_of(prm: _Vec, dp: float, visc: float) -> float:
     """Table coordinate at which the (viscosity-scaled, factor ``visc``) valve drop is
     ``dp`` [Pa, signed]."""
     if dp >= 0.0:
@@ -150,7 +167,9 @@ def _z_of(prm, dp, visc):
 
 
 @kernel
-def _flow_state(z, prm, coef_r, coef_c, area, gr_area, visc, q_lag, lag_w):
+def _flow_state(z: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec, area: float, gr_area: float,
+                visc: float, q_lag: float, lag_w: float
+                ) -> tuple[float, float, float, float, bool, float]:
     """:func:`_valve_state` with the extensions and parallel paths: the valve drop scaled by
     ``visc``, the valve flow lagged (old flow ``q_lag``, weight ``lag_w``), the bypass (open
     ``area`` [m²]) and the groove (open ``gr_area``) in parallel.  Returns signed Δp,
@@ -175,8 +194,11 @@ def _flow_state(z, prm, coef_r, coef_c, area, gr_area, visc, q_lag, lag_w):
 
 
 @kernel
-def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area, p_com, visc,
-                      q_lag, lag_w, gr_area, mount_c, mount_off, air_hat):
+def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old: float,
+                      x: float, v: float, h: float, bp_area: float, p_com: float,
+                      visc: float, q_lag: float, lag_w: float, gr_area: float,
+                      mount_c: float, mount_off: float, air_hat: float
+                      ) -> tuple[float, float, float, int]:
     """One implicit step ``p − p_old = h f(p)`` of eq 2 to stroke ``x``, velocity ``v``:
     backward Euler as it stands, BDF2 with ``p_old``, ``h`` the BDF2 combinations.
 
@@ -266,7 +288,7 @@ def _implicit_substep(prm, coef_r, coef_c, p_old, z_old, x, v, h, bp_area, p_com
 
 
 @kernel
-def _friction(prm, state, v, dt):
+def _friction(prm: _Vec, state: _Vec, v: float, dt: float) -> float:
     """Friction force [N, rebound +] at velocity ``v``: eq 4's ``F_friction sgn(ẋ)``, or with
     LuGre friction ``σ0 z`` after the bristle state (``state[S_BRISTLE]``) has followed ``v``
     over ``dt`` (``dt = 0``: the steady state at ``v``)."""
@@ -278,23 +300,25 @@ def _friction(prm, state, v, dt):
         else:
             zb = lugre_steady(v, prm[P_LG_FC], prm[P_LG_FS], prm[P_LG_VS], s0)
         state[S_BRISTLE] = zb
-        return s0 * zb
+        f_lugre: float = s0 * zb
+        return f_lugre
     sgn = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-    return prm[P_FRICTION] * sgn
+    f_coulomb: float = prm[P_FRICTION] * sgn
+    return f_coulomb
 
 
 @kernel
-def _force(prm, p_reb, p_com, friction, x):
+def _force(prm: _Vec, p_reb: float, p_com: float, friction: float, x: float) -> float:
     """Damper force [N, rebound +], eq 4 (``friction`` its last term), plus the end stops'
     force at stroke ``x`` when they are in use."""
-    f = prm[P_A_ANNULUS] * p_reb - prm[P_A_PISTON] * p_com + friction
+    f: float = prm[P_A_ANNULUS] * p_reb - prm[P_A_PISTON] * p_com + friction
     if prm[P_ES_K] > 0.0:
         f += end_stop_force(x, prm[P_ES_XR], prm[P_ES_XC], prm[P_ES_K])
     return f
 
 
 @kernel
-def _viscosity_factor(prm, state):
+def _viscosity_factor(prm: _Vec, state: _Vec) -> float:
     """Valve-drop factor of the viscosity–temperature extension (1 when off)."""
     if prm[P_TH_BETA] <= 0.0:
         return 1.0
@@ -305,26 +329,29 @@ def _viscosity_factor(prm, state):
 
 
 @kernel
-def _gas_volume(prm, x):
-    return prm[V_GAS] + prm[P_A_ROD] * x
+def _gas_volume(prm: _Vec, x: float) -> float:
+    volume: float = prm[V_GAS] + prm[P_A_ROD] * x
+    return volume
 
 
 @kernel
-def _groove_area(prm, x):
+def _groove_area(prm: _Vec, x: float) -> float:
     """Open area of the bypass groove at stroke ``x`` [m²] (0 without one)."""
     if prm[P_GR_AREA] <= 0.0:
         return 0.0
-    return prm[P_GR_AREA] * groove_window(x, prm[P_GR_X], prm[P_GR_HALF])
+    area: float = prm[P_GR_AREA] * groove_window(x, prm[P_GR_X], prm[P_GR_HALF])
+    return area
 
 
 @kernel
-def _bypass_area_of(prm, command):
+def _bypass_area_of(prm: _Vec, command: float) -> float:
     """Open bypass area [m²] at the effective ``command``."""
     return bypass_area(command, prm[P_BP_AREA_COMFORT], prm[P_BP_AREA_NORMAL])
 
 
 @kernel
-def _equilibrium_z(prm, coef_r, coef_c, q_target, area, gr_area, visc):
+def _equilibrium_z(prm: _Vec, coef_r: _Vec, coef_c: _Vec, q_target: float, area: float,
+                   gr_area: float, visc: float) -> float:
     """Table coordinate at which valve, bypass (open ``area``) and groove (``gr_area``)
     pass ``q_target`` (the rigid-oil limit)."""
     lo = -prm[P_ZLIM_C]
@@ -337,11 +364,13 @@ def _equilibrium_z(prm, coef_r, coef_c, q_target, area, gr_area, visc):
             hi = mid
         if hi - lo <= prm[P_TOL]:
             break
-    return 0.5 * (lo + hi)
+    z: float = 0.5 * (lo + hi)
+    return z
 
 
 @kernel
-def init_state(prm, coef_r, coef_c, state, x, v):
+def init_state(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float
+               ) -> None:
     """Put ``state`` in quasi-steady equilibrium at stroke ``x`` moving at ``v``: valve and
     bypass (at the effective command ``state[S_CMD_EFF]``, left as it is) pass
     ``v (A_pt − A_rod)`` (at rest: ``p_reb = P_com``).  The extensions' states settle too
@@ -392,7 +421,8 @@ def init_state(prm, coef_r, coef_c, state, x, v):
 
 
 @kernel
-def step(prm, coef_r, coef_c, state, x, v, dt):
+def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float, dt: float
+         ) -> tuple[float, int]:
     """Advance ``state`` to the sample (stroke ``x`` [m], velocity ``v`` [m/s]) taken ``dt``
     seconds after the previous one; returns ``(force [N], fault flags)``.
 
@@ -539,8 +569,9 @@ def step(prm, coef_r, coef_c, state, x, v, dt):
 
 
 @kernel
-def _simulate_commanded(prm, coef_r, coef_c, state, t, x, v, command, temperature, force,
-                        p_reb, p_com, command_eff, flags):
+def _simulate_commanded(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _Vec, x: _Vec,
+                        v: _Vec, command: _Vec, temperature: _Vec, force: _Vec, p_reb: _Vec,
+                        p_com: _Vec, command_eff: _Vec, flags: NDArray[np.int64]) -> None:
     """The batch loop: ``command[i]`` is the valve command from sample ``i`` on (it drives
     the solenoid lag over the step to sample ``i + 1``); the start is settled at
     ``command[0]``.  ``temperature[i]`` [°C] (NaN: none) is the measured temperature the
@@ -562,7 +593,8 @@ def _simulate_commanded(prm, coef_r, coef_c, state, t, x, v, command, temperatur
 
 
 @kernel
-def _simulate(prm, coef_r, coef_c, state, t, x, v, force, p_reb, p_com, flags):
+def _simulate(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _Vec, x: _Vec, v: _Vec,
+              force: _Vec, p_reb: _Vec, p_com: _Vec, flags: NDArray[np.int64]) -> None:
     """The batch loop at valve command 1 ('sport', bypass closed) throughout, whatever
     ``state`` holds (the replay passes a zero state)."""
     state[S_CMD] = 1.0
@@ -579,10 +611,11 @@ def _simulate(prm, coef_r, coef_c, state, t, x, v, force, p_reb, p_com, flags):
         p_com[i] = state[S_P_COM]
 
 
-def _pack_extensions(prm: np.ndarray, d) -> None:
+def _pack_extensions(prm: np.ndarray, d: DamperParams) -> None:
     """Write the ``damper.extensions`` in use into the packed parameter vector (the others
     keep their neutral 0)."""
-    e = d.extensions
+    e = cast(ExtensionParams, d.extensions)  # the callers pass a damper with extensions
+    g: LugreFrictionParams | ViscosityTemperatureParams | EndStopParams | BypassGrooveParams
     if e.lugre_friction is not None:
         g = e.lugre_friction
         prm[P_LG_FC], prm[P_LG_FS] = g.coulomb_n, g.static_n
@@ -670,7 +703,7 @@ class DamperModel:
             _pack_extensions(prm, d)
         self.prm = prm
 
-    def with_extensions(self, extensions) -> DamperModel:
+    def with_extensions(self, extensions: ExtensionParams | None) -> DamperModel:
         """This model with its ``damper.extensions`` replaced by ``extensions``
         (:class:`~damper_emulator.params.ExtensionParams` or ``None``), checked; the valve
         tables are shared (extensions do not change them), so this is cheap."""
@@ -701,7 +734,7 @@ class DamperModel:
         return new
 
     @classmethod
-    def from_file(cls, path=None) -> DamperModel:
+    def from_file(cls, path: str | Path | None = None) -> DamperModel:
         return cls(load_config(path))
 
     @property
@@ -717,7 +750,7 @@ class DamperModel:
         return bool(self.prm[P_BP_AREA_COMFORT] > 0.0 or self.prm[P_BP_AREA_NORMAL] > 0.0)
 
 
-def check_valve_command(value) -> float:
+def check_valve_command(value: Any) -> float:
     """``value`` as a float if it is a valve command in [0, 1]; else ``ValueError``."""
     try:
         c = float(value)
@@ -908,8 +941,9 @@ def _check_samples(t: np.ndarray, x: np.ndarray, model: DamperModel) -> None:
                          f"({lo:.4g} m .. {hi:.4g} m: gas volume / L_pt − X0)")
 
 
-def simulate(model: DamperModel, time_s, stroke_m, velocity_m_s=None,
-             valve_command=1.0, temperature_c=None) -> SimulationResult:
+def simulate(model: DamperModel, time_s: ArrayLike, stroke_m: ArrayLike,
+             velocity_m_s: ArrayLike | None = None, valve_command: ArrayLike = 1.0,
+             temperature_c: ArrayLike | None = None) -> SimulationResult:
     """Simulate the compressible model over a whole displacement history.
 
     Uses the same compiled step as :class:`DamperStepper`, starting in quasi-steady

@@ -66,14 +66,15 @@ GROOVE_RAMP_FRACTION = 0.2
 
 
 @kernel
-def lugre_capacity(v, f_c, f_s, v_s):
+def lugre_capacity(v: float, f_c: float, f_s: float, v_s: float) -> float:
     """``g(v) = F_c + (F_s − F_c) exp(−(v/v_s)²)`` [N] (Stribeck curve), at least 1e-9 N."""
     r = v / v_s
     return max(f_c + (f_s - f_c) * math.exp(-r * r), 1e-9)
 
 
 @kernel
-def lugre_update(z, v, dt, f_c, f_s, v_s, sigma0):
+def lugre_update(z: float, v: float, dt: float, f_c: float, f_s: float, v_s: float,
+                 sigma0: float) -> float:
     """Bristle deflection [m] after ``dt`` [s] at the held velocity ``v`` [m/s]:
     ``z_ss + (z − z_ss) exp(−σ0 |v| dt / g(v))`` with ``z_ss = g(v) sgn(v) / σ0``
     (exact for the LuGre bristle equation at constant ``v``); unchanged at rest."""
@@ -85,7 +86,7 @@ def lugre_update(z, v, dt, f_c, f_s, v_s, sigma0):
 
 
 @kernel
-def lugre_steady(v, f_c, f_s, v_s, sigma0):
+def lugre_steady(v: float, f_c: float, f_s: float, v_s: float, sigma0: float) -> float:
     """Bristle deflection in steady sliding at ``v`` (0 at rest)."""
     if v == 0.0:
         return 0.0
@@ -93,13 +94,13 @@ def lugre_steady(v, f_c, f_s, v_s, sigma0):
 
 
 @kernel
-def viscosity_scale(beta, t_ref, t_c):
+def viscosity_scale(beta: float, t_ref: float, t_c: float) -> float:
     """Valve pressure-drop factor ``(ν(T)/ν_ref)^(1/4) = exp(−β (T − T_ref)/4)``."""
     return math.exp(-0.25 * beta * (t_c - t_ref))
 
 
 @kernel
-def heat_rise(rise, power, dt, capacity, tau):
+def heat_rise(rise: float, power: float, dt: float, capacity: float, tau: float) -> float:
     """Temperature rise [K] of the lumped heat model after ``dt`` at the held ``power``
     [W]: ``ΔT_∞ + (ΔT − ΔT_∞) exp(−dt/τ)``, ``ΔT_∞ = P τ / C``."""
     target = power * tau / capacity
@@ -107,7 +108,7 @@ def heat_rise(rise, power, dt, capacity, tau):
 
 
 @kernel
-def end_stop_force(x, x_reb, x_com, k):
+def end_stop_force(x: float, x_reb: float, x_com: float, k: float) -> float:
     """Force of the progressive end stops [N, rebound +] at stroke ``x``."""
     if x > x_reb:
         d = x - x_reb
@@ -119,7 +120,7 @@ def end_stop_force(x, x_reb, x_com, k):
 
 
 @kernel
-def groove_window(x, center, half_length):
+def groove_window(x: float, center: float, half_length: float) -> float:
     """Open fraction (0..1) of a bypass groove at stroke ``x``: 1 within the groove, linear
     ramps of ``GROOVE_RAMP_FRACTION × half_length`` centred on its ends."""
     ramp = GROOVE_RAMP_FRACTION * half_length
@@ -128,16 +129,17 @@ def groove_window(x, center, half_length):
 
 
 @kernel
-def gas_temperature(theta, v_old, v_new, gamma, h, tau):
+def gas_temperature(theta: float, v_old: float, v_new: float, gamma: float, h: float,
+                    tau: float) -> float:
     """Gas temperature ratio ``T/T_wall`` after the volume goes from ``v_old`` to ``v_new``
     [m³] in ``h`` [s]: the adiabatic change ``θ (V_old/V_new)^(γ−1)``, then relaxation
     towards 1 with the factor ``exp(−h/τ)``."""
-    theta_ad = theta * (v_old / v_new) ** (gamma - 1.0)
+    theta_ad: float = theta * (v_old / v_new) ** (gamma - 1.0)
     return 1.0 + (theta_ad - 1.0) * math.exp(-h / tau)
 
 
 @kernel
-def lag_weight(tau, h):
+def lag_weight(tau: float, h: float) -> float:
     """Backward-Euler weight of the old value in ``τ dq/dt = q_ss − q`` over ``h``:
     ``q_new = w q_old + (1 − w) q_ss``, ``w = τ/(τ + h)``."""
     return tau / (tau + h)

@@ -30,7 +30,9 @@ import hashlib
 import os
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar, cast
 
 import numba
 from numba import njit
@@ -97,17 +99,23 @@ def _configure_cache() -> Path:
         pass                         # numba falls back to no caching with a warning
     _prune(directory.parent, directory)
     # numba picks the locator when a kernel is decorated: this runs before any is
-    numba.config.CACHE_DIR = str(directory)
+    # (numba.config sets its options as module globals at run time: no attribute to type)
+    numba.config.CACHE_DIR = str(directory)  # type: ignore[attr-defined]
     return directory
 
 
 #: Where this process's kernels are cached (set on import, before any kernel exists).
 CACHE_DIR = _configure_cache()
 
-_KERNELS: list = []
+#: a kernel's Python function; the compiled dispatcher is called with its signature
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+#: the registered dispatchers (numba's ``CPUDispatcher``, untyped: ``signatures``,
+#: ``py_func``)
+_KERNELS: list[Any] = []
 
 
-def _registered(dispatcher):
+def _registered(dispatcher: Any) -> Any:
     _KERNELS.append(dispatcher)
     return dispatcher
 
@@ -116,15 +124,15 @@ _physics = njit(cache=True, fastmath=set(FASTMATH_FLAGS))
 _plain = njit(cache=True)
 
 
-def kernel(func):
+def kernel(func: _F) -> _F:
     """Decorator for every compiled physics kernel (fast-math, cached, registered)."""
-    return _registered(_physics(func))
+    return cast(_F, _registered(_physics(func)))
 
 
-def plain_kernel(func):
+def plain_kernel(func: _F) -> _F:
     """Decorator for compiled helpers that need exact IEEE arithmetic (byte handling of the
     bag readers): cached and registered, no fast-math."""
-    return _registered(_plain(func))
+    return cast(_F, _registered(_plain(func)))
 
 
 def compiled_signatures() -> int:

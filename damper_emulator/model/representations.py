@@ -19,15 +19,21 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, cast, overload
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import PchipInterpolator
 
 from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.errors import UserError
 
+if TYPE_CHECKING:  # pragma: no cover
+    from damper_emulator.model.compressible import DamperModel
+    from damper_emulator.params import ModelConfig
 
-def _finite_number(name: str, value) -> float:
+
+def _finite_number(name: str, value: Any) -> float:
     try:
         out = float(value)
     except (TypeError, ValueError):
@@ -37,16 +43,16 @@ def _finite_number(name: str, value) -> float:
     return out
 
 
-def _velocity_array(velocity) -> tuple[np.ndarray, bool]:
-    v = np.asarray(velocity, dtype=float)
+def _velocity_array(velocity: ArrayLike) -> tuple[NDArray[np.float64], bool]:
+    v: NDArray[np.float64] = np.asarray(velocity, dtype=float)
     if not np.isfinite(v).all():
         bad = v.flat[int(np.argmax(~np.isfinite(v)))] if v.ndim else v
         raise UserError(f"damper velocity must be finite, got {float(bad)!r}")
     return v, v.ndim == 0
 
 
-def _curve(name: str, values) -> np.ndarray:
-    a = np.asarray(values, dtype=float)
+def _curve(name: str, values: ArrayLike) -> NDArray[np.float64]:
+    a: NDArray[np.float64] = np.asarray(values, dtype=float)
     if a.ndim != 1:
         raise UserError(f"{name} must be one-dimensional, got shape {a.shape}")
     bad = ~np.isfinite(a)
@@ -77,7 +83,13 @@ class LinearDamper:
         self.rate_ns_m = rate
         self.static_force_n = _finite_number("static force [N]", static_force_n)
 
-    def force(self, velocity):
+    @overload
+    def force(self, velocity: float) -> float: ...
+
+    @overload
+    def force(self, velocity: ArrayLike) -> float | NDArray[np.float64]: ...
+
+    def force(self, velocity: ArrayLike) -> float | NDArray[np.float64]:
         """Force [N, rebound +] at ``velocity`` [m/s] (scalar → float, array → array)."""
         if isinstance(velocity, float | int) and not isinstance(velocity, bool):
             if not math.isfinite(velocity):
@@ -94,7 +106,7 @@ class LinearDamper:
                 f"static_force_n={self.static_force_n:.6g})")
 
 
-def linear_best_fit(velocity, force, static_force_n: float = 0.0) -> float:
+def linear_best_fit(velocity: ArrayLike, force: ArrayLike, static_force_n: float = 0.0) -> float:
     """Least-squares damping rate [N s/m] of ``force`` against ``velocity``, the line
     constrained through ``(0, static_force_n)``:
 
@@ -115,7 +127,8 @@ def linear_best_fit(velocity, force, static_force_n: float = 0.0) -> float:
     return float(np.dot(v, f - f0)) / den
 
 
-def linear_from_model(model, v_max: float, points: int = 201) -> LinearDamper:
+def linear_from_model(model: DamperModel | ModelConfig, v_max: float, points: int = 201
+                      ) -> LinearDamper:
     """Linear damper fitted to the incompressible force (eqs 30–32) of ``model`` (a
     :class:`~damper_emulator.model.compressible.DamperModel` or a ``ModelConfig``).
 
@@ -125,7 +138,8 @@ def linear_from_model(model, v_max: float, points: int = 201) -> LinearDamper:
     """
     from damper_emulator.model.incompressible import incompressible_force
 
-    cfg = getattr(model, "cfg", model)
+    # a DamperModel's configuration, or the ModelConfig itself
+    cfg = cast("ModelConfig", getattr(model, "cfg", model))
     v_max = _finite_number("v_max [m/s]", v_max)
     if v_max <= 0:
         raise UserError(f"v_max must be > 0 m/s, got {v_max!r}")
@@ -161,7 +175,7 @@ class TableDamper:
         increasing or force decreasing somewhere (naming the node).
     """
 
-    def __init__(self, velocity_m_s, force_n):
+    def __init__(self, velocity_m_s: ArrayLike, force_n: ArrayLike):
         v = _curve("table velocity", velocity_m_s)
         f = _curve("table force", force_n)
         if v.size != f.size:
@@ -190,8 +204,9 @@ class TableDamper:
         self._coef = [tuple(float(c) for c in col) for col in self._pchip.c.T]
 
     @classmethod
-    def from_branches(cls, rebound_velocity_m_s, rebound_force_n, compression_velocity_m_s,
-                      compression_force_n, static_force_n: float) -> TableDamper:
+    def from_branches(cls, rebound_velocity_m_s: ArrayLike, rebound_force_n: ArrayLike,
+                      compression_velocity_m_s: ArrayLike, compression_force_n: ArrayLike,
+                      static_force_n: float) -> TableDamper:
         """Table from separate rebound (``ẋ > 0``) and compression (``ẋ < 0``) points, in
         any order, joined through ``(0, static_force_n)``."""
         vr = _curve("rebound velocity", rebound_velocity_m_s)
@@ -226,7 +241,13 @@ class TableDamper:
         """Force at ``ẋ = 0`` [N]."""
         return self.force(0.0)
 
-    def force(self, velocity):
+    @overload
+    def force(self, velocity: float) -> float: ...
+
+    @overload
+    def force(self, velocity: ArrayLike) -> float | NDArray[np.float64]: ...
+
+    def force(self, velocity: ArrayLike) -> float | NDArray[np.float64]:
         """Force [N, rebound +] at ``velocity`` [m/s] (scalar → float, array → array)."""
         if isinstance(velocity, float | int) and not isinstance(velocity, bool):
             return self._force_scalar(float(velocity))
@@ -259,7 +280,7 @@ class TableDamper:
                 f"{self.velocity_m_s[0]:.4g}..{self.velocity_m_s[-1]:.4g} m/s)")
 
 
-def fourteen_speed_damper(model, points: int = FourteenSpeed.points,
+def fourteen_speed_damper(model: DamperModel, points: int = FourteenSpeed.points,
                           amplitude_m: float = FourteenSpeed.amplitude_m,
                           v_min: float = FourteenSpeed.v_min_m_s,
                           v_max: float = FourteenSpeed.v_max_m_s,

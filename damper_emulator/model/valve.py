@@ -17,8 +17,11 @@ in the paper's units: ``K_leak``, ``K_port`` [kg/m^(27/4)], ``K_spring``
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
+from typing import TypeVar
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from damper_emulator.errors import UserError
 from damper_emulator.model.jit import kernel
@@ -36,9 +39,14 @@ FORM_EXACT = 1
 # from a bracket of relative width one (2^-60 ~ 1e-18).
 _EXACT_ITERATIONS = 60
 
+#: A kernel's number: real, or complex for the complex-step derivatives (the real part
+#: carries the value).
+_Num = TypeVar("_Num", float, complex)
+
 
 @kernel
-def blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s):
+def blow_off_coefficients(k_leak: _Num, k_spring: _Num, preload_pa: _Num,
+                          nu_m2_s: float) -> tuple[_Num, _Num, _Num, _Num]:
     """Taylor coefficients of the open-valve flow about the blow-off point.
 
     Eqs 23 and 40–43: ``B0 = Q_leak,bo = (Δp0 / (K_leak ν^¼))^(4/7)`` and
@@ -59,20 +67,21 @@ def blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s):
 
 
 @kernel
-def _abs(a):
+def _abs(a: _Num) -> _Num:
     """``|a|`` by the sign of the real part: the identity for real numbers, and for a
     complex-step argument ``a + ih`` it keeps the derivative (``abs`` would not)."""
     return a if a.real >= 0.0 else -a
 
 
 @kernel
-def _cbrt(a):
+def _cbrt(a: _Num) -> _Num:
     """Real cube root (sign by the real part; complex-step safe)."""
-    return a ** (1.0 / 3.0) if a.real >= 0.0 else -((-a) ** (1.0 / 3.0))
+    root: _Num = a ** (1.0 / 3.0) if a.real >= 0.0 else -((-a) ** (1.0 / 3.0))
+    return root
 
 
 @kernel
-def leak_flow_cardano(q_tot, b0, b1, b2, b3):
+def leak_flow_cardano(q_tot: _Num, b0: _Num, b1: _Num, b2: _Num, b3: _Num) -> _Num:
     """Leak flow of the open valve by the paper's explicit cubic solution (eqs 44–46, 22).
 
     Where ``D3 < 0`` (three real roots) the principal complex cube roots of eq 22 are
@@ -97,18 +106,22 @@ def leak_flow_cardano(q_tot, b0, b1, b2, b3):
         elif c.real < -1.0:
             c = c - (c.real + 1.0)
         t = 2.0 * r * np.cos(np.arccos(c) / 3.0)
-    return b0 - b2 / (3.0 * b3) + t  # eq 22
+    q_leak: _Num = b0 - b2 / (3.0 * b3) + t  # eq 22
+    return q_leak
 
 
 @kernel
-def total_flow_open(q_leak, k_leak, k_spring, preload_pa, nu_m2_s):
+def total_flow_open(q_leak: _Num, k_leak: _Num, k_spring: _Num, preload_pa: _Num,
+                    nu_m2_s: float) -> _Num:
     """Total flow of the open valve as a function of the leak flow, eq 19."""
     dp_leak = k_leak * nu_m2_s ** 0.25 * q_leak ** FLOW_EXPONENT
-    return q_leak + (dp_leak - preload_pa) * dp_leak ** 0.5 / k_spring
+    q_tot: _Num = q_leak + (dp_leak - preload_pa) * dp_leak ** 0.5 / k_spring
+    return q_tot
 
 
 @kernel
-def leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0):
+def leak_flow_exact(q_tot: _Num, k_leak: _Num, k_spring: _Num, preload_pa: _Num,
+                    nu_m2_s: float, b0: _Num) -> _Num:
     """Leak flow of the open valve by an exact root solve of eq 19 (``q_tot >= b0``).
 
     Eq 19 is increasing in ``Q_leak`` above the blow-off point and ``Q_tot(Q_leak) >=
@@ -132,17 +145,21 @@ def leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0):
     p = k_leak * nu_m2_s ** 0.25 * root ** FLOW_EXPONENT
     slope = 1.0 + FLOW_EXPONENT * p / root * (p ** 0.5 + (p - preload_pa) / (2.0 * p ** 0.5)) \
         / k_spring
-    return root - (total_flow_open(root, k_leak, k_spring, preload_pa, nu_m2_s) - q_tot) / slope
+    q_leak: _Num = root - (total_flow_open(root, k_leak, k_spring, preload_pa, nu_m2_s)
+                          - q_tot) / slope
+    return q_leak
 
 
 @kernel
-def pressure_drop_closed(q_tot, k_leak, k_port, nu_m2_s):
+def pressure_drop_closed(q_tot: _Num, k_leak: _Num, k_port: _Num, nu_m2_s: float) -> _Num:
     """Pressure drop with the blow-off valve closed, eq 15."""
-    return (k_port + k_leak) * nu_m2_s ** 0.25 * q_tot ** FLOW_EXPONENT
+    dp: _Num = (k_port + k_leak) * nu_m2_s ** 0.25 * q_tot ** FLOW_EXPONENT
+    return dp
 
 
 @kernel
-def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, form):
+def pressure_drop_open(q_tot: _Num, k_leak: _Num, k_port: _Num, k_spring: _Num,
+                       preload_pa: _Num, nu_m2_s: float, form: int) -> _Num:
     """Pressure drop with the blow-off valve open: eq 27 above the blow-off flow, its
     linear extension eqs 29/47 below it (``H1`` as corrected in docs/model.md §2.2)."""
     nu4 = nu_m2_s ** 0.25
@@ -152,22 +169,26 @@ def pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, for
             q_leak = leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0)
         else:
             q_leak = leak_flow_cardano(q_tot, b0, b1, b2, b3)
-        return nu4 * (k_leak * q_leak ** FLOW_EXPONENT + k_port * q_tot ** FLOW_EXPONENT)
+        dp: _Num = nu4 * (k_leak * q_leak ** FLOW_EXPONENT + k_port * q_tot ** FLOW_EXPONENT)
+        return dp
     h0 = b0 ** FLOW_EXPONENT * nu4 * (k_leak + k_port)  # eq 47
     h1 = FLOW_EXPONENT * nu4 * b0 ** 0.75 * (k_leak / b1 + k_port)  # docs/model.md §2.2, eq 48
-    return h0 + h1 * (q_tot - b0)  # eq 29
+    dp_low: _Num = h0 + h1 * (q_tot - b0)  # eq 29
+    return dp_low
 
 
 @kernel
-def smooth_transition(dp_open, dp_closed, g):
+def smooth_transition(dp_open: _Num, dp_closed: _Num, g: _Num) -> _Num:
     """Smoothed minimum of the two branches, eq 28."""
     if dp_closed.real == 0.0 or dp_open.real == 0.0:
         return dp_open * 0.0
-    return dp_open * dp_closed / (_abs(dp_open) ** g + _abs(dp_closed) ** g) ** (1.0 / g)
+    dp: _Num = dp_open * dp_closed / (_abs(dp_open) ** g + _abs(dp_closed) ** g) ** (1.0 / g)
+    return dp
 
 
 @kernel
-def pressure_drop(q_tot, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form):
+def pressure_drop(q_tot: _Num, k_leak: _Num, k_port: _Num, k_spring: _Num, preload_pa: _Num,
+                  g: _Num, nu_m2_s: float, form: int) -> _Num:
     """Valve pressure drop magnitude ``Δp(Q)`` [Pa] for a flow magnitude ``q_tot`` [m³/s].
 
     The smoothed (eq 28) combination of the closed-valve (eq 15) and open-valve
@@ -180,7 +201,9 @@ def pressure_drop(q_tot, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form)
 
 
 @kernel
-def _pressure_drop_loop(q, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form, out):
+def _pressure_drop_loop(q: NDArray[np.float64], k_leak: float, k_port: float, k_spring: float,
+                        preload_pa: float, g: float, nu_m2_s: float, form: int,
+                        out: NDArray[np.float64]) -> None:
     for i in range(q.size):
         out[i] = pressure_drop(q[i], k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form)
 
@@ -193,7 +216,8 @@ def form_code(form: str) -> int:
         raise UserError(f"valve form must be one of {VALVE_FORMS}, not {form!r}") from None
 
 
-def pressure_drop_array(q_m3_s, valve, nu_m2_s, form="cardano"):
+def pressure_drop_array(q_m3_s: ArrayLike, valve: Iterable[float], nu_m2_s: float,
+                        form: str = "cardano") -> NDArray[np.float64]:
     """``Δp(Q)`` [Pa] of one valve over an array of flow magnitudes [m³/s].
 
     Parameters
@@ -226,8 +250,9 @@ COMPLEX_STEP = 1e-30
 
 
 @kernel
-def _pressure_drop_jacobian_loop(q, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form,
-                                 out):
+def _pressure_drop_jacobian_loop(q: NDArray[np.float64], k_leak: float, k_port: float,
+                                 k_spring: float, preload_pa: float, g: float, nu_m2_s: float,
+                                 form: int, out: NDArray[np.float64]) -> None:
     params = np.array([k_leak, k_port, k_spring, preload_pa, g])
     for j in range(5):
         h = COMPLEX_STEP * params[j]
@@ -238,7 +263,8 @@ def _pressure_drop_jacobian_loop(q, k_leak, k_port, k_spring, preload_pa, g, nu_
             out[i, j] = pressure_drop(qc, p[0], p[1], p[2], p[3], p[4], nu_m2_s, form).imag / h
 
 
-def pressure_drop_jacobian(q_m3_s, valve, nu_m2_s, form="cardano"):
+def pressure_drop_jacobian(q_m3_s: ArrayLike, valve: Iterable[float], nu_m2_s: float,
+                           form: str = "cardano") -> NDArray[np.float64]:
     """Derivatives of ``Δp(Q)`` with respect to the valve parameters.
 
     Exact to round-off by complex-step differentiation (forward mode for an analytic
@@ -259,14 +285,17 @@ def pressure_drop_jacobian(q_m3_s, valve, nu_m2_s, form="cardano"):
 
 
 @kernel
-def _pressure_drop_slope_loop(q, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form, out):
+def _pressure_drop_slope_loop(q: NDArray[np.float64], k_leak: float, k_port: float,
+                              k_spring: float, preload_pa: float, g: float, nu_m2_s: float,
+                              form: int, out: NDArray[np.float64]) -> None:
     for i in range(q.size):
         h = COMPLEX_STEP * max(q[i], 1e-12)
         out[i] = pressure_drop(q[i] + 1j * h, k_leak + 0j, k_port + 0j, k_spring + 0j,
                                preload_pa + 0j, g + 0j, nu_m2_s, form).imag / h
 
 
-def pressure_drop_slope(q_m3_s, valve, nu_m2_s, form="cardano"):
+def pressure_drop_slope(q_m3_s: ArrayLike, valve: Iterable[float], nu_m2_s: float,
+                        form: str = "cardano") -> NDArray[np.float64]:
     """``dΔp/dQ`` [Pa s/m³] of one valve (complex step, exact to round-off)."""
     q = np.ascontiguousarray(q_m3_s, dtype=float).ravel()
     out = np.empty(q.size)

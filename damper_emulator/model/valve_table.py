@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.interpolate import PchipInterpolator
 
 from damper_emulator.errors import UserError
@@ -46,7 +48,7 @@ class ValveTableError(UserError):
 
 
 @kernel
-def pressure_drop_of_z(z, scale_pa):
+def pressure_drop_of_z(z: float, scale_pa: float) -> tuple[float, float]:
     """``Δp(z) = Δp_s (e^z − 1)^(7/4)`` and ``dΔp/dz`` for ``z >= 0``."""
     u = math.expm1(z)
     u34 = u ** (FLOW_EXPONENT - 1.0)
@@ -54,13 +56,13 @@ def pressure_drop_of_z(z, scale_pa):
 
 
 @kernel
-def z_of_pressure_drop(dp, scale_pa):
+def z_of_pressure_drop(dp: float, scale_pa: float) -> float:
     """Inverse of :func:`pressure_drop_of_z` for ``dp >= 0``."""
     return math.log1p((dp / scale_pa) ** (1.0 / FLOW_EXPONENT))
 
 
 @kernel
-def table_flow(coef, step, z):
+def table_flow(coef: NDArray[np.float64], step: float, z: float) -> tuple[float, float, bool]:
     """Flow ``Q(z)`` [m³/s], ``dQ/dz`` and whether ``z`` lies beyond the table (``z >= 0``).
 
     ``coef[i] = (c3, c2, c1, c0)`` of the cubic on ``[i·step, (i+1)·step]``.
@@ -79,7 +81,8 @@ def table_flow(coef, step, z):
 
 
 @kernel
-def _flows_at(dp_nodes, q_hi, valve, nu, form, out):
+def _flows_at(dp_nodes: NDArray[np.float64], q_hi: float, valve: tuple[float, ...], nu: float,
+              form: int, out: NDArray[np.float64]) -> None:
     """Exact inverse of ``Δp(Q)`` at each node (``dp_nodes`` increasing), by the Illinois
     variant of regula falsi on the forward characteristic, bracketed between the previous
     node's flow and ``q_hi``, to a relative width of :data:`_INVERSE_RTOL`.
@@ -127,7 +130,8 @@ def _flows_at(dp_nodes, q_hi, valve, nu, form, out):
 
 
 @kernel
-def _table_flow_array(coef, step, z, out):
+def _table_flow_array(coef: NDArray[np.float64], step: float, z: NDArray[np.float64],
+                      out: NDArray[np.float64]) -> None:
     for i in range(z.size):
         out[i] = table_flow(coef, step, z[i])[0]
 
@@ -150,13 +154,13 @@ class ValveTable:
 
     scale_pa: float
     step: float
-    coef: np.ndarray
+    coef: NDArray[np.float64]
     max_flow_m3_s: float
     max_pressure_drop_pa: float
 
     @property
     def z_max(self) -> float:
-        return self.step * self.coef.shape[0]
+        return float(self.step * self.coef.shape[0])
 
     def flow(self, dp_pa: np.ndarray) -> np.ndarray:
         """``Q(Δp)`` [m³/s] for pressure drop magnitudes ``Δp >= 0`` [Pa]."""
@@ -167,7 +171,7 @@ class ValveTable:
         return out.reshape(dp.shape)
 
 
-def build_valve_table(valve, annulus_area_m2: float, nu_m2_s: float, form: str,
+def build_valve_table(valve: Iterable[float], annulus_area_m2: float, nu_m2_s: float, form: str,
                       points: int, max_velocity_m_s: float, label: str) -> ValveTable:
     """Tabulate the inverse of one valve's ``Δp(Q)`` after checking it is invertible.
 
@@ -211,11 +215,12 @@ def build_valve_tables(cfg: ModelConfig) -> tuple[ValveTable, ValveTable]:
     """The (rebound, compression) tables of a configuration (cached per valve: a change of
     the gas or of one valve rebuilds only what it changes)."""
     d, n = cfg.damper, cfg.numerics
-    return tuple(_build_table(getattr(d, side), d.annulus_area_m2,
-                              d.oil_kinematic_viscosity_m2_s, n.valve_form,
-                              n.valve_table_points, n.valve_table_max_velocity_m_s,
-                              f"damper.{side} valve")
-                 for side in ("rebound", "compression"))
+    rebound, compression = (_build_table(getattr(d, side), d.annulus_area_m2,
+                                         d.oil_kinematic_viscosity_m2_s, n.valve_form,
+                                         n.valve_table_points, n.valve_table_max_velocity_m_s,
+                                         f"damper.{side} valve")
+                            for side in ("rebound", "compression"))
+    return rebound, compression
 
 
 _build_table = functools.lru_cache(maxsize=64)(build_valve_table)

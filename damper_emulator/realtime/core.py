@@ -18,9 +18,17 @@ import dataclasses
 import enum
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, TypeVar, overload
 
 from damper_emulator.model.compressible import DamperModel, DamperStepper
 from damper_emulator.realtime.settings import FAULT_MODES, INPUT_MODES, EmulatorParams
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+    from numpy.typing import NDArray
+
+#: one tick's value, or an array of them (numpy)
+_Sample = TypeVar("_Sample", float, "NDArray[np.float64]")
 
 #: Period of the scripted ticks of :meth:`EmulatorCore.warm_up` [s].
 WARM_UP_PERIOD_S = 1e-3
@@ -33,8 +41,19 @@ def stroke_window(stroke_limits_m: tuple[float, float], tolerance_m: float
     return lo - tolerance_m, hi + tolerance_m
 
 
-def input_ok(stroke_m, velocity_m_s, stroke_window_m: tuple[float, float],
-             max_velocity_m_s: float):
+@overload
+def input_ok(stroke_m: float, velocity_m_s: float, stroke_window_m: tuple[float, float],
+             max_velocity_m_s: float) -> bool: ...
+
+
+@overload
+def input_ok(stroke_m: NDArray[np.float64], velocity_m_s: NDArray[np.float64],
+             stroke_window_m: tuple[float, float], max_velocity_m_s: float
+             ) -> NDArray[np.bool_]: ...
+
+
+def input_ok(stroke_m: _Sample, velocity_m_s: _Sample, stroke_window_m: tuple[float, float],
+             max_velocity_m_s: float) -> bool | NDArray[np.bool_]:
     """The emulator's input rule, for a sample or for arrays of them (numpy): the stroke
     inside ``stroke_window_m`` and ``|velocity| <= max_velocity_m_s``.  NaN and infinite
     values fail it (every comparison with NaN is false, infinity is outside any window)."""
@@ -42,8 +61,8 @@ def input_ok(stroke_m, velocity_m_s, stroke_window_m: tuple[float, float],
     return (lo <= stroke_m) & (stroke_m <= hi) & (abs(velocity_m_s) <= max_velocity_m_s)
 
 
-def fault_output(mode: str, last_force_n, last_velocity_m_s, static_force_n: float,
-                 passive_rate_ns_m: float):
+def fault_output(mode: str, last_force_n: _Sample, last_velocity_m_s: _Sample,
+                 static_force_n: float, passive_rate_ns_m: float) -> _Sample:
     """The output while the input is missing or stale (``fault_mode``), for one tick or
     arrays of them: ``hold`` the last force, ``zero``, or ``passive`` (static gas force +
     ``passive_rate_ns_m`` × the last velocity)."""

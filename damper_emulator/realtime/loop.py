@@ -9,10 +9,12 @@ running a burst of catch-up ticks.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -127,7 +129,7 @@ class LoopStats:
         return summarise(self.periods_ns(last), self.period_ns, self.ticks, self.overruns,
                          self.skipped, self.wake_ns(last), self.work_ns(last))
 
-    def save(self, path, **extra) -> None:
+    def save(self, path: str | os.PathLike[str], **extra: Any) -> None:
         """Write the record (:func:`load_record` reads it) as ``.npz``, with ``extra``."""
         np.savez(path, periods_ns=self.periods_ns(), wake_ns=self.wake_ns(),
                  work_ns=self.work_ns(), period_ns=self.period_ns, ticks=self.ticks,
@@ -135,7 +137,7 @@ class LoopStats:
                  first_tick_ns=self.first_tick_ns, **extra)
 
 
-def load_record(path) -> tuple[dict, LoopSummary]:
+def load_record(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], LoopSummary]:
     """``(arrays, summary)`` of a record written by :meth:`LoopStats.save` (records written
     before wake-up and work times were kept read too)."""
     with np.load(path) as z:

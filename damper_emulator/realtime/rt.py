@@ -17,6 +17,7 @@ import ctypes
 import ctypes.util
 import os
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 #: ``mlockall`` flags (``<sys/mman.h>``): lock current and future pages.
@@ -71,7 +72,7 @@ class RealtimeReport:
         return "; ".join(parts) or "no real-time settings requested"
 
 
-def _libc():
+def _libc() -> ctypes.CDLL | None:
     name = ctypes.util.find_library("c")
     return ctypes.CDLL(name, use_errno=True) if name else None
 
@@ -145,7 +146,7 @@ def thread_ids() -> set[int]:
         return set()
 
 
-def set_threads_priority(tids, priority: int) -> str:
+def set_threads_priority(tids: Iterable[int], priority: int) -> str:
     """Put the threads ``tids`` under ``SCHED_FIFO`` at ``priority`` (0: back to the normal
     policy); returns one line saying what was done or refused (never raises)."""
     tids = sorted(tids)
@@ -171,7 +172,7 @@ class ThreadInheritance:
     the normal policy afterwards.  :meth:`settle` then sets those threads to the priority
     wanted (or back to normal)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._before = thread_ids()
         self._entered = False
 
@@ -183,7 +184,7 @@ class ThreadInheritance:
             pass
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         if self._entered:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 

@@ -13,14 +13,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
 from damper_emulator.errors import UserError
-from damper_emulator.params import rule
+from damper_emulator.params import ParameterError, build_group, check_value, rule
+
+if TYPE_CHECKING:  # pragma: no cover
+    from _typeshed import DataclassInstance
 
 #: the largest count of cycles or test speeds a protocol takes
 MAX_COUNT = 100_000
+#: a periodic motion needs more than this many samples per period
+MIN_SAMPLES_PER_PERIOD = 4.0
+
+_P = TypeVar("_P", bound="DataclassInstance")
+
+
+def _check_sampling(rate_hz: float, frequency_hz: float, what: str, where: str) -> None:
+    """``what`` names the motion, with ``{f}`` for its highest frequency."""
+    if not rate_hz > MIN_SAMPLES_PER_PERIOD * frequency_hz:
+        raise ParameterError(f"{where}: sample rate {rate_hz:g} Hz is too low for "
+                             f"{what.format(f=f'{frequency_hz:g}')} (need more than "
+                             f"{MIN_SAMPLES_PER_PERIOD:g} samples per period)")
 
 
 @dataclass(frozen=True)
@@ -45,6 +61,14 @@ class Chirp:
     v_end_m_s: float = rule("positive", "velocity amplitude at the end [m/s]", 1.5)
     rate_hz: float = rule("positive", "sample rate [Hz]", 1000.0)
 
+    def cross_check(self, where: str) -> None:
+        """A sweep upwards, sampled at more than :data:`MIN_SAMPLES_PER_PERIOD` samples per
+        period of its highest frequency."""
+        if not self.f_start_hz < self.f_end_hz:
+            raise ParameterError(f"{where}: the chirp's start frequency {self.f_start_hz:g} Hz "
+                                 f"must be below its end frequency {self.f_end_hz:g} Hz")
+        _check_sampling(self.rate_hz, self.f_end_hz, "a chirp up to {f} Hz", where)
+
 
 @dataclass(frozen=True)
 class Sine:
@@ -56,6 +80,10 @@ class Sine:
     rate_hz: float = rule("positive", "sample rate [Hz]", 1000.0)
     settle_cycles: int = rule(("int_range", 0, MAX_COUNT),
                               "lead-in cycles simulated but not recorded", 1)
+
+    def cross_check(self, where: str) -> None:
+        """More than :data:`MIN_SAMPLES_PER_PERIOD` samples per period."""
+        _check_sampling(self.rate_hz, self.frequency_hz, "a {f} Hz sine", where)
 
 
 @dataclass(frozen=True)
@@ -69,6 +97,28 @@ class FourteenSpeed:
     v_max_m_s: float = rule("positive", "highest peak velocity [m/s]", 1.5)
     cycles: int = rule(("int_range", 1, MAX_COUNT), "recorded cycles per speed", 2)
     rate_hz: float = rule("positive", "sample rate [Hz]", 1000.0)
+
+    def cross_check(self, where: str) -> None:
+        """Increasing speeds, each sine sampled finely enough."""
+        if not self.v_min_m_s < self.v_max_m_s:
+            raise ParameterError(f"{where}: the lowest peak velocity {self.v_min_m_s:g} m/s "
+                                 f"must be below the highest {self.v_max_m_s:g} m/s")
+        f_max = self.v_max_m_s / (2.0 * math.pi * self.amplitude_m)
+        _check_sampling(self.rate_hz, f_max, "an N-speed test up to {f} Hz", where)
+
+
+def checked(cls: type[_P], where: str, **values: Any) -> _P:
+    """The protocol ``cls`` with ``values`` (the others at their defaults), every value
+    checked by its rule and the protocol's own rules across values
+    (:meth:`Chirp.cross_check`, ...); a broken rule raises a one-line
+    :class:`~damper_emulator.params.ParameterError` naming ``where`` and the setting."""
+    plain = {k: int(v) if isinstance(v, np.integer) else v for k, v in values.items()}
+    name = next(n for n, c in PROTOCOLS.items() if c is cls)
+    protocol: _P = build_group(cls, plain, name, where, check_value)
+    cross = getattr(protocol, "cross_check", None)
+    if cross is not None:
+        cross(where)
+    return protocol
 
 
 #: the protocols of ``damper-hil dyno --protocol`` and their schemas

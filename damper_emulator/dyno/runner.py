@@ -29,7 +29,6 @@ from damper_emulator.dyno.simulated import (
     add_noise,
     check_travel,
     fault_names,
-    finite_positive,
     fourteen_speed_table,
     simulate_sine,
     sine_file_name,
@@ -131,10 +130,8 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path,
     stroke), i.e. friction plus the small viscous force at ``velocity``.
     """
     rng = _rng(noise_std, seed)
-    for name, val in (("quasi-static velocity [m/s]", velocity),
-                      ("quasi-static amplitude [m]", amplitude), ("cycles", cycles),
-                      ("sample rate [Hz]", rate)):
-        finite_positive(name, val)
+    protocols.checked(QuasiStatic, "dyno", velocity_m_s=velocity, amplitude_m=amplitude,
+                      cycles=cycles, rate_hz=rate)
     out = _out(out_dir)
     t, x, v = protocols.quasi_static(velocity, amplitude, cycles, rate)
     check_travel(model, x, f"quasi-static amplitude {amplitude:g} m")
@@ -163,14 +160,8 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_
     """Exponential sine chirp with growing velocity amplitude (docs/model.md §3): writes
     ``chirp.csv`` and ``chirp.png``."""
     rng = _rng(noise_std, seed)
-    for name, val in (("chirp start frequency [Hz]", f_start),
-                      ("chirp end frequency [Hz]", f_end), ("chirp duration [s]", duration),
-                      ("chirp start velocity [m/s]", v_start),
-                      ("chirp end velocity [m/s]", v_end), ("sample rate [Hz]", rate)):
-        finite_positive(name, val)
-    if rate <= 4.0 * f_end:
-        raise UserError(f"sample rate {rate:g} Hz is too low for a chirp up to {f_end:g} Hz "
-                         "(need more than 4 samples per period)")
+    protocols.checked(Chirp, "dyno", f_start_hz=f_start, f_end_hz=f_end, duration_s=duration,
+                      v_start_m_s=v_start, v_end_m_s=v_end, rate_hz=rate)
     out = _out(out_dir)
     t, x, v = protocols.chirp(f_start, f_end, duration, v_start, v_end, rate)
     check_travel(model, x, "chirp displacement")
@@ -201,8 +192,6 @@ def run_fourteen_speed(model: DamperModel, out_dir: str | Path,
     """N-speed test ('14-speed', docs/model.md §4): writes ``14speed.csv`` (columns
     :data:`FOURTEEN_SPEED_COLUMNS`) and ``14speed.png``."""
     rng = _rng(noise_std, seed)
-    if isinstance(points, bool) or not isinstance(points, int) or points < 2:
-        raise UserError(f"N-speed points must be an integer >= 2, got {points!r}")
     out = _out(out_dir)
     table, faults = fourteen_speed_table(model, points, amplitude, v_min, v_max, cycles, rate,
                                          noise_std, rng, engine)

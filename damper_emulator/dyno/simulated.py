@@ -7,7 +7,6 @@ directly.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -32,11 +31,6 @@ def sine_file_name(frequency_hz: float) -> str:
     """``sine_<f>hz.csv`` with ``<f>`` formatted ``%g`` (``sine_3hz.csv``, ``sine_0.5hz.csv``)."""
     return f"sine_{frequency_hz:g}hz.csv"
 
-
-
-def finite_positive(name: str, value: float) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise UserError(f"{name} must be a positive number, got {value!r}")
 
 
 def add_noise(force: np.ndarray, noise_std: float, rng: np.random.Generator) -> np.ndarray:
@@ -72,15 +66,8 @@ def simulate_sine(model: DamperModel, frequency: float, amplitude: float,
 
     The lead-in lets the pressures settle from the quasi-steady initial state.
     """
-    finite_positive("sine frequency [Hz]", frequency)
-    finite_positive("sine amplitude [m]", amplitude)
-    finite_positive("sine cycles", cycles)
-    finite_positive("sample rate [Hz]", rate)
-    if not (settle_cycles >= 0 and math.isfinite(settle_cycles)):
-        raise UserError(f"settle cycles must be >= 0, got {settle_cycles!r}")
-    if rate <= 4.0 * frequency:
-        raise UserError(f"sample rate {rate:g} Hz is too low for a {frequency:g} Hz sine "
-                         "(need more than 4 samples per period)")
+    protocols.checked(Sine, "dyno", frequency_hz=frequency, amplitude_m=amplitude,
+                      cycles=cycles, rate_hz=rate, settle_cycles=settle_cycles)
     t, x, v = protocols.sine(frequency, amplitude, cycles, rate, start_cycles=settle_cycles)
     check_travel(model, x, f"sine amplitude {amplitude:g} m")
     res = (engine or simulate)(model, t, x, v)
@@ -104,7 +91,8 @@ def fourteen_speed_table(model: DamperModel, points: int = FourteenSpeed.points,
     the peak rebound force (max F) is paired with the peak rebound velocity (max v) and
     the peak compression force (min F) with the peak compression velocity (min v).
     """
-    finite_positive("N-speed cycles", cycles)
+    protocols.checked(FourteenSpeed, "dyno", points=points, amplitude_m=amplitude,
+                      v_min_m_s=v_min, v_max_m_s=v_max, cycles=cycles, rate_hz=rate)
     if rng is None:
         rng = np.random.default_rng(0)
     freqs = protocols.fourteen_speed_frequencies(points, amplitude, v_min, v_max)

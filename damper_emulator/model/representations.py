@@ -297,14 +297,7 @@ def fourteen_speed_damper(model: DamperModel, points: int = FourteenSpeed.points
     """
     from damper_emulator.dyno.simulated import fourteen_speed_table
 
-    if isinstance(points, bool) or not isinstance(points, int) or points < 2:
-        raise UserError(f"N-speed points must be an integer >= 2, got {points!r}")
-    for name, value in (("amplitude [m]", amplitude_m), ("v_min [m/s]", v_min),
-                        ("v_max [m/s]", v_max)):
-        if _finite_number(name, value) <= 0:
-            raise UserError(f"{name} must be > 0, got {value!r}")
-    if not v_min < v_max:
-        raise UserError(f"v_min ({v_min:g} m/s) must be below v_max ({v_max:g} m/s)")
+    # the settings are checked by the protocol's schema (dyno.protocols.FourteenSpeed)
     table, _faults = fourteen_speed_table(model, points, amplitude_m, v_min, v_max, cycles,
                                           rate)
     return TableDamper.from_fourteen_speed_table(table, model.cfg.damper.static_force_n)

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from can_bridge.settings import BridgeParams
 from damper_hil.cli.common import PROG, CliError, Formatter, load_model, positive_float, write_json
 
 
@@ -28,10 +29,11 @@ def add_parser(sub) -> None:
     sky.add_argument("--damper-params", metavar="FILE", type=Path, default=None,
                      help="damper whose comfort/sport rates the law uses (rates_from: model; "
                           "default: config/sport.yaml)")
-    sky.add_argument("--can-interface", metavar="NAME", default="socketcan",
-                     help="python-can interface (default: socketcan)")
-    sky.add_argument("--can-channel", metavar="CHANNEL", default="vcan0",
-                     help="channel (default: vcan0)")
+    sky.add_argument("--can-interface", metavar="NAME", default=BridgeParams.can_interface,
+                     help=f"python-can interface (default: the bridge's, "
+                          f"{BridgeParams.can_interface})")
+    sky.add_argument("--can-channel", metavar="CHANNEL", default=BridgeParams.can_channel,
+                     help=f"channel (default: the bridge's, {BridgeParams.can_channel})")
     sky.add_argument("--duration", metavar="S", type=positive_float, default=None,
                      help="stop after S seconds (default: until SIGINT/SIGTERM)")
     sky.add_argument("--json", metavar="FILE", type=Path, default=None,

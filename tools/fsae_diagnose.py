@@ -97,36 +97,44 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--keep", type=Path, default=None,
                     help="export the runs here and keep them (default: a temporary dir)")
+    ap.add_argument("--only", choices=("3_3_24_24", "2_2_12_12"), default=None,
+                    help="run one case; the other's entry of summary.json is kept")
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        summary = {}
+        old = OUT / "summary.json"
+        summary = json.loads(old.read_text()) if args.only and old.exists() else {}
         # 3_3_24_24: cold run, two heat-gun runs
         slow_stem = "t1_1_1_18_18_s1_n10_100psi"
         slow = export_fsae_csv(args.data / "pressure_testing" / f"{slow_stem}.csv.gz", work)
-        runs = {}
-        for stem in ("t1_3_3_24_24_s5_n10_100psi",
-                     "t1_3_3_24_24_s5_n100_100psi_with_heat_gun",
-                     "t2_3_3_24_24_s5_n100_100psi_with_heat_gun"):
-            runs[stem] = read_fsae_ttx25(args.data / f"{stem}.csv.gz")
-        paths = {s: export_fsae_csv(d, work) for s, d in runs.items()}
-        cold, hg1, hg2 = paths.values()
-        temps = {p.name: temperature_range(runs[s]) for s, p in paths.items()}
-        summary["3_3_24_24"] = case(work, "3_3_24_24", [slow, cold], [cold, hg1], [hg2], temps)
+        if args.only in (None, "3_3_24_24"):
+            runs = {}
+            for stem in ("t1_3_3_24_24_s5_n10_100psi",
+                         "t1_3_3_24_24_s5_n100_100psi_with_heat_gun",
+                         "t2_3_3_24_24_s5_n100_100psi_with_heat_gun"):
+                runs[stem] = read_fsae_ttx25(args.data / f"{stem}.csv.gz")
+            paths = {s: export_fsae_csv(d, work) for s, d in runs.items()}
+            cold, hg1, hg2 = paths.values()
+            temps = {p.name: temperature_range(runs[s]) for s, p in paths.items()}
+            summary["3_3_24_24"] = case(work, "3_3_24_24", [slow, cold], [cold, hg1], [hg2],
+                                        temps)
         # 2_2_12_12: one heat-gun run in three stretches
         stem = "t2_2_2_12_12_s5_n100_100psi_with_heat_gun"
-        run = read_fsae_ttx25(args.data / f"{stem}.csv.gz")
-        parts = [cut(run, i / 3.0, (i + 1) / 3.0, f"{stem}_part{i + 1}.csv")
-                 for i in range(3)]
-        ppaths = [export_fsae_csv(p, work) for p in parts]
-        temps = {p.name: temperature_range(p) for p in parts}
-        summary["2_2_12_12"] = case(work, "2_2_12_12", [slow, ppaths[0]], ppaths[:2],
-                                    [ppaths[2]], temps)
+        if args.only in (None, "2_2_12_12"):
+            run = read_fsae_ttx25(args.data / f"{stem}.csv.gz")
+            parts = [cut(run, i / 3.0, (i + 1) / 3.0, f"{stem}_part{i + 1}.csv")
+                     for i in range(3)]
+            ppaths = [export_fsae_csv(p, work) for p in parts]
+            temps = {p.name: temperature_range(p) for p in parts}
+            summary["2_2_12_12"] = case(work, "2_2_12_12", [slow, ppaths[0]], ppaths[:2],
+                                        [ppaths[2]], temps)
     (OUT / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"wrote {OUT / 'summary.json'}", file=sys.stderr)
     for setting, s in summary.items():
+        if args.only not in (None, setting):
+            continue
         d = s["diagnosis"]
         print(f"{setting}: {d['family']} ({d['effect']}), held-out "
               + ", ".join(f"{n} {d['rms_before'][n]:.1f} → {d['rms_after'][n]:.1f} N"

@@ -471,7 +471,7 @@ class TestDynoBridge:
             assert d.description and not d.dynamic_typing, (node, name)
             assert d.type in (T.PARAMETER_DOUBLE, T.PARAMETER_INTEGER, T.PARAMETER_BOOL,
                               T.PARAMETER_STRING, T.PARAMETER_DOUBLE_ARRAY), (node, name)
-            if d.type == T.PARAMETER_DOUBLE and name != "autostart":
+            if d.type == T.PARAMETER_DOUBLE:
                 # a physical quantity: its unit in brackets, [-] when dimensionless
                 assert "[" in d.description and d.additional_constraints, (node, name, d)
             if d.type == T.PARAMETER_INTEGER:

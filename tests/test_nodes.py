@@ -232,6 +232,8 @@ def test_runtime_parameters_are_checked(tmp_path):
         def set_param(name, value):
             if isinstance(value, str):
                 pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+            elif isinstance(value, int):
+                pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
             else:
                 pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
             fut = client.call_async(SetParameters.Request(
@@ -241,6 +243,9 @@ def test_runtime_parameters_are_checked(tmp_path):
 
         ok = set_param("emulator.fault_mode", "passive")
         assert ok.successful
+        # `ros2 param set ... 20` sends an integer: a real parameter takes it as 20.0
+        as_int = set_param("emulator.max_velocity_m_s", 20)
+        assert as_int.successful, as_int.reason
         bad = set_param("emulator.fault_mode", "brake")
         assert not bad.successful and "must be one of" in bad.reason
         neg = set_param("emulator.input_timeout_s", -1.0)
@@ -277,7 +282,9 @@ def test_bad_parameters_exit_with_one_line(tmp_path):
                           (["-p", "emulator.rate_hz:=fast"], "emulator.rate_hz must be a "
                                                              "double"),
                           (["-p", "emulator.priority:=2.5"], "emulator.priority must be an "
-                                                             "integer")):
+                                                             "integer"),
+                          (["-p", "damper.extensions.lugre_fricton.coulomb_n:=1.0"],
+                           "unknown parameter damper.extensions.lugre_fricton")):
         r = subprocess.run([sys.executable, "-m", "damper_hil.cli", "emulate",
                             "--ros-args", *params], env=env, capture_output=True, text=True,
                            timeout=120)

@@ -161,8 +161,11 @@ def declare_parameters(node: Node, defaults: Mapping[str, Any],
     def ours(name: str) -> bool:
         return name.startswith(prefixes) or ("" in schema and "." not in name)
 
-    unknown = sorted(n for n in overrides
-                     if ours(n) and n not in flat and not node.has_parameter(n))
+    # (an override may also have reached ``defaults``: the model extensions a params file
+    # names are added to them, misspelt ones included)
+    unknown = sorted({n for n in overrides
+                      if ours(n) and n not in flat and not node.has_parameter(n)}
+                     | {n for n in flat if n not in specs and n in overrides})
     if unknown:
         raise ParameterError(f"node {node.get_name()}: unknown parameter {unknown[0]}")
     values: dict[str, Any] = {}
@@ -183,6 +186,15 @@ def declare_parameters(node: Node, defaults: Mapping[str, Any],
             raise ParameterError(f"{where}: {name} = {value!r} must be {spec.constraint} "
                                  f"({spec.description})") from None
         values[name] = plain_value(param.value)
+
+    def reals_from_integers(params: list[RclpyParameter]) -> list[RclpyParameter]:
+        # a run-time change written as an integer (`ros2 param set ... 20`) for a real
+        # parameter is that real, as in a params file (rclpy would refuse the type)
+        return [RclpyParameter(p.name, value=float(p.value))
+                if p.name in specs and specs[p.name].type == "double"
+                and p.type_ == RclpyParameter.Type.INTEGER else p for p in params]
+
+    node.add_pre_set_parameters_callback(reals_from_integers)
     return unflatten(values)
 
 

@@ -57,7 +57,6 @@ positive_float = number_type("a positive number", lambda v: v > 0)
 non_negative_float = number_type("a number >= 0", lambda v: v >= 0)
 positive_int = number_type("a positive integer", lambda v: v >= 1, int)
 non_negative_int = number_type("an integer >= 0", lambda v: v >= 0, int)
-point_count = number_type("an integer >= 2", lambda v: v >= 2, int)
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter):

@@ -187,14 +187,17 @@ def declare_parameters(node: Node, defaults: Mapping[str, Any],
                                  f"({spec.description})") from None
         values[name] = plain_value(param.value)
 
-    def reals_from_integers(params: list[RclpyParameter]) -> list[RclpyParameter]:
-        # a run-time change written as an integer (`ros2 param set ... 20`) for a real
-        # parameter is that real, as in a params file (rclpy would refuse the type)
-        return [RclpyParameter(p.name, value=float(p.value))
-                if p.name in specs and specs[p.name].type == "double"
-                and p.type_ == RclpyParameter.Type.INTEGER else p for p in params]
+    def as_schema_types(params: list[RclpyParameter]) -> list[RclpyParameter]:
+        # a run-time change is converted as a params file's value is (`ros2 param set ...
+        # 20` for a real parameter is that real; rclpy would refuse the type)
+        out = []
+        for p in params:
+            value = _as_schema_type(p.value, specs[p.name]) if p.name in specs else p.value
+            out.append(p if _ros_type(value) == p.type_.value
+                       else RclpyParameter(p.name, value=value))
+        return out
 
-    node.add_pre_set_parameters_callback(reals_from_integers)
+    node.add_pre_set_parameters_callback(as_schema_types)
     return unflatten(values)
 
 

@@ -406,7 +406,7 @@ class EmulatorNode(LifecycleNode):
         changes = {}
         for p in params:
             key = p.name.removeprefix("emulator.")
-            if key == p.name or key not in RUNTIME_PARAMETERS:
+            if key == p.name:          # (the emulator's read-only ones rclpy refused)
                 return SetParametersResult(
                     successful=False,
                     reason=f"{p.name} does not change while the node runs; changeable: "

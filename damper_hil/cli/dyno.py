@@ -54,12 +54,9 @@ def _add_protocol_options(group) -> None:
         option = "--" + dest.replace("_", "-")
         first = users[0][1]
         spec = field_spec(first, option)
-        if len(users) == len(PROTOCOLS):
-            where, defaults = "", ", ".join(f"{n} {f.default:g}" for n, f in users)
-        else:
-            where = "".join(f"[{n}] " for n, _ in users)
-            defaults = ", ".join(f"{n} {f.default:g}" for n, f in users) \
-                if len({f.default for _, f in users}) > 1 else f"{first.default:g}"
+        where = "" if len(users) == len(PROTOCOLS) else "".join(f"[{n}] " for n, _ in users)
+        defaults = (", ".join(f"{n} {f.default:g}" for n, f in users)
+                    if len({f.default for _, f in users}) > 1 else f"{first.default:g}")
         group.add_argument(option, dest=dest, metavar=(spec.unit or "N").upper(),
                            type=schema_type(first, option),
                            help=f"{where}{spec.description} (default: {defaults})")

@@ -668,6 +668,11 @@ def config_to_mapping(cfg: ModelConfig, node: str = "/**") -> dict[str, Any]:
 
 def save_config(cfg: ModelConfig, path: str | Path, node: str = "/**") -> None:
     """Write a configuration as a ROS 2 params file (floats with signed exponents)."""
+    Path(path).write_text(config_yaml(cfg, node))
+
+
+def config_yaml(cfg: ModelConfig, node: str = "/**") -> str:
+    """A configuration as the text of a ROS 2 params file (:func:`save_config`)."""
 
     class _Dumper(yaml.SafeDumper):
         pass
@@ -677,8 +682,7 @@ def save_config(cfg: ModelConfig, path: str | Path, node: str = "/**") -> None:
                                        if "e" not in repr(value) else f"{value:.10e}")
 
     _Dumper.add_representer(float, _float)
-    Path(path).write_text(yaml.dump(config_to_mapping(cfg, node), Dumper=_Dumper,
-                                    sort_keys=False))
+    return yaml.dump(config_to_mapping(cfg, node), Dumper=_Dumper, sort_keys=False)
 
 
 # --------------------------------------------------------------------------------------

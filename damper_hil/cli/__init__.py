@@ -22,6 +22,8 @@ from damper_hil.cli import (
     dyno,
     dyno_demo,
     emulate,
+    fleet,
+    fleet_example,
     identify,
     record,
     replay,
@@ -34,7 +36,7 @@ from damper_hil.cli.common import PROG
 
 #: the subcommands, in the order ``--help`` lists them
 SUBCOMMANDS = (dyno, demo, dyno_demo, emulate, ride, record, bridge, skyhook, replay,
-               validate, identify, diagnose, ride_study)
+               validate, identify, diagnose, ride_study, fleet, fleet_example)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -83,6 +83,20 @@ def write_json(path: Path, doc: dict[str, Any]) -> None:
     say_wrote(path)
 
 
+def parse_effects(text: str | None, option: str = "--effects") -> list[str] | None:
+    """A comma-separated subset of the diagnosis's candidates (``None``: all)."""
+    if text is None:
+        return None
+    from damper_emulator.params import EXTENSION_TYPES
+
+    effects = [e.strip() for e in text.split(",") if e.strip()]
+    unknown = [e for e in effects if e not in EXTENSION_TYPES]
+    if unknown or not effects:
+        raise CliError(f"{option}: unknown effect {unknown[0] if unknown else '(none)'!r}"
+                       f" (one of {', '.join(EXTENSION_TYPES)})")
+    return effects
+
+
 def load_model(params: Path | None):
     from damper_emulator.model.compressible import DamperModel
     from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config

@@ -13,6 +13,7 @@ from damper_hil.cli.common import (
     Formatter,
     check_unique_names,
     load_model,
+    parse_effects,
     positive_int,
     write_json,
 )
@@ -76,16 +77,9 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from damper_emulator.diagnose.selection import diagnose
     from damper_emulator.dyno.measured import read_measured_csv
-    from damper_emulator.params import EXTENSION_TYPES
 
     started = time.perf_counter()
-    effects = None
-    if args.effects is not None:
-        effects = [e.strip() for e in args.effects.split(",") if e.strip()]
-        unknown = [e for e in effects if e not in EXTENSION_TYPES]
-        if unknown or not effects:
-            raise CliError(f"--effects: unknown effect {unknown[0] if unknown else '(none)'!r}"
-                           f" (one of {', '.join(EXTENSION_TYPES)})")
+    effects = parse_effects(args.effects)
     check_unique_names([*args.quasi_static, *args.chirp, *args.validate])
     model, params_file = load_model(args.params)
     if model.cfg.damper.extensions is not None:

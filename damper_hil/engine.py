@@ -1,0 +1,191 @@
+"""Dask, the engine of the project's distributed work (``fleet``, ``tune``; issue 17).
+
+One interface, :func:`open_engine`, over three ways of running independent tasks:
+
+* ``scheduler="tcp://host:port"``: any running Dask cluster (``dask scheduler`` plus
+  ``dask worker`` processes, a Kubernetes or HPC cluster, ...), reached with a
+  :class:`distributed.Client`;
+* ``workers=N`` (N > 1, the default when neither is given: the CPU count): a
+  :class:`distributed.LocalCluster` of N single-threaded worker processes started for the
+  run and bound to 127.0.0.1, with no dashboard;
+* ``workers=1``: dask's synchronous scheduler in this process (no cluster, nothing to
+  start; what a debugger or a profiler wants).
+
+:meth:`Engine.map_unordered` yields each task's :class:`Outcome` as soon as it is done, so
+that the caller writes every result the moment it exists (a killed run loses only the
+tasks in flight).  At most ``window`` tasks are submitted ahead of the results: their
+arguments (the data they ship) are held by the scheduler until they finish.  A worker lost
+in the middle of a task costs only that task: the scheduler runs it again elsewhere, up
+to ``distributed.scheduler.allowed-failures`` times (dask's default: 3); after that the
+task's outcome is the error ``KilledWorker``.
+
+A task's own exception comes back in its :class:`Outcome`; it never stops the others.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+from damper_emulator.errors import UserError
+
+#: how long to wait for a scheduler given by --scheduler before giving up [s]
+CONNECT_TIMEOUT_S = 15.0
+#: tasks submitted ahead of the results, per worker
+WINDOW_PER_WORKER = 2
+#: the interface every local cluster binds to: no traffic leaves this machine
+LOCALHOST = "127.0.0.1"
+
+K = TypeVar("K")
+T = TypeVar("T")
+
+
+class EngineError(UserError):
+    """The engine cannot be used: no scheduler at the address, a bad worker count, or the
+    scheduler lost in the middle of a run (one line)."""
+
+
+@dataclass(frozen=True)
+class Outcome(Generic[K]):
+    """What one task came to: ``value`` when it returned, else ``error`` (its exception,
+    or the engine's: ``KilledWorker`` when its workers kept dying)."""
+
+    key: K
+    value: Any = None
+    error: BaseException | None = None
+
+
+def default_workers() -> int:
+    """The CPU count (at least 1)."""
+    return max(1, os.cpu_count() or 1)
+
+
+class Engine:
+    """Runs independent tasks; see :func:`open_engine`."""
+
+    #: one line saying where the tasks run
+    description: str = ""
+    #: how many tasks can run at once
+    workers: int = 1
+
+    def map_unordered(self, fn: Callable[[T], Any], items: Iterable[tuple[K, T]],
+                      window: int | None = None) -> Iterator[Outcome[K]]:
+        """``fn(arg)`` for every ``(key, arg)`` of ``items``, yielded as they finish."""
+        raise NotImplementedError
+
+
+class SynchronousEngine(Engine):
+    """Dask's synchronous scheduler: every task in this process, one after the other."""
+
+    def __init__(self) -> None:
+        self.description = "dask synchronous scheduler (this process, 1 worker)"
+        self.workers = 1
+
+    def map_unordered(self, fn: Callable[[T], Any], items: Iterable[tuple[K, T]],
+                      window: int | None = None) -> Iterator[Outcome[K]]:
+        import dask
+
+        for key, arg in items:
+            try:
+                value = dask.delayed(fn, pure=False)(arg).compute(scheduler="synchronous")
+            except Exception as exc:  # the task's failure is its outcome
+                yield Outcome(key, error=exc)
+            else:
+                yield Outcome(key, value=value)
+
+
+class DaskEngine(Engine):
+    """A :class:`distributed.Client` on a cluster (local or remote)."""
+
+    def __init__(self, client: Any, description: str) -> None:
+        self.client = client
+        self.description = description
+        self.workers = max(1, self._current_workers())
+
+    def map_unordered(self, fn: Callable[[T], Any], items: Iterable[tuple[K, T]],
+                      window: int | None = None) -> Iterator[Outcome[K]]:
+        from distributed import as_completed
+
+        limit = max(1, window or WINDOW_PER_WORKER * max(self.workers, 1))
+        pending = iter(items)
+        keys: dict[Any, K] = {}
+        running = as_completed()
+
+        def submit_next() -> bool:
+            for key, arg in pending:
+                future = self.client.submit(fn, arg, pure=False)
+                keys[future.key] = key
+                running.add(future)
+                return True
+            return False
+
+        for _ in range(limit):
+            if not submit_next():
+                break
+        for future in running:
+            limit = max(limit, WINDOW_PER_WORKER * self._current_workers())
+            key = keys.pop(future.key)
+            try:
+                value = future.result()
+            except Exception as exc:  # the task's failure (or KilledWorker) is its outcome
+                outcome: Outcome[K] = Outcome(key, error=exc)
+            else:
+                outcome = Outcome(key, value=value)
+            future.release()
+            if self.client.status not in ("running", "connecting"):
+                raise EngineError(f"lost the Dask scheduler ({self.description}); the "
+                                  "finished tasks are kept")
+            while len(keys) < limit and submit_next():
+                pass
+            yield outcome
+
+    def _current_workers(self) -> int:
+        """Worker threads now (a remote cluster's workers may come and go)."""
+        return sum(w.get("nthreads", 1) for w in
+                   self.client.scheduler_info()["workers"].values())
+
+
+@contextlib.contextmanager
+def open_engine(scheduler: str | None = None, workers: int | None = None
+                ) -> Iterator[Engine]:
+    """The engine for ``--scheduler ADDRESS`` or ``--workers N`` (module docstring).
+
+    Raises
+    ------
+    EngineError
+        Both given, a worker count below 1, or no scheduler answering at ``scheduler``
+        within :data:`CONNECT_TIMEOUT_S`.
+    """
+    if scheduler is not None and workers is not None:
+        raise EngineError("give --scheduler or --workers, not both (the cluster at "
+                          "--scheduler has its own workers)")
+    if scheduler is None:
+        n = default_workers() if workers is None else workers
+        if n < 1:
+            raise EngineError(f"--workers must be at least 1, got {n}")
+        if n == 1:
+            yield SynchronousEngine()
+            return
+        from distributed import Client, LocalCluster
+
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                          host=LOCALHOST, scheduler_port=0, dashboard_address=None,
+                          worker_dashboard_address=None,
+                          silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+            yield DaskEngine(client, f"local Dask cluster, {n} worker processes "
+                                     f"({cluster.scheduler_address})")
+        return
+    from distributed import Client
+
+    try:
+        client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S:g}s")
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise EngineError(f"cannot reach the Dask scheduler at {scheduler!r} within "
+                          f"{CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}: {exc})") from None
+    with client:
+        info = client.scheduler_info()["workers"]
+        yield DaskEngine(client, f"Dask scheduler {scheduler} ({len(info)} workers)")

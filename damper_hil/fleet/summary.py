@@ -1,0 +1,172 @@
+"""The fleet's report: ``summary.md`` with its plots (docs/fleet.md "Summary").
+
+* ``parameters.png``: every identified parameter across the fleet, one strip per
+  parameter (valve constants on a log scale), flagged dampers in red and labelled;
+* ``validation.png``: each damper's validation r.m.s. (pooled over its sines), flagged
+  ones in red;
+* ``diagnosis.png`` (with ``--diagnose``): how many dampers each diagnosis got.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from damper_hil.fleet.outliers import RULES, SCORED
+from damper_hil.fleet.runner import FleetRun
+
+#: the table's unit of each scored parameter (display scale, unit)
+DISPLAY = {"gas_pressure_static_pa": (1e-6, "MPa"), "gas_volume_static_m3": (1e6, "cm³"),
+           "friction_force_n": (1.0, "N"), "preload_pa": (1e-5, "bar")}
+#: a strip uses a log scale when its values span more than this factor
+LOG_SPAN = 10.0
+#: the colours of the plots: ordinary and flagged dampers
+COLOURS = ("tab:blue", "tab:red")
+
+
+def _display(column: str) -> tuple[float, str]:
+    for key, value in DISPLAY.items():
+        if column.endswith(key):
+            return value
+    return 1.0, ""
+
+
+def _values(rows: list[dict[str, Any]], column: str) -> tuple[list[str], np.ndarray]:
+    pairs = [(r["id"], r.get(column)) for r in rows if r.get("status") == "ok"]
+    pairs = [(i, float(v)) for i, v in pairs if isinstance(v, (int, float))
+             and math.isfinite(v)]
+    return [i for i, _ in pairs], np.array([v for _, v in pairs])
+
+
+def plot_parameters(run: FleetRun, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(SCORED)
+    cols = 3
+    fig, axes = plt.subplots(math.ceil(n / cols), cols, figsize=(13, 2.0 * math.ceil(n / cols)),
+                             squeeze=False)
+    rng = np.random.default_rng(0)  # vertical jitter only, so that points do not overlap
+    for ax, (column, log) in zip(axes.flat, SCORED):
+        ids, v = _values(run.rows, column)
+        scale, unit = _display(column)
+        flagged = {i for i, fl in run.flags.items() if any(f.rule.column == column
+                                                            for f in fl)}
+        if v.size:
+            jitter = rng.uniform(-0.3, 0.3, v.size)
+            red = np.array([i in flagged for i in ids])
+            ax.scatter(v[~red] * scale, jitter[~red], s=18, color=COLOURS[0])
+            ax.scatter(v[red] * scale, jitter[red], s=28, color=COLOURS[1])
+            for i, x, y, r in zip(ids, v * scale, jitter, red):
+                if r:
+                    ax.annotate(i, (x, y), fontsize=7, color=COLOURS[1],
+                                xytext=(3, 3), textcoords="offset points")
+            ax.axvline(float(np.median(v)) * scale, color="0.5", lw=0.8, ls="--")
+            if log and np.all(v > 0) and v.max() > LOG_SPAN * v.min():
+                ax.set_xscale("log")
+        ax.set_ylim(-1, 1)
+        ax.set_yticks([])
+        ax.set_title(f"{column}" + (f" [{unit}]" if unit else ""), fontsize=9)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    fig.suptitle(f"Identified parameters of {len(run.rows)} dampers (dashed: the fleet's "
+                 "median; red: flagged on that parameter)", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_validation(run: FleetRun, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ids, v = _values(run.rows, "validation_rms_n")
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.45 * len(ids) + 2), 3.6))
+    colours = [COLOURS[bool(run.flags.get(i))] for i in ids]
+    ax.bar(range(len(ids)), v, color=colours)
+    ax.set_xticks(range(len(ids)), ids, rotation=60, ha="right", fontsize=8)
+    ax.set_ylabel("validation r.m.s. [N]")
+    if v.size:
+        ax.axhline(float(np.median(v)), color="0.5", lw=0.8, ls="--")
+    ax.set_title("Validation error per damper (pooled over its sines; red: flagged by any rule)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_diagnosis(run: FleetRun, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    counts = Counter(r.get("diagnosis_family") for r in run.rows
+                     if r.get("status") == "ok" and r.get("diagnosis_family"))
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    names = sorted(counts, key=lambda k: (-counts[k], k))
+    ax.barh(names, [counts[k] for k in names], color=COLOURS[0])
+    ax.invert_yaxis()
+    ax.set_xlabel("dampers")
+    ax.set_title("Diagnosis per damper")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_summary(run: FleetRun, out: Path, say: Callable[[Path], None] = lambda p: None
+                  ) -> Path:
+    """``out/summary.md`` and its plots; returns the summary's path."""
+    rows = run.rows
+    ok = [r for r in rows if r.get("status") == "ok"]
+    errors = [r for r in rows if r.get("status") != "ok"]
+    plots = [plot_parameters(run, out / "parameters.png"),
+             plot_validation(run, out / "validation.png")]
+    if any(r.get("diagnosis_family") for r in ok):
+        plots.append(plot_diagnosis(run, out / "diagnosis.png"))
+    for p in plots:
+        say(p)
+    lines = [f"# Fleet summary: {len(rows)} dampers", "",
+             f"- {len(ok)} finished, {len(errors)} in error; "
+             f"{len(run.resumed)} taken from an earlier run of this folder.",
+             f"- Engine: {run.engine}; {run.wall_s:.1f} s in all.",
+             "- Files: `results.csv` and `results.parquet` (one row per damper), and each "
+             "damper's own folder.", ""]
+    flagged = [(i, fl) for i, fl in run.flags.items() if fl]
+    lines += ["## Flagged dampers", ""]
+    if flagged:
+        lines += ["| damper | rule | value | meaning |", "|---|---|---|---|"]
+        for i, fl in flagged:
+            for f in fl:
+                lines.append(f"| {i} | {f.rule.name} | {f.detail} | {f.rule.meaning} |")
+    else:
+        lines.append("None." if len(ok) else "No damper finished.")
+    lines += ["", "Rules (docs/fleet.md): "
+              + "; ".join(f"`{r.name}`" for r in RULES if not r.name.startswith("atypical_"))
+              + "; `atypical_<parameter>`: modified z-score beyond 3.5.", ""]
+    if errors:
+        lines += ["## Dampers in error", "", "| damper | reason |", "|---|---|"]
+        lines += [f"| {r['id']} | {r.get('reason', '')} |" for r in errors]
+        lines.append("")
+    lines += ["## Identified parameters across the fleet", "",
+              "| parameter | median | 10th–90th percentile | dampers |", "|---|---|---|---|"]
+    for column, _ in SCORED:
+        _, v = _values(rows, column)
+        if v.size:
+            lo, mid, hi = np.percentile(v, [10, 50, 90])
+            lines.append(f"| {column} | {mid:.4g} | {lo:.4g} … {hi:.4g} | {v.size} |")
+    lines += ["", *(f"![{p.stem}]({p.name})" for p in plots), ""]
+    path = out / "summary.md"
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path

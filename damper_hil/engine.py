@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-from damper_emulator.errors import UserError
+from damper_emulator.errors import UserError, one_line
 
 #: how long to wait for a scheduler given by --scheduler before giving up [s]
 CONNECT_TIMEOUT_S = 15.0
@@ -150,15 +150,15 @@ class DaskEngine(Engine):
 
 
 @contextlib.contextmanager
-def open_engine(scheduler: str | None = None, workers: int | None = None
-                ) -> Iterator[Engine]:
+def open_engine(scheduler: str | None = None, workers: int | None = None,
+                connect_timeout_s: float = CONNECT_TIMEOUT_S) -> Iterator[Engine]:
     """The engine for ``--scheduler ADDRESS`` or ``--workers N`` (module docstring).
 
     Raises
     ------
     EngineError
         Both given, a worker count below 1, or no scheduler answering at ``scheduler``
-        within :data:`CONNECT_TIMEOUT_S`.
+        within ``connect_timeout_s``.
     """
     if scheduler is not None and workers is not None:
         raise EngineError("give --scheduler or --workers, not both (the cluster at "
@@ -182,10 +182,11 @@ def open_engine(scheduler: str | None = None, workers: int | None = None
     from distributed import Client
 
     try:
-        client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S:g}s")
+        client = Client(scheduler, timeout=f"{connect_timeout_s:g}s")
     except (OSError, TimeoutError, ValueError) as exc:
         raise EngineError(f"cannot reach the Dask scheduler at {scheduler!r} within "
-                          f"{CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}: {exc})") from None
+                          f"{connect_timeout_s:g} s ({one_line(exc, with_type=True)})"
+                          ) from None
     with client:
         info = client.scheduler_info()["workers"]
         yield DaskEngine(client, f"Dask scheduler {scheduler} ({len(info)} workers)")

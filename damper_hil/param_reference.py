@@ -119,6 +119,7 @@ def render() -> str:
                          f"{'yes' if s.runtime else 'no'} | {_cell(s.description)} |")
         lines.append("")
     lines += _protocol_tables()
+    lines += _scatter_table()
     return "\n".join(lines)
 
 
@@ -142,6 +143,23 @@ def _protocol_tables() -> list[str]:
                          f"{s.type} | {_cell(s.unit) or ' '} | {_cell(s.constraint)} | "
                          f"{_cell(_fmt(s.default))} | {_cell(s.description)} |")
         lines.append("")
+    return lines
+
+
+def _scatter_table() -> list[str]:
+    """The unit-to-unit scatter of ``damper-hil fleet-example``, from its schema."""
+    from damper_hil.cli.fleet_example import scatter_option
+    from damper_hil.fleet.example import Scatter
+
+    lines = ["## `damper-hil fleet-example` scatter", "",
+             _cell(" ".join((Scatter.__doc__ or "").split())), "",
+             "| option | type | unit | rule | default | description |",
+             "|---|---|---|---|---|---|"]
+    for s in field_specs(Scatter, ""):
+        lines.append(f"| `{scatter_option(s.key)}` | {s.type} | {_cell(s.unit) or ' '} | "
+                     f"{_cell(s.constraint)} | {_cell(_fmt(s.default))} | "
+                     f"{_cell(s.description)} |")
+    lines.append("")
     return lines
 
 

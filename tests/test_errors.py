@@ -22,11 +22,12 @@ from damper_emulator.ros.common import NotReadyError
 from damper_hil import cli
 from damper_hil.cli import validate as validate_cmd
 from damper_hil.cli.common import CliError
+from damper_hil.engine import EngineError
 from damper_hil.hil_demo import DemoError
 from ride_sim.road import RoadError
 
 USER = (ParameterError, MeasuredDataError, IdentificationError, ValveTableError, BagError,
-        RoadError, DbcError, CanBusError, CliError)
+        RoadError, DbcError, CanBusError, CliError, EngineError)
 ENVIRONMENT = (NotReadyError, DemoError, OverCanError)
 
 

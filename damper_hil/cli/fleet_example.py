@@ -17,6 +17,11 @@ from damper_hil.cli.common import (
 )
 
 
+def scatter_option(name: str) -> str:
+    """The option that sets the :class:`Scatter` field ``name``."""
+    return f"--scatter-{name.replace('_', '-')}"
+
+
 def add_parser(sub) -> None:
     from dataclasses import fields
 
@@ -46,7 +51,7 @@ def add_parser(sub) -> None:
     ex.add_argument("--params", metavar="PARAMS.yaml", type=Path, default=None,
                     help="the nominal damper (default: config/sport.yaml)")
     for f in fields(Scatter):
-        option = f"--scatter-{f.name.replace('_', '-')}"
+        option = scatter_option(f.name)
         ex.add_argument(option, dest=f"scatter_{f.name}", metavar="SIGMA",
                         type=schema_type(f, option), default=f.default,
                         help=f"{f.metadata['doc']} (default: %(default)s)")

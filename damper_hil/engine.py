@@ -7,7 +7,8 @@ One interface, :func:`open_engine`, over three ways of running independent tasks
   :class:`distributed.Client`;
 * ``workers=N`` (N > 1, the default when neither is given: the CPU count): a
   :class:`distributed.LocalCluster` of N single-threaded worker processes started for the
-  run and bound to 127.0.0.1, with no dashboard;
+  run, every server of it (scheduler, workers, nannies, their HTTP endpoints) bound to
+  127.0.0.1 on a free port;
 * ``workers=1``: dask's synchronous scheduler in this process (no cluster, nothing to
   start; what a debugger or a profiler wants).
 
@@ -25,10 +26,16 @@ A task's own exception comes back in its :class:`Outcome`; it never stops the ot
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
+import signal
+import subprocess
+import sys
+import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from damper_emulator.errors import UserError, one_line
@@ -173,8 +180,10 @@ def open_engine(scheduler: str | None = None, workers: int | None = None,
         from distributed import Client, LocalCluster
 
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                          host=LOCALHOST, scheduler_port=0, dashboard_address=None,
-                          worker_dashboard_address=None,
+                          host=LOCALHOST, scheduler_port=0,
+                          # their HTTP servers (health, metrics) too, on free ports
+                          dashboard_address=f"{LOCALHOST}:0",
+                          worker_dashboard_address=f"{LOCALHOST}:0",
                           silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
             yield DaskEngine(client, f"local Dask cluster, {n} worker processes "
                                      f"({cluster.scheduler_address})")
@@ -190,3 +199,76 @@ def open_engine(scheduler: str | None = None, workers: int | None = None,
     with client:
         info = client.scheduler_info()["workers"]
         yield DaskEngine(client, f"Dask scheduler {scheduler} ({len(info)} workers)")
+
+
+# --------------------------------------------------------------------------------------
+# A cluster of separate processes, as on a real deployment: what the tests and the
+# benchmark start to exercise --scheduler (and the recipe for a user's own machines).
+
+
+def scheduler_command(scheduler_file: Path) -> list[str]:
+    """``dask scheduler`` on 127.0.0.1 (a free port; its address in ``scheduler_file``)."""
+    return [str(_dask_cli()), "scheduler", "--host", LOCALHOST, "--port", "0",
+            "--no-dashboard", "--dashboard-address", f"{LOCALHOST}:0",
+            "--scheduler-file", str(scheduler_file)]
+
+
+def worker_command(address: str, name: str) -> list[str]:
+    """One single-threaded ``dask worker`` (with its nanny) on 127.0.0.1."""
+    return [str(_dask_cli()), "worker", address, "--host", LOCALHOST, "--nthreads", "1",
+            "--no-dashboard", "--dashboard-address", f"{LOCALHOST}:0", "--name", name]
+
+
+def _dask_cli() -> Path:
+    return Path(sys.executable).with_name("dask")
+
+
+@dataclass
+class CommandCluster:
+    """A running ``dask scheduler`` and ``dask worker`` processes (each in its own process
+    group, so that :meth:`kill` takes a worker's nanny and worker process together)."""
+
+    address: str
+    scheduler: subprocess.Popen[bytes]
+    workers: list[subprocess.Popen[bytes]]
+
+    def kill(self, proc: subprocess.Popen[bytes]) -> None:
+        """SIGKILL to ``proc``'s process group; waits for it."""
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+
+
+@contextlib.contextmanager
+def command_cluster(workdir: Path, workers: int, start_timeout_s: float = 120.0
+                    ) -> Iterator[CommandCluster]:
+    """Start :func:`scheduler_command` and ``workers`` × :func:`worker_command` (logs in
+    ``workdir``), wait until every worker has joined, and kill them all at the end."""
+    sched_file = workdir / "scheduler.json"
+
+    def start(cmd: list[str], log: str) -> subprocess.Popen[bytes]:
+        with (workdir / log).open("wb") as fh:
+            return subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT,
+                                    start_new_session=True)
+
+    sched = start(scheduler_command(sched_file), "scheduler.log")
+    procs: list[subprocess.Popen[bytes]] = []
+    cluster = CommandCluster("", sched, procs)
+    try:
+        deadline = time.monotonic() + start_timeout_s
+        while not sched_file.exists():
+            if sched.poll() is not None or time.monotonic() > deadline:
+                raise EngineError(f"dask scheduler did not start (log: "
+                                  f"{workdir / 'scheduler.log'})")
+            time.sleep(0.1)
+        cluster.address = json.loads(sched_file.read_text())["address"]
+        procs += [start(worker_command(cluster.address, f"w{k}"), f"worker{k}.log")
+                  for k in range(workers)]
+        from distributed import Client
+
+        with Client(cluster.address, timeout=f"{start_timeout_s:g}s") as client:
+            client.wait_for_workers(workers, timeout=start_timeout_s)
+        yield cluster
+    finally:
+        for p in (*procs, sched):
+            cluster.kill(p)

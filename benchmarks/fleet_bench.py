@@ -13,9 +13,9 @@ output folder, ``--repeats`` times in turn (so that machine noise spreads over a
 Throughput is dampers per minute (median, with the range over the repeats), the engine's
 start included (a local cluster is started for each run; the command cluster once, before
 the timings); the speed-up and the efficiency (speed-up / workers) are against the
-synchronous run of the same repeat.  The data shipped per task is the pickled size of a damper's job.  With
-``--diagnose`` it also times a fleet with ``--diagnose`` on the 2-worker local cluster
-(once; minutes).
+synchronous run of the same repeat.  The data shipped per task is the pickled size of a
+damper's job.  With ``--diagnose`` it also times a fleet with ``--diagnose`` on the
+2-worker local cluster (once; minutes).
 
 Usage: ``python benchmarks/fleet_bench.py [--dampers 12] [--repeats 3] [--short]
 [--diagnose]``

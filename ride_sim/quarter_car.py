@@ -343,6 +343,24 @@ def _result(t: np.ndarray, road: np.ndarray, out: np.ndarray, faults: np.ndarray
                       out[O_Z1D], out[O_Z2D], out[O_X], out[O_V], out[O_F], faults, name, dt)
 
 
+def road_array(road_height_m: ArrayLike) -> np.ndarray:
+    """The road heights as a contiguous 1-D float array.
+
+    Raises
+    ------
+    UserError
+        Not a non-empty 1-D array, or a sample that is not finite (naming it).
+    """
+    road = np.ascontiguousarray(road_height_m, dtype=float)
+    if road.ndim != 1 or road.size == 0:
+        raise UserError(f"road height must be a non-empty 1-D array, got shape {road.shape}")
+    bad = ~np.isfinite(road)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise UserError(f"road height sample {i} is {road[i]} (must be finite)")
+    return road
+
+
 def simulate(params: QuarterCarParams, damper: DamperPlugin, road_height_m: ArrayLike,
              dt_s: float = 1e-3, *, initial_state: ArrayLike | None = None,
              compiled: bool = True) -> RideResult:
@@ -368,13 +386,7 @@ def simulate(params: QuarterCarParams, damper: DamperPlugin, road_height_m: Arra
         without ``kernel_spec``) runs the same update through :class:`QuarterCar` and the
         plug-in's ``force`` in Python.
     """
-    road = np.ascontiguousarray(road_height_m, dtype=float)
-    if road.ndim != 1 or road.size == 0:
-        raise UserError(f"road height must be a non-empty 1-D array, got shape {road.shape}")
-    bad = ~np.isfinite(road)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise UserError(f"road height sample {i} is {road[i]} (must be finite)")
+    road = road_array(road_height_m)
     car = QuarterCar(params, dt_s, damper.static_force_n)
     car.reset(initial_state)
     n = road.size

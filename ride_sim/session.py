@@ -36,7 +36,7 @@ from ride_sim.quarter_car import (
     _road_pair,
     simulate,
 )
-from ride_sim.study import _start_state, metrics, random_road_input
+from ride_sim.study import metrics, random_road_input, start_state
 
 
 def run_road(road: RoadParams, run: RideRunParams, dt_s: float
@@ -76,7 +76,7 @@ class RideSession:
         self.heights, self.n_lead = heights, n_lead
         self.n = self.heights.size
         self.car = QuarterCar(car, dt_s, static_force_n)
-        self.car.reset(_start_state(self.heights, dt_s))
+        self.car.reset(start_state(self.heights, dt_s))
         self.dt_s = self.car.dt_s
         self._out = np.empty((O_SIZE, self.n))
         self._faults = np.zeros(self.n, dtype=np.int64)
@@ -165,7 +165,7 @@ def offline_run(car: QuarterCarParams, road: RoadParams, run: RideRunParams, dt_
     """The same run with a damper plug-in in the compiled loop
     (:func:`~ride_sim.quarter_car.simulate`): the reference for a lockstep ROS run."""
     heights, n_lead = run_road(road, run, dt_s)
-    result = simulate(car, damper, heights, dt_s, initial_state=_start_state(heights, dt_s))
+    result = simulate(car, damper, heights, dt_s, initial_state=start_state(heights, dt_s))
     return result, metrics(result, n_lead, heights.size)
 
 

@@ -362,7 +362,7 @@ def check_random_road(road: RoadParams, speed_m_s: float, dt_s: float) -> None:
                    spacing_m=speed_m_s * dt_s, seed=0, amplitudes=road.amplitudes)
 
 
-def _start_state(heights: np.ndarray, dt_s: float) -> tuple[float, float, float, float]:
+def start_state(heights: np.ndarray, dt_s: float) -> tuple[float, float, float, float]:
     """Static equilibrium at the starting road height, moving with the road."""
     h0 = float(heights[0])
     v0 = float(heights[1] - heights[0]) / dt_s if heights.size > 1 else 0.0
@@ -371,14 +371,14 @@ def _start_state(heights: np.ndarray, dt_s: float) -> tuple[float, float, float,
 
 def run(car: QuarterCarParams, damper, heights: np.ndarray, dt_s: float) -> RideResult:
     """:func:`~ride_sim.quarter_car.simulate` from equilibrium at the starting height."""
-    return simulate(car, damper, heights, dt_s, initial_state=_start_state(heights, dt_s))
+    return simulate(car, damper, heights, dt_s, initial_state=start_state(heights, dt_s))
 
 
 def run_linear_exact(car: QuarterCarParams, heights: np.ndarray, dt_s: float) -> RideResult:
     """The linear car with ``C_s`` inside the exact update (no sampled damper): the
     reference that isolates the damper's zero-order-hold sampling."""
     qc = QuarterCar(car, dt_s, 0.0, car.linear_damping_ns_m)
-    qc.reset(_start_state(heights, dt_s))
+    qc.reset(start_state(heights, dt_s))
     n = heights.size
     out = np.empty((3, n))
     h = heights.tolist()
@@ -395,16 +395,23 @@ def run_linear_exact(car: QuarterCarParams, heights: np.ndarray, dt_s: float) ->
 def metrics(result: RideResult, start: int, stop: int) -> dict[str, float]:
     """:data:`OUTPUT_KEYS` over samples ``[start, stop)``; the Wk filter runs over the
     whole record (its start transient settles in the lead-in)."""
-    fs = 1.0 / result.dt_s
-    aw = weight_signal("Wk", result.body_accel_m_s2, fs)
+    return history_metrics(result.sws_m, result.body_accel_m_s2, result.dtl_n, result.dt_s,
+                           start, stop)
+
+
+def history_metrics(sws_m: np.ndarray, body_accel_m_s2: np.ndarray, dtl_n: np.ndarray,
+                    dt_s: float, start: int, stop: int) -> dict[str, float]:
+    """:func:`metrics` of the histories of one run (e.g. one row of
+    :func:`ride_sim.many.simulate_many`'s result)."""
+    aw = weight_signal("Wk", body_accel_m_s2, 1.0 / dt_s)
     sl = slice(start, stop)
     out: dict[str, float] = {}
-    for key, x in (("sws", result.sws_m[sl]), ("accel_w", aw[sl]),
-                   ("accel", result.body_accel_m_s2[sl]), ("dtl", result.dtl_n[sl])):
+    for key, x in (("sws", sws_m[sl]), ("accel_w", aw[sl]),
+                   ("accel", body_accel_m_s2[sl]), ("dtl", dtl_n[sl])):
         out[f"{key}_rms"] = float(np.sqrt(np.mean(x * x)))
         out[f"{key}_peak_pos"] = float(np.max(x))
         out[f"{key}_peak_neg"] = float(np.min(x))
-    sws = result.sws_m[sl]
+    sws = sws_m[sl]
     mean = float(np.mean(sws))
     out["sws_mean"] = mean
     out["sws_rms_ac"] = float(np.sqrt(np.mean((sws - mean) ** 2)))

@@ -30,13 +30,14 @@ from damper_hil.cli import (
     ride,
     ride_study,
     skyhook,
+    tune,
     validate,
 )
 from damper_hil.cli.common import PROG
 
 #: the subcommands, in the order ``--help`` lists them
 SUBCOMMANDS = (dyno, demo, dyno_demo, emulate, ride, record, bridge, skyhook, replay,
-               validate, identify, diagnose, ride_study, fleet, fleet_example)
+               validate, identify, diagnose, ride_study, fleet, fleet_example, tune)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -26,6 +26,9 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/model_bench.py
 	$(BIN)/python benchmarks/identify_bench.py
 	$(BIN)/python benchmarks/ride_bench.py
+	$(BIN)/python benchmarks/many_bench.py
+	$(BIN)/python benchmarks/fleet_bench.py
+	$(BIN)/python benchmarks/tune_bench.py
 	$(BIN)/python benchmarks/demo_bench.py --runs 3 --host
 
 clean:

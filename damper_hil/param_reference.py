@@ -120,6 +120,7 @@ def render() -> str:
         lines.append("")
     lines += _protocol_tables()
     lines += _scatter_table()
+    lines += _tune_tables()
     return "\n".join(lines)
 
 
@@ -151,14 +152,38 @@ def _scatter_table() -> list[str]:
     from damper_hil.cli.fleet_example import scatter_option
     from damper_hil.fleet.example import Scatter
 
-    lines = ["## `damper-hil fleet-example` scatter", "",
-             _cell(" ".join((Scatter.__doc__ or "").split())), "",
-             "| option | type | unit | rule | default | description |",
-             "|---|---|---|---|---|---|"]
-    for s in field_specs(Scatter, ""):
-        lines.append(f"| `{scatter_option(s.key)}` | {s.type} | {_cell(s.unit) or ' '} | "
-                     f"{_cell(s.constraint)} | {_cell(_fmt(s.default))} | "
-                     f"{_cell(s.description)} |")
+    return _options_table("## `damper-hil fleet-example` scatter", Scatter,
+                          lambda key: scatter_option(key))
+
+
+def _tune_tables() -> list[str]:
+    """The settings and bounds of ``damper-hil tune``, from their schemas."""
+    from damper_hil.cli.tune import OPTIONS, option_of
+    from ride_sim.tuning import TuneBounds, TuneSettings
+
+    lines = _options_table("## `damper-hil tune` settings", TuneSettings,
+                           lambda key: (option_of(key) if key in (*OPTIONS, "bypass")
+                                        else ""),
+                           prefix="tune", intro="In the `tune` group of `--settings` "
+                           "(`config/tune.yaml`); an option, where there is one, overrides "
+                           "the file.")
+    return lines + _options_table("### `tune.bounds`", TuneBounds, lambda key: "",
+                                  prefix="tune.bounds")
+
+
+def _options_table(title: str, cls: type, option: Callable[[str], str], prefix: str = "",
+                   intro: str = "") -> list[str]:
+    """One table of a schema's settings: key, option, type, unit, rule, default."""
+    lines = [title, "", _cell(" ".join((cls.__doc__ or "").split()))
+             + (f" {intro}" if intro else ""), "",
+             "| setting | option | type | unit | rule | default | description |",
+             "|---|---|---|---|---|---|---|"]
+    for s in field_specs(cls, prefix):
+        key = s.key[len(prefix) + 1:] if prefix else s.key
+        opt = option(key)
+        lines.append(f"| `{s.key}` | {f'`{opt}`' if opt else '–'} | {s.type} | "
+                     f"{_cell(s.unit) or ' '} | {_cell(s.constraint)} | "
+                     f"{_cell(_fmt(s.default))} | {_cell(s.description)} |")
     lines.append("")
     return lines
 

@@ -142,7 +142,9 @@ class TuneSpec:
 
     def log_bounds(self) -> np.ndarray:
         """``(variables, 2)``: the natural logs of each variable's factor bounds."""
-        return np.log(np.array([getattr(self.bounds, v) for v in self.variables]))
+        out: np.ndarray = np.log(np.array([getattr(self.bounds, v) for v in self.variables],
+                                          dtype=float))
+        return out
 
 
 def spec_from_mapping(doc: Any, where: str, **overrides: Any) -> TuneSpec:
@@ -185,7 +187,8 @@ def check_base(base: ModelConfig, spec: TuneSpec, where: str) -> None:
 def factors_of(unit: np.ndarray, spec: TuneSpec) -> np.ndarray:
     """Unit-hypercube points ``(m, p)`` → factors of the base values (log-uniform)."""
     lb = spec.log_bounds()
-    return np.exp(lb[:, 0] + np.clip(unit, 0.0, 1.0) * (lb[:, 1] - lb[:, 0]))
+    out: np.ndarray = np.exp(lb[:, 0] + np.clip(unit, 0.0, 1.0) * (lb[:, 1] - lb[:, 0]))
+    return out
 
 
 def design_config(base: ModelConfig, factors: Sequence[float], spec: TuneSpec
@@ -332,7 +335,8 @@ def refine(front_unit: np.ndarray, count: int, step: float, rng: np.random.Gener
     """``count`` new unit-hypercube points around the front's: each a front point
     (in turn) moved by a normal step of ``step`` per variable, kept inside the cube."""
     base = front_unit[np.arange(count) % front_unit.shape[0]]
-    return np.clip(base + rng.normal(0.0, step, base.shape), 0.0, 1.0)
+    out: np.ndarray = np.clip(base + rng.normal(0.0, step, base.shape), 0.0, 1.0)
+    return out
 
 
 def knee(objectives: np.ndarray, mask: np.ndarray) -> int:
@@ -348,7 +352,9 @@ def knee(objectives: np.ndarray, mask: np.ndarray) -> int:
 
 def dominates_baseline(objectives: np.ndarray, baseline: np.ndarray) -> np.ndarray:
     """Rows no worse than the baseline in every objective and better in one."""
-    return np.all(objectives <= baseline, axis=1) & np.any(objectives < baseline, axis=1)
+    out: np.ndarray = (np.all(objectives <= baseline, axis=1)
+                       & np.any(objectives < baseline, axis=1))
+    return out
 
 
 def describe(settings: TuneSettings) -> str:
@@ -366,4 +372,5 @@ def sobol(count: int, dims: int, seed: int) -> np.ndarray:
     from scipy.stats import qmc
 
     m = max(0, math.ceil(math.log2(max(count, 1))))
-    return qmc.Sobol(dims, scramble=True, seed=seed).random_base2(m)[:count]
+    points: np.ndarray = qmc.Sobol(dims, scramble=True, seed=seed).random_base2(m)
+    return points[:count]

@@ -76,6 +76,16 @@ def test_design_config_scales_exactly_the_tuned_constants(sport_cfg):
     np.testing.assert_allclose(centre, 1.0, rtol=1e-12)
 
 
+def test_the_settings_file_holds_the_schema_defaults():
+    from damper_emulator.params import read_yaml
+    from damper_hil.param_reference import REPO
+
+    path = REPO / "config" / "tune.yaml"
+    assert tu.spec_from_mapping(read_yaml(path), str(path)) == tu.TuneSpec()
+    assert tu.spec_from_mapping(read_yaml(path), str(path), designs=1000).settings.designs \
+        == 1000
+
+
 def test_sobol_design_is_space_filling():
     u = tu.sobol(64, 8, seed=1)
     assert u.shape == (64, 8) and u.min() >= 0 and u.max() < 1

@@ -167,6 +167,14 @@ class BridgeCore:
             StrokeUsed=stroke_m if math.isfinite(stroke_m) else 0.0)
         return data
 
+    def fault_frame(self, now_ns: int) -> bytes:
+        """A ``DAMPER_FORCE`` fault payload: 0 N with Status bit 32 (no force from the
+        emulator) and the inbound bits; the watchdog's, and the bridge's last frame when it
+        leaves 'active'."""
+        self.counters.fault_frames_out += 1
+        bits = int(ForceStatus.FORCE_TIMEOUT) | int(self._inbound_status(now_ns))
+        return self._encode_force(0.0, bits, math.nan, math.nan)
+
     def watchdog_wait_ns(self, now_ns: int) -> int:
         """How long the receive loop may wait for a frame before :meth:`watchdog` is due:
         until the next fault frame while the emulator is silent, else one DBC cycle."""
@@ -189,9 +197,7 @@ class BridgeCore:
                 self.next_watchdog_ns += self.force_cycle_ns
                 if now_ns >= self.next_watchdog_ns:        # fell behind: no burst
                     self.next_watchdog_ns = now_ns + self.force_cycle_ns
-                self.counters.fault_frames_out += 1
-                bits = int(ForceStatus.FORCE_TIMEOUT) | int(self._inbound_status(now_ns))
-                frame = self._encode_force(0.0, bits, math.nan, math.nan)
+                frame = self.fault_frame(now_ns)
         command = None
         if self.params.mode == "controller" and not self._command_silent:
             c_timeout_ns = self.params.command_timeout_s * 1e9

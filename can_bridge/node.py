@@ -18,13 +18,14 @@ import time
 import can
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.node import Node
+from lifecycle_msgs.msg import State as LifecycleStateMsg
+from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from can_bridge.bus import BusConfig, CanBusError, ResilientBus, open_bus
 from can_bridge.core import BridgeCore
-from can_bridge.dbc import load_database
+from can_bridge.dbc import ForceStatus, load_database
 from can_bridge.settings import (
     NODE_NAME,
     BridgeParams,
@@ -32,9 +33,11 @@ from can_bridge.settings import (
     default_bridge_mapping,
 )
 from damper_emulator.params import ParameterError
+from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
+    ManagedNode,
     NotReadyError,
     SubscriptionThread,
     control_qos,
@@ -45,6 +48,8 @@ from damper_emulator.ros.common import (
     wait_until_active,
 )
 
+#: The emulator's status bits that DAMPER_FORCE.Status carries as they are (1..8).
+EMULATOR_BITS = 0x0F
 #: A CAN timestamp further than this from the wall clock is not trusted as a stamp [s].
 STAMP_TRUST_S = 1.0
 
@@ -53,8 +58,20 @@ def _frame_index(msg: JointState, name: str) -> int:
     return list(msg.name).index(name) if name in msg.name else -1
 
 
-class BridgeNode(Node):
-    """See the module docstring.  Parameters: config/bridge.yaml (no group)."""
+class BridgeNode(ManagedNode):
+    """See the module docstring.  Parameters: config/bridge.yaml (no group) and
+    ``autostart``.
+
+    A managed (lifecycle) node.  Its parameters, the CAN database and the bus (opened once
+    and closed again) are checked when it is created: a bad value is one line and exit 2.
+    ``configure`` builds the bridge's core, the bus and the publishers; ``activate`` starts
+    the receive and input threads; ``deactivate`` (and ``shutdown`` from active) stops
+    them, then puts the outputs in their safe state: one ``DAMPER_FORCE`` fault frame
+    (0 N, Status bit 32, as when the emulator falls silent) and, in controller mode, the
+    fail-safe valve command on ``/damper/valve_command``, with the reason on
+    ``/diagnostics``; ``cleanup`` closes the bus and releases the publishers.  The real-time
+    settings are the threads' own and end with them.
+    """
 
     def __init__(self):
         super().__init__(NODE_NAME)
@@ -65,51 +82,141 @@ class BridgeNode(Node):
         self.dds_priority = p.dds_priority
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
         self.main_thread_priority = executor_priority(p.priority) if p.sched_fifo else 0
-        db = load_database(p.dbc_file or None)
-        self.core = BridgeCore(p, db)
-        cfg = BusConfig(interface=p.can_interface, channel=p.can_channel, bitrate=p.bitrate,
-                        receive_ids=self.core.receiver.frame_ids)
+        self._db = load_database(p.dbc_file or None)
+        self._bus_config = BusConfig(interface=p.can_interface, channel=p.can_channel,
+                                     bitrate=p.bitrate,
+                                     receive_ids=BridgeCore(p, self._db).receiver.frame_ids)
         try:
-            open_bus(cfg).shutdown()     # a wrong interface or channel: one line, exit 2
+            open_bus(self._bus_config).shutdown()  # a wrong interface or channel: exit 2
         except CanBusError as exc:
             raise ParameterError(str(exc)) from None
-        self.bus = ResilientBus(cfg, backoff_initial_s=p.backoff_initial_s,
-                                backoff_max_s=p.backoff_max_s)
-        self.exit_status = 0
-        self._force_id = self.core.force_encoder.frame_id
-        self._motion_id = self.core.motion_encoder.frame_id
-        self._errors_seen = 0
-        self._tx_failed = 0
-        qos = control_qos(topics.CONTROL_DEPTH)
-        inputs = [(JointState, topics.FORCE, self._on_force)]
-        if p.mode == "dyno":
-            self._state_pub = self.create_publisher(JointState, topics.STATE, qos)
-        else:
-            self._valve_pub = self.create_publisher(Float64, topics.VALVE_COMMAND, qos)
-            self._damper_velocity = 0.0
-            inputs += [(JointState, topics.STATE, self._on_damper_state),
-                       (JointState, topics.RIDE_STATE, self._on_ride_state)]
-        # the 1 kHz inputs on a thread of their own, without the executor
-        self._ros_in = SubscriptionThread(self, inputs, qos, "ros-in", RealtimeRequest(
-            sched_fifo=p.sched_fifo, priority=p.priority, lock_memory=False))
-        self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
+        self.core: BridgeCore | None = None
+        self.bus: ResilientBus | None = None
+        self._state_pub = self._valve_pub = self._diag_pub = None
+        self._diag_timer = None
+        self._ros_in: SubscriptionThread | None = None
+        self._rx: threading.Thread | None = None
         self._stop = threading.Event()
         # DAMPER_FORCE frames come from two threads (forces: the input thread; fault frames:
         # the receive thread's watchdog) with one alive counter: encode and send them under one
         # lock, so that no two frames share a counter and they go out in counter order
         self._force_lock = threading.Lock()
-        self._rx = threading.Thread(target=self._receive_loop, name="can-rx", daemon=True)
         self._rt_report = None
+        self._errors_seen = 0
+        self._tx_failed = 0
+        self._damper_velocity = 0.0
+        #: why the node is not active (after a deactivation: in /diagnostics)
+        self._inactive_reason = ""
         self.get_logger().info(
             f"mode {p.mode} on {p.can_interface} channel {p.can_channel} "
             f"({p.bitrate} bit/s), database {p.dbc_file or 'config/damper.dbc'}")
 
     # ---- lifecycle --------------------------------------------------------------------
 
-    def run(self, executor) -> None:
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        p = self.params
+        self.core = BridgeCore(p, self._db)
+        self._force_id = self.core.force_encoder.frame_id
+        self._motion_id = self.core.motion_encoder.frame_id
+        self.bus = ResilientBus(self._bus_config, backoff_initial_s=p.backoff_initial_s,
+                                backoff_max_s=p.backoff_max_s)
+        qos = control_qos(topics.CONTROL_DEPTH)
+        if p.mode == "dyno":
+            self._state_pub = self.create_lifecycle_publisher(JointState, topics.STATE, qos)
+        else:
+            self._valve_pub = self.create_lifecycle_publisher(Float64, topics.VALVE_COMMAND,
+                                                              qos)
+        self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self._diag_timer = self.create_timer(p.diagnostics_period_s,
+                                             self._publish_diagnostics)
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        p = self.params
+        result = super().on_activate(state)
+        inputs = [(JointState, topics.FORCE, self._on_force)]
+        if p.mode == "controller":
+            inputs += [(JointState, topics.STATE, self._on_damper_state),
+                       (JointState, topics.RIDE_STATE, self._on_ride_state)]
+        # the 1 kHz inputs on a thread of their own, without the executor
+        self._ros_in = SubscriptionThread(
+            self, inputs, control_qos(topics.CONTROL_DEPTH), "ros-in", RealtimeRequest(
+                sched_fifo=p.sched_fifo, priority=p.priority, lock_memory=False))
+        self._stop.clear()
+        self._rx = threading.Thread(target=self._receive_loop, name="can-rx", daemon=True)
         self._rx.start()
         self._ros_in.start()
+        self._inactive_reason = ""
+        self.get_logger().info(f"active: bridging {p.mode} frames")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_ACTIVE, "active")
+        return result
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._leave_active("deactivated by a lifecycle transition")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if state.state_id == LifecycleStateMsg.PRIMARY_STATE_ACTIVE:
+            self._leave_active("shut down by a lifecycle transition")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_FINALIZED, "finalized")
+        self._stop_threads()
+        self._release()
+        return super().on_shutdown(state)
+
+    def _stop_threads(self) -> None:
+        self._stop.set()
+        if self._ros_in is not None:
+            self._ros_in.stop()
+            if self._ros_in.failed:
+                self.exit_status = 1
+            self._ros_in = None
+        if self._rx is not None:
+            if self._rx.is_alive():
+                self._rx.join(2.0)
+            self._rx = None
+
+    def _leave_active(self, reason: str) -> None:
+        """Stop the threads, then the safe state: a fault frame and, in controller mode,
+        the fail-safe valve command (class docstring)."""
+        self._stop_threads()
+        self._inactive_reason = reason
+        core = self.core
+        if core is None or self.bus is None:
+            return
+        with self._force_lock:
+            self._send(self._force_id, core.fault_frame(time.monotonic_ns()))
+        if self.params.mode == "controller" and self._valve_pub is not None:
+            core.command = self.params.fail_safe_command
+            self._valve_pub.publish(Float64(data=float(self.params.fail_safe_command)))
+        self._publish_diagnostics()
+        self.get_logger().info(f"inactive ({reason}): fault frame sent"
+                               + (f", fail-safe command {self.params.fail_safe_command:g}"
+                                  if self.params.mode == "controller" else ""))
+
+    def _release(self) -> None:
+        if self._diag_timer is not None:
+            self.destroy_timer(self._diag_timer)
+            self._diag_timer = None
+        for pub in (self._state_pub, self._valve_pub):
+            if pub is not None:
+                self.destroy_lifecycle_publisher(pub)
+        self._state_pub = self._valve_pub = None
+        if self._diag_pub is not None:
+            self.destroy_publisher(self._diag_pub)
+            self._diag_pub = None
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+        self.core = None
+
+    def before_spin(self, executor) -> None:
         p = self.params
         if p.emulator_node:
             # the frames flow meanwhile (fault frames with the no-force status until the
@@ -122,16 +229,11 @@ class BridgeNode(Node):
             except NotReadyError as exc:
                 self.get_logger().error(f"{exc}; sending DAMPER_FORCE fault frames until "
                                         f"forces arrive")
-        executor.spin()
 
     def close(self) -> None:
-        self._stop.set()
-        self._ros_in.stop()
-        if self._rx.is_alive():
-            self._rx.join(2.0)
-        self.bus.close()
-        if self._ros_in.failed:
-            self.exit_status = 1
+        self._stop_threads()
+        if self.bus is not None:
+            self.bus.close()
 
     # ---- CAN → ROS --------------------------------------------------------------------
 
@@ -201,8 +303,11 @@ class BridgeNode(Node):
         status = int(msg.effort[s]) if s >= 0 and len(msg.effort) > s else 0
         age = float(msg.position[s]) if s >= 0 and len(msg.position) > s else float("nan")
         stroke = float(msg.position[i]) if len(msg.position) > i else float("nan")
+        bits = status & EMULATOR_BITS
+        if status & Status.INACTIVE:  # the emulator's last output: no forces follow
+            bits |= int(ForceStatus.FORCE_TIMEOUT)
         with self._force_lock:
-            frame = self.core.force_frame(float(msg.effort[i]), status & 0x0F, age, stroke,
+            frame = self.core.force_frame(float(msg.effort[i]), bits, age, stroke,
                                           time.monotonic_ns())
             self._send(self._force_id, frame)
 
@@ -258,5 +363,11 @@ class BridgeNode(Node):
             level, message = DiagnosticStatus.ERROR, self.core.fault_text
         if not bus.is_up:
             level, message = DiagnosticStatus.ERROR, f"bus down: {bus.last_error}"
+        if self._inactive_reason:
+            values["inactive_reason"] = self._inactive_reason
+            level, message = DiagnosticStatus.WARN, (
+                f"inactive: {self._inactive_reason}; a DAMPER_FORCE fault frame sent"
+                + (", fail-safe valve command applied" if self.params.mode == "controller"
+                   else "") + ", nothing more until active")
         publish_diagnostics(self, self._diag_pub, f"{NODE_NAME}: {self.params.mode}", level,
                             message, self.params.can_channel, values)

@@ -121,7 +121,13 @@ from damper_emulator.model.compressible import (
     new_state,
 )
 from damper_emulator.params import node_parameters, read_yaml
-from damper_emulator.realtime.core import Status, fault_output, input_ok, stroke_window
+from damper_emulator.realtime.core import (
+    FAULT_OUTPUT,
+    Status,
+    fault_output,
+    input_ok,
+    stroke_window,
+)
 from damper_emulator.realtime.settings import (
     DEFAULT_EMULATOR_FILE,
     EmulatorParams,
@@ -152,7 +158,7 @@ REPLAY_PNG = "replay.png"
 #: how many of the latest state samples a timer tick's input is searched among
 SEARCH_DEPTH = 256
 
-_FAULT = int(Status.NO_INPUT | Status.TIMEOUT)
+_FAULT = int(FAULT_OUTPUT)
 _INT64_MIN = np.iinfo(np.int64).min
 
 

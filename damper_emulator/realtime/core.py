@@ -81,11 +81,19 @@ class Status(enum.IntFlag):
     TIMEOUT = 2         # latest valid input older than input_timeout_s: fault output
     REJECTED = 4        # the latest input sample was rejected (non-finite, out of range)
     MODEL = 8           # the model flagged this step (clamped stroke/velocity, solver, ...)
+    #: the node left 'active' (deactivated or shut down): this last output is the fault
+    #: mode's and none follows.  ROS only: DAMPER_FORCE's 8-bit Status keeps bits 1..8 of
+    #: the emulator, and the bridge's own force timeout (32) follows on the bus.
+    INACTIVE = 16
 
     @property
     def fault(self) -> bool:
         """True when the output is a fault output rather than the model's force."""
-        return bool(self & (Status.NO_INPUT | Status.TIMEOUT))
+        return bool(self & FAULT_OUTPUT)
+
+
+#: the status bits of an output that is not the model's force
+FAULT_OUTPUT = Status.NO_INPUT | Status.TIMEOUT | Status.INACTIVE
 
 
 @dataclass(frozen=True)

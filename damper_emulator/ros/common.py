@@ -10,10 +10,12 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import rclpy
+from lifecycle_msgs.msg import State as LifecycleStateMsg
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RclpyParameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -589,3 +591,57 @@ class SubscriptionThread:
                 self._node.get_logger().error(f"{self._thread.name} thread stopped: {exc!r}")
                 self.failed = True
                 rclpy.try_shutdown(context=context)
+
+
+# --------------------------------------------------------------------------------------
+# managed (lifecycle) nodes
+
+#: The managed nodes' own parameter: configure and activate at start.
+AUTOSTART = "autostart"
+
+
+class ManagedNode(LifecycleNode):
+    """What the project's managed nodes share (the emulator, the CAN bridge).
+
+    * ``autostart`` (a read-only bool parameter, default true): :meth:`run` configures and
+      activates the node itself; false: it waits for a lifecycle manager's transitions on
+      the standard ``lifecycle_msgs`` services (``/<name>/change_state``, ``get_state``,
+      ...);
+    * the latched ``/<name>/lifecycle_state`` topic, which :meth:`announce` publishes at
+      every state the node reaches (what :func:`wait_until_active` reads);
+    * ``exit_status`` (0; 1 when a transition of the autostart failed).
+    """
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.autostart = bool(self.declare_parameter(
+            AUTOSTART, True, ParameterDescriptor(
+                type=ParameterType.PARAMETER_BOOL, read_only=True,
+                description="configure and activate at start (false: wait for a lifecycle "
+                            "manager's transitions)")).value)
+        self.exit_status = 0
+        self._lifecycle_pub = self.create_publisher(LifecycleStateMsg,
+                                                    lifecycle_state_topic(name),
+                                                    latched_qos())
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+
+    def announce(self, state_id: int, label: str) -> None:
+        """Publish the lifecycle state on the latched ``/<name>/lifecycle_state``."""
+        self._lifecycle_pub.publish(LifecycleStateMsg(id=state_id, label=label))
+
+    def before_spin(self, executor: SingleThreadedExecutor) -> None:
+        """Called by :meth:`run` after the autostart transitions (default: nothing)."""
+
+    def run(self, executor: SingleThreadedExecutor) -> None:
+        if self.autostart:
+            for name, trigger in (("configure", self.trigger_configure),
+                                  ("activate", self.trigger_activate)):
+                if trigger() != TransitionCallbackReturn.SUCCESS:
+                    self.get_logger().error(f"autostart: the {name} transition failed")
+                    self.exit_status = 1
+                    return
+            self.before_spin(executor)
+        else:
+            self.get_logger().info("autostart false: waiting for a lifecycle manager "
+                                   f"(/{self.get_name()}/change_state)")
+        executor.spin()

@@ -33,8 +33,8 @@ import time
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.msg import State as LifecycleStateMsg
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
-from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -61,12 +61,11 @@ from damper_emulator.realtime.settings import (
 )
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
+    ManagedNode,
     SubscriptionThread,
     control_qos,
     declare_parameters,
     executor_priority,
-    latched_qos,
-    lifecycle_state_topic,
     parameter_overrides,
     plain_value,
     publish_diagnostics,
@@ -77,8 +76,6 @@ from damper_emulator.ros.common import (
 )
 
 NODE_NAME = "damper_emulator"
-#: The managed node's own parameter: configure and activate at start.
-AUTOSTART = "autostart"
 
 
 #: parameters under this prefix switch model extensions on (damper_emulator.model.extensions)
@@ -136,7 +133,7 @@ def input_sample(msg: JointState, name: str) -> tuple[float, float] | str:
     return float(msg.position[i]), float(msg.velocity[i])
 
 
-class EmulatorNode(LifecycleNode):
+class EmulatorNode(ManagedNode):
     """See the module docstring.  Parameters: groups ``emulator`` (config/emulator.yaml),
     ``damper`` and ``numerics`` (config/sport.yaml), and ``autostart``.
 
@@ -144,19 +141,17 @@ class EmulatorNode(LifecycleNode):
     built, when it is created (a bad value is one line and exit 2).  ``configure`` loads the
     compiled kernels and exercises every path the loop can take
     (:meth:`EmulatorCore.warm_up`): nothing is compiled once the node is active.
-    ``activate`` starts the loop (or the input thread) and the outputs; ``deactivate`` stops
-    them.  ``active`` is the readiness the ride, the bridge and the demo wait for
+    ``activate`` starts the loop (or the input thread) and the outputs; ``deactivate`` (and
+    ``shutdown`` from active) stops them after one last output in the configured
+    ``fault_mode`` with the ``INACTIVE`` status bit, the reason on ``/diagnostics``;
+    ``cleanup`` releases the publishers and the model's core.  ``active`` is the readiness
+    the ride, the bridge and the demo wait for
     (:func:`~damper_emulator.ros.common.wait_until_active`).  With ``autostart: true`` (the
     default) the node configures and activates itself at start.
     """
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        self.autostart = bool(self.declare_parameter(
-            AUTOSTART, True, ParameterDescriptor(
-                type=ParameterType.PARAMETER_BOOL, read_only=True,
-                description="configure and activate at start (false: wait for a lifecycle "
-                            "manager's transitions)")).value)
         values, model = load_node_model(self, {"emulator": default_emulator_mapping()},
                                         {"emulator": EmulatorParams})
         self.params = emulator_params_from_mapping(values["emulator"],
@@ -168,7 +163,6 @@ class EmulatorNode(LifecycleNode):
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
         self.main_thread_priority = (executor_priority(self.params.priority)
                                      if self.params.sched_fifo else 0)
-        self.exit_status = 0
         p = self.params
         self._force_pub = None
         self._diag_pub = None
@@ -186,10 +180,8 @@ class EmulatorNode(LifecycleNode):
         #: compiled specialisations when the node became active (None: not yet)
         self._compiled_at_ready: int | None = None
         self.warm_up_s = math.nan
-        self._lifecycle_pub = self.create_publisher(LifecycleStateMsg,
-                                                    lifecycle_state_topic(NODE_NAME),
-                                                    latched_qos())
-        self._announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+        #: why the node is not active (after a deactivation: in /diagnostics)
+        self._inactive_reason = ""
         self.get_logger().info(
             f"damper '{model.cfg.damper.name}', trigger {p.trigger}"
             + (f" at {p.rate_hz:g} Hz" if p.trigger == "timer" else "")
@@ -228,7 +220,7 @@ class EmulatorNode(LifecycleNode):
         self._diag_timer = self.create_timer(p.diagnostics_period_s,
                                              self._publish_diagnostics)
         self.get_logger().info(f"configured: model exercised in {self.warm_up_s:.2f} s")
-        self._announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -259,31 +251,45 @@ class EmulatorNode(LifecycleNode):
             self._realtime_summary = report.summary()
             log = self.get_logger().warning if report.refused else self.get_logger().info
             log(f"real-time settings: {self._realtime_summary}")
+        self._inactive_reason = ""
         self.get_logger().info("active: publishing " + topics.FORCE)
-        self._announce(LifecycleStateMsg.PRIMARY_STATE_ACTIVE, "active")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_ACTIVE, "active")
         return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
-        self._stop_io()
-        self.get_logger().info("inactive: outputs stopped")
+        self._leave_active("deactivated by a lifecycle transition")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._release()
-        self._announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
         return super().on_cleanup(state)
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._announce(LifecycleStateMsg.PRIMARY_STATE_FINALIZED, "finalized")
+        if state.state_id == LifecycleStateMsg.PRIMARY_STATE_ACTIVE:
+            self._leave_active("shut down by a lifecycle transition")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_FINALIZED, "finalized")
         self._stop_io()
         self._release()
         return super().on_shutdown(state)
 
-    def _announce(self, state_id: int, label: str) -> None:
-        """Publish the lifecycle state on the latched ``/damper_emulator/lifecycle_state``
-        (what :func:`~damper_emulator.ros.common.wait_until_active` waits on)."""
-        self._lifecycle_pub.publish(LifecycleStateMsg(id=state_id, label=label))
+    def _leave_active(self, reason: str) -> None:
+        """Stop the loop (or input thread), then publish one last output in the configured
+        fault mode (``fault_mode``: hold, zero or passive) with the ``INACTIVE`` status bit,
+        and the reason on ``/diagnostics``: a dyno or ride listening knows the forces
+        stopped on purpose, and what the damper was left at."""
+        self._stop_io()
+        self._inactive_reason = reason
+        if self.core is not None and self._force_pub is not None:
+            last = self._last
+            out = Output(self.core.fault_force(), last.stroke_m if last else math.nan,
+                         last.velocity_m_s if last else math.nan, 0, math.nan,
+                         Status.INACTIVE, 0)
+            self._publish(out, time.time_ns())
+            self._publish_diagnostics()
+        self.get_logger().info(f"inactive ({reason}): one {self.params.fault_mode} output, "
+                               "then none")
 
     def _stop_io(self) -> None:
         if self._input_thread is not None:
@@ -323,19 +329,6 @@ class EmulatorNode(LifecycleNode):
                                     f"the node became active (warm-up incomplete)")
             self.exit_status = 1
         self._compiled_at_ready = None
-
-    def run(self, executor) -> None:
-        if self.autostart:
-            for name, trigger in (("configure", self.trigger_configure),
-                                  ("activate", self.trigger_activate)):
-                if trigger() != TransitionCallbackReturn.SUCCESS:
-                    self.get_logger().error(f"autostart: the {name} transition failed")
-                    self.exit_status = 1
-                    return
-        else:
-            self.get_logger().info("autostart false: waiting for a lifecycle manager "
-                                   f"(/{NODE_NAME}/change_state)")
-        executor.spin()
 
     def close(self) -> None:
         stats = self._stats
@@ -483,5 +476,10 @@ class EmulatorNode(LifecycleNode):
             level, message = DiagnosticStatus.ERROR, "input timeout: fault output"
         elif status_bits & Status.NO_INPUT:
             level, message = DiagnosticStatus.WARN, "no input yet"
+        if self._inactive_reason:
+            values["inactive_reason"] = self._inactive_reason
+            level, message = DiagnosticStatus.WARN, (
+                f"inactive: {self._inactive_reason}; outputs stopped after one "
+                f"{self.params.fault_mode} output")
         publish_diagnostics(self, self._diag_pub, f"{NODE_NAME}: {self.params.name}", level,
                             message, self.params.name, values)

@@ -141,7 +141,7 @@ _VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
 # gas temperature ratio T/T_wall and the spring force one sub-step earlier [N] (for BDF2).
 (S_P_REB, S_Z, S_X, S_V, S_FORCE, S_P_COM, S_P_PREV, S_H_PREV, S_CMD, S_CMD_EFF,
  S_TEMP_IN, S_HEAT_DT, S_BRISTLE, S_V_CAV, S_Q_VALVE, S_MOUNT_F, S_GAS_THETA, S_MOUNT_PREV,
- S_SIZE) = range(19)
+ S_Z_PREV, S_SIZE) = range(20)
 
 
 @kernel
@@ -418,6 +418,7 @@ def init_state(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: 
     state[S_MOUNT_F] = force
     state[S_MOUNT_PREV] = force
     state[S_GAS_THETA] = 1.0
+    state[S_Z_PREV] = z
 
 
 @kernel
@@ -480,12 +481,14 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
     cavitation = prm[P_CAV_ON] > 0.0
     v_cav = state[S_V_CAV]
     air = prm[P_AIR_EPS] > 0.0
+    z_prev = state[S_Z_PREV]
     for j in range(1, n_sub + 1):
         frac = j / n_sub
         xs = x0 + frac * (x - x0)
         vs = v0 + frac * (v - v0)
         air_hat = 0.0
         mount_hat = mount_f
+        w = 0.0
         if h_prev > 0.0 and h / h_prev < BDF2_MAX_STEP_RATIO:
             # variable-step BDF2: p − p̂ = h_eff f(p)
             w = h / h_prev
@@ -523,6 +526,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
         if cavitation and v_cav > 0.0:
             # a cavity is open: the chamber sits at the cavitation pressure until it refills
             p = prm[P_CAV_P]
+            z_prev = z
             z = _z_of(prm, p - p_com, visc)
             q = _flow_state(z, prm, coef_r, coef_c, bp_area, gr_area, visc, q_lag, lag_w)
             q_lag = q[5]
@@ -532,9 +536,13 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
                 v_cav = 0.0
             h_prev = 0.0  # restart the multistep formula from here
         else:
-            z, p, q_lag, f = _implicit_substep(prm, coef_r, coef_c, p_hat, z, xd, vs, h_eff,
-                                               bp_area, p_com, visc, q_lag, lag_w, gr_area,
-                                               mount_c, mount_off, air_hat)
+            # the Newton solve starts from z extrapolated along the last two sub-steps (the
+            # previous z alone costs about one more iteration per solve)
+            z_start = z + (z - z_prev) * w
+            z_prev = z
+            z, p, q_lag, f = _implicit_substep(prm, coef_r, coef_c, p_hat, z_start, xd, vs,
+                                               h_eff, bp_area, p_com, visc, q_lag, lag_w,
+                                               gr_area, mount_c, mount_off, air_hat)
             flags |= f
             h_prev = h
             if cavitation and p < prm[P_CAV_P]:
@@ -565,6 +573,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
     state[S_MOUNT_PREV] = mount_prev
     state[S_GAS_THETA] = theta
     state[S_V_CAV] = v_cav
+    state[S_Z_PREV] = z_prev
     return force, flags
 
 

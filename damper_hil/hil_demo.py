@@ -79,8 +79,10 @@ def _wait_for_emulator(env: dict, helpers: list, progress: Callable[[str], None]
 
 def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
              control: str = "skyhook", domain_id: int | None = None,
+             live_port: int | None = None,
              progress: Callable[[str], None] = print) -> dict:
-    """Run the demo into ``out`` and return its summary (also ``out/demo.json``)."""
+    """Run the demo into ``out`` and return its summary (also ``out/demo.json``); with
+    ``live_port``, also the live view (``damper-hil live``) on that port."""
     started = time.monotonic()
     out.mkdir(parents=True, exist_ok=True)
     bag = out / "bag"
@@ -114,6 +116,11 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
             helpers.append(NodeProcess("skyhook", node_command("skyhook", extra=[
                 "--can-interface", bus.interface, "--can-channel", bus.channel,
                 "--json", str(sky_json)]), env, logs))
+        if live_port is not None:
+            progress(f"      live view on ws://127.0.0.1:{live_port} (Foxglove or Lichtblick, "
+                     "layout config/foxglove_layout.json)")
+            helpers.append(NodeProcess("live", node_command("live", extra=[
+                "--port", str(live_port)]), env, logs))
         _wait_for_emulator(env, helpers, progress)
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         ride = NodeProcess("ride", node_command("ride", {
@@ -154,5 +161,6 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         "can_bus": f"{bus.interface} {bus.channel}",
         "skyhook": json.loads(sky_json.read_text()) if sky_json.is_file() else None,
         "ros_domain_id": int(env["ROS_DOMAIN_ID"]),
+        "live_port": live_port,
         "elapsed_s": round(time.monotonic() - started, 1),
     })

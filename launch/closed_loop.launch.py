@@ -11,11 +11,12 @@ The ride node waits for the emulator's ``active`` before it starts its clock, an
 after ``ride.duration_s``; stop the rest with Ctrl-C (the recorder closes the bag).
 """
 
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, ExecuteProcess
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import LifecycleNode, Node
 from launch_ros.substitutions import FindPackageShare
+
+from launch import LaunchDescription
 
 PACKAGE = "damper_hil"
 

@@ -9,11 +9,12 @@ Both nodes are managed (lifecycle) nodes that configure and activate themselves
 (``autostart``); the bridge runs in ``dyno`` mode and waits for the emulator's ``active``.
 """
 
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import LifecycleNode
 from launch_ros.substitutions import FindPackageShare
+
+from launch import LaunchDescription
 
 PACKAGE = "damper_hil"
 

@@ -25,6 +25,7 @@ from damper_hil.cli import (
     fleet,
     fleet_example,
     identify,
+    live,
     record,
     replay,
     ride,
@@ -37,7 +38,7 @@ from damper_hil.cli.common import PROG
 
 #: the subcommands, in the order ``--help`` lists them
 SUBCOMMANDS = (dyno, demo, dyno_demo, emulate, ride, record, bridge, skyhook, replay,
-               validate, identify, diagnose, ride_study, fleet, fleet_example, tune)
+               validate, identify, diagnose, ride_study, fleet, fleet_example, tune, live)
 
 
 def build_parser() -> argparse.ArgumentParser:

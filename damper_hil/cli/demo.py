@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from damper_hil.cli.common import CliError, Formatter, positive_float
+from damper_hil.cli.common import CliError, Formatter, positive_float, positive_int
 from ride_sim.params import CLOCKS, RideRunParams
 
 
@@ -33,6 +33,11 @@ def add_parser(sub) -> None:
                       help="skyhook: the reference skyhook controller commands the adaptive "
                            "damper over CAN; passive: the damper stays at sport (the bridge "
                            "still runs; default: skyhook)")
+    demo.add_argument("--live", metavar="PORT", type=positive_int, nargs="?", const=8765,
+                      default=None,
+                      help="also serve the live view (damper-hil live) on ws://127.0.0.1:PORT "
+                           "(default port 8765): open it in Foxglove or Lichtblick with "
+                           "config/foxglove_layout.json")
     demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
                       help="output directory (created if missing; default: demo_out)")
     demo.set_defaults(handler=run)
@@ -46,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         summary = run_demo(args.out, args.duration, clock=args.clock, control=args.control,
-                           progress=progress)
+                           live_port=args.live, progress=progress)
     except DemoError as exc:
         raise CliError(str(exc)) from None
     m = summary["ride"]["metrics"]

@@ -1,0 +1,148 @@
+"""Issue 18: the live view.  ``damper-hil demo --live PORT`` runs the closed loop with the
+``live_view`` node; a WebSocket client in the test speaks the Foxglove WebSocket protocol
+to it while the demo runs (subscribes to every advertised channel, decodes the binary
+message frames and their JSON payloads) and checks what it receives against the demo's own
+bag, read back independently: the forces the view sent are forces the emulator published.
+The layout file's panels name only channels and fields the view serves."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from damper_hil.live import CHANNELS
+
+ROOT = Path(__file__).resolve().parents[1]
+#: away from the other tests' ROS domains
+DOMAIN = 153
+#: the Foxglove WebSocket protocol's binary opcode of a message frame
+MESSAGE_DATA = 0x01
+
+
+async def _listen(port: int, seconds: float) -> tuple[list, dict[str, list]]:
+    """Connect, subscribe to every channel, collect ``{topic: [payload, ...]}``."""
+    import websockets
+
+    channels: list = []
+    got: dict[str, list] = {}
+    by_sub: dict[int, str] = {}
+    async with websockets.connect(f"ws://127.0.0.1:{port}",
+                                  subprotocols=["foxglove.sdk.v1",
+                                                "foxglove.websocket.v1"]) as ws:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            try:
+                frame = await asyncio.wait_for(ws.recv(), max(0.01, end - time.monotonic()))
+            except asyncio.TimeoutError:
+                break
+            if isinstance(frame, str):
+                doc = json.loads(frame)
+                if doc.get("op") == "advertise":
+                    channels += doc["channels"]
+                    subs = []
+                    for c in doc["channels"]:
+                        by_sub[c["id"]] = c["topic"]
+                        subs.append({"id": c["id"], "channelId": c["id"]})
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            elif frame and frame[0] == MESSAGE_DATA:
+                sub_id, _log_time = struct.unpack_from("<IQ", frame, 1)
+                got.setdefault(by_sub[sub_id], []).append(json.loads(frame[13:]))
+    return channels, got
+
+
+def _connect_when_up(port: int, deadline: float, seconds: float):
+    while True:
+        try:
+            return asyncio.run(_listen(port, seconds))
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.5)
+
+
+def test_the_live_view_serves_the_running_demo(tmp_path):
+    pytest.importorskip("foxglove")
+    pytest.importorskip("websockets")
+    import socket
+
+    with socket.socket() as s:                      # a free port on this machine
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "demo"
+    env = {**__import__("os").environ, "ROS_DOMAIN_ID": str(DOMAIN),
+           "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    demo = subprocess.Popen([sys.executable, "-m", "damper_hil.cli", "demo", "--duration",
+                             "8", "--live", str(port), "--out", str(out)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        channels, got = _connect_when_up(port, time.monotonic() + 180, seconds=6.0)
+        stdout, stderr = demo.communicate(timeout=300)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+    assert demo.returncode == 0, stderr[-2000:]
+    # every channel advertised with its JSON schema
+    advertised = {c["topic"]: c for c in channels}
+    assert set(advertised) == set(CHANNELS)
+    for topic, c in advertised.items():
+        assert c["encoding"] == "json"
+        assert set(json.loads(c["schema"])["properties"]) == set(CHANNELS[topic][1])
+    damper, ride, loop = got.get("/live/damper", []), got.get("/live/ride", []), \
+        got.get("/live/loop", [])
+    assert len(damper) > 200, {k: len(v) for k, v in got.items()}   # 250 Hz for seconds
+    assert len(ride) > 20 and loop
+    assert all(set(m) == set(CHANNELS["/live/damper"][1]) for m in damper)
+    assert all(math.isfinite(m["force_n"]) for m in damper)
+    # the ride's r.m.s. values accumulate: finite, and the sample count grows
+    counts = [m["samples"] for m in ride]
+    assert counts == sorted(counts) and counts[-1] > counts[0]
+    assert all(m["accel_w_rms_m_s2"] > 0 and m["dtl_rms_n"] > 0 for m in ride[5:])
+    assert any(m["achieved_rate_hz"] and abs(m["achieved_rate_hz"] - 1000) < 50 for m in loop)
+    # the forces the view sent are forces the emulator published: in the demo's bag, read
+    # back with rosbags (not the project's reader)
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    recorded = set()
+    with Reader(out / "bag") as reader:
+        conns = [c for c in reader.connections if c.topic == "/damper/force"]
+        for conn, _ts, data in reader.messages(connections=conns):
+            m = typestore.deserialize_cdr(data, conn.msgtype)
+            if len(m.position) and len(m.effort):
+                recorded.add((round(float(m.position[0]), 12), round(float(m.effort[0]), 9)))
+    live = [(round(m["stroke_m"], 12), round(m["force_n"], 9)) for m in damper
+            if m["stroke_m"] is not None]
+    found = sum(p in recorded for p in live)
+    assert found >= 0.95 * len(live), f"{found} of {len(live)} live samples in the bag"
+    summary = json.loads((out / "demo.json").read_text())
+    assert summary["live_port"] == port
+
+
+def test_the_layout_shows_what_the_view_serves():
+    layout = json.loads((ROOT / "config" / "foxglove_layout.json").read_text())
+    fields = {f"{topic}.{name}" for topic, (_, spec) in CHANNELS.items() for name in spec}
+    paths = []
+    for panel, config in layout["configById"].items():
+        for p in config.get("paths", []):
+            paths.append(p["value"])
+        if "xAxisPath" in config:
+            paths.append(config["xAxisPath"]["value"])
+        if "topicPath" in config:
+            assert config["topicPath"] in CHANNELS, panel
+    assert paths and set(paths) <= fields, set(paths) - fields
+    # force against velocity and against time, and a status panel, are laid out
+    assert {"/live/damper.force_n", "/live/damper.velocity_m_s"} <= set(paths)
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(
+            node["second"])
+    assert set(leaves(layout["layout"])) == set(layout["configById"])

@@ -28,7 +28,8 @@ MESSAGE_DATA = 0x01
 
 
 async def _listen(port: int, seconds: float) -> tuple[list, dict[str, list]]:
-    """Connect, subscribe to every channel, collect ``{topic: [payload, ...]}``."""
+    """Connect, subscribe to every channel, collect ``{topic: [payload, ...]}`` until the
+    server closes the connection or ``seconds`` pass."""
     import websockets
 
     channels: list = []
@@ -41,8 +42,8 @@ async def _listen(port: int, seconds: float) -> tuple[list, dict[str, list]]:
         while time.monotonic() < end:
             try:
                 frame = await asyncio.wait_for(ws.recv(), max(0.01, end - time.monotonic()))
-            except asyncio.TimeoutError:
-                break
+            except (asyncio.TimeoutError, websockets.ConnectionClosed):
+                break   # the demo is over: the view stopped with it
             if isinstance(frame, str):
                 doc = json.loads(frame)
                 if doc.get("op") == "advertise":
@@ -83,7 +84,8 @@ def test_the_live_view_serves_the_running_demo(tmp_path):
                              "8", "--live", str(port), "--out", str(out)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        channels, got = _connect_when_up(port, time.monotonic() + 180, seconds=6.0)
+        # listen until the view stops with the demo (its ride lasts 8 s after start-up)
+        channels, got = _connect_when_up(port, time.monotonic() + 180, seconds=120.0)
         stdout, stderr = demo.communicate(timeout=300)
     finally:
         if demo.poll() is None:

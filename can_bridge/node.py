@@ -152,25 +152,7 @@ class BridgeNode(ManagedNode):
         self.announce(LifecycleStateMsg.PRIMARY_STATE_ACTIVE, "active")
         return result
 
-    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._leave_active("deactivated by a lifecycle transition")
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
-        return super().on_deactivate(state)
-
-    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._release()
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
-        return super().on_cleanup(state)
-
-    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        if state.state_id == LifecycleStateMsg.PRIMARY_STATE_ACTIVE:
-            self._leave_active("shut down by a lifecycle transition")
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_FINALIZED, "finalized")
-        self._stop_threads()
-        self._release()
-        return super().on_shutdown(state)
-
-    def _stop_threads(self) -> None:
+    def _stop_io(self) -> None:
         self._stop.set()
         if self._ros_in is not None:
             self._ros_in.stop()
@@ -185,7 +167,7 @@ class BridgeNode(ManagedNode):
     def _leave_active(self, reason: str) -> None:
         """Stop the threads, then the safe state: a fault frame and, in controller mode,
         the fail-safe valve command (class docstring)."""
-        self._stop_threads()
+        self._stop_io()
         self._inactive_reason = reason
         core = self.core
         if core is None or self.bus is None:
@@ -231,7 +213,7 @@ class BridgeNode(ManagedNode):
                                         f"forces arrive")
 
     def close(self) -> None:
-        self._stop_threads()
+        self._stop_io()
         if self.bus is not None:
             self.bus.close()
 

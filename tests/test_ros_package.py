@@ -97,7 +97,8 @@ def test_colcon_installs_the_package_where_ros_tools_look(workspace):
     share = prefix / "share" / PACKAGE
     assert (share / "package.xml").read_text() == (ROOT / "package.xml").read_text()
     assert {p.name for p in (share / "launch").iterdir()} == {
-        "closed_loop.launch.py", "dyno.launch.py", "controller.launch.py"}
+        "closed_loop.launch.py", "dyno.launch.py", "controller.launch.py",
+        "emulator_bridge.launch.py"}
     for name in ("sport.yaml", "emulator.yaml", "bridge.yaml", "quarter_car.yaml",
                  "damper.dbc"):
         assert (share / "config" / name).exists(), name
@@ -122,10 +123,14 @@ def test_the_launch_files_describe_the_nodes(workspace):
                                              "install (apt or a workspace)")
     import runpy
 
+    from launch.actions import IncludeLaunchDescription
     from launch_ros.actions import Node
 
     share = workspace / "install" / PACKAGE / "share" / PACKAGE / "launch"
-    for name in ("closed_loop", "dyno", "controller"):
+    for name, nodes_expected, includes in (("emulator_bridge", 2, 0), ("dyno", 0, 1),
+                                           ("controller", 0, 1), ("closed_loop", 2, 1)):
         ld = runpy.run_path(str(share / f"{name}.launch.py"))["generate_launch_description"]()
         nodes = [a for a in ld.entities if isinstance(a, Node)]
-        assert nodes and all(n.node_executable in EXECUTABLES for n in nodes), name
+        assert len(nodes) == nodes_expected, name
+        assert all(n.node_executable in EXECUTABLES for n in nodes), name
+        assert sum(isinstance(a, IncludeLaunchDescription) for a in ld.entities) == includes

@@ -15,7 +15,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
-from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RclpyParameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -609,7 +609,9 @@ class ManagedNode(LifecycleNode):
       ...);
     * the latched ``/<name>/lifecycle_state`` topic, which :meth:`announce` publishes at
       every state the node reaches (what :func:`wait_until_active` reads);
-    * ``exit_status`` (0; 1 when a transition of the autostart failed).
+    * ``exit_status`` (0; 1 when a transition of the autostart failed);
+    * ``deactivate``, ``cleanup`` and ``shutdown``, from the subclass's ``_leave_active``
+      (stop, then the safe state and the reason), ``_stop_io`` and ``_release``.
     """
 
     def __init__(self, name: str) -> None:
@@ -628,6 +630,41 @@ class ManagedNode(LifecycleNode):
     def announce(self, state_id: int, label: str) -> None:
         """Publish the lifecycle state on the latched ``/<name>/lifecycle_state``."""
         self._lifecycle_pub.publish(LifecycleStateMsg(id=state_id, label=label))
+
+    # ---- what a managed node provides ---------------------------------------------------
+
+    def _stop_io(self) -> None:
+        """Stop the threads that read inputs and publish outputs."""
+        raise NotImplementedError
+
+    def _leave_active(self, reason: str) -> None:
+        """Stop the outputs, leave them in the safe state and say ``reason`` on
+        ``/diagnostics``."""
+        raise NotImplementedError
+
+    def _release(self) -> None:
+        """Release what ``configure`` built (publishers, timers, the bus, ...)."""
+        raise NotImplementedError
+
+    # ---- the transitions, the same for every managed node --------------------------------
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._leave_active("deactivated by a lifecycle transition")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if state.state_id == LifecycleStateMsg.PRIMARY_STATE_ACTIVE:
+            self._leave_active("shut down by a lifecycle transition")
+        self.announce(LifecycleStateMsg.PRIMARY_STATE_FINALIZED, "finalized")
+        self._stop_io()
+        self._release()
+        return super().on_shutdown(state)
 
     def before_spin(self, executor: SingleThreadedExecutor) -> None:
         """Called by :meth:`run` after the autostart transitions (default: nothing)."""

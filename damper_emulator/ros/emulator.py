@@ -256,24 +256,6 @@ class EmulatorNode(ManagedNode):
         self.announce(LifecycleStateMsg.PRIMARY_STATE_ACTIVE, "active")
         return result
 
-    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._leave_active("deactivated by a lifecycle transition")
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
-        return super().on_deactivate(state)
-
-    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._release()
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
-        return super().on_cleanup(state)
-
-    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        if state.state_id == LifecycleStateMsg.PRIMARY_STATE_ACTIVE:
-            self._leave_active("shut down by a lifecycle transition")
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_FINALIZED, "finalized")
-        self._stop_io()
-        self._release()
-        return super().on_shutdown(state)
-
     def _leave_active(self, reason: str) -> None:
         """Stop the loop (or input thread), then publish one last output in the configured
         fault mode (``fault_mode``: hold, zero or passive) with the ``INACTIVE`` status bit,

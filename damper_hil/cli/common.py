@@ -83,6 +83,17 @@ def write_json(path: Path, doc: dict[str, Any]) -> None:
     say_wrote(path)
 
 
+def add_engine_options(parser: argparse.ArgumentParser) -> None:
+    """``--scheduler ADDRESS | --workers N``: where the Dask tasks run
+    (:func:`damper_hil.engine.open_engine`)."""
+    engine = parser.add_mutually_exclusive_group()
+    engine.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                        help="a running Dask scheduler, e.g. tcp://127.0.0.1:8786")
+    engine.add_argument("--workers", metavar="N", type=positive_int, default=None,
+                        help="local Dask worker processes (default: the CPU count; 1: "
+                             "in this process)")
+
+
 def parse_effects(text: str | None, option: str = "--effects") -> list[str] | None:
     """A comma-separated subset of the diagnosis's candidates (``None``: all)."""
     if text is None:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from damper_hil.cli.common import PROG, Formatter, parse_effects, positive_int, say_wrote
+from damper_hil.cli.common import PROG, Formatter, add_engine_options, parse_effects, say_wrote
 
 
 def add_parser(sub) -> None:
@@ -49,12 +49,7 @@ def add_parser(sub) -> None:
     fleet.add_argument("--retry-errors", action="store_true",
                        help="run the dampers that ended in error in an earlier run of OUT "
                             "again (default: keep their rows)")
-    engine = fleet.add_mutually_exclusive_group()
-    engine.add_argument("--scheduler", metavar="ADDRESS", default=None,
-                        help="a running Dask scheduler, e.g. tcp://127.0.0.1:8786")
-    engine.add_argument("--workers", metavar="N", type=positive_int, default=None,
-                        help="local Dask worker processes (default: the CPU count; 1: "
-                             "in this process)")
+    add_engine_options(fleet)
     fleet.set_defaults(handler=run)
 
 

@@ -7,7 +7,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from damper_hil.cli.common import PROG, Formatter, positive_int, say_wrote, schema_type
+from damper_hil.cli.common import PROG, Formatter, add_engine_options, say_wrote, schema_type
 
 #: the settings ``tune`` takes as options (the others from --settings only)
 OPTIONS = ("designs", "refine_rounds", "refine_designs", "road_classes", "speed_m_s",
@@ -69,12 +69,7 @@ def add_parser(sub) -> None:
         tune.add_argument(option, dest=f"tune_{name}", metavar="N" if f.type == "int"
                           else "VALUE", type=kind, default=None,
                           help=f"{f.metadata['doc']} (default: {f.default})")
-    engine = tune.add_mutually_exclusive_group()
-    engine.add_argument("--scheduler", metavar="ADDRESS", default=None,
-                        help="a running Dask scheduler, e.g. tcp://127.0.0.1:8786")
-    engine.add_argument("--workers", metavar="N", type=positive_int, default=None,
-                        help="local Dask worker processes (default: the CPU count; 1: "
-                             "in this process)")
+    add_engine_options(tune)
     tune.set_defaults(handler=run)
 
 

@@ -1,5 +1,5 @@
 """The ``live_view`` node (``damper-hil live``): ``/damper/force``, ``/ride/state`` and
-``/diagnostics`` to the Foxglove live view (:mod:`damper_hil.live`).
+``/diagnostics`` to the Foxglove live view (:mod:`damper_emulator.ros.live`).
 
 The 1 kHz topics are not delivered through rclpy's executor (about 0.4 ms of Python per
 message: with two 1 kHz topics most of a core, taken from the real-time loops on a small
@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 from damper_emulator import force_message
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import control_qos, take_all
-from damper_hil.live import LiveServer, RunningRms
+from damper_emulator.ros.live import LiveServer
 from ride_sim.iso2631 import WeightingFilter
 from ride_sim.params import RideConfig
 
@@ -32,6 +32,22 @@ FLUSH_RATE_HZ = 50.0
 QUEUE_DEPTH = 200
 #: the emulator's diagnostic status (its name's prefix)
 EMULATOR_STATUS = "damper_emulator"
+
+
+class RunningRms:
+    """r.m.s. of a stream, from its sum of squares."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.sum_sq = 0.0
+
+    def add(self, x: np.ndarray) -> None:
+        self.n += x.size
+        self.sum_sq += float(np.dot(x, x))
+
+    @property
+    def value(self) -> float:
+        return math.sqrt(self.sum_sq / self.n) if self.n else 0.0
 
 
 class LiveNode(Node):
@@ -67,10 +83,8 @@ class LiveNode(Node):
             self._forces += 1
             if self._forces % self.decimation or not msg.effort:
                 continue
-            self.view.log("/live/damper", {
-                "t": t, "stroke_m": _first(msg.position), "velocity_m_s": _first(msg.velocity),
-                "force_n": float(msg.effort[0]),
-                "status": force_message.status_of(msg.effort)})
+            self.view.damper(float(msg.effort[0]), _first(msg.position), _first(msg.velocity),
+                             force_message.status_of(msg.effort))
         rows = [(m.position[0] - m.position[1], m.effort[1] / self.sprung_mass_kg,
                  m.effort[0]) for m, _i in take_all(self._ride_sub)
                 if len(m.position) >= 2 and len(m.effort) >= 2]
@@ -88,17 +102,9 @@ class LiveNode(Node):
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for s in msg.status:
-            if not s.name.startswith(EMULATOR_STATUS):
-                continue
-            values = {kv.key: kv.value for kv in s.values}
-            self.view.log("/live/loop", {
-                "t": self._t(),
-                "achieved_rate_hz": _number(values.get("achieved_rate_hz")),
-                "period_p99_us": _number(values.get("period_p99_us")),
-                "period_error_p99_us": _number(values.get("period_error_p99_us")),
-                "overruns": int(_number(values.get("overruns"), 0.0)),
-                "level": _level(s.level), "message": s.message})
-            self.view.status(f"{s.name}: {s.message}", _level(s.level))
+            if s.name.startswith(EMULATOR_STATUS):
+                self.view.loop({kv.key: kv.value for kv in s.values}, _level(s.level),
+                               s.name, s.message)
 
     def close(self) -> None:
         self._io.destroy_node()
@@ -112,10 +118,3 @@ def _level(level: int | bytes) -> int:
 
 def _first(values) -> float:
     return float(values[0]) if len(values) else math.nan
-
-
-def _number(text: str | None, default: float = math.nan) -> float:
-    try:
-        return float(text) if text not in (None, "") else default
-    except ValueError:
-        return default

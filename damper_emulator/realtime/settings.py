@@ -81,6 +81,10 @@ class EmulatorParams:
                                  "loop periods kept for the statistics [s]", 120.0)
     stats_file: str = rule("text", "write the loop periods and counters here (.npz) at "
                                    "shutdown ('' = do not)", "")
+    live_port: int = rule(("int_range", 0, 65535),
+                          "serve the live view (Foxglove WebSocket on 127.0.0.1, channels "
+                          "/live/damper and /live/loop) on this port, fed from the executor "
+                          "thread, never the loop; needs foxglove-sdk (0 = off)", 0)
 
     def realtime_request(self) -> RealtimeRequest:
         return RealtimeRequest(sched_fifo=self.sched_fifo, priority=self.priority,

@@ -40,6 +40,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from damper_emulator import force_message
+from damper_emulator.errors import UserError
 from damper_emulator.model import jit
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import (
@@ -74,8 +75,11 @@ from damper_emulator.ros.common import (
     take_all,
     unflatten,
 )
+from damper_emulator.ros.live import LiveServer, require_sdk
 
 NODE_NAME = "damper_emulator"
+#: how often the emulator's own live view (``live_port``) sends its latest output [Hz]
+LIVE_RATE_HZ = 50.0
 
 
 #: parameters under this prefix switch model extensions on (damper_emulator.model.extensions)
@@ -182,6 +186,10 @@ class EmulatorNode(ManagedNode):
         self.warm_up_s = math.nan
         #: why the node is not active (after a deactivation: in /diagnostics)
         self._inactive_reason = ""
+        self._live: LiveServer | None = None
+        self._live_timer = None
+        if p.live_port:
+            require_sdk()  # missing: one line and exit 2 at start, not at configure
         self.get_logger().info(
             f"damper '{model.cfg.damper.name}', trigger {p.trigger}"
             + (f" at {p.rate_hz:g} Hz" if p.trigger == "timer" else "")
@@ -219,6 +227,15 @@ class EmulatorNode(ManagedNode):
                 control_qos(topics.CONTROL_DEPTH))
         self._diag_timer = self.create_timer(p.diagnostics_period_s,
                                              self._publish_diagnostics)
+        if p.live_port:
+            try:
+                self._live = LiveServer(p.live_port, name=NODE_NAME)
+            except UserError as exc:  # the port is taken, ...
+                self.get_logger().error(f"configure failed: {exc}")
+                return TransitionCallbackReturn.FAILURE
+            # the latest output, from the executor thread: the loop never waits for the view
+            self._live_timer = self.create_timer(1.0 / LIVE_RATE_HZ, self._publish_live)
+            self.get_logger().info(f"live view on ws://127.0.0.1:{self._live.port}")
         self.get_logger().info(f"configured: model exercised in {self.warm_up_s:.2f} s")
         self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
         return TransitionCallbackReturn.SUCCESS
@@ -285,6 +302,12 @@ class EmulatorNode(ManagedNode):
         self._check_compiled()
 
     def _release(self) -> None:
+        if self._live_timer is not None:
+            self.destroy_timer(self._live_timer)
+            self._live_timer = None
+        if self._live is not None:
+            self._live.stop()
+            self._live = None
         if self._diag_timer is not None:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = None
@@ -463,5 +486,15 @@ class EmulatorNode(ManagedNode):
             level, message = DiagnosticStatus.WARN, (
                 f"inactive: {self._inactive_reason}; outputs stopped after one "
                 f"{self.params.fault_mode} output")
-        publish_diagnostics(self, self._diag_pub, f"{NODE_NAME}: {self.params.name}", level,
-                            message, self.params.name, values)
+        name = f"{NODE_NAME}: {self.params.name}"
+        publish_diagnostics(self, self._diag_pub, name, level, message, self.params.name,
+                            values)
+        if self._live is not None:
+            self._live.loop(values, int(level[0]) if isinstance(level, bytes) else int(level),
+                            name, message)
+
+    def _publish_live(self) -> None:
+        """The latest output on ``/live/damper`` (``live_port``)."""
+        out = self._last
+        if self._live is not None and out is not None:
+            self._live.damper(out.force_n, out.stroke_m, out.velocity_m_s, int(out.status))

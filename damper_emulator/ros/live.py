@@ -1,23 +1,21 @@
 """The live view (issue 18): the damper and the ride as they run, in Foxglove or Lichtblick,
 through the Foxglove SDK's WebSocket server (``foxglove-sdk``, optional).
 
-``damper-hil live`` (and ``damper-hil demo --live``) runs :class:`LiveNode`, a plain ROS 2
-node in a process of its own: it subscribes to ``/damper/force``, ``/ride/state`` and
-``/diagnostics`` and serves, on ``ws://127.0.0.1:PORT`` (localhost only), three JSON
-channels (:data:`CHANNELS`, each with its JSON schema):
+:class:`LiveServer` serves, on ``ws://127.0.0.1:PORT`` (localhost only), three JSON channels
+(:data:`CHANNELS`, each with its JSON schema):
 
-* ``/live/damper``: stroke, velocity and force of every ``decimation``-th force sample,
-  with its status bits (the F–v loop and F(t));
+* ``/live/damper``: stroke, velocity, force and status bits of the emulator's outputs (the
+  F–v loop and F(t));
 * ``/live/ride``: SWS, body acceleration and tyre load, and their r.m.s. values as they
-  accumulate (body acceleration ISO 2631-1 Wk-weighted, the ride study's filter run on the
-  stream), at ``ride_rate_hz``;
-* ``/live/loop``: the emulator's loop figures from its ``/diagnostics`` (achieved rate,
-  period p99, period error p99, overruns, status), once per diagnostics period; the same
-  status line also as the server's status message.
+  accumulate (body acceleration ISO 2631-1 Wk-weighted);
+* ``/live/loop``: the emulator loop's figures (achieved rate, period p99, period error p99,
+  overruns, status), also as the server's status message.
 
-It touches no real-time loop: the emulator and the ride do not know it exists (one more
-DDS subscriber, measured in the README).  ``config/foxglove_layout.json`` lays the panels
-out (force against velocity, force against time, the ride metrics, the status).
+Two users: the ``live_view`` node (:mod:`damper_hil.live_node`, ``damper-hil live``,
+``demo --live``), a process of its own that feeds all three from the topics; and the
+emulator itself with ``emulator.live_port`` (``/live/damper`` and ``/live/loop`` only, from
+its executor thread, never from its loop).  ``config/foxglove_layout.json`` lays the panels
+out.
 """
 
 from __future__ import annotations
@@ -25,8 +23,6 @@ from __future__ import annotations
 import math
 import time
 from typing import Any
-
-import numpy as np
 
 from damper_emulator.errors import UserError
 
@@ -65,31 +61,38 @@ def json_schema(fields: dict[str, tuple[str, str]]) -> dict[str, Any]:
         k: {"type": kind, "description": doc} for k, (kind, doc) in fields.items()}}
 
 
-class RunningRms:
-    """r.m.s. of a stream, from its sum of squares."""
+def require_sdk() -> None:
+    """Raise a one-line :class:`UserError` when the Foxglove SDK is not installed."""
+    try:
+        import foxglove  # noqa: F401
+    except ImportError:
+        raise UserError("the live view needs the Foxglove SDK: pip install foxglove-sdk "
+                        "(or the project's 'live' extra)") from None
 
-    def __init__(self) -> None:
-        self.n = 0
-        self.sum_sq = 0.0
 
-    def add(self, x: np.ndarray) -> None:
-        self.n += x.size
-        self.sum_sq += float(np.dot(x, x))
+def loop_message(t: float, values: dict[str, str], level: int, message: str
+                 ) -> dict[str, Any]:
+    """The ``/live/loop`` message from the emulator's ``/diagnostics`` key/values."""
+    def number(key: str, default: float = math.nan) -> float:
+        try:
+            text = values.get(key)
+            return float(text) if text not in (None, "") else default
+        except ValueError:
+            return default
 
-    @property
-    def value(self) -> float:
-        return math.sqrt(self.sum_sq / self.n) if self.n else 0.0
+    return {"t": t, "achieved_rate_hz": number("achieved_rate_hz"),
+            "period_p99_us": number("period_p99_us"),
+            "period_error_p99_us": number("period_error_p99_us"),
+            "overruns": int(number("overruns", 0.0)), "level": level, "message": message}
 
 
 class LiveServer:
     """The Foxglove WebSocket server and its channels (:data:`CHANNELS`)."""
 
     def __init__(self, port: int, name: str = "damper-hil") -> None:
-        try:
-            import foxglove
-        except ImportError:
-            raise UserError("the live view needs the Foxglove SDK: pip install foxglove-sdk "
-                            "(or the project's 'live' extra)") from None
+        require_sdk()
+        import foxglove
+
         try:
             self.server = foxglove.start_server(name=name, host=HOST, port=port)
         except Exception as exc:  # the SDK's own error type: a port in use, ...
@@ -101,6 +104,19 @@ class LiveServer:
     @property
     def port(self) -> int:
         return int(self.server.port)
+
+    def damper(self, out_force_n: float, stroke_m: float, velocity_m_s: float,
+               status: int) -> None:
+        """One ``/live/damper`` message."""
+        self.log("/live/damper", {"t": time.monotonic() - self.started, "stroke_m": stroke_m,
+                                  "velocity_m_s": velocity_m_s, "force_n": out_force_n,
+                                  "status": status})
+
+    def loop(self, values: dict[str, str], level: int, name: str, message: str) -> None:
+        """One ``/live/loop`` message and the status line, from ``/diagnostics`` values."""
+        self.log("/live/loop", loop_message(time.monotonic() - self.started, values, level,
+                                            message))
+        self.status(f"{name}: {message}", level)
 
     def log(self, topic: str, message: dict[str, Any]) -> None:
         """Send ``message`` on ``topic``; a value that is not a finite number goes as null

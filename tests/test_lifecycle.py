@@ -59,6 +59,14 @@ class Lifecycle:
         return self._call(self.change, req).success
 
 
+def _locked_kb(pid: int) -> int:
+    """The process's locked memory (``VmLck`` of /proc/PID/status) [kB]."""
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmLck:"):
+            return int(line.split()[1])
+    return 0
+
+
 def _diagnostics(probe: Probe, prefix: str) -> list:
     from diagnostic_msgs.msg import DiagnosticArray
 
@@ -128,8 +136,11 @@ def test_the_emulator_through_every_transition(tmp_path):
         assert lc.transition("activate") and lc.state() == "active"
         feed(0.5)
         assert len(forces) > n_inactive + 100
+        locked_active = _locked_kb(node.proc.pid)
         assert lc.transition("deactivate") and lc.transition("cleanup")
         assert lc.state() == "unconfigured"
+        if locked_active:  # mlockall was permitted: cleanup gives the memory back
+            assert _locked_kb(node.proc.pid) == 0, locked_active
         assert lc.transition("unconfigured_shutdown") and lc.state() == "finalized"
     finally:
         probe.close()

@@ -85,6 +85,13 @@ def set_thread_name(name: str) -> None:
         libc.prctl(_PR_SET_NAME, ctypes.c_char_p(name.encode()[:15]), 0, 0, 0)
 
 
+def unlock_memory() -> bool:
+    """Undo ``mlockall`` for the process (``munlockall``): a managed node's ``cleanup``
+    gives the memory back.  True when done."""
+    libc = _libc()
+    return libc is not None and int(libc.munlockall()) == 0
+
+
 def apply_realtime(request: RealtimeRequest) -> RealtimeReport:
     """Apply ``request`` to the calling thread (and ``mlockall`` to the process).
 

@@ -54,6 +54,7 @@ from damper_emulator.params import (
 )
 from damper_emulator.realtime.core import EmulatorCore, Output, Status
 from damper_emulator.realtime.loop import LoopStats, PeriodicLoop
+from damper_emulator.realtime.rt import unlock_memory
 from damper_emulator.realtime.settings import (
     RUNTIME_PARAMETERS,
     EmulatorParams,
@@ -148,7 +149,8 @@ class EmulatorNode(ManagedNode):
     ``activate`` starts the loop (or the input thread) and the outputs; ``deactivate`` (and
     ``shutdown`` from active) stops them after one last output in the configured
     ``fault_mode`` with the ``INACTIVE`` status bit, the reason on ``/diagnostics``;
-    ``cleanup`` releases the publishers and the model's core.  ``active`` is the readiness
+    ``cleanup`` releases the publishers, the model's core and the loop's ``mlockall``
+    (the latency request and SCHED_FIFO end with the loop).  ``active`` is the readiness
     the ride, the bridge and the demo wait for
     (:func:`~damper_emulator.ros.common.wait_until_active`).  With ``autostart: true`` (the
     default) the node configures and activates itself at start.
@@ -187,6 +189,7 @@ class EmulatorNode(ManagedNode):
         #: why the node is not active (after a deactivation: in /diagnostics)
         self._inactive_reason = ""
         self._live: LiveServer | None = None
+        self._memory_locked = False
         self._live_timer = None
         if p.live_port:
             require_sdk()  # missing: one line and exit 2 at start, not at configure
@@ -265,6 +268,7 @@ class EmulatorNode(ManagedNode):
             self._stats = self._loop.stats
             self._loop.start()
             report = self._loop.report
+            self._memory_locked = "mlockall" in report.applied
             self._realtime_summary = report.summary()
             log = self.get_logger().warning if report.refused else self.get_logger().info
             log(f"real-time settings: {self._realtime_summary}")
@@ -302,6 +306,8 @@ class EmulatorNode(ManagedNode):
         self._check_compiled()
 
     def _release(self) -> None:
+        if self._memory_locked:  # the loop's mlockall is the process's: give it back
+            self._memory_locked = not unlock_memory()
         if self._live_timer is not None:
             self.destroy_timer(self._live_timer)
             self._live_timer = None

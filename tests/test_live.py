@@ -81,10 +81,10 @@ def test_the_live_view_serves_the_running_demo(tmp_path):
     env = {**__import__("os").environ, "ROS_DOMAIN_ID": str(DOMAIN),
            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     demo = subprocess.Popen([sys.executable, "-m", "damper_hil.cli", "demo", "--duration",
-                             "8", "--live", str(port), "--out", str(out)], env=env,
+                             "6", "--live", str(port), "--out", str(out)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        # listen until the view stops with the demo (its ride lasts 8 s after start-up)
+        # listen until the view stops with the demo (its ride lasts 6 s after start-up)
         channels, got = _connect_when_up(port, time.monotonic() + 180, seconds=120.0)
         stdout, stderr = demo.communicate(timeout=300)
     finally:

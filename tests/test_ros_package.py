@@ -112,7 +112,10 @@ def test_the_installed_executables_run_from_the_workspace(workspace, exe):
     res = _in_workspace(workspace, f"install/{PACKAGE}/lib/{PACKAGE}/{exe} --help")
     assert res.returncode == 0, res.stderr
     assert f"damper-hil {EXECUTABLES[exe]}" in res.stdout
-    # the workspace's copy of the package is the one imported, not the repository's
+
+
+def test_the_workspace_imports_its_installed_copy(workspace):
+    """The sourced workspace imports the installed package, not the repository's."""
     where = _in_workspace(workspace, "python3 -c 'import damper_hil; "
                                      "print(damper_hil.__file__)'")
     assert str(workspace / "install") in where.stdout, where.stdout + where.stderr

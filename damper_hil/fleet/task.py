@@ -81,8 +81,9 @@ def run_damper(job: DamperJob) -> DamperResult:
     except UserError as exc:
         return DamperResult(error_row(job.id, one_line(exc),
                                       wall_s=round(time.perf_counter() - started, 3),
-                                      **where))
-    result.row.update(wall_s=round(time.perf_counter() - started, 3), **where)
+                                      finished_unix_s=round(time.time(), 3), **where))
+    result.row.update(wall_s=round(time.perf_counter() - started, 3),
+                      finished_unix_s=round(time.time(), 3), **where)
     return result
 
 

@@ -117,7 +117,7 @@ class DaskEngine(Engine):
                       window: int | None = None) -> Iterator[Outcome[K]]:
         from distributed import as_completed
 
-        limit = max(1, window or WINDOW_PER_WORKER * max(self.workers, 1))
+        limit = max(1, window or WINDOW_PER_WORKER * self.workers)
         pending = iter(items)
         keys: dict[Any, K] = {}
         running = as_completed()
@@ -130,9 +130,11 @@ class DaskEngine(Engine):
                 return True
             return False
 
-        for _ in range(limit):
-            if not submit_next():
-                break
+        def fill() -> None:
+            while len(keys) < limit and submit_next():
+                pass
+
+        fill()
         for future in running:
             limit = max(limit, WINDOW_PER_WORKER * self._current_workers())
             key = keys.pop(future.key)
@@ -146,8 +148,7 @@ class DaskEngine(Engine):
             if self.client.status not in ("running", "connecting"):
                 raise EngineError(f"lost the Dask scheduler ({self.description}); the "
                                   "finished tasks are kept")
-            while len(keys) < limit and submit_next():
-                pass
+            fill()
             yield outcome
 
     def _current_workers(self) -> int:

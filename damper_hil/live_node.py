@@ -103,17 +103,12 @@ class LiveNode(Node):
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for s in msg.status:
             if s.name.startswith(EMULATOR_STATUS):
-                self.view.loop({kv.key: kv.value for kv in s.values}, _level(s.level),
-                               s.name, s.message)
+                self.view.loop({kv.key: kv.value for kv in s.values}, s.level, s.name,
+                               s.message)
 
     def close(self) -> None:
         self._io.destroy_node()
         self.view.stop()
-
-
-def _level(level: int | bytes) -> int:
-    """A DiagnosticStatus level (rclpy gives it as one byte)."""
-    return int.from_bytes(level, "little") if isinstance(level, bytes) else int(level)
 
 
 def _first(values) -> float:

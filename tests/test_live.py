@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import os
 import struct
 import subprocess
 import sys
@@ -78,7 +79,7 @@ def test_the_live_view_serves_the_running_demo(tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     out = tmp_path / "demo"
-    env = {**__import__("os").environ, "ROS_DOMAIN_ID": str(DOMAIN),
+    env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN),
            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     demo = subprocess.Popen([sys.executable, "-m", "damper_hil.cli", "demo", "--duration",
                              "6", "--live", str(port), "--out", str(out)], env=env,
@@ -95,7 +96,7 @@ def test_the_live_view_serves_the_running_demo(tmp_path):
     advertised = {c["topic"]: c for c in channels}
     assert set(advertised) == set(CHANNELS)
     for topic, c in advertised.items():
-        assert c["encoding"] == "json"
+        assert c["encoding"] == "json" and c["schemaName"] == CHANNELS[topic][0]
         assert set(json.loads(c["schema"])["properties"]) == set(CHANNELS[topic][1])
     damper, ride, loop = got.get("/live/damper", []), got.get("/live/ride", []), \
         got.get("/live/loop", [])

@@ -496,8 +496,7 @@ class EmulatorNode(ManagedNode):
         publish_diagnostics(self, self._diag_pub, name, level, message, self.params.name,
                             values)
         if self._live is not None:
-            self._live.loop(values, int(level[0]) if isinstance(level, bytes) else int(level),
-                            name, message)
+            self._live.loop(values, level, name, message)
 
     def _publish_live(self) -> None:
         """The latest output on ``/live/damper`` (``live_port``)."""

@@ -20,6 +20,7 @@ out.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from typing import Any
@@ -70,6 +71,11 @@ def require_sdk() -> None:
                         "(or the project's 'live' extra)") from None
 
 
+def diagnostic_level(level: int | bytes) -> int:
+    """A ``DiagnosticStatus`` level as an int (rclpy gives it as one byte)."""
+    return int.from_bytes(level, "little") if isinstance(level, bytes) else int(level)
+
+
 def loop_message(t: float, values: dict[str, str], level: int, message: str
                  ) -> dict[str, Any]:
     """The ``/live/loop`` message from the emulator's ``/diagnostics`` key/values."""
@@ -97,8 +103,12 @@ class LiveServer:
             self.server = foxglove.start_server(name=name, host=HOST, port=port)
         except Exception as exc:  # the SDK's own error type: a port in use, ...
             raise UserError(f"live view: cannot serve on {HOST}:{port} ({exc})") from None
-        self.channels = {topic: foxglove.Channel(topic, schema=json_schema(fields))
-                         for topic, (_, fields) in CHANNELS.items()}
+        self.channels = {topic: foxglove.Channel(topic, message_encoding="json",
+                                                 schema=foxglove.Schema(
+                                                     name=name, encoding="jsonschema",
+                                                     data=json.dumps(json_schema(fields))
+                                                     .encode()))
+                         for topic, (name, fields) in CHANNELS.items()}
         self.started = time.monotonic()
 
     @property
@@ -112,8 +122,11 @@ class LiveServer:
                                   "velocity_m_s": velocity_m_s, "force_n": out_force_n,
                                   "status": status})
 
-    def loop(self, values: dict[str, str], level: int, name: str, message: str) -> None:
-        """One ``/live/loop`` message and the status line, from ``/diagnostics`` values."""
+    def loop(self, values: dict[str, str], level: int | bytes, name: str,
+             message: str) -> None:
+        """One ``/live/loop`` message and the status line, from a ``/diagnostics`` status
+        (``level`` as rclpy gives it: one byte)."""
+        level = diagnostic_level(level)
         self.log("/live/loop", loop_message(time.monotonic() - self.started, values, level,
                                             message))
         self.status(f"{name}: {message}", level)

@@ -91,11 +91,11 @@ def load_job(d: DamperInputs, diagnose: bool, effects: Sequence[str] | None) -> 
     if problem:
         raise UserError(problem)
     names = [p.name for p in (*d.quasi_static, *d.chirp, *d.validate)]
+    if len({n.lower() for n in names}) != len(names):
+        raise UserError(f"{d.folder}: two files share a name")
     base = load_config(d.base)
     read = [tuple(read_measured_csv(p) for p in paths)
             for paths in (d.quasi_static, d.chirp, d.validate)]
-    if len({n.lower() for n in names}) != len(names):
-        raise UserError(f"{d.folder}: two files share a name")
     return DamperJob(d.id, *read, base=base,
                      base_file=str(d.base if d.base is not None else DEFAULT_PARAMS_FILE),
                      diagnose=diagnose, effects=tuple(effects) if effects else None)

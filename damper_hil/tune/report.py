@@ -43,9 +43,9 @@ def _objectives(run: TuneRun, i: int) -> dict[str, float]:
     return {name: float(run.values[i, k]) for k, (name, _, _) in enumerate(tu.OBJECTIVES)}
 
 
-def chosen(run: TuneRun) -> dict[str, int]:
-    """The index of each of :data:`CHOICES` among the designs."""
-    front = run.front()
+def chosen(run: TuneRun, front: np.ndarray) -> dict[str, int]:
+    """The index of each of :data:`CHOICES` among the designs (``front``: the mask of
+    :meth:`TuneRun.front`)."""
     obj = run.objectives
     base = obj[0]
     out: dict[str, int] = {}
@@ -65,13 +65,12 @@ def _design_name(i: int) -> str:
 def write_results(run: TuneRun, base: ModelConfig, base_file: str, out: Path,
                   say: Callable[[Path], None] = lambda p: None) -> dict[str, Any]:
     """Every file of the module docstring; returns the ``pareto.json`` document."""
-    from ride_sim.tuning import design_config
-
     out.mkdir(parents=True, exist_ok=True)
     (out / "designs").mkdir(exist_ok=True)
     names = run.spec.variables
-    front = np.flatnonzero(run.front())
-    picks = chosen(run)
+    front_mask = run.front()   # once: every file and plot below shows this front
+    front = np.flatnonzero(front_mask)
+    picks = chosen(run, front_mask)
     rho = tu.sensitivity(run.factors[1:], run.objectives[1:])
     designs = []
     for i in front:
@@ -79,20 +78,22 @@ def write_results(run: TuneRun, base: ModelConfig, base_file: str, out: Path,
             params_file = base_file
         else:
             path = out / "designs" / f"{_design_name(i)}.yaml"
-            save_config(design_config(base, run.factors[i], run.spec), path)
+            save_config(tu.design_config(base, run.factors[i], run.spec), path)
             params_file = str(path.relative_to(out))
         designs.append({
             "id": _design_name(i), "round": int(run.rounds[i]),
             "objectives": _objectives(run, i),
-            "constraints": {"sws_peak_bump_m": float(run.values[i, 3]),
-                            "sws_peak_rebound_m": float(run.values[i, 4])},
+            "constraints": {
+                "sws_peak_bump_m": float(run.values[i, tu.EVAL_COLUMNS.index("sws_peak_bump")]),
+                "sws_peak_rebound_m": float(
+                    run.values[i, tu.EVAL_COLUMNS.index("sws_peak_rebound")])},
             "factors": {n: float(f) for n, f in zip(names, run.factors[i])},
             "dominates_baseline": bool(tu.dominates_baseline(run.objectives[i:i + 1],
                                                              run.objectives[0])[0]),
             "params_file": params_file})
     for name, i in picks.items():
         path = out / f"chosen_{name}.yaml"
-        save_config(design_config(base, run.factors[i], run.spec), path)
+        save_config(tu.design_config(base, run.factors[i], run.spec), path)
         say(path)
     doc: dict[str, Any] = {
         "designs": designs,
@@ -114,9 +115,9 @@ def write_results(run: TuneRun, base: ModelConfig, base_file: str, out: Path,
     path = out / "pareto.json"
     path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     say(path)
-    _write_csv(out / "pareto.csv", run, front, say)
-    _write_csv(out / "designs.csv", run, np.arange(run.values.shape[0]), say)
-    for p in (plot_front(run, picks, out / "pareto.png"),
+    _write_csv(out / "pareto.csv", run, front, front_mask, say)
+    _write_csv(out / "designs.csv", run, np.arange(run.values.shape[0]), front_mask, say)
+    for p in (plot_front(run, picks, front_mask, out / "pareto.png"),
               plot_fourteen_speed(run, base, picks, out / "fourteen_speed.png"),
               plot_sensitivity(run, rho, out / "sensitivity.png")):
         say(p)
@@ -131,10 +132,9 @@ def _settings_doc(spec: tu.TuneSpec) -> dict[str, Any]:
         v: list(getattr(spec.bounds, v)) for v in spec.variables}}
 
 
-def _write_csv(path: Path, run: TuneRun, rows: np.ndarray, say: Callable[[Path], None]
-               ) -> None:
+def _write_csv(path: Path, run: TuneRun, rows: np.ndarray, front: np.ndarray,
+               say: Callable[[Path], None]) -> None:
     names = run.spec.variables
-    front = run.front()
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["id", "round", *names, *tu.EVAL_COLUMNS, "pareto"])
@@ -154,10 +154,9 @@ def _pyplot() -> Any:
     return plt
 
 
-def plot_front(run: TuneRun, picks: dict[str, int], path: Path) -> Path:
+def plot_front(run: TuneRun, picks: dict[str, int], front: np.ndarray, path: Path) -> Path:
     plt = _pyplot()
     obj = run.objectives
-    front = run.front()
     fig, ax = plt.subplots(figsize=(8, 5.5))
     infeasible = ~run.feasible
     ax.scatter(obj[~front & ~infeasible, 1], obj[~front & ~infeasible, 0], s=8,
@@ -192,8 +191,6 @@ def plot_fourteen_speed(run: TuneRun, base: ModelConfig, picks: dict[str, int], 
                         ) -> Path:
     from damper_emulator.model.compressible import DamperModel
     from damper_emulator.model.representations import fourteen_speed_damper
-    from ride_sim.tuning import design_config
-
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 5))
     curves = [("baseline", base, "k", "-")]
@@ -201,7 +198,7 @@ def plot_fourteen_speed(run: TuneRun, base: ModelConfig, picks: dict[str, int], 
               "road_holding": ("tab:orange", "-.")}
     for name, i in picks.items():
         curves.append((f"{name} ({_design_name(i)})",
-                       design_config(base, run.factors[i], run.spec), *styles[name]))
+                       tu.design_config(base, run.factors[i], run.spec), *styles[name]))
     for label, cfg, colour, ls in curves:
         table = fourteen_speed_damper(DamperModel(cfg))
         ax.plot(table.velocity_m_s, table.force_n, ls, color=colour, marker=".",

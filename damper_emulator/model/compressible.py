@@ -272,10 +272,17 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
         else:
             lo = z
         z_new = z - r / dr if dr > 0.0 else 0.5 * (lo + hi)
+        if abs(z_new - z) <= tol * (1.0 + abs(z)):
+            # z (evaluated above) is within the tolerance of the root.  Tested before the
+            # bracket: z is always one end of it, and a Newton step below z's last bit
+            # leaves z_new == z on that end; taken as out of the bracket, it restarted
+            # bisection on the whole remaining bracket, 30-40 more evaluations in 5 % of
+            # the ride's solves (found 2026-11-25)
+            break
         if z_new <= lo or z_new >= hi:
             z_new = 0.5 * (lo + hi)
-        if abs(z_new - z) <= tol * (1.0 + abs(z)):
-            break  # z (evaluated above) is within the tolerance of the root
+            if abs(z_new - z) <= tol * (1.0 + abs(z)):
+                break
         z = z_new
     else:
         dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)  # Δp only

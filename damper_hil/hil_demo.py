@@ -23,6 +23,7 @@ from pathlib import Path
 from can_bridge.loopback import default_bus
 from damper_emulator.errors import DamperHilError
 from damper_emulator.recording import read_recording
+from damper_emulator.ros import topics
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
 from damper_hil.hil_report import write_report
 from ride_sim.params import load_ride_config
@@ -52,9 +53,12 @@ READY_TIMEOUT_S = 120.0
 READY_POLL_S = 2.0
 
 
-def _wait_for_emulator(env: dict, helpers: list, progress: Callable[[str], None]) -> None:
+def _wait_for_emulator(env: dict, helpers: list, progress: Callable[[str], None],
+                       subscribed: tuple[tuple[str, str], ...] = ()) -> None:
     """Wait until the emulator's lifecycle state is ``active`` (its kernels loaded and
-    exercised, its loop running), saying so; one line if a node dies or time runs out."""
+    exercised, its loop running) and, for each ``(topic, node)`` of ``subscribed``, that
+    node subscribes to that topic (the live view, so that it sees the ride from its
+    start), saying so; one line if a node dies or time runs out."""
     from damper_emulator.ros.common import NotReadyError, ReadinessProbe
     from damper_emulator.ros.emulator import NODE_NAME
 
@@ -62,19 +66,32 @@ def _wait_for_emulator(env: dict, helpers: list, progress: Callable[[str], None]
              f"kernels)")
     deadline = time.monotonic() + READY_TIMEOUT_S
     started = time.monotonic()
+
+    def check_helpers() -> None:
+        for node in helpers:
+            if node.poll() is not None:
+                raise DemoError(f"the {node.name} stopped (exit {node.poll()}) before "
+                                f"the ride started: {node.log_tail(1)}")
+
     with ReadinessProbe(int(env["ROS_DOMAIN_ID"]), "demo_readiness") as probe:
         while True:
-            for node in helpers:
-                if node.poll() is not None:
-                    raise DemoError(f"the {node.name} stopped (exit {node.poll()}) before "
-                                    f"the ride started: {node.log_tail(1)}")
+            check_helpers()
             try:
                 probe.wait(NODE_NAME, READY_POLL_S, say=lambda _line: None)
                 break
             except NotReadyError as exc:
                 if time.monotonic() > deadline:
                     raise DemoError(f"{exc} (waited {READY_TIMEOUT_S:g} s)") from None
-    progress(f"      /{NODE_NAME} active after {time.monotonic() - started:.1f} s")
+        progress(f"      /{NODE_NAME} active after {time.monotonic() - started:.1f} s")
+        for topic, name in subscribed:
+            while not any(e.node_name == name
+                          for e in probe.node.get_subscriptions_info_by_topic(topic)):
+                check_helpers()
+                if time.monotonic() > deadline:
+                    raise DemoError(f"/{name} did not subscribe to {topic} within "
+                                    f"{READY_TIMEOUT_S:g} s")
+                time.sleep(READY_POLL_S / 20)
+            progress(f"      /{name} subscribed to {topic}")
 
 
 def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
@@ -121,7 +138,11 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
                      "layout config/foxglove_layout.json)")
             helpers.append(NodeProcess("live", node_command("live", extra=[
                 "--port", str(live_port)]), env, logs))
-        _wait_for_emulator(env, helpers, progress)
+        subscribed: tuple[tuple[str, str], ...] = ()
+        if live_port is not None:  # the live view sees the ride from its start
+            from damper_hil.live_node import INPUT_NODE_NAME
+            subscribed = ((topics.RIDE_STATE, INPUT_NODE_NAME),)
+        _wait_for_emulator(env, helpers, progress, subscribed)
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         ride = NodeProcess("ride", node_command("ride", {
             "ride.duration_s": float(duration_s), "ride.clock": clock,

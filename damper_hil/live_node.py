@@ -26,6 +26,8 @@ from ride_sim.iso2631 import WeightingFilter
 from ride_sim.params import RideConfig
 
 NODE_NAME = "live_view"
+#: the second node, which holds the 1 kHz subscriptions (the demo waits for it to subscribe)
+INPUT_NODE_NAME = f"{NODE_NAME}_input"
 #: how often the arrived messages are taken and sent [Hz]
 FLUSH_RATE_HZ = 50.0
 #: queue depth of the 1 kHz subscriptions: more than one flush period of messages
@@ -62,7 +64,7 @@ class LiveNode(Node):
         self._rms = {k: RunningRms() for k in ("accel_w", "sws", "dtl")}
         self._forces = 0
         self._ride_samples = 0
-        self._io = rclpy.create_node(f"{NODE_NAME}_input", context=self.context)
+        self._io = rclpy.create_node(INPUT_NODE_NAME, context=self.context)
         qos = control_qos(QUEUE_DEPTH)
         self._force_sub = self._io.create_subscription(JointState, topics.FORCE,
                                                        lambda _m: None, qos)

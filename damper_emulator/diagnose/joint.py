@@ -10,13 +10,8 @@ by bounded least squares on the compressible model simulated over the whole
 identification records.
 
 Parameters live in normalised coordinates ``s ∈ [0, 1]`` between their bounds (log10 for
-scales).  The Jacobian is by forward differences (the compiled kernel is real-valued, so a
-complex step is not available; one difference costs one simulation per parameter).  In a
-fit of many parameters (the joint fits: thirteen of the paper's and the effects') a fresh
-one is taken every :data:`JACOBIAN_REFRESH` iterations and at the solution (for the
-standard deviations); in between, Broyden's rank-one update from the step just taken
-(:class:`_Jacobian`) costs no simulation: this is what brings a diagnosis to about three
-minutes on two cores.  Bounds
+scales); the Jacobian is by forward differences (the compiled kernel is real-valued, so a
+complex step is not available; one difference costs one simulation per parameter).  Bounds
 scale with the identified damper, never with the paper's numbers: a factor around each
 identified value (:data:`BASE_PARAMETERS`), the friction up to a multiple of its own value,
 and a gas volume that always leaves the rod room for the largest compression in the data.
@@ -89,11 +84,7 @@ GAS_VOLUME_MARGIN = 1.05
 #: Forward-difference step in normalised coordinates (0.1 % of each parameter's range).
 DIFF_STEP = 1e-3
 #: Least-squares evaluations of the joint fit (Jacobians not counted).
-JOINT_NFEV = 50
-#: In a fit of at least :data:`BROYDEN_MIN_PARAMETERS` parameters, a fresh forward-difference
-#: Jacobian every this many iterations, Broyden's update in between (:class:`_Jacobian`).
-JACOBIAN_REFRESH = 3
-BROYDEN_MIN_PARAMETERS = 6
+JOINT_NFEV = 25
 #: ... relative cost change below which it stops.
 JOINT_FTOL = 1e-6
 #: Evaluations per start of the extension-only pre-fit, and for the best start after.
@@ -308,17 +299,9 @@ class Space:
             return np.full(self.n, FAILED_COST)
 
     def solve(self, s0: np.ndarray, nfev: int) -> OptimizeResult:
-        """Bounded least squares from ``s0``, at most ``nfev`` evaluations (Jacobians not
-        counted); ``sol.jac`` is a forward-difference Jacobian at ``sol.x``."""
-        if s0.size < BROYDEN_MIN_PARAMETERS:
-            return least_squares(self.residuals, s0, bounds=(0.0, 1.0), method="trf",
-                                 diff_step=DIFF_STEP, x_scale="jac", max_nfev=nfev,
-                                 ftol=JOINT_FTOL, xtol=1e-6)
-        jac = _Jacobian(self.residuals)
-        sol = least_squares(jac.fun, s0, jac=jac.jac, bounds=(0.0, 1.0), method="trf",
-                            x_scale="jac", max_nfev=nfev, ftol=JOINT_FTOL, xtol=1e-6)
-        sol.jac = jac.jac(sol.x, fresh=True)
-        return sol
+        return least_squares(self.residuals, s0, bounds=(0.0, 1.0), method="trf",
+                             diff_step=DIFF_STEP, x_scale="jac", max_nfev=nfev,
+                             ftol=JOINT_FTOL, xtol=1e-6)
 
     def std(self, sol: OptimizeResult, rho: float) -> dict[tuple[int, str], float]:
         """One standard deviation of each free parameter from the Jacobian at ``sol``,
@@ -337,54 +320,6 @@ class Space:
             v = base[p.name] if i < 0 else values[i][p.name]
             out[(i, p.name)] = v * math.log(10.0) * su if p.log else su
         return out
-
-
-class _Jacobian:
-    """Jacobian of ``fun`` for ``least_squares``: forward differences (step
-    :data:`DIFF_STEP`, away from the nearer bound) every :data:`JACOBIAN_REFRESH` calls, and
-    Broyden's update ``J += ((f − f_old) − J Δs) Δsᵀ / |Δs|²`` from the last point in between
-    (Broyden 1965; the Levenberg–Marquardt variant of Moré's MINPACK notes).  ``fun``'s last
-    value is kept, so the update needs no simulation.  A refused point (every residual
-    :data:`FAILED_COST`) or a zero step takes a fresh one."""
-
-    def __init__(self, fun: Any):
-        self._fun = fun
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
-        self._at: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # s, f, J
-        self._age = 0
-
-    def fun(self, s: np.ndarray) -> np.ndarray:
-        f: np.ndarray = self._fun(s)
-        self._last = (s.copy(), f)
-        return f
-
-    def _value(self, s: np.ndarray) -> np.ndarray:
-        if self._last is not None and np.array_equal(self._last[0], s):
-            return self._last[1]
-        return self.fun(s)
-
-    def jac(self, s: np.ndarray, fresh: bool = False) -> np.ndarray:
-        f = self._value(s)
-        failed = bool(np.all(f == FAILED_COST))
-        if (not fresh and self._at is not None and self._age < JACOBIAN_REFRESH - 1
-                and not failed):
-            s_old, f_old, j = self._at
-            ds = s - s_old
-            norm2 = float(ds @ ds)
-            if norm2 > 0.0 and not np.all(f_old == FAILED_COST):
-                j = j + np.outer((f - f_old) - j @ ds, ds / norm2)
-                self._at = (s.copy(), f, j)
-                self._age += 1
-                return j
-        j = np.empty((f.size, s.size))
-        for k in range(s.size):
-            step = DIFF_STEP if s[k] + DIFF_STEP <= 1.0 else -DIFF_STEP
-            sk = s.copy()
-            sk[k] += step
-            j[:, k] = (self._fun(sk) - f) / step
-        self._at = (s.copy(), f, j)
-        self._age = 0
-        return j
 
 
 #: lag-1 autocorrelation is clipped to this in the effective sample size

@@ -272,7 +272,8 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
         else:
             lo = z
         z_new = z - r / dr if dr > 0.0 else 0.5 * (lo + hi)
-        if abs(z_new - z) <= tol * (1.0 + abs(z)):
+        z_tol = tol * (1.0 + abs(z))
+        if abs(z_new - z) <= z_tol:
             # z (evaluated above) is within the tolerance of the root.  Tested before the
             # bracket: z is always one end of it, and a Newton step below z's last bit
             # leaves z_new == z on that end; taken as out of the bracket, it restarted
@@ -281,7 +282,7 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
             break
         if z_new <= lo or z_new >= hi:
             z_new = 0.5 * (lo + hi)
-            if abs(z_new - z) <= tol * (1.0 + abs(z)):
+            if abs(z_new - z) <= z_tol:
                 break
         z = z_new
     else:

@@ -53,7 +53,7 @@ READY_TIMEOUT_S = 120.0
 READY_POLL_S = 2.0
 
 
-def _wait_for_emulator(env: dict, helpers: list, progress: Callable[[str], None],
+def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
                        subscribed: tuple[tuple[str, str], ...] = ()) -> None:
     """Wait until the emulator's lifecycle state is ``active`` (its kernels loaded and
     exercised, its loop running) and, for each ``(topic, node)`` of ``subscribed``, that
@@ -142,7 +142,7 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         if live_port is not None:  # the live view sees the ride from its start
             from damper_hil.live_node import INPUT_NODE_NAME
             subscribed = ((topics.RIDE_STATE, INPUT_NODE_NAME),)
-        _wait_for_emulator(env, helpers, progress, subscribed)
+        _wait_until_ready(env, helpers, progress, subscribed)
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         ride = NodeProcess("ride", node_command("ride", {
             "ride.duration_s": float(duration_s), "ride.clock": clock,

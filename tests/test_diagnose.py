@@ -294,3 +294,40 @@ def test_cli_refuses_a_params_file_that_already_has_extensions(tmp_path, capsys)
                str(tmp_path / "d.json")])
     assert rc == 2
     assert "already holds damper.extensions (valve_lag)" in capsys.readouterr().err
+
+
+def test_a_runaway_simulation_counts_as_refused_and_the_fit_ends_cleanly(monkeypatch):
+    """A model that runs away (forces of 1e299 N: found with a series spring and a nearly
+    closed gas volume on a slow record's long sub-step) is a refused point of the fit, like
+    parameters the model rejects: trf's Jacobian used to overflow to inf there and end the
+    whole diagnosis with a traceback."""
+    from damper_emulator.diagnose.candidates import candidates
+    from damper_emulator.diagnose.joint import (
+        FAILED_COST,
+        Record,
+        Space,
+        base_parameters,
+        make_record,
+    )
+
+    sheet, data = _session(())
+    records = [make_record(d, False) for d in data[:2]]
+    lag = next(c for c in candidates(sheet, data[:2]) if c.effect == "valve_lag")
+    base = {p.name: p.start for p in base_parameters(sheet, data[:2])}
+    simulate = Record.simulate
+
+    def runaway_above_1ms(rec, model, fast=False):
+        f = simulate(rec, model, fast)
+        ext = model.cfg.damper.extensions
+        return np.full_like(f, 1e299) if ext.valve_lag.time_constant_s > 1e-3 else f
+
+    monkeypatch.setattr(Record, "simulate", runaway_above_1ms)
+    space = Space(sheet, [], base, [lag], [{"time_constant_s": 2e-3}], [True], records,
+                  [1e-3, 1e-3])
+    s_runaway = space.encode(base, [{"time_constant_s": 2e-3}])
+    s_sane = space.encode(base, [{"time_constant_s": 2e-4}])
+    assert np.all(space.residuals(s_runaway) == FAILED_COST)
+    sane = space.residuals(s_sane)
+    assert np.all(np.isfinite(sane)) and np.max(np.abs(sane)) < FAILED_COST
+    sol = space.solve(s_runaway, 5)  # must end, not raise from an inf Jacobian
+    assert np.isfinite(sol.cost)

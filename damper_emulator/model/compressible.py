@@ -102,6 +102,9 @@ BDF2_MAX_STEP_RATIO = 1.0 + math.sqrt(2.0)
 #: this fraction of the step before (the iteration is in its quadratic regime, not crawling
 #: along a kink of the valve law) and the next step it predicts is within the tolerance.
 NEWTON_CONTRACTION = 0.1
+#: The gas stiffness the series spring's implicit coupling uses is a forward difference
+#: over this fraction of the gas column's length (V_gas / A_rod at the stroke).
+MOUNT_GAS_STEP_FRACTION = 1e-6
 
 #: The kernels' arrays: packed parameters, valve-table coefficients, state, samples.
 _Vec = NDArray[np.float64]
@@ -201,7 +204,8 @@ def _flow_state(z: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec, area: float, gr
 def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old: float,
                       x: float, v: float, h: float, bp_area: float, p_com: float,
                       visc: float, q_lag: float, lag_w: float, gr_area: float,
-                      mount_c: float, mount_off: float, air_hat: float
+                      mount_c: float, mount_hat: float, f_const: float, gas_c: float,
+                      f_ref: float, air_hat: float
                       ) -> tuple[float, float, float, int]:
     """One implicit step ``p − p_old = h f(p)`` of eq 2 to stroke ``x``, velocity ``v``:
     backward Euler as it stands, BDF2 with ``p_old``, ``h`` the BDF2 combinations.
@@ -213,10 +217,16 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
     no extension the arithmetic is the paper's model's exactly.  Extensions
     (:mod:`damper_emulator.model.extensions`), each skipped at its neutral value:
     ``visc`` ≠ 1 scales the valve drop; ``lag_w`` > 0 lags the valve flow behind ``q_lag``;
-    ``gr_area`` > 0 opens the groove; ``mount_c`` = A/(k_m h) > 0 makes the inflow
-    ``ẋ A − mount_c (A p + mount_off)`` (series spring); ``P_AIR_EPS`` > 0 adds the air
-    term ``(ε P_ATM/α)(air_hat − 1/p)`` (``air_hat`` the BDF2 combination of ``1/p``).
-    Each keeps ``R`` increasing.  Returns ``(z, p_reb, q_valve, flags)``.
+    ``gr_area`` > 0 opens the groove; ``mount_c`` = A/(k_m h) > 0 is the series spring:
+    the inflow is ``ẋ A − mount_c (F − mount_hat)`` with the spring (= damper) force
+    ``F = A p − A_pt P_com + F_fr`` and ``mount_hat`` its BDF2 combination, and the gas
+    pressure follows the damper's own stroke ``x_d = x − F/k_m`` linearly implicitly,
+    ``P_com = p_com + gas_c (F − f_ref)`` (``p_com`` at the stroke the force ``f_ref``
+    gives, ``gas_c = −P_com'(x_d)/k_m``); with ``p = P_com + Δp`` that makes
+    ``F = (A Δp + f_const) / (1 + A_rod gas_c)``, ``f_const = F_fr − A_rod (p_com − gas_c
+    f_ref)``.  ``P_AIR_EPS`` > 0 adds the air term ``(ε P_ATM/α)(air_hat − 1/p)``
+    (``air_hat`` the BDF2 combination of ``1/p``).  Each keeps ``R`` increasing.  Returns
+    ``(z, p_reb, q_valve, flags)``.
     """
     area = prm[P_A_ANNULUS]
     alpha = prm[P_ALPHA]
@@ -237,6 +247,8 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
     # any extension acting in this solve (one test per iteration when none does)
     ext = visc != 1.0 or lag_w > 0.0 or gr_area > 0.0 or mount_c > 0.0 or air_c > 0.0
     dq_valve = 0.0
+    # the series spring: F = (A Δp + f_const) mount_s, dF/dΔp = A mount_s
+    mount_s = 1.0 / (1.0 + prm[P_A_ROD] * gas_c)
     # the last Newton step's length (0: none yet, or the last step bisected)
     last_step = 0.0
     for _ in range(int(prm[P_MAXIT])):
@@ -257,24 +269,29 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
             q += qb
             dq += dqb * ddp
         p = p_com + dp
+        dpz = ddp  # dp/dz
         if ext:
             if gr_area > 0.0:
                 qb, dqb = bypass_flow(dp, gr_area, prm[P_GR_LAMINAR], prm[P_GR_TURBULENT])
                 q += qb
                 dq += dqb * ddp
             if mount_c > 0.0:
-                q_in = v * area - mount_c * (area * p + mount_off)
+                f_spring = (area * dp + f_const) * mount_s
+                df_spring = area * ddp * mount_s
+                p += gas_c * (f_spring - f_ref)
+                dpz += gas_c * df_spring
+                q_in = v * area - mount_c * (f_spring - mount_hat)
         r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
         if ext and air_c > 0.0:
             r += air_c * (air_hat - 1.0 / max(p, AIR_PRESSURE_FLOOR))
         if r == 0.0:
             break
-        dr = ddp + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * ddp
+        dr = dpz + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * dpz
         if ext:
             if mount_c > 0.0:
-                dr += k * mount_c * area * ddp * (1.0 - alpha * p)
+                dr += k * mount_c * df_spring * (1.0 - alpha * p)
             if air_c > 0.0 and p > AIR_PRESSURE_FLOOR:
-                dr += air_c * ddp / (p * p)
+                dr += air_c * dpz / (p * p)
         if r > 0.0:
             hi = z
         else:
@@ -303,7 +320,7 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
                 # to confirm it (2 evaluations instead of 3 in most solves; the values so
                 # taken differ from the evaluated ones by O(step²), far below tolerance).
                 dz = z_new - z
-                dp += ddp * dz
+                p += dpz * dz
                 q_valve += dq_valve * dz
                 z = z_new
                 break
@@ -313,10 +330,13 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
         dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)  # Δp only
         if visc != 1.0:
             dp *= visc
+        p = p_com + dp
+        if mount_c > 0.0:
+            p += gas_c * ((area * dp + f_const) * mount_s - f_ref)
         flags = _SOLVER
     if beyond:
         flags |= _VALVE_EXTRAPOLATED
-    return z, p_com + dp, q_valve, flags
+    return z, p, q_valve, flags
 
 
 @kernel
@@ -364,6 +384,21 @@ def _viscosity_factor(prm: _Vec, state: _Vec) -> float:
 def _gas_volume(prm: _Vec, x: float) -> float:
     volume: float = prm[V_GAS] + prm[P_A_ROD] * x
     return volume
+
+
+@kernel
+def _gas_pressure(prm: _Vec, xd: float, xd_prev: float, theta: float, h: float
+                  ) -> tuple[float, float]:
+    """Gas pressure [Pa] at the damper's stroke ``xd`` after a sub-step ``h`` from
+    ``xd_prev``, and the gas temperature ratio then: eq 3, or with the gas exchanging heat
+    (:func:`~damper_emulator.model.extensions.gas_temperature`) from ratio ``theta``."""
+    if prm[P_GT_TAU] > 0.0:
+        vol = _gas_volume(prm, xd)
+        theta = gas_temperature(theta, _gas_volume(prm, xd_prev), vol, prm[P_GAMMA], h,
+                                prm[P_GT_TAU])
+        return prm[P_GAS] * prm[V_GAS] / vol * theta, theta
+    return compression_chamber_pressure(xd, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
+                                        prm[P_GAMMA]), theta
 
 
 @kernel
@@ -505,7 +540,6 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
     k_m = prm[P_MOUNT_K]
     mount_f = state[S_MOUNT_F]
     mount_prev = state[S_MOUNT_PREV]
-    gas_tau = prm[P_GT_TAU]
     theta = state[S_GAS_THETA]
     xd_prev = x0 - mount_f / k_m if k_m > 0.0 else x0
     lag_w = lag_weight(prm[P_VL_TAU], h) if prm[P_VL_TAU] > 0.0 else 0.0
@@ -539,21 +573,26 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
         p_prev = p
         mount_c = 0.0
         mount_off = 0.0
+        gas_c = 0.0
+        f_const = 0.0
         xd = xs
+        free = False
+        theta_old = theta
         if k_m > 0.0:  # the damper's own stroke behind the series spring
-            xd = min(max(xs - mount_f / k_m, prm[P_X_MIN]), prm[P_X_MAX])
+            xd_free = xs - mount_f / k_m
+            xd = min(max(xd_free, prm[P_X_MIN]), prm[P_X_MAX])
+            free = xd == xd_free
             mount_c = prm[P_A_ANNULUS] / (k_m * h_eff)
-        if gas_tau > 0.0:
-            vol = _gas_volume(prm, xd)
-            theta = gas_temperature(theta, _gas_volume(prm, xd_prev), vol, prm[P_GAMMA], h,
-                                    gas_tau)
-            p_com = prm[P_GAS] * prm[V_GAS] / vol * theta
-        else:
-            p_com = compression_chamber_pressure(xd, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
-                                                 prm[P_GAMMA])
-        xd_prev = xd
+        p_com, theta = _gas_pressure(prm, xd, xd_prev, theta_old, h)
         if k_m > 0.0:
             mount_off = -prm[P_A_PISTON] * p_com + fr - mount_hat
+            if free:
+                # the gas follows the damper's stroke through the spring implicitly (its
+                # stiffness against the spring's; explicit, a gas nearly closed ran away)
+                dx = MOUNT_GAS_STEP_FRACTION * _gas_volume(prm, xd) / prm[P_A_ROD]
+                gas_c = -(_gas_pressure(prm, xd + dx, xd_prev, theta_old, h)[0]
+                          - p_com) / (dx * k_m)
+            f_const = fr - prm[P_A_ROD] * (p_com - gas_c * mount_f)
         gr_area = _groove_area(prm, xd)
         if cavitation and v_cav > 0.0:
             # a cavity is open: the chamber sits at the cavitation pressure until it refills
@@ -574,9 +613,17 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
             z_prev = z
             z, p, q_lag, f = _implicit_substep(prm, coef_r, coef_c, p_hat, z_start, xd, vs,
                                                h_eff, bp_area, p_com, visc, q_lag, lag_w,
-                                               gr_area, mount_c, mount_off, air_hat)
+                                               gr_area, mount_c, mount_hat, f_const, gas_c,
+                                               mount_f, air_hat)
             flags |= f
             h_prev = h
+            if free:
+                # the stroke the new force gives, and the gas exactly there
+                p_lin = ((p_com + gas_c * (prm[P_A_ANNULUS] * p + fr - mount_f))
+                         / (1.0 + gas_c * prm[P_A_PISTON]))
+                f_new = prm[P_A_ANNULUS] * p - prm[P_A_PISTON] * p_lin + fr
+                xd = min(max(xs - f_new / k_m, prm[P_X_MIN]), prm[P_X_MAX])
+                p_com, theta = _gas_pressure(prm, xd, xd_prev, theta_old, h)
             if cavitation and p < prm[P_CAV_P]:
                 # the oil would be stretched: a cavity of that volume opens instead
                 v_cav = ((prm[P_CAV_P] - p) * (prm[P_MAX_EXT] - xd) * prm[P_A_ANNULUS]
@@ -584,6 +631,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
                 p = prm[P_CAV_P]
                 z = _z_of(prm, p - p_com, visc)
                 h_prev = 0.0
+        xd_prev = xd
         if k_m > 0.0:
             mount_prev = mount_f
             mount_f = prm[P_A_ANNULUS] * p - prm[P_A_PISTON] * p_com + fr

@@ -33,7 +33,11 @@ off, the step's arithmetic is the paper's model's.  Families as in the ``diagnos
 ``compliance`` — a spring ``k_m`` in series between the dyno and the damper: the damper's
     stroke is ``x − F/k_m`` and its velocity ``ẋ − Ḟ/k_m``; the latter enters eq 2
     implicitly (the force is the unknown pressure's), its rate by the same multistep formula
-    as the pressure's (``(F − F̂)/h_eff``).  The start is the static deflection.
+    as the pressure's (``(F − F̂)/h_eff``).  The gas pressure at the damper's stroke enters
+    the same solve linearly implicitly (its stiffness times the force's change, then eq 3
+    exactly at the stroke the solved force gives): taken at the last sub-step's force, a gas
+    stiffer than the spring (a nearly closed gas volume) ran away.  The start is the static
+    deflection.
 ``end_stop`` — progressive elastomer stops, ``F += k (x − x_r)²`` past the rebound stop and
     ``− k (x_c − x)²`` past the compression stop (:func:`end_stop_force`).
 ``air_entrainment`` — free air in the rebound chamber, isothermal, volume fraction ``ε`` at

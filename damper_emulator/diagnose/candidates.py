@@ -91,6 +91,14 @@ class Candidate:
     def __post_init__(self) -> None:
         object.__setattr__(self, "family", EXTENSION_FAMILIES[self.effect])
 
+    @property
+    def relative_cost(self) -> int:
+        """A rough rank of this candidate's fit cost: its start vectors times its
+        parameters (the multi-start pre-fit), more when it re-identifies the damper.  The
+        longest fits are started first so that a round does not end on one alone."""
+        reidentifies = self.may_act is not None or self.identify_as is not None
+        return len(self.starts()) * len(self.parameters) + (3 if reidentifies else 0)
+
     def starts(self) -> list[np.ndarray]:
         """Start vectors in the internal (search) coordinates."""
         vecs = [tuple(p.start for p in self.parameters), *self.extra_starts]

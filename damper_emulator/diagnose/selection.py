@@ -543,12 +543,16 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     with _LocalPool(jobs if executor is None else 1) as local:
         def run(present: StepFit | None, effects_: Sequence[str | None], label: str
                 ) -> list[StepFit]:
-            tasks = [task(present, e) for e in effects_]
+            # the longest fits first (a round ends with its last fit: better several short
+            # ones than one long one alone on a worker)
+            order = sorted(range(len(effects_)), key=lambda i: -(
+                by_effect[e].relative_cost if (e := effects_[i]) is not None else 0))
+            tasks = [task(present, effects_[i]) for i in order]
             out: list[StepFit | None] = [None] * len(tasks)
             it = (_unordered(executor, run_fit_task, tasks) if executor is not None
                   else local.map_unordered(run_fit_task, tasks))
             for n_done, (i, res) in enumerate(it, 1):
-                out[i] = step_fit(present, res)
+                out[order[i]] = step_fit(present, res)
                 e = res["effect"] or "paper's model alone"
                 say(f"{label} [{n_done}/{len(tasks)}] {e}: held-out r.m.s. "
                     + ", ".join(f"{v['rms']:.1f}" for v in res["held"].values())

@@ -458,11 +458,8 @@ def init_state(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: 
     # spring is orders of magnitude softer than any mount, so each round gains as much)
     xd = x
     for _ in range(4 if prm[P_MOUNT_K] > 0.0 else 1):
-        if prm[P_GT_TAU] > 0.0:  # the gas at the wall temperature: isothermal
-            p_com = prm[P_GAS] * prm[V_GAS] / _gas_volume(prm, xd)
-        else:
-            p_com = compression_chamber_pressure(xd, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
-                                                 prm[P_GAMMA])
+        # (a gas that exchanges heat starts at the wall temperature, ratio 1)
+        p_com = _gas_pressure(prm, xd, xd, 1.0, 0.0)[0]
         p = p_com + dp
         if prm[P_CAV_ON] > 0.0 and p < prm[P_CAV_P]:
             # steady flow the valve cannot pass above the cavitation pressure: the chamber

@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.model.compressible import step as _compressible_step
 from damper_emulator.model.jit import kernel
+from damper_emulator.model.valve_table import TABLE_COLUMNS
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.params import QuarterCarParams
 from ride_sim.quarter_car import (
@@ -92,10 +93,10 @@ class ManyResult:
 
 
 def _stack_tables(tables: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Valve tables of different lengths as one zero-padded ``(D, L, 4)`` array and the
-    lengths (the kernel slices each design's own)."""
+    """Valve tables of different lengths as one zero-padded ``(D, L, TABLE_COLUMNS)``
+    array and the lengths (the kernel slices each design's own)."""
     n = np.array([t.shape[0] for t in tables], dtype=np.int64)
-    out = np.zeros((len(tables), int(n.max()), 4))
+    out = np.zeros((len(tables), int(n.max()), TABLE_COLUMNS))
     for j, t in enumerate(tables):
         out[j, :t.shape[0]] = t
     return out, n

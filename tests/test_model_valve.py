@@ -5,6 +5,8 @@ root solve of eq 19 by scipy's brentq, Taylor coefficients by numerical differen
 eq 19, the slope H1 by numerical differentiation of eq 27.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.optimize import brentq
@@ -130,3 +132,28 @@ def test_inverse_table_round_trip(sport_cfg):
         back = V.pressure_drop_array(q, getattr(d, side), d.oil_kinematic_viscosity_m2_s)
         assert np.max(np.abs(back / dp - 1)) < 1e-3, side
         assert np.all(np.diff(table.flow(np.sort(dp))) > 0)
+
+
+@pytest.mark.parametrize("points", [1024, 16])
+def test_valve_point_is_the_exact_pressure_drop_and_the_table_flow(sport_cfg, points):
+    """The step's one look-up (``valve_point``: Δp from the node's stored e^z and a Taylor
+    polynomial of the offset, Q from the cubic) against ``Δp_s (e^z − 1)^(7/4)`` with
+    numpy's expm1 and against ``table_flow``: at every node, mid-interval, next to each
+    node and beyond the table, on the default table and on a 16-node one (whose steps are
+    too coarse for the polynomial: the library's expm1)."""
+    from damper_emulator.model.valve_table import table_flow, valve_point
+
+    cfg = dataclasses.replace(sport_cfg, numerics=dataclasses.replace(
+        sport_cfg.numerics, valve_table_points=points))
+    for table in build_valve_tables(cfg):
+        n = table.coef.shape[0]
+        nodes = table.step * np.arange(n + 1)
+        z = np.concatenate([nodes, nodes[:-1] + 0.5 * table.step,
+                            nodes[1:] * (1 - 1e-12), [1.5 * table.z_max, 1e-9]])
+        for zi in z:
+            dp, ddp, q, dq, beyond = valve_point(table.coef, table.step, table.scale_pa, zi)
+            u = np.expm1(zi)
+            assert dp == pytest.approx(table.scale_pa * u ** 1.75, rel=1e-13, abs=1e-300)
+            assert ddp == pytest.approx(table.scale_pa * 1.75 * u ** 0.75 * (u + 1.0),
+                                        rel=1e-13, abs=1e-300)
+            assert (q, dq, beyond) == table_flow(table.coef, table.step, zi)

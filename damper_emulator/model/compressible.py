@@ -61,8 +61,7 @@ from damper_emulator.model.jit import kernel
 from damper_emulator.model.valve_table import (
     EXTRAPOLATION_LIMIT,
     build_valve_tables,
-    pressure_drop_of_z,
-    table_flow,
+    valve_point,
     z_of_pressure_drop,
 )
 from damper_emulator.params import (
@@ -156,11 +155,8 @@ def _valve_state(z: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec
                  ) -> tuple[float, float, float, float, bool]:
     """Signed Δp [Pa], dΔp/dz, signed Q_pv [m³/s], dQ/dz, beyond-table flag at ``z``."""
     if z >= 0.0:
-        dp, ddp = pressure_drop_of_z(z, prm[P_SCALE_R])
-        q, dq, beyond = table_flow(coef_r, prm[P_STEP_R], z)
-        return dp, ddp, q, dq, beyond
-    dp, ddp = pressure_drop_of_z(-z, prm[P_SCALE_C])
-    q, dq, beyond = table_flow(coef_c, prm[P_STEP_C], -z)
+        return valve_point(coef_r, prm[P_STEP_R], prm[P_SCALE_R], z)
+    dp, ddp, q, dq, beyond = valve_point(coef_c, prm[P_STEP_C], prm[P_SCALE_C], -z)
     return -dp, ddp, -q, dq, beyond
 
 

@@ -128,7 +128,9 @@ def _registered(dispatcher: Any) -> Any:
 #: atomics were 60 % of the profile of a chirp simulation (perf, 2026-11-25); without them
 #: the batch simulation is 1.4–1.6× faster, forces bit for bit the same.  A kernel that
 #: allocated would fail to compile, not misbehave.
-_physics = njit(cache=True, fastmath=set(FASTMATH_FLAGS), _nrt=False)
+# (numba's stubs do not declare the private ``_nrt`` option)
+_physics = njit(cache=True, fastmath=set(FASTMATH_FLAGS),
+                _nrt=False)  # type: ignore[call-overload]
 _plain = njit(cache=True)
 
 

@@ -56,7 +56,7 @@ from damper_emulator.model.extensions import (
     lugre_update,
     viscosity_scale,
 )
-from damper_emulator.model.gas import compression_chamber_pressure
+from damper_emulator.model.gas import compression_chamber_pressure_kernel
 from damper_emulator.model.jit import kernel
 from damper_emulator.model.valve_table import (
     EXTRAPOLATION_LIMIT,
@@ -393,8 +393,8 @@ def _gas_pressure(prm: _Vec, xd: float, xd_prev: float, theta: float, h: float
         theta = gas_temperature(theta, _gas_volume(prm, xd_prev), vol, prm[P_GAMMA], h,
                                 prm[P_GT_TAU])
         return prm[P_GAS] * prm[V_GAS] / vol * theta, theta
-    return compression_chamber_pressure(xd, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
-                                        prm[P_GAMMA]), theta
+    return compression_chamber_pressure_kernel(xd, prm[P_GAS], prm[V_GAS], prm[P_A_ROD],
+                                               prm[P_GAMMA]), theta
 
 
 @kernel

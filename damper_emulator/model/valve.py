@@ -253,14 +253,20 @@ COMPLEX_STEP = 1e-30
 def _pressure_drop_jacobian_loop(q: NDArray[np.float64], k_leak: float, k_port: float,
                                  k_spring: float, preload_pa: float, g: float, nu_m2_s: float,
                                  form: int, out: NDArray[np.float64]) -> None:
-    params = np.array([k_leak, k_port, k_spring, preload_pa, g])
+    params = (k_leak, k_port, k_spring, preload_pa, g)
     for j in range(5):
         h = COMPLEX_STEP * params[j]
-        p = params.astype(np.complex128)
-        p[j] += 1j * h
+        # the parameters as complex numbers, parameter j stepped by i h (scalars: the
+        # kernels allocate nothing)
+        s = 1j * h
+        p0 = k_leak + (s if j == 0 else 0j)
+        p1 = k_port + (s if j == 1 else 0j)
+        p2 = k_spring + (s if j == 2 else 0j)
+        p3 = preload_pa + (s if j == 3 else 0j)
+        p4 = g + (s if j == 4 else 0j)
         for i in range(q.size):
             qc = q[i] + 0j
-            out[i, j] = pressure_drop(qc, p[0], p[1], p[2], p[3], p[4], nu_m2_s, form).imag / h
+            out[i, j] = pressure_drop(qc, p0, p1, p2, p3, p4, nu_m2_s, form).imag / h
 
 
 def pressure_drop_jacobian(q_m3_s: ArrayLike, valve: Iterable[float], nu_m2_s: float,

@@ -341,11 +341,20 @@ def external_run(tmp_path_factory):
                  "--can-channel", udp_channel(OFFSETS["external"]), "--out", str(out)]
     proc = subprocess.Popen(cmd, env=_cli_env(DOMAINS["external"]), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    run = SimpleNamespace(proc=proc, started=time.monotonic())
+    run = SimpleNamespace(proc=proc, started=time.monotonic(), ended=math.inf, out="",
+                          err="")
+
+    def wait() -> None:  # the command's own end, whatever the other tests take meanwhile
+        run.out, run.err = proc.communicate()
+        run.ended = time.monotonic()
+
+    waiter = threading.Thread(target=wait, daemon=True)
+    waiter.start()
+    run.waiter = waiter
     yield run
     if proc.poll() is None:
         proc.kill()
-    proc.communicate()
+    waiter.join(timeout=60)
 
 
 # ======================================================================================
@@ -787,8 +796,9 @@ def test_bad_bridge_parameters_exit_2_with_one_line():
 
 
 def test_over_can_external_with_nothing_running_fails_in_one_line(external_run):
-    out, err = external_run.proc.communicate(timeout=60)
-    elapsed = time.monotonic() - external_run.started
+    external_run.waiter.join(timeout=60)
+    err = external_run.err
+    elapsed = external_run.ended - external_run.started
     assert external_run.proc.returncode == 2, err
     line = one_line_error(err)
     assert "no DAMPER_FORCE" in line and "20 s" in line

@@ -35,6 +35,7 @@ from scipy.optimize import least_squares
 from damper_emulator.diagnose.candidates import Candidate, Parameter
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
+from damper_emulator.model.valve import FLOW_EXPONENT
 from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ModelConfig, ParameterError
 from damper_emulator.validation import record_velocity, simulate_measured
 
@@ -74,6 +75,16 @@ BASE_PARAMETERS: tuple[BaseParameter, ...] = (
           ("preload_pa", 10.0, "Pa", "blow-off preload, eq 10"),
           ("smoothing_g", 3.0, "-", "smoothing exponent G, eq 28"))),
 )
+#: The port restriction (eq 8) also ranges over the damper's own scale ``K_scale``, the
+#: restriction that alone would drop the largest pressure of the data at the largest flow
+#: (``max|F| / A_annulus`` at ``A_annulus max|v|``), from this fraction of it (negligible:
+#: a thousandth of the damper's pressure) ...
+PORT_SCALE_LOW = 1e-3
+#: ... to this multiple.  An identification that absorbed an effect can leave the port
+#: restriction anywhere, also at a degenerate 10⁻⁷ (sport damper, cavitation and valve lag
+#: together: truth 2·10¹²), where ×10 either side never reaches the damper's value and the
+#: fit has no slope; it then starts from the low end of the damper's scale.
+PORT_SCALE_HIGH = 10.0
 #: The friction's upper bound: this multiple of the identified friction plus
 #: :data:`FRICTION_MARGIN_N` (its lower bound is 0).
 FRICTION_FACTOR = 3.0
@@ -177,6 +188,11 @@ def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
     a parameter they replace is held), as :class:`Parameter` named by path."""
     d = cfg.damper
     x_lo = min(float(np.min(r.displacement)) for r in fit_data)
+    f_max = max(float(np.max(np.abs(r.force))) for r in fit_data)
+    v_max = max(float(np.max(np.abs(record_velocity(r)[0]))) for r in fit_data)
+    q_max = max(d.annulus_area_m2 * v_max, 1e-12)
+    k_scale = (f_max / d.annulus_area_m2
+               / (d.oil_kinematic_viscosity_m2_s ** 0.25 * q_max ** FLOW_EXPONENT))
     out = []
     for bp in BASE_PARAMETERS:
         if any(e in effects for e in bp.replaced_by):
@@ -187,6 +203,10 @@ def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
             out.append(Parameter(bp.path, 0.0, hi, value, False, bp.unit))
             continue
         lo, hi = value / bp.factor, value * bp.factor
+        if bp.path.endswith(".k_port"):
+            value = max(value, PORT_SCALE_LOW * k_scale)
+            lo = min(value / bp.factor, PORT_SCALE_LOW * k_scale)
+            hi = max(value * bp.factor, PORT_SCALE_HIGH * k_scale)
         if bp.path == "gas_volume_static_m3":
             lo = max(lo, GAS_VOLUME_MARGIN * d.rod_area_m2 * max(-x_lo, 0.0))
             hi = max(hi, 2.0 * lo)
@@ -384,7 +404,9 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
               base_values: Mapping[str, float],
               accepted: Sequence[tuple[Candidate, Mapping[str, float]]],
               candidate: Candidate | None, nfev: int = JOINT_NFEV,
-              n_quasi_static: int = 1) -> JointFit:
+              n_quasi_static: int = 1,
+              alternative: tuple[Mapping[str, float], Mapping[str, Mapping[str, float]]]
+              | None = None) -> JointFit:
     """Fit ``candidate`` (``None``: nothing new) together with the effects ``accepted``
     and the paper's parameters, on ``records`` (the identification files, the first
     ``n_quasi_static`` of them quasi-static tests).
@@ -392,14 +414,24 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     1. **Pre-fit** the candidate alone on top of the present model (``base_values`` and
        ``accepted`` held), ``SCREEN_NFEV`` evaluations from each of its start vectors, then
        ``PREFIT_NFEV`` from the best: a start for step 3 that already has the effect.
-    2. **Re-identify** (first effect only, and only a local one: :func:`active_samples`,
-       or where the candidate says it may act, ``Candidate.may_act``): the staged
-       identification again without the samples where the pre-fitted effect acts (an open
-       cavity corrupts the valve fit, an engaged end stop the gas spring's), or with the
-       configuration the candidate names (``Candidate.identify_as``: an isothermal gas for
-       a gas that exchanges heat), and the pre-fit again on it; the start of step 3 is
-       whichever of the two fits the records better.
-    3. **Joint fit** of every free parameter — :func:`base_parameters` of ``cfg`` (bounds
+    2. **Re-identify** when a local effect is in the model (the candidate or an accepted
+       one, :func:`active_samples`, or where it says it may act, ``Candidate.may_act``):
+       the staged identification again without the samples where those effects act (an
+       open cavity corrupts the valve fit, an engaged end stop the gas spring's), or for
+       a first effect with the configuration the candidate names
+       (``Candidate.identify_as``: an isothermal gas for a gas that exchanges heat), and
+       the pre-fit again on it; the start of step 4 is whichever fits the records better.
+       (A second effect needs it too: a valve lag fitted on top of a cavity starts from
+       the valves the cavity's own fit left, which had absorbed the lag as well.)
+    3. **The other order** (with ``alternative``: the candidate's own fit of the round
+       before, its paper's parameters and the values of its effects by name, i.e. the
+       model without the newest accepted effect): that model with the newest accepted
+       effect pre-fitted on top of it as in step 1.  Of two effects, forward selection
+       takes the one whose fit alone gained more; the other is then fitted on top of it,
+       from where the first left the paper's parameters, and a joint fit from there can
+       stop in the first one's valley (end stops on a series spring: the gas spring that
+       absorbed the stops is only given back by the stops' own re-identification).
+    4. **Joint fit** of every free parameter — :func:`base_parameters` of ``cfg`` (bounds
        around the identified values), each accepted effect's and the candidate's — from
        there, ``nfev`` evaluations of the weighted residual ``w_f (F_sim − F_meas)``
        (``weights``: one per record).
@@ -413,39 +445,65 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     evaluations = 0
     reidentified = False
     if candidate is not None:
-        def prefit(bv: Mapping[str, float], starts_values: Sequence[Mapping[str, float]]
+        def prefit(bv: Mapping[str, float], vals: Sequence[Mapping[str, float]], free: int,
+                   starts_values: Sequence[Mapping[str, float]]
                    ) -> tuple[dict[str, float], float, int]:
-            pre = Space(cfg, [], bv, cands, values + [starts_values[0]],
-                        [False] * len(accepted) + [True], records, weights)
-            starts = [pre.encode(bv, values + [sv]) for sv in starts_values]
+            """Effect ``free`` of ``cands`` fitted alone on the model ``bv``, ``vals``
+            from each of ``starts_values``: its values, the cost, the simulations."""
+            def with_start(sv: Mapping[str, float]) -> list[Mapping[str, float]]:
+                return [sv if k == free else v for k, v in enumerate(vals)]
+
+            pre = Space(cfg, [], bv, cands, with_start(starts_values[0]),
+                        [k == free for k in range(len(cands))], records, weights)
+            starts = [pre.encode(bv, with_start(sv)) for sv in starts_values]
             if len(starts) > 1:
                 starts = [min((pre.solve(s0, SCREEN_NFEV) for s0 in starts),
                               key=lambda r: r.cost).x]
             sol = pre.solve(starts[0], PREFIT_NFEV)
-            return pre.decode(sol.x)[1][-1], float(sol.cost), pre.evaluations
+            return pre.decode(sol.x)[1][free], float(sol.cost), pre.evaluations
 
-        names = [p.name for p in candidate.parameters]
-        start_values = [dict(zip(names, (p.from_internal(u) for p, u in
-                                          zip(candidate.parameters, u0))))
-                        for u0 in candidate.starts()]
-        pre_values, pre_cost, n = prefit(base_values, start_values)
+        def own_starts(c: Candidate) -> list[dict[str, float]]:
+            names = [p.name for p in c.parameters]
+            return [dict(zip(names, (p.from_internal(u) for p, u in zip(c.parameters, u0))))
+                    for u0 in c.starts()]
+
+        start_values = own_starts(candidate)
+        last = len(accepted)  # the candidate's index in cands
+        pre_values, pre_cost, n = prefit(base_values, [*values, start_values[0]], last,
+                                         start_values)
         evaluations += n
-        if not accepted:
-            if candidate.identify_as is not None:
-                new_base = reidentify(candidate.identify_as(cfg), records, n_quasi_static)
-            else:
-                masks = ([candidate.may_act(r.data) for r in records]
-                         if candidate.may_act is not None
-                         else active_samples(records, model_of(cfg, base_values, []),
-                                             model_of(cfg, base_values,
-                                                      [(candidate, pre_values)])))
-                new_base = (reidentify(cfg, records, n_quasi_static, masks)
-                            if masks is not None else None)
-            if new_base is not None:
-                alt_values, alt_cost, n = prefit(new_base, [*start_values, pre_values])
-                evaluations += n
-                if alt_cost < pre_cost:
-                    base_values, pre_values, reidentified = new_base, alt_values, True
+        if accepted and alternative is not None and candidate.effect in alternative[1]:
+            alt_base, alt_effects = alternative
+            newest = accepted[-1][0]
+            alt_vals = [alt_effects.get(c.effect, v) for c, v in zip(cands, [*values, {}])]
+            alt_new, alt_cost, n = prefit({**base_values, **alt_base}, alt_vals, last - 1,
+                                          [*own_starts(newest), values[-1]])
+            evaluations += n
+            if alt_cost < pre_cost:
+                base_values = {**base_values, **alt_base}
+                values = [*(dict(v) for v in alt_vals[:-2]), alt_new]
+                pre_values, pre_cost = dict(alt_vals[-1]), alt_cost
+        new_base = None
+        if not accepted and candidate.identify_as is not None:
+            new_base = reidentify(candidate.identify_as(cfg), records, n_quasi_static)
+        else:
+            plain = model_of(cfg, base_values, [])
+            masks = None
+            for c, v in [*zip(cands[:-1], values), (candidate, pre_values)]:
+                m = ([c.may_act(r.data) for r in records] if c.may_act is not None
+                     else active_samples(records, plain, model_of(cfg, base_values,
+                                                                   [(c, v)])))
+                if m is not None:
+                    masks = m if masks is None else [a | b for a, b in zip(masks, m)]
+            new_base = (reidentify(cfg, records, n_quasi_static, masks)
+                        if masks is not None else None)
+        if new_base is not None:
+            new_base = {**base_values, **new_base}
+            alt_values, alt_cost, n = prefit(new_base, [*values, pre_values], last,
+                                             [*start_values, pre_values])
+            evaluations += n
+            if alt_cost < pre_cost:
+                base_values, pre_values, reidentified = new_base, alt_values, True
         values.append(pre_values)
     # bounds around the start (the identified values, or the re-identified ones)
     free = base_parameters(config_with(cfg, base_values), fit_data, [c.effect for c in cands])

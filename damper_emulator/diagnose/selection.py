@@ -185,6 +185,9 @@ class FitTask:
     nfev: int = JOINT_NFEV
     #: the first this many ``fit`` files are quasi-static tests, the others chirps
     n_quasi_static: int = 1
+    #: the candidate's own fit of the round before (its paper's parameters, and its
+    #: effects' values by name): the start of the other order (``joint_fit``)
+    alternative: tuple[Mapping[str, float], Mapping[str, Mapping[str, float]]] | None = None
 
 
 def run_fit_task(task: FitTask) -> dict[str, Any]:
@@ -198,7 +201,7 @@ def run_fit_task(task: FitTask) -> dict[str, Any]:
     accepted = [(cands[e], v) for e, v in task.accepted]
     cand = cands[task.effect] if task.effect is not None else None
     jf = joint_fit(task.cfg, fit, task.weights, task.base_values, accepted, cand, task.nfev,
-                   task.n_quasi_static)
+                   task.n_quasi_static, task.alternative)
     order = [c for c, _ in accepted] + ([cand] if cand is not None else [])
     model = jf.model(task.cfg, order)
     fit_res = [r.residual(model) for r in fit]
@@ -519,7 +522,8 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     by_effect = {c.effect: c for c in cands}
     base_values = {p.name: p.start for p in base_parameters(cfg, [r.data for r in fit])}
 
-    def task(present: StepFit | None, effect: str | None) -> FitTask:
+    def task(present: StepFit | None, effect: str | None,
+             before: StepFit | None = None) -> FitTask:
         acc: tuple[tuple[str, Mapping[str, float]], ...]
         if present is None:
             bv, acc = base_values, ()
@@ -528,8 +532,10 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             acc = tuple(zip(present.effects, present.out["values"]))
         # an effect that replaces a paper's parameter leaves it at the identified value
         bv = {**base_values, **bv}
+        alt = (None if before is None else
+               (before.out["base_values"], dict(zip(before.effects, before.out["values"]))))
         return FitTask(cfg, tuple(r.data for r in fit), tuple(r.data for r in held),
-                       tuple(weights), bv, acc, effect, nfev, n_quasi_static)
+                       tuple(weights), bv, acc, effect, nfev, n_quasi_static, alt)
 
     def step_fit(present: StepFit | None, out: dict[str, Any]) -> StepFit:
         order = ([] if present is None else list(present.candidates))
@@ -541,13 +547,14 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     rounds: list[list[StepFit]] = []
     steps: list[StepFit] = []
     with _LocalPool(jobs if executor is None else 1) as local:
-        def run(present: StepFit | None, effects_: Sequence[str | None], label: str
-                ) -> list[StepFit]:
+        def run(present: StepFit | None, effects_: Sequence[str | None], label: str,
+                before: Mapping[str, StepFit] | None = None) -> list[StepFit]:
             # the longest fits first (a round ends with its last fit: better several short
             # ones than one long one alone on a worker)
             order = sorted(range(len(effects_)), key=lambda i: -(
                 by_effect[e].relative_cost if (e := effects_[i]) is not None else 0))
-            tasks = [task(present, effects_[i]) for i in order]
+            tasks = [task(present, e, (before or {}).get(e) if e is not None else None)
+                     for e in (effects_[i] for i in order)]
             out: list[StepFit | None] = [None] * len(tasks)
             it = (_unordered(executor, run_fit_task, tasks) if executor is not None
                   else local.map_unordered(run_fit_task, tasks))
@@ -594,7 +601,10 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             # the next round: the present model refitted once more (the reference: a
             # candidate must beat the present model's own further convergence, not only
             # its last fit) and every remaining candidate on top of it
-            nxt = run(best, [None, *remaining], f"round {len(rounds) + 1}")
+            # (each candidate also from its own fit of this round: joint_fit, the other
+            # order)
+            nxt = run(best, [None, *remaining], f"round {len(rounds) + 1}",
+                      {f._added.effect: f for f in fits})
             present, fits = nxt[0], nxt[1:]
             if present.sse_held > best.sse_held:
                 present = best

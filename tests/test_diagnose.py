@@ -331,3 +331,82 @@ def test_a_runaway_simulation_counts_as_refused_and_the_fit_ends_cleanly(monkeyp
     assert np.all(np.isfinite(sane)) and np.max(np.abs(sane)) < FAILED_COST
     sol = space.solve(s_runaway, 5)  # must end, not raise from an inf Jacobian
     assert np.isfinite(sol.cost)
+
+
+def _lag_space(sheet, data, monkeypatch, refuse):
+    """A joint-fit space over the identification files: two paper's parameters and a valve
+    lag free; ``refuse(τ)``: the lag's time constants whose simulation runs away."""
+    from damper_emulator.diagnose.candidates import candidates
+    from damper_emulator.diagnose.joint import Record, Space, base_parameters, make_record
+
+    records = [make_record(d, False) for d in data[:2]]
+    lag = next(c for c in candidates(sheet, data[:2]) if c.effect == "valve_lag")
+    free = [p for p in base_parameters(sheet, data[:2])
+            if p.name in ("gas_pressure_static_pa", "rebound.k_port")]
+    base = {p.name: p.start for p in base_parameters(sheet, data[:2])}
+    simulate = Record.simulate
+
+    def runaway(rec, model, fast=False):
+        f = simulate(rec, model, fast)
+        tau = model.cfg.damper.extensions.valve_lag.time_constant_s
+        return np.full_like(f, 1e299) if refuse(tau) else f
+
+    monkeypatch.setattr(Record, "simulate", runaway)
+    values = [{"time_constant_s": 2e-3}]
+    space = Space(sheet, free, base, [lag], values, [True], records, [1e-2, 1e-2])
+    return space, space.encode(base, values)
+
+
+def test_the_jacobian_is_scipys_forward_difference_and_steps_back_where_refused(monkeypatch):
+    """Where nothing is refused the fit's Jacobian is scipy's own 2-point difference with
+    the same relative step; where the model refuses the forward step of a parameter, it is
+    scipy's difference with that parameter's upper bound at the point (a backward step),
+    not ``(FAILED_COST − r)/h`` (found on the FSAE data: a column of 10¹¹ that made every
+    σ 10⁻¹⁵ of its value)."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    from damper_emulator.diagnose.joint import DIFF_STEP
+
+    sheet, data = _session(())
+    space, s = _lag_space(sheet, data, monkeypatch, lambda tau: False)
+    f0 = space.residuals(s)
+    reference = approx_derivative(space.residuals, s, method="2-point", rel_step=DIFF_STEP,
+                                  bounds=(0.0, 1.0), f0=f0)
+    np.testing.assert_array_equal(space.jacobian(s), reference)
+
+    space, s = _lag_space(sheet, data, monkeypatch, lambda tau: tau > 2.0000001e-3)
+    f0 = space.residuals(s)
+    ub = np.ones_like(s)
+    ub[-1] = s[-1]  # the lag is the last parameter
+    backward = approx_derivative(space.residuals, s, method="2-point", rel_step=DIFF_STEP,
+                                 bounds=(0.0, ub), f0=f0)
+    jac = space.jacobian(s)
+    np.testing.assert_array_equal(jac, backward)
+    assert np.all(np.abs(jac) < 1e6)
+
+
+def test_sigma_is_the_covariance_of_the_resolved_parameters_and_infinite_for_the_rest(
+        monkeypatch):
+    """σ² (JᵀJ)⁻¹ on the parameters with a slope (an explicit inverse, a separate
+    computation from the SVD of :meth:`Space.std`), AR(1)-inflated; a parameter refused
+    both ways has no slope and an infinite σ."""
+    import types
+
+    sheet, data = _session(())
+    space, s = _lag_space(sheet, data, monkeypatch,
+                          lambda tau: abs(tau - 2e-3) > 1e-12)
+    f0 = space.residuals(s)
+    jac = space.jacobian(s)
+    assert np.all(jac[:, -1] == 0.0) and np.all(np.any(jac[:, :-1] != 0.0, axis=0))
+    sol = types.SimpleNamespace(x=s, fun=f0, cost=0.5 * float(f0 @ f0), jac=jac)
+    rho = 0.5
+    std = space.std(sol, rho)
+    j = jac[:, :-1]
+    s2 = float(f0 @ f0) / (f0.size - s.size) * (1 + rho) / (1 - rho)
+    su = np.sqrt(np.diag(np.linalg.inv(j.T @ j)) * s2) * space.width[:-1]
+    base, _ = space.decode(s)
+    for k, (i, p) in enumerate(space.slots[:-1]):
+        expected = base[p.name] * math.log(10.0) * su[k] if p.log else su[k]
+        assert std[(i, p.name)] == pytest.approx(expected, rel=1e-8)
+        assert 1e-8 < std[(i, p.name)] / base[p.name] < 1.0  # a σ, not rounding noise
+    assert std[(0, "time_constant_s")] == math.inf

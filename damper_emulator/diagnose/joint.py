@@ -11,7 +11,8 @@ identification records.
 
 Parameters live in normalised coordinates ``s ∈ [0, 1]`` between their bounds (log10 for
 scales); the Jacobian is by forward differences (the compiled kernel is real-valued, so a
-complex step is not available; one difference costs one simulation per parameter).  Bounds
+complex step is not available; one difference costs one simulation per parameter), taken
+the other way where the model refuses the step (:meth:`Space.jacobian`).  Bounds
 scale with the identified damper, never with the paper's numbers: a factor around each
 identified value (:data:`BASE_PARAMETERS`), the friction up to a multiple of its own value,
 and a gas volume that always leaves the rod room for the largest compression in the data.
@@ -92,8 +93,12 @@ FRICTION_MARGIN_N = 20.0
 #: The gas volume leaves at least this margin of the rod's stroke below the largest
 #: compression in the data (the model refuses a stroke past the gas volume).
 GAS_VOLUME_MARGIN = 1.05
-#: Forward-difference step in normalised coordinates (0.1 % of each parameter's range).
+#: Forward-difference step, relative to the normalised coordinate ``s`` (scipy's
+#: ``diff_step`` rule: ``DIFF_STEP·s``, or ``MIN_DIFF_STEP`` where that is lost to rounding,
+#: i.e. at ``s = 0``) ...
 DIFF_STEP = 1e-3
+#: ... and its least (√ε of a double, scipy's value).
+MIN_DIFF_STEP = float(np.sqrt(np.finfo(float).eps))
 #: Least-squares evaluations of the joint fit (Jacobians not counted).
 JOINT_NFEV = 25
 #: ... relative cost change below which it stops.
@@ -285,6 +290,10 @@ class Space:
         self.width = np.where(self.hi > self.lo, self.hi - self.lo, 1.0)
         self.n = sum(r.counted for r in records)
         self.evaluations = 0
+        #: whether the last :meth:`residuals` was refused (the FAILED_COST vector), and the
+        #: last point evaluated with its residual (the Jacobian's base point)
+        self.refused = False
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
 
     def encode(self, base_values: Mapping[str, float], values: Sequence[Mapping[str, float]]
                ) -> np.ndarray:
@@ -311,44 +320,108 @@ class Space:
         return model_of(self.cfg, base, list(zip(self.cands, values)))
 
     def residuals(self, s: np.ndarray) -> np.ndarray:
+        """The weighted residual ``w_f (F_sim − F_meas)`` of every record at ``s``,
+        concatenated; ``FAILED_COST`` everywhere for parameters the model refuses."""
         self.evaluations += 1
+        self.refused = True
         try:
             model = self.model(s)
             residuals: np.ndarray = np.concatenate(
                 [rec.residual(model, fast=True) * w for rec, w in zip(self.records, self.weights)])
         except (ParameterError, ValueError):
-            return np.full(self.n, FAILED_COST)
-        if not np.all(np.abs(residuals) < FAILED_COST):
+            residuals = np.full(self.n, FAILED_COST)
+        else:
             # found 2026-11-25: a series spring with a nearly closed gas volume ran away on
             # the 5 ms sub-step of a slow record (forces of 1e299 N), and trf's Jacobian
             # overflowed to inf and ended the diagnosis with a traceback
-            return np.full(self.n, FAILED_COST)
+            self.refused = not np.all(np.abs(residuals) < FAILED_COST)
+            if self.refused:
+                residuals = np.full(self.n, FAILED_COST)
+        self._last = (s.copy(), residuals)
         return residuals
 
+    def jacobian(self, s: np.ndarray) -> np.ndarray:
+        """Forward differences of :meth:`residuals` at ``s``, each parameter stepped by
+        ``DIFF_STEP·s`` (``MIN_DIFF_STEP`` at least), backwards where that leaves the
+        bounds.  A step the model refuses is taken the other way instead; a parameter
+        refused both ways (or with no room) gets a zero column: the data show no slope for
+        it, and its σ is undetermined (:meth:`std`).
+
+        Found 2026-11-25 on the FSAE data: ``identify`` had left the compression valve's
+        blow-off stiffness where 1 % more makes its Δp(Q) non-monotonic at Q = 0 (a
+        ``ValveTableError``).  scipy's own differences then took ``(FAILED_COST − r)/h``,
+        a column of 10¹¹ against 10²–10³ of the others, and the covariance's
+        pseudo-inverse cut every other direction: each σ came out 10⁻¹⁵ of its value.
+        """
+        if self._last is not None and np.array_equal(self._last[0], s):
+            f0 = self._last[1]
+            base_refused = bool(f0[0] == FAILED_COST and np.all(f0 == FAILED_COST))
+        else:
+            f0 = self.residuals(s)
+            base_refused = self.refused
+        jac = np.zeros((f0.size, s.size))
+        for k in range(s.size):
+            h = DIFF_STEP * s[k]
+            if (s[k] + h) - s[k] == 0.0:
+                h = MIN_DIFF_STEP * max(1.0, s[k])
+            if s[k] + h > 1.0:
+                h = -h
+            for step in (h, -h):
+                if not 0.0 <= s[k] + step <= 1.0:
+                    continue
+                x = s.copy()
+                x[k] += step
+                fk = self.residuals(x)
+                if self.refused and not base_refused:
+                    continue
+                jac[:, k] = (fk - f0) / (x[k] - s[k])  # the step as represented
+                break
+        self._last = (s.copy(), f0)
+        return jac
+
     def solve(self, s0: np.ndarray, nfev: int) -> OptimizeResult:
-        return least_squares(self.residuals, s0, bounds=(0.0, 1.0), method="trf",
-                             diff_step=DIFF_STEP, x_scale="jac", max_nfev=nfev,
-                             ftol=JOINT_FTOL, xtol=1e-6)
+        return least_squares(self.residuals, s0, jac=self.jacobian, bounds=(0.0, 1.0),
+                             method="trf", x_scale="jac", max_nfev=nfev, ftol=JOINT_FTOL,
+                             xtol=1e-6)
 
     def std(self, sol: OptimizeResult, rho: float) -> dict[tuple[int, str], float]:
-        """One standard deviation of each free parameter from the Jacobian at ``sol``,
-        inflated by ``(1 + ρ)/(1 − ρ)`` for an AR(1) residual of lag-1 autocorrelation ρ."""
+        """One standard deviation of each free parameter from the Jacobian at ``sol``
+        (``σ² (JᵀJ)⁻¹``, σ² the weighted residual's variance), inflated by
+        ``(1 + ρ)/(1 − ρ)`` for an AR(1) residual of lag-1 autocorrelation ρ.
+
+        ``math.inf`` (undetermined) for a parameter the data show no slope for (a zero
+        column of :meth:`jacobian`) or that lies along a direction the Jacobian cannot
+        resolve: a singular value below ``ε·max(m, n)·s_max`` (the rank rule of
+        ``numpy.linalg.matrix_rank``), whose direction would otherwise be dropped and its
+        σ understated."""
         base, values = self.decode(sol.x)
         dof = max(sol.fun.size - len(self.slots), 1)
-        s2 = 2.0 * sol.cost / dof
+        s2 = 2.0 * sol.cost / dof * (1.0 + rho) / (1.0 - rho)
         jac = sol.jac
+        undetermined = ~np.any(jac != 0.0, axis=0)
+        var = np.full(len(self.slots), math.inf)
+        if not np.all(undetermined):
+            try:
+                _, sv, vt = np.linalg.svd(jac[:, ~undetermined], full_matrices=False)
+            except np.linalg.LinAlgError:
+                sv = np.zeros(0)
+            if sv.size:
+                keep = sv > np.finfo(float).eps * max(jac.shape) * sv[0]
+                v_kept = vt[keep] / sv[keep, None]
+                var_det = np.sum(v_kept * v_kept, axis=0) * s2
+                lost = np.any(np.abs(vt[~keep]) > NULL_COMPONENT, axis=0)
+                var[~undetermined] = np.where(lost, math.inf, var_det)
         out: dict[tuple[int, str], float] = {}
-        try:
-            cov = np.linalg.pinv(jac.T @ jac) * s2 * (1.0 + rho) / (1.0 - rho)
-        except np.linalg.LinAlgError:
-            return {(i, p.name): math.inf for i, p in self.slots}
         for k, (i, p) in enumerate(self.slots):
-            su = math.sqrt(max(cov[k, k], 0.0)) * self.width[k]
+            su = math.sqrt(var[k]) * self.width[k]
             v = base[p.name] if i < 0 else values[i][p.name]
             out[(i, p.name)] = v * math.log(10.0) * su if p.log else su
         return out
 
 
+#: a parameter whose unit vector has a component above this along a direction the
+#: Jacobian cannot resolve (:meth:`Space.std`) has an undetermined σ
+NULL_COMPONENT = 1e-3
 #: lag-1 autocorrelation is clipped to this in the effective sample size
 MAX_RHO = 0.999
 

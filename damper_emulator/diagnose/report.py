@@ -128,6 +128,12 @@ def _fmt(x: Any) -> str:
     return str(x)
 
 
+def _fmt_sd(x: float | None) -> str:
+    """A σ: ``undetermined`` where the data show no slope (None in the JSON, ∞ in the
+    fit's output)."""
+    return "undetermined" if x is None or not math.isfinite(x) else _fmt(x)
+
+
 def _base_table(diag: Diagnosis) -> list[str]:
     """The paper's parameters: identified, after the diagnosis, ± 1σ."""
     from damper_emulator.diagnose.joint import BASE_PARAMETERS, _get
@@ -144,7 +150,7 @@ def _base_table(diag: Diagnosis) -> list[str]:
         sd = final.out["base_std"].get(bp.path)
         held = " (replaced by the effect)" if sd is None else ""
         lines.append(f"| {bp.path} | {_fmt(_get(cfg, bp.path))} | {_fmt(after)}{held} | "
-                     f"{_fmt(sd)} | {bp.unit} |")
+                     f"{'–' if sd is None else _fmt_sd(sd)} | {bp.unit} |")
     return lines
 
 
@@ -171,7 +177,7 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                       "| parameter | fitted | ± 1σ | unit | bounds |", "|---|---|---|---|---|"]
             for p in c.parameters:
                 f = e["fitted"][p.name]
-                lines.append(f"| {p.name} | {_fmt(f['value'])} | {_fmt(f['std'])} | "
+                lines.append(f"| {p.name} | {_fmt(f['value'])} | {_fmt_sd(f['std'])} | "
                              f"{p.unit} | {_fmt(p.lo)} .. {_fmt(p.hi)} |")
         lines += ["", "Model written to `params_with_effect.yaml`: the re-identified paper's "
                       "parameters and " + ", ".join(e["effect"] for e in effects) + ".", ""]

@@ -113,6 +113,16 @@ MIN_NOISE_FRACTION = 1e-3
 
 Progress = Callable[[str], None] | None
 
+def _sd(x: float | None) -> float | None:
+    """A σ for the JSON: ``None`` where undetermined (infinite: ``Space.std``), as JSON
+    has no infinity."""
+    return x if x is not None and math.isfinite(x) else None
+
+
+def _sds(sd: Mapping[str, float]) -> dict[str, float | None]:
+    return {k: _sd(v) for k, v in sd.items()}
+
+
 def noise_level(r: np.ndarray) -> float:
     """Robust standard deviation of the white part of ``r`` [N]: the median absolute
     deviation of the first differences, ``1.4826 MAD(Δr) / √2`` (a smooth model error
@@ -311,7 +321,7 @@ class StepFit:
             "score": self.score, "significant": self.significant,
             "delta_bic": self.delta_bic, "parameters": self.extension,
             "fitted": ({p.name: {"value": self.values.get(p.name),
-                                 "std": self.std.get(p.name), "unit": p.unit,
+                                 "std": _sd(self.std.get(p.name)), "unit": p.unit,
                                  "bounds": [p.lo, p.hi]}
                         for p in c.parameters} if c else {}),
             "rms_fit": self.rms_fit, "rms_held_out": self.rms_held_out,
@@ -377,7 +387,7 @@ class Diagnosis:
             sd = final.out["std"][k]
             out.append({"effect": c.effect, "family": c.family,
                         "parameters": {n: float(v) for n, v in c.fields(vals).items()},
-                        "fitted": {p.name: {"value": vals[p.name], "std": sd.get(p.name),
+                        "fitted": {p.name: {"value": vals[p.name], "std": _sd(sd.get(p.name)),
                                             "unit": p.unit}
                                    for p in c.parameters},
                         "held_out_gain": st.score, "delta_bic": st.delta_bic,
@@ -408,10 +418,10 @@ class Diagnosis:
                         if self.closest else None),
             "refit": ({"rms": {**self.refit.rms_fit, **self.refit.rms_held_out},
                        "parameters": self.refit.out["base_values"],
-                       "uncertainties": self.refit.out["base_std"]}
+                       "uncertainties": _sds(self.refit.out["base_std"])}
                       if self.refit else None),
             "base_parameters_after": ({"values": final.out["base_values"],
-                                       "uncertainties": final.out["base_std"]}
+                                       "uncertainties": _sds(final.out["base_std"])}
                                       if final else None),
             "rounds": [[{"effect": f.candidate.effect if f.candidate else None,
                          "score": f.score, "delta_bic": f.delta_bic,

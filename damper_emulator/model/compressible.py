@@ -7,8 +7,10 @@ The state is the rebound-chamber pressure ``p_reb``.  Eq 2,
 
     dp_reb/dt = (ẋ (A_pt − A_rod) − Q_pv(Δp)) (1 − α p_reb) / ((L_pt − X0 − x)(A_pt − A_rod) α),
 
-is stiff near ``Δp = 0`` (docs/model.md §2.1), so each step is integrated by backward Euler —
-unconditionally stable — on sub-steps no longer than ``numerics.max_substep_s``, with the
+is stiff near ``Δp = 0`` (docs/model.md §2.1), so each step is integrated implicitly, by
+variable-step BDF2 (A-stable, second order; backward Euler on the first sub-step and after a
+step ratio of :data:`BDF2_MAX_STEP_RATIO` or more), on sub-steps no longer than
+``numerics.max_substep_s``, with the
 stroke and velocity interpolated linearly between the previous and the current sample.  The
 implicit equation is solved in the valve-table coordinate ``z`` (see
 :mod:`damper_emulator.model.valve_table`), in which it is monotonic, by Newton's method

@@ -291,9 +291,9 @@ class Space:
         self.n = sum(r.counted for r in records)
         self.evaluations = 0
         #: whether the last :meth:`residuals` was refused (the FAILED_COST vector), and the
-        #: last point evaluated with its residual (the Jacobian's base point)
+        #: last point evaluated with its residual and that flag (the Jacobian's base point)
         self.refused = False
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self._last: tuple[np.ndarray, np.ndarray, bool] | None = None
 
     def encode(self, base_values: Mapping[str, float], values: Sequence[Mapping[str, float]]
                ) -> np.ndarray:
@@ -337,7 +337,7 @@ class Space:
             self.refused = not np.all(np.abs(residuals) < FAILED_COST)
             if self.refused:
                 residuals = np.full(self.n, FAILED_COST)
-        self._last = (s.copy(), residuals)
+        self._last = (s.copy(), residuals, self.refused)
         return residuals
 
     def jacobian(self, s: np.ndarray) -> np.ndarray:
@@ -353,12 +353,10 @@ class Space:
         a column of 10¹¹ against 10²–10³ of the others, and the covariance's
         pseudo-inverse cut every other direction: each σ came out 10⁻¹⁵ of its value.
         """
-        if self._last is not None and np.array_equal(self._last[0], s):
-            f0 = self._last[1]
-            base_refused = bool(f0[0] == FAILED_COST and np.all(f0 == FAILED_COST))
-        else:
-            f0 = self.residuals(s)
-            base_refused = self.refused
+        if self._last is None or not np.array_equal(self._last[0], s):
+            self.residuals(s)
+        assert self._last is not None  # set by every residuals()
+        _, f0, base_refused = self._last
         jac = np.zeros((f0.size, s.size))
         for k in range(s.size):
             h = DIFF_STEP * s[k]
@@ -376,7 +374,7 @@ class Space:
                     continue
                 jac[:, k] = (fk - f0) / (x[k] - s[k])  # the step as represented
                 break
-        self._last = (s.copy(), f0)
+        self._last = (s.copy(), f0, base_refused)
         return jac
 
     def solve(self, s0: np.ndarray, nfev: int) -> OptimizeResult:

@@ -1,4 +1,8 @@
-"""Shared fixtures: the paper's 'sport' damper."""
+"""Shared fixtures: the paper's 'sport' damper; one cold run of the demo."""
+
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -14,3 +18,26 @@ def sport_cfg():
 @pytest.fixture(scope="session")
 def sport_model(sport_cfg):
     return DamperModel(sport_cfg)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+#: ROS domain of the shared demo run (away from every test module's own)
+COLD_DEMO_DOMAIN = 141
+
+
+@pytest.fixture(scope="session")
+def cold_demo(tmp_path_factory):
+    """``damper-hil demo --duration 5`` as a new user runs it, nothing cached (an empty
+    ``NUMBA_CACHE_DIR``): the finished process and its ``--out`` folder.  One run serves
+    the start-up and real-time checks (test_readiness) and the bag's contents
+    (test_nodes): a demo takes 25–40 s of the suite's 15 minutes."""
+    from damper_emulator.ros.launch import ros_environment
+
+    root = tmp_path_factory.mktemp("cold_demo")
+    env = ros_environment(COLD_DEMO_DOMAIN)
+    env["NUMBA_CACHE_DIR"] = str(root / "numba-cache")
+    out = root / "demo"
+    proc = subprocess.run([sys.executable, "-m", "damper_hil.cli", "demo", "--duration", "5",
+                           "--out", str(out)], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=600)
+    return proc, out

@@ -646,9 +646,14 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
         # run (largest difference about 50 N of 1.9 kN here).  A host stall of this VM
         # (issue 14) can put one sample's force up to ~900 N off (seen once in a clean-clone
         # run, 2026-11-25: 20 N r.m.s. from that sample alone): at most 0.5 % of the samples
-        # may be further off than 5 % of the force r.m.s., and the others must agree to 1 %.
+        # may be further off than 5 % of the force r.m.s., plus the samples the longest
+        # stall the dyno measured in its own send timing spans (and one either side: an
+        # 18 ms stall at 500 Hz put 11 of 2001 off, 2026-11-25), and the others must agree
+        # to 1 %.
         outliers = err > 0.05 * f_rms
-        assert outliers.mean() <= 0.005, (f"{name}: {outliers.sum()} samples off; run {run}")
+        stalled = math.ceil(run["send_interval_error_max_ms"] * 1e-3 * run["rate_hz"]) + 2
+        assert outliers.sum() <= 0.005 * outliers.size + stalled, (
+            f"{name}: {outliers.sum()} samples off; run {run}")
         diff = np.sqrt(np.mean(err[~outliers] ** 2))
         assert diff / f_rms < 0.01, (f"{name}: r.m.s. difference {diff:.1f} N of "
                                      f"{f_rms:.0f} N; run {run}")

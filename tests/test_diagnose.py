@@ -87,14 +87,17 @@ def _pooled(rms: dict[str, float], names) -> float:
 
 
 #: families not yet found after an identification on the same files on this protocol
-#: (issue 15 open; the diagnosis is an honest ``other``)
+#: (issue 15 open; the diagnosis is an honest ``other``).  Skipped, not a strict xfail: a
+#: whole diagnosis (19 s of the suite) only to see it still fail; the truth benchmark
+#: re-runs it
 NOT_YET = {"gas_heat_transfer": "the heat transfer's loss also mimics the smooth friction's "
                                 "speed dependence (the truth's model-form difference): the "
                                 "joint fit takes τ too short"}
 
 
 @pytest.mark.parametrize("effect", [
-    pytest.param(e, marks=pytest.mark.xfail(strict=True, reason=NOT_YET[e]))
+    pytest.param(e, marks=pytest.mark.skip(reason=f"not yet found (issue 15): {NOT_YET[e]}; "
+                                                  "benchmarks/diagnose_bench.py tracks it"))
     if e in NOT_YET else e for e in EXAMPLE_EFFECTS])
 def test_each_family_is_found_after_identify_on_the_same_files(effect):
     sheet, data = _session(effect)

@@ -29,7 +29,7 @@ from damper_emulator.ros.launch import NodeProcess, node_command, ros_environmen
 ROOT = Path(__file__).resolve().parent.parent
 #: each test its own domain: 110 + offset (>= 102 would clash with the 0..101 range? no:
 #: the Linux limit is 232; stay well inside it and away from the demo's 40..89)
-DOMAINS = {"demo": 120, "lockstep": 121, "stale": 122, "nan": 123, "kill": 124,
+DOMAINS = {"lockstep": 121, "stale": 122, "nan": 123, "kill": 124,
            "params": 125, "badfile": 126}
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
@@ -57,18 +57,20 @@ def read_bag(path: Path) -> dict[str, list]:
     return out
 
 
-def test_closed_loop_demo_writes_a_bag_rosbags_reads(tmp_path):
-    from damper_hil.hil_demo import run_demo
-
-    summary = run_demo(tmp_path, 5.0, domain_id=DOMAINS["demo"], progress=lambda _s: None)
-    msgs = read_bag(tmp_path / "bag")
+def test_closed_loop_demo_writes_a_bag_rosbags_reads(cold_demo):
+    """The demo's closed loop (the ``cold_demo`` fixture's run, shared with
+    test_readiness) recorded every topic, and rosbags reads the bag."""
+    proc, out = cold_demo
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((out / "demo.json").read_text())
+    msgs = read_bag(out / "bag")
     for topic in (topics.STATE, topics.FORCE, topics.RIDE_STATE, topics.DIAGNOSTICS):
         assert msgs.get(topic), f"{topic} not recorded"
     n_state = len(msgs[topics.STATE])
     assert n_state == 6001, f"{n_state} /damper/state recorded"  # (5 s + 1 s lead-in) at 1 kHz
     forces = np.array([m.effort[0] for _, m in msgs[topics.FORCE]])
     assert np.isfinite(forces).all() and len(forces) >= 0.95 * n_state, len(forces)
-    with Reader(tmp_path / "bag") as reader:
+    with Reader(out / "bag") as reader:
         for conn in reader.connections:
             assert conn.ext.offered_qos_profiles, conn.topic
             assert conn.ext.serialization_format == "cdr"
@@ -81,7 +83,7 @@ def test_closed_loop_demo_writes_a_bag_rosbags_reads(tmp_path):
     assert summary["valve_command"]["count"] > 100, summary["valve_command"]
     assert summary["bridge_diagnostics"], "no /diagnostics from the CAN bridge recorded"
     for f in ("ride.png", "damper.png", "control.png", "loop.png", "report.md", "demo.json"):
-        assert (tmp_path / f).stat().st_size > 0
+        assert (out / f).stat().st_size > 0
 
 
 def test_lockstep_ride_equals_the_offline_simulation(tmp_path):
@@ -269,6 +271,7 @@ def test_bad_parameters_exit_with_one_line(tmp_path):
     missing = tmp_path / "missing.yaml"
     sport = ROOT / "config" / "sport.yaml"
     env = ros_environment(DOMAINS["badfile"])
+    started = []
     # (ros arguments, what the one line must name)
     for params, named in ((["--params-file", str(bad)], f"{bad} (node damper_emulator)"),
                           (["--params-file", str(sport), "--params-file", str(bad)],
@@ -285,14 +288,19 @@ def test_bad_parameters_exit_with_one_line(tmp_path):
                                                              "integer"),
                           (["-p", "damper.extensions.lugre_fricton.coulomb_n:=1.0"],
                            "unknown parameter damper.extensions.lugre_fricton")):
-        r = subprocess.run([sys.executable, "-m", "damper_hil.cli", "emulate",
-                            "--ros-args", *params], env=env, capture_output=True, text=True,
-                           timeout=120)
-        assert r.returncode == 2, r.stderr
-        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-        assert len(lines) == 1 and lines[0].startswith("damper-hil: error:"), r.stderr
-        assert named in lines[0], r.stderr
-        assert "Traceback" not in r.stderr
+        # started all at once (each refuses before it joins the ROS graph): 11 start-ups
+        # one after another took 23 s of the suite
+        started.append((subprocess.Popen([sys.executable, "-m", "damper_hil.cli", "emulate",
+                                          "--ros-args", *params], env=env,
+                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                         text=True), named))
+    for proc, named in started:
+        _, stderr = proc.communicate(timeout=120)
+        assert proc.returncode == 2, stderr
+        lines = [ln for ln in stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith("damper-hil: error:"), stderr
+        assert named in lines[0], stderr
+        assert "Traceback" not in stderr
 
 
 def _node_model(params_file):

@@ -24,12 +24,14 @@ from damper_emulator.model import jit
 
 ROOT = Path(__file__).resolve().parents[1]
 #: ROS domains of this file (away from the other node tests' and the demo's 40..89)
-DOMAINS = {"cold_emulate": 140, "cold_demo": 141, "not_ready": 142}
+DOMAINS = {"cold_emulate": 140, "not_ready": 142}  # 141: conftest's cold demo
 #: The cold demo's ride loop must keep this pace.  The issue's target is 0.99 on a 20 s
 #: demo (measured 0.994-0.997 here, README); a 5 s run on a busy CI machine gets a little
 #: margin, so that the test fails on a stall (a compile stalls it for seconds: < 0.8) and
 #: not on noise.
 MIN_REAL_TIME_FACTOR = 0.98
+#: A period of both loops longer than this is a stall of the whole host (the test below).
+HOST_STALL_S = 0.05
 
 
 def _run_python(code: str, env: dict | None = None, timeout: float = 300) -> str:
@@ -187,14 +189,10 @@ def test_ride_says_what_it_waits_for_and_fails_in_one_line(tmp_path):
     assert "Traceback" not in log
 
 
-def test_demo_with_an_empty_numba_cache_holds_real_time(tmp_path):
-    """`damper-hil demo` as a new user runs it: nothing cached.  It must exit 0 and its
-    ride loop must keep pace with the wall clock."""
-    env = _cold_env(tmp_path, DOMAINS["cold_demo"])
-    out = tmp_path / "demo"
-    proc = subprocess.run([sys.executable, "-m", "damper_hil.cli", "demo",
-                           "--duration", "5", "--out", str(out)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=600)
+def test_demo_with_an_empty_numba_cache_holds_real_time(cold_demo):
+    """`damper-hil demo` as a new user runs it: nothing cached (the ``cold_demo``
+    fixture).  It must exit 0 and its ride loop must keep pace with the wall clock."""
+    proc, out = cold_demo
     figures = ""
     if (out / "demo.json").is_file():
         doc = json.loads((out / "demo.json").read_text())
@@ -204,5 +202,16 @@ def test_demo_with_an_empty_numba_cache_holds_real_time(tmp_path):
                    f"{doc.get('fault_outputs_after_first_input')}")
     assert proc.returncode == 0, f"{proc.stderr[-2000:]}\n{figures}"
     doc = json.loads((out / "demo.json").read_text())
-    assert doc["ride"]["real_time_factor"] >= MIN_REAL_TIME_FACTOR, figures
+    ride = doc["ride"]
+    # A stall of the whole VM (issue 14: up to 333 ms here, 2026-11-25, RTF 0.966 over
+    # 5 s) stops every process; no program inside it can keep pace through one.  A stall
+    # both loops saw (the shorter of their longest periods: two processes, so the host,
+    # not a compile in one of them, which ``kernels_compiled_after_ready`` catches), less
+    # HOST_STALL_S, is taken out of the ride loop's wall time.
+    stall_s = max(0.0, min(ride.get("loop", {}).get("period_max_us", 0.0),
+                           doc.get("emulator_loop", {}).get("period_max_us", 0.0)) * 1e-6
+                  - HOST_STALL_S)
+    loop_s = ride["loop_s"]
+    rtf = ride["real_time_factor"] * loop_s / max(loop_s - stall_s, 1e-9)
+    assert rtf >= MIN_REAL_TIME_FACTOR, f"{figures}; host stall {stall_s:.3f} s"
     assert doc["kernels_compiled_after_ready"] == 0, figures

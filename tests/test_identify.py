@@ -230,6 +230,31 @@ def test_held_parameter_stays_and_the_others_are_recovered(sport_cfg):
     assert fit.rms < 1e-6
 
 
+def test_a_repeated_valve_fit_keeps_its_first_bounds(sport_cfg):
+    """``identify`` repeats each valve fit from its last result, one quasi-static ↔ chirp
+    round after another.  A constant the data push down (here the port restriction of a
+    characteristic without one) stops at the first start's bound, ÷ ``K_BOUND_FACTOR``:
+    with bounds re-centred on each result it walks that factor lower every round (the
+    sport damper with a cavity: the compression port restriction from 10¹² to 10⁻⁷)."""
+    from damper_emulator.identify.valves import K_BOUND_FACTOR
+
+    d = sport_cfg.damper
+    nu = d.oil_kinematic_viscosity_m2_s
+    true = np.array(tuple(d.rebound), float)
+    true[1] = 0.0  # no port restriction in the data
+    q = np.linspace(2e-5, 1.5e-3, 300)
+    dp = pressure_drop_array(q, true, nu)
+    start = np.array(tuple(d.rebound), float)
+    floor = start[1] / K_BOUND_FACTOR
+    first = fit_valve(q, dp, d.annulus_area_m2, nu, start=start)
+    assert first.values[1] == pytest.approx(floor, rel=1e-6)
+    again = fit_valve(q, dp, d.annulus_area_m2, nu, start=first.values, anchor=start)
+    assert again.values[1] == pytest.approx(floor, rel=1e-6)
+    # without the anchor the bounds move with the start, and the constant walks on
+    walked = fit_valve(q, dp, d.annulus_area_m2, nu, start=first.values)
+    assert walked.values[1] < floor / K_BOUND_FACTOR ** 0.5
+
+
 def test_a_valve_fit_on_a_linear_characteristic_stays_invertible(sport_cfg):
     """Δp ∝ Q from zero (a laminar bleed, as on the FSAE damper) pulls the preload towards
     zero, where the eq 29 extension makes eq 28 negative at low flow; the fit's penalty

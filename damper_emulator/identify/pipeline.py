@@ -358,6 +358,8 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
     fits: dict[str, FitResult] = {}
     previous = None
     rounds = 0
+    #: each direction's first start: the centre of its valve fit's bounds in every round
+    anchors: dict[str, np.ndarray] = {}
     for rounds in range(1, MAX_ROUNDS + 1):
         valve_force = (None if not fits else
                        valve_pressure_drop(vq, cfg) * a_ann)
@@ -398,12 +400,13 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
                 start = start_values(qa, np.abs(dp_all[m]), nu)
                 if start_factors is not None:
                     start = start * np.asarray(start_factors[side], float)
+                anchors[side] = start
             weights = None
             if correct_compressibility and start is not None:
                 weights = effective_variance_weights(qa, force_sd * q_noise[m], force_sd,
                                                      a_ann, start, nu, form)
             fits[side] = fit_valve(qa, np.abs(dp_all[m]), a_ann, nu, form, start, weights,
-                                   fixed.get(side))
+                                   fixed.get(side), anchors[side])
             say(f"round {rounds}: {side} valve r.m.s. {fits[side].rms:.2f} N "
                 f"({fits[side].samples} samples)")
         current = np.concatenate((qs.values, fits["rebound"].values,

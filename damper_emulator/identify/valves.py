@@ -138,8 +138,8 @@ def effective_variance_weights(q: np.ndarray, flow_sd_m3_s: float | np.ndarray,
 
 def fit_valve(q: np.ndarray, dp_measured: np.ndarray, area_m2: float, nu_m2_s: float,
               form: str = "cardano", start: ArrayLike | None = None,
-              weights: ArrayLike | None = None, fixed: Mapping[str, float] | None = None
-              ) -> FitResult:
+              weights: ArrayLike | None = None, fixed: Mapping[str, float] | None = None,
+              anchor: ArrayLike | None = None) -> FitResult:
     """Fit one valve direction's ``Δp(Q)`` to measured pressure drops.
 
     The residual is in force units: ``(A_pt − A_rod)(Δp_model − Δp_measured)`` [N].
@@ -157,6 +157,12 @@ def fit_valve(q: np.ndarray, dp_measured: np.ndarray, area_m2: float, nu_m2_s: f
     fixed : mapping of str to float, optional
         Parameters (names of :data:`NAMES`) held at the given values instead of fitted,
         for data that cannot determine them (e.g. ``{"smoothing_g": 1.5}``).
+    anchor : array_like, optional
+        The values the bounds span a factor :data:`K_BOUND_FACTOR` around (default:
+        ``start``).  A fit repeated from its own last result keeps the first start's
+        anchor: bounds re-centred on each result let a constant the data hardly
+        determine walk ×10³ per round (the sport damper with a cavity: the compression
+        port restriction from 10¹² to 10⁻⁷ in seven rounds).
     """
     start = start_values(q, dp_measured, nu_m2_s) if start is None else np.asarray(start, float)
     start = start.copy()
@@ -185,7 +191,9 @@ def fit_valve(q: np.ndarray, dp_measured: np.ndarray, area_m2: float, nu_m2_s: f
         jac_pen = MONOTONIC_PENALTY * scale_n * (grad if active else np.zeros(grad.size))
         return np.append(r, r_pen), np.vstack((jac, jac_pen))
 
-    lower = np.concatenate((start[:4] / K_BOUND_FACTOR, [G_MIN]))
-    upper = np.concatenate((start[:4] * K_BOUND_FACTOR, [G_MAX]))
+    centre = start if anchor is None else np.asarray(anchor, float)
+    lower = np.concatenate((centre[:4] / K_BOUND_FACTOR, [G_MIN]))
+    upper = np.concatenate((centre[:4] * K_BOUND_FACTOR, [G_MAX]))
+    start[:4] = np.clip(start[:4], lower[:4], upper[:4])
     return fit(residual, NAMES, start, (True,) * 5, lower, upper, area_m2 * dp_measured,
                held, 1)

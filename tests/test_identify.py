@@ -253,6 +253,10 @@ def test_a_repeated_valve_fit_keeps_its_first_bounds(sport_cfg):
     # without the anchor the bounds move with the start, and the constant walks on
     walked = fit_valve(q, dp, d.annulus_area_m2, nu, start=first.values)
     assert walked.values[1] < floor / K_BOUND_FACTOR ** 0.5
+    # a held value stays what the user gave, even far outside the anchor's bounds
+    held = fit_valve(q, dp, d.annulus_area_m2, nu, start=first.values, anchor=start,
+                     fixed={"k_port": floor / K_BOUND_FACTOR ** 2})
+    assert held.values[1] == floor / K_BOUND_FACTOR ** 2
 
 
 def test_a_valve_fit_on_a_linear_characteristic_stays_invertible(sport_cfg):

@@ -192,7 +192,7 @@ def fit_valve(q: np.ndarray, dp_measured: np.ndarray, area_m2: float, nu_m2_s: f
         return np.append(r, r_pen), np.vstack((jac, jac_pen))
 
     # a held value is its own centre (it may lie outside the anchor's bounds)
-    centre = np.where(held, start, start if anchor is None else np.asarray(anchor, float))
+    centre = start if anchor is None else np.where(held, start, np.asarray(anchor, float))
     lower = np.concatenate((centre[:4] / K_BOUND_FACTOR, [G_MIN]))
     upper = np.concatenate((centre[:4] * K_BOUND_FACTOR, [G_MAX]))
     start[:4] = np.clip(start[:4], lower[:4], upper[:4])

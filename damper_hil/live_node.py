@@ -30,8 +30,10 @@ NODE_NAME = "live_view"
 INPUT_NODE_NAME = f"{NODE_NAME}_input"
 #: how often the arrived messages are taken and sent [Hz]
 FLUSH_RATE_HZ = 50.0
-#: queue depth of the 1 kHz subscriptions: more than one flush period of messages
-QUEUE_DEPTH = 200
+#: queue depth of the 1 kHz subscriptions: a second of messages.  On a busy 2-core machine
+#: this normal-priority process waits behind two SCHED_FIFO 1 kHz loops, and its flushes
+#: came 0.3–1.5 s apart (2026-11-25): a queue of one flush period lost the samples between
+QUEUE_DEPTH = 1000
 #: the emulator's diagnostic status (its name's prefix)
 EMULATOR_STATUS = "damper_emulator"
 
@@ -64,6 +66,10 @@ class LiveNode(Node):
         self._rms = {k: RunningRms() for k in ("accel_w", "sws", "dtl")}
         self._forces = 0
         self._ride_samples = 0
+        self._ride_step_s = ride.simulation.step_s
+        #: ride samples per /live/ride message: FLUSH_RATE_HZ in ride time, so the stream's
+        #: rate does not depend on how often this process gets the processor
+        self._ride_chunk = max(1, round(1.0 / (FLUSH_RATE_HZ * ride.simulation.step_s)))
         self._io = rclpy.create_node(INPUT_NODE_NAME, context=self.context)
         qos = control_qos(QUEUE_DEPTH)
         self._force_sub = self._io.create_subscription(JointState, topics.FORCE,
@@ -90,17 +96,27 @@ class LiveNode(Node):
         rows = [(m.position[0] - m.position[1], m.effort[1] / self.sprung_mass_kg,
                  m.effort[0]) for m, _i in take_all(self._ride_sub)
                 if len(m.position) >= 2 and len(m.effort) >= 2]
-        if rows:
-            sws, accel, dtl = (np.array(c, dtype=float) for c in zip(*rows))
-            self._rms["accel_w"].add(self._wk.process(accel))
-            self._rms["sws"].add(sws)
-            self._rms["dtl"].add(dtl)
-            self._ride_samples += len(rows)
+        if not rows:
+            return
+        sws, accel, dtl = (np.array(c, dtype=float) for c in zip(*rows))
+        accel_w = self._wk.process(accel)
+        # one message per _ride_chunk samples (the last piece may be shorter), each stamped
+        # back from now by the ride time of the samples after it
+        start = 0
+        while start < len(rows):
+            end = min(start + self._ride_chunk - self._ride_samples % self._ride_chunk,
+                      len(rows))
+            self._rms["accel_w"].add(accel_w[start:end])
+            self._rms["sws"].add(sws[start:end])
+            self._rms["dtl"].add(dtl[start:end])
+            self._ride_samples += end - start
             self.view.log("/live/ride", {
-                "t": t, "sws_m": float(sws[-1]), "body_accel_m_s2": float(accel[-1]),
-                "dtl_n": float(dtl[-1]), "accel_w_rms_m_s2": self._rms["accel_w"].value,
+                "t": t - (len(rows) - end) * self._ride_step_s, "sws_m": float(sws[end - 1]),
+                "body_accel_m_s2": float(accel[end - 1]), "dtl_n": float(dtl[end - 1]),
+                "accel_w_rms_m_s2": self._rms["accel_w"].value,
                 "sws_rms_m": self._rms["sws"].value, "dtl_rms_n": self._rms["dtl"].value,
                 "samples": self._ride_samples})
+            start = end
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for s in msg.status:

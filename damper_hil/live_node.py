@@ -19,9 +19,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from damper_emulator import force_message
+from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import control_qos, take_all
-from damper_emulator.ros.live import LiveServer
+from damper_emulator.ros.common import control_qos, log_info, take_all
+from damper_emulator.ros.live import LIVE_PRIORITY, LiveServer
 from ride_sim.iso2631 import WeightingFilter
 from ride_sim.params import RideConfig
 
@@ -55,10 +56,19 @@ class RunningRms:
 
 
 class LiveNode(Node):
-    """See the module docstring; ``decimation``: every how many-th force is sent."""
+    """See the module docstring; ``decimation``: every how many-th force is sent;
+    ``priority``: SCHED_FIFO priority of the view's threads (0: normal scheduling)."""
 
-    def __init__(self, port: int, decimation: int, ride: RideConfig):
+    def __init__(self, port: int, decimation: int, ride: RideConfig,
+                 priority: int = LIVE_PRIORITY):
         super().__init__(NODE_NAME)
+        #: read by spin_node: the DDS and executor threads' SCHED_FIFO priority (0: normal)
+        self.dds_priority = self.main_thread_priority = max(0, int(priority))
+        if self.main_thread_priority:
+            # now, so that the WebSocket server's threads, started next, inherit it
+            report = apply_realtime(RealtimeRequest(sched_fifo=True, priority=priority,
+                                                    lock_memory=False))
+            log_info(self, f"view threads: {report.summary()}")
         self.view = LiveServer(port)
         self.decimation = max(1, int(decimation))
         self.sprung_mass_kg = ride.quarter_car.sprung_mass_kg
@@ -66,6 +76,12 @@ class LiveNode(Node):
         self._rms = {k: RunningRms() for k in ("accel_w", "sws", "dtl")}
         self._forces = 0
         self._ride_samples = 0
+        #: what the view did, logged when it stops: flushes, the longest time between two
+        #: [s], messages sent per channel
+        self._flushes = 0
+        self._last_flush: float | None = None
+        self._flush_gap_max_s = 0.0
+        self._sent = {"/live/damper": 0, "/live/ride": 0}
         self._ride_step_s = ride.simulation.step_s
         #: ride samples per /live/ride message: FLUSH_RATE_HZ in ride time, so the stream's
         #: rate does not depend on how often this process gets the processor
@@ -87,12 +103,17 @@ class LiveNode(Node):
 
     def _flush(self) -> None:
         t = self._t()
+        self._flushes += 1
+        if self._last_flush is not None:
+            self._flush_gap_max_s = max(self._flush_gap_max_s, t - self._last_flush)
+        self._last_flush = t
         for msg, _info in take_all(self._force_sub):
             self._forces += 1
             if self._forces % self.decimation or not msg.effort:
                 continue
             self.view.damper(float(msg.effort[0]), _first(msg.position), _first(msg.velocity),
                              force_message.status_of(msg.effort))
+            self._sent["/live/damper"] += 1
         rows = [(m.position[0] - m.position[1], m.effort[1] / self.sprung_mass_kg,
                  m.effort[0]) for m, _i in take_all(self._ride_sub)
                 if len(m.position) >= 2 and len(m.effort) >= 2]
@@ -116,6 +137,7 @@ class LiveNode(Node):
                 "accel_w_rms_m_s2": self._rms["accel_w"].value,
                 "sws_rms_m": self._rms["sws"].value, "dtl_rms_n": self._rms["dtl"].value,
                 "samples": self._ride_samples})
+            self._sent["/live/ride"] += 1
             start = end
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
@@ -125,6 +147,10 @@ class LiveNode(Node):
                                s.message)
 
     def close(self) -> None:
+        sent = ", ".join(f"{n} on {c}" for c, n in self._sent.items())
+        log_info(
+            self, f"sent {sent} ({self._ride_samples} ride samples, {self._forces} forces) in "
+            f"{self._flushes} flushes, at most {self._flush_gap_max_s:.3f} s apart")
         self._io.destroy_node()
         self.view.stop()
 

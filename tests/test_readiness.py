@@ -26,10 +26,12 @@ ROOT = Path(__file__).resolve().parents[1]
 #: ROS domains of this file (away from the other node tests' and the demo's 40..89)
 DOMAINS = {"cold_emulate": 140, "not_ready": 142}  # 141: conftest's cold demo
 #: The cold demo's ride loop must keep this pace.  The issue's target is 0.99 on a 20 s
-#: demo (measured 0.994-0.997 here, README); a 5 s run on a busy CI machine gets a little
-#: margin, so that the test fails on a stall (a compile stalls it for seconds: < 0.8) and
-#: not on noise.
-MIN_REAL_TIME_FACTOR = 0.98
+#: demo (measured 0.994-0.997 here, README); this test is after a stall, not noise (a
+#: compile inside a loop stalls it for a quarter of a second or more, below 0.95 over the
+#: 5 s ride; the emulator's ``compiled_after_ready`` counts any), and the project's CI
+#: machine, whose host took 150 periods from the emulator's SCHED_FIFO loop, gave 0.975
+#: (2026-11-25).
+MIN_REAL_TIME_FACTOR = 0.95
 #: A period of both loops longer than this is a stall of the whole host (the test below).
 HOST_STALL_S = 0.05
 
@@ -197,8 +199,9 @@ def test_demo_with_an_empty_numba_cache_holds_real_time(cold_demo):
     if (out / "demo.json").is_file():
         doc = json.loads((out / "demo.json").read_text())
         loop = doc.get("emulator_loop", {})
-        figures = (f"real-time factor {doc['ride'].get('real_time_factor')}, emulator "
-                   f"{json.dumps(loop)}, fault outputs after the first input "
+        figures = (f"real-time factor {doc['ride'].get('real_time_factor')}, ride loop "
+                   f"{json.dumps(doc['ride'].get('loop'))}, emulator {json.dumps(loop)}, "
+                   f"fault outputs after the first input "
                    f"{doc.get('fault_outputs_after_first_input')}")
     assert proc.returncode == 0, f"{proc.stderr[-2000:]}\n{figures}"
     doc = json.loads((out / "demo.json").read_text())

@@ -163,12 +163,16 @@ def test_loop_stats_wake_and_work_rings_and_saved_record(tmp_path):
 def test_periodic_loop_keeps_its_rate_and_counts_skips():
     ticks = []
     loop = PeriodicLoop(2e-3, lambda now: ticks.append(now), capacity=1000)
+    started = time.monotonic()
     loop.start()
     time.sleep(0.3)
     loop.stop()
+    wall_s = time.monotonic() - started     # the sleep may overrun on a busy machine
     assert loop.error is None
     n = len(ticks)
-    assert 120 <= n <= 151                      # 0.3 s at 500 Hz, absolute deadlines
+    # 500 Hz on absolute deadlines: never more ticks than deadlines in the time it ran
+    # (one at its start), and no more than a fifth lost
+    assert 0.8 * wall_s / 2e-3 <= n <= wall_s / 2e-3 + 1
     intervals = np.diff(ticks)
     assert abs(np.median(intervals) - 2e6) < 2e5
     # every tick's wake-up is at or after its deadline and is recorded with its work

@@ -27,6 +27,14 @@ from typing import Any
 
 from damper_emulator.errors import UserError
 
+#: SCHED_FIFO priority (when permitted) of the view's threads (its flush timer, the DDS and
+#: WebSocket threads); 0: normal scheduling.  Above every normally scheduled process, so
+#: that a busy machine does not freeze the view (under two CPU hogs on the 2-core VM its
+#: flushes came up to 4.1 s apart, 2026-11-26, and a loaded CI machine sent no ride
+#: message at all), and below the recorder's (50), the bridge's and the loops', so that
+#: the view never delays what is recorded or emulated.
+LIVE_PRIORITY = 10
+
 #: the channels: topic → (schema name, {field: (JSON type, description)})
 CHANNELS: dict[str, tuple[str, dict[str, tuple[str, str]]]] = {
     "/live/damper": ("damper_hil.LiveDamper", {

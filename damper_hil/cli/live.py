@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from damper_hil.cli.common import Formatter, positive_int
+from damper_emulator.ros.live import LIVE_PRIORITY
+from damper_hil.cli.common import Formatter, number_type, positive_int
 
 #: the Foxglove SDK's default port
 DEFAULT_PORT = 8765
@@ -29,6 +30,11 @@ def add_parser(sub) -> None:
                       default=DEFAULT_DECIMATION,
                       help=f"send every N-th force sample (default: {DEFAULT_DECIMATION}: "
                            "250 Hz of a 1 kHz emulator)")
+    live.add_argument("--priority", metavar="P", default=None,
+                      type=number_type("an integer 0..99", lambda v: 0 <= v <= 99, int),
+                      help="SCHED_FIFO priority of the view's threads when permitted, 0 for "
+                           f"normal scheduling (default: {LIVE_PRIORITY}: above normal "
+                           "processes, below the recorder and the loops)")
     live.add_argument("--quarter-car", metavar="CAR.yaml", type=Path, default=None,
                       help="the ride's car (sprung mass, time step; default "
                            "config/quarter_car.yaml)")
@@ -41,4 +47,6 @@ def run(args: argparse.Namespace) -> int:
     from ride_sim.params import load_ride_config
 
     ride = load_ride_config(args.quarter_car)
-    return spin_node(lambda: LiveNode(args.port, args.decimation, ride), args.ros_args)
+    priority = LIVE_PRIORITY if args.priority is None else args.priority
+    return spin_node(lambda: LiveNode(args.port, args.decimation, ride, priority),
+                     args.ros_args)

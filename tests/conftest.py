@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from ros_probe import cold_environment
 
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import load_config
@@ -31,11 +32,8 @@ def cold_demo(tmp_path_factory):
     ``NUMBA_CACHE_DIR``): the finished process and its ``--out`` folder.  One run serves
     the start-up and real-time checks (test_readiness) and the bag's contents
     (test_nodes): a demo takes 25–40 s of the suite's 15 minutes."""
-    from damper_emulator.ros.launch import ros_environment
-
     root = tmp_path_factory.mktemp("cold_demo")
-    env = ros_environment(COLD_DEMO_DOMAIN)
-    env["NUMBA_CACHE_DIR"] = str(root / "numba-cache")
+    env = cold_environment(root, COLD_DEMO_DOMAIN)
     out = root / "demo"
     proc = subprocess.run([sys.executable, "-m", "damper_hil.cli", "demo", "--duration", "5",
                            "--out", str(out)], cwd=ROOT, env=env, capture_output=True,

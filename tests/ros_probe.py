@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import time
+from pathlib import Path
 
 
 class Probe:
@@ -40,3 +41,13 @@ class Probe:
         self.executor.shutdown()
         self.node.destroy_node()
         self._rclpy.shutdown(context=self.context)
+
+
+def cold_environment(root: Path, domain: int) -> dict:
+    """The environment of a node started as a new user starts it: ROS domain ``domain``,
+    localhost only, an empty ``NUMBA_CACHE_DIR`` under ``root`` (a first start)."""
+    from damper_emulator.ros.launch import ros_environment
+
+    env = ros_environment(domain)
+    env["NUMBA_CACHE_DIR"] = str(root / "numba-cache")
+    return env

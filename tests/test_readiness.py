@@ -20,6 +20,8 @@ import textwrap
 import time
 from pathlib import Path
 
+from ros_probe import cold_environment
+
 from damper_emulator.model import jit
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,14 +124,6 @@ def test_cache_lives_outside_the_source_tree_and_is_keyed_by_the_sources(tmp_pat
     assert Path(out.strip()).parent == tmp_path / "nc"
 
 
-def _cold_env(tmp_path: Path, domain: int) -> dict:
-    from damper_emulator.ros.launch import ros_environment
-
-    env = ros_environment(domain)
-    env["NUMBA_CACHE_DIR"] = str(tmp_path / "numba-cache")      # empty: a first start
-    return env
-
-
 def test_cold_emulate_is_active_before_its_first_force(tmp_path):
     """A cold start: `damper-hil emulate` compiles while configuring, answers `active`
     over its lifecycle service, and publishes its first force only then; from that force
@@ -141,7 +135,7 @@ def test_cold_emulate_is_active_before_its_first_force(tmp_path):
     from damper_emulator.ros.common import control_qos
     from damper_emulator.ros.launch import NodeProcess, node_command
 
-    env = _cold_env(tmp_path, DOMAINS["cold_emulate"])
+    env = cold_environment(tmp_path, DOMAINS["cold_emulate"])
     started = time.monotonic()
     emu = NodeProcess("emulator", node_command("emulate"), env, tmp_path)
     probe = Probe(DOMAINS["cold_emulate"])

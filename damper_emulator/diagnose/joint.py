@@ -76,6 +76,17 @@ BASE_PARAMETERS: tuple[BaseParameter, ...] = (
           ("preload_pa", 10.0, "Pa", "blow-off preload, eq 10"),
           ("smoothing_g", 3.0, "-", "smoothing exponent G, eq 28"))),
 )
+#: A nuisance parameter of every joint fit whose friction is eq 4's: the friction the slow
+#: (quasi-static) files see, as a fraction of the friction at speed (0..1).  A real seal's
+#: friction rises from rest over a few mm/s (the benchmark's truth: 43.7 N tanh(ẋ/5 mm/s),
+#: 29 N at the quasi-static test's 4 mm/s); eq 4's single level cannot be both, and the
+#: fit's compromise moved the gas spring and the effects fitted on top of it (thermal
+#: 10.6 → 5.2 N, gas heat transfer 16.3 → 5.1 N held out, 2026-11-26).  Not above 1: a
+#: friction higher at low speed is the Stribeck effect, the friction family's (LuGre)
+#: candidate; free above 1, the refitted paper's model explained a LuGre truth to 8.7 N and
+#: the answer was ``none``.  Only the fit uses it: the model a diagnosis reports, its
+#: statistics and the held-out scores have eq 4's one friction.
+QUASI_STATIC_FRICTION_RATIO = "quasi_static_friction_ratio"
 #: The port restriction (eq 8) also ranges over the damper's own scale ``K_scale``, the
 #: restriction that alone would drop the largest pressure of the data at the largest flow
 #: (``max|F| / A_annulus`` at ``A_annulus max|v|``), from this fraction of it (negligible:
@@ -206,6 +217,7 @@ def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
         if bp.path == "friction_force_n":
             hi = FRICTION_FACTOR * value + FRICTION_MARGIN_N
             out.append(Parameter(bp.path, 0.0, hi, value, False, bp.unit))
+            out.append(Parameter(QUASI_STATIC_FRICTION_RATIO, 0.0, 1.0, 1.0, False, "-"))
             continue
         lo, hi = value / bp.factor, value * bp.factor
         if bp.path.endswith(".k_port"):
@@ -226,7 +238,8 @@ def config_with(cfg: ModelConfig, base_values: Mapping[str, float]) -> ModelConf
 
     d = cfg.damper
     # floats by damper field name (mypy cannot match the names to the fields' types)
-    top: dict[str, Any] = {k: v for k, v in base_values.items() if "." not in k}
+    top: dict[str, Any] = {k: v for k, v in base_values.items()
+                           if "." not in k and k != QUASI_STATIC_FRICTION_RATIO}
     valves = {}
     for side in ("rebound", "compression"):
         changes = {k.split(".", 1)[1]: v for k, v in base_values.items()
@@ -277,8 +290,12 @@ class Space:
     def __init__(self, cfg: ModelConfig, base_free: Sequence[Parameter],
                  base_values: Mapping[str, float], cands: Sequence[Candidate],
                  values: Sequence[Mapping[str, float]], free_effects: Sequence[bool],
-                 records: Sequence[Record], weights: Sequence[float]):
+                 records: Sequence[Record], weights: Sequence[float],
+                 n_quasi_static: int = 1):
         self.cfg, self.cands, self.records, self.weights = cfg, list(cands), records, weights
+        #: the first this many records are quasi-static tests (their own friction level:
+        #: :data:`QUASI_STATIC_FRICTION_RATIO`)
+        self.n_quasi_static = n_quasi_static
         self.base_values = dict(base_values)
         self.values = [dict(v) for v in values]
         self.slots: list[tuple[int, Parameter]] = [(-1, p) for p in base_free]
@@ -319,15 +336,29 @@ class Space:
         base, values = self.decode(s)
         return model_of(self.cfg, base, list(zip(self.cands, values)))
 
+    def models(self, s: np.ndarray) -> list[DamperModel]:
+        """The model at ``s`` for each record: :meth:`model`, its friction scaled by
+        :data:`QUASI_STATIC_FRICTION_RATIO` on the quasi-static records."""
+        base, values = self.decode(s)
+        effects = list(zip(self.cands, values))
+        model = model_of(self.cfg, base, effects)
+        out = [model] * len(self.records)
+        ratio = base.get(QUASI_STATIC_FRICTION_RATIO, 1.0)
+        if ratio != 1.0 and self.n_quasi_static > 0:
+            slow = model_of(self.cfg, {**base, "friction_force_n":
+                                       ratio * base["friction_force_n"]}, effects)
+            out[:self.n_quasi_static] = [slow] * min(self.n_quasi_static, len(out))
+        return out
+
     def residuals(self, s: np.ndarray) -> np.ndarray:
         """The weighted residual ``w_f (F_sim − F_meas)`` of every record at ``s``,
         concatenated; ``FAILED_COST`` everywhere for parameters the model refuses."""
         self.evaluations += 1
         self.refused = True
         try:
-            model = self.model(s)
             residuals: np.ndarray = np.concatenate(
-                [rec.residual(model, fast=True) * w for rec, w in zip(self.records, self.weights)])
+                [rec.residual(m, fast=True) * w
+                 for rec, w, m in zip(self.records, self.weights, self.models(s))])
         except (ParameterError, ValueError):
             residuals = np.full(self.n, FAILED_COST)
         else:
@@ -525,7 +556,8 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
                 return [sv if k == free else v for k, v in enumerate(vals)]
 
             pre = Space(cfg, [], bv, cands, with_start(starts_values[0]),
-                        [k == free for k in range(len(cands))], records, weights)
+                        [k == free for k in range(len(cands))], records, weights,
+                        n_quasi_static)
             starts = [pre.encode(bv, with_start(sv)) for sv in starts_values]
             if len(starts) > 1:
                 starts = [min((pre.solve(s0, SCREEN_NFEV) for s0 in starts),
@@ -579,11 +611,11 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     # bounds around the start (the identified values, or the re-identified ones)
     free = base_parameters(config_with(cfg, base_values), fit_data, [c.effect for c in cands])
     space = Space(cfg, free, base_values, cands, values, [True] * len(cands), records,
-                  weights)
+                  weights, n_quasi_static)
     sol = space.solve(space.encode(base_values, values), nfev)
     base, vals = space.decode(sol.x)
-    model = space.model(sol.x)
-    rho = max(lag1(rec.residual(model, fast=True)) for rec in records)
+    # the residuals the fit minimised (each quasi-static record at its own friction)
+    rho = max(lag1(rec.residual(m, fast=True)) for rec, m in zip(records, space.models(sol.x)))
     std = space.std(sol, rho)
     return JointFit(base_values=base,
                     base_std={p.name: std[(i, p.name)] for i, p in space.slots if i < 0},

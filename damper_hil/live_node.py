@@ -32,8 +32,9 @@ INPUT_NODE_NAME = f"{NODE_NAME}_input"
 #: how often the arrived messages are taken and sent [Hz]
 FLUSH_RATE_HZ = 50.0
 #: queue depth of the 1 kHz subscriptions: a second of messages.  On a busy 2-core machine
-#: this normal-priority process waits behind two SCHED_FIFO 1 kHz loops, and its flushes
-#: came 0.3–1.5 s apart (2026-11-25): a queue of one flush period lost the samples between
+#: the view at normal priority (``--priority 0``) waits behind two SCHED_FIFO 1 kHz loops,
+#: and its flushes came 0.3–1.5 s apart (2026-11-25): a queue of one flush period lost the
+#: samples between
 QUEUE_DEPTH = 1000
 #: the emulator's diagnostic status (its name's prefix)
 EMULATOR_STATUS = "damper_emulator"
@@ -62,10 +63,12 @@ class LiveNode(Node):
     def __init__(self, port: int, decimation: int, ride: RideConfig,
                  priority: int = LIVE_PRIORITY):
         super().__init__(NODE_NAME)
-        #: read by spin_node: the DDS and executor threads' SCHED_FIFO priority (0: normal)
-        self.dds_priority = self.main_thread_priority = max(0, int(priority))
-        if self.main_thread_priority:
-            # now, so that the WebSocket server's threads, started next, inherit it
+        #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal).  The
+        #: executor (this) thread gets it here, not through spin_node's
+        #: ``main_thread_priority``: now, so that the WebSocket server's threads, started
+        #: next, inherit it
+        self.dds_priority = max(0, int(priority))
+        if self.dds_priority:
             report = apply_realtime(RealtimeRequest(sched_fifo=True, priority=priority,
                                                     lock_memory=False))
             log_info(self, f"view threads: {report.summary()}")

@@ -35,6 +35,7 @@ import math
 import os
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 from machine import cpu_name  # noqa: E402  (same folder)
@@ -52,6 +53,8 @@ from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import EXTENSION_FAMILIES, load_config
 
+#: the repository (the dampers' files are config/*.yaml there, from any working folder)
+ROOT = Path(__file__).resolve().parents[1]
 NOISE_N = 4.0
 INERTIA_KG = 6.0
 DAMPERS = ("sport", "touring", "van")
@@ -74,7 +77,7 @@ def scenarios() -> list[tuple[str, str, tuple[str, ...]]]:
 
 def session(damper: str, effects: tuple[str, ...], seed: int):
     """``(data sheet config, files)`` of one scenario."""
-    sheet = load_config(f"config/{damper}.yaml")
+    sheet = load_config(ROOT / "config" / f"{damper}.yaml")
     extra = None
     if effects == ("inertia",):
         truth = example_config(None, sheet)

@@ -1,4 +1,5 @@
-"""Shared fixtures: the paper's 'sport' damper; one cold run of the demo."""
+"""Shared fixtures: the paper's 'sport' damper; one cold run of the demo; the command
+line run in this process."""
 
 import subprocess
 import sys
@@ -19,6 +20,27 @@ def sport_cfg():
 @pytest.fixture(scope="session")
 def sport_model(sport_cfg):
     return DamperModel(sport_cfg)
+
+
+@pytest.fixture
+def cli(capsys):
+    """``damper-hil ARGS`` run by its ``main()`` in this process, as a
+    ``CompletedProcess`` (exit status, stdout, stderr; argparse's ``SystemExit`` gives the
+    status too).  For the bad-input checks: the same code path as the installed command
+    without a new interpreter's 1.5 s start-up each (tests/test_errors.py runs the real
+    process)."""
+    from damper_hil.cli import main
+
+    def run(*args: object) -> subprocess.CompletedProcess:
+        argv = [str(a) for a in args]
+        capsys.readouterr()
+        try:
+            rc = main(argv)
+        except SystemExit as exc:  # argparse's usage errors
+            rc = exc.code if isinstance(exc.code, int) else 1
+        out = capsys.readouterr()
+        return subprocess.CompletedProcess(["damper-hil", *argv], rc, out.out, out.err)
+    return run
 
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -168,8 +168,9 @@ def test_diagnose_in_the_fleet_names_the_seeded_valve_lag(batch, tmp_path):
     for uid in ("unit_01", lag):
         shutil.copytree(batch / uid, data / uid)
     out = tmp_path / "out"
+    # one candidate: the lag is named on its damper and not significant on the other
     res = _cli("fleet", data, "--out", out, "--workers", "2", "--diagnose",
-               "--effects", "valve_lag,series_compliance")
+               "--effects", "valve_lag")
     assert res.returncode == 0, res.stderr
     rows = {r["id"]: r for r in _parquet_rows(out / "results.parquet")}
     assert rows[lag]["diagnosis_family"] == "valve_dynamics"

@@ -166,15 +166,15 @@ def test_fits_supply_exact_jacobians(sport_cfg, monkeypatch):
     ("time,displacement,force\n0,0,1\n0.002,0,1\n0.001,0,1\n", "row 3"),
     ("time,displacement,force\n0,0,1\n0.001,25.0,1\n0.002,-25.0,1\n", "millimetres"),
 ])
-def test_malformed_files_exit_2_with_one_line(tmp_path, body, words):
+def test_malformed_files_exit_2_with_one_line(tmp_path, cli, body, words):
     good = tmp_path / "good.csv"
     t, x, v = protocols.quasi_static(amplitude_m=0.01, cycles=1)
     good.write_text("time,displacement,force\n" + "".join(
         f"{a},{b},{-400 + 3000 * b + 40 * np.sign(c)}\n" for a, b, c in zip(t, x, v)))
     bad = tmp_path / "bad.csv"
     bad.write_text(body)
-    proc = _run("identify", "--quasi-static", good, "--chirp", bad, "--out",
-                tmp_path / "P.yaml", check=False)
+    proc = cli("identify", "--quasi-static", good, "--chirp", bad, "--out",
+               tmp_path / "P.yaml")
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "bad.csv" in lines[0] and words in lines[0], proc.stderr
@@ -341,9 +341,9 @@ def test_alpha_search_recovers_the_compressibility(sport_cfg):
     ("sideways.k_port=1e9", "NAME one of"),
     ("k_port=abc", "not a number"),
 ])
-def test_bad_fix_option_exits_2_with_one_line(tmp_path, spec, words):
-    proc = _run("identify", "--quasi-static", tmp_path / "qs.csv", "--chirp",
-                tmp_path / "c.csv", "--fix", spec, "--out", tmp_path / "P.yaml", check=False)
+def test_bad_fix_option_exits_2_with_one_line(tmp_path, cli, spec, words):
+    proc = cli("identify", "--quasi-static", tmp_path / "qs.csv", "--chirp",
+               tmp_path / "c.csv", "--fix", spec, "--out", tmp_path / "P.yaml")
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0], proc.stderr

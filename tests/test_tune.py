@@ -173,7 +173,7 @@ def test_tune_end_to_end_on_a_local_cluster(tmp_path):
     (["--bypass", "--params", "PASSIVE"], "damper.adaptive"),
     (["--designs", "0"], "--designs"),
 ])
-def test_bad_settings_are_one_line(tmp_path, args, needle):
+def test_bad_settings_are_one_line(tmp_path, cli, args, needle):
     import dataclasses
 
     passive = tmp_path / "passive.yaml"
@@ -181,7 +181,7 @@ def test_bad_settings_are_one_line(tmp_path, args, needle):
     save_config(dataclasses.replace(cfg, damper=dataclasses.replace(cfg.damper,
                                                                     adaptive=None)), passive)
     args = [passive if a == "PASSIVE" else a for a in args]
-    res = _cli("tune", "--out", tmp_path / "o", "--workers", 1, *args)
+    res = cli("tune", "--out", tmp_path / "o", "--workers", 1, *args)
     assert res.returncode == 2, res.stderr
     lines = res.stderr.strip().splitlines()
     # one line (an option's bad value: argparse's usage, then the one line)
@@ -189,9 +189,9 @@ def test_bad_settings_are_one_line(tmp_path, args, needle):
     assert len(lines) == 1 or lines[0].startswith("usage:")
 
 
-def test_a_settings_file_with_an_unknown_key_is_one_line(tmp_path):
+def test_a_settings_file_with_an_unknown_key_is_one_line(tmp_path, cli):
     bad = tmp_path / "tune.yaml"
     bad.write_text("tune:\n  desings: 10\n")
-    res = _cli("tune", "--out", tmp_path / "o", "--settings", bad, "--workers", 1)
+    res = cli("tune", "--out", tmp_path / "o", "--settings", bad, "--workers", 1)
     assert res.returncode == 2 and "unknown parameter tune.desings" in res.stderr
     assert res.stderr.strip().count("\n") == 0

@@ -165,8 +165,12 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
     if effects:
         lines += ["Effects added by forward selection, each fitted together with the paper's "
                   "parameters and the effects before it; the gain is on the held-out files, "
-                  "against the model of the step before.", "",
-                  "| step | effect | family | held-out gain | ΔBIC |", "|---|---|---|---|---|"]
+                  "against the model of the step before.", ""]
+        if diag.pair_gain is not None:
+            lines += ["Found together: neither alone was significant; the pair cuts the "
+                      f"held-out r.m.s. by {100 * diag.pair_gain:.1f} % against the refitted "
+                      "model.", ""]
+        lines += ["| step | effect | family | held-out gain | ΔBIC |", "|---|---|---|---|---|"]
         for k, (e, st) in enumerate(zip(effects, diag.steps), 1):
             lines.append(f"| {k} | {e['effect']} | {e['family']} | "
                          f"{100 * e['held_out_gain']:.1f} % | {st.delta_bic:.0f} |")

@@ -28,6 +28,7 @@ from damper_emulator.diagnose.selection import (
     diagnose,
     noise_level,
     structure_ratio,
+    weigh_effects,
 )
 from damper_emulator.diagnose.truth import (
     EXAMPLE_EFFECTS,
@@ -186,6 +187,16 @@ def test_two_effects_the_identification_files_confound_are_found_as_a_pair():
         for name in names:
             assert fitted[effect][name] == pytest.approx(
                 EXAMPLE_EFFECTS[effect]["params"][name], rel=PARAMETER_TOLERANCE), fitted
+    # a pair that explained too little would give `other`, with the pair's fit (both
+    # effects, its gain against the refitted model) as the closest: here by demanding
+    # more than all of the structured power
+    held = [r for r in diag.records if r.held_out]
+    steps, closest, explained, gain = weigh_effects(
+        diag.refit, list(diag.steps), held, 0.0, diag.pair_gain, min_explained=1.0,
+        structure=0.0)
+    assert steps == [] and gain is None and explained == pytest.approx(diag.explained)
+    assert closest is diag.steps[-1] and closest.effects == list(pair)
+    assert closest.score == pytest.approx(diag.pair_gain)
 
 
 def test_an_effect_outside_the_library_gives_other_and_an_honest_closest_family():

@@ -187,8 +187,10 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                       "parameters and " + ", ".join(e["effect"] for e in effects) + ".", ""]
     elif diag.family == "other" and diag.closest is not None:
         c = diag.closest
+        # (two effects where they were only significant together: the pair search)
+        named = " with ".join(f"**{k.effect}** ({k.family})" for k in c.candidates)
         lines += [f"Structure remains that the library does not explain.  The closest "
-                  f"candidate, **{c.candidate.effect}** ({c.candidate.family}), cuts the "
+                  f"candidate, {named}, cuts the "
                   f"held-out r.m.s. by {100 * c.score:.1f} %, but the effects found remove "
                   f"only {100 * diag.explained:.0f} % of the residual's structured power; "
                   "none is added.", ""]

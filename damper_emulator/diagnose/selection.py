@@ -99,7 +99,7 @@ from damper_emulator.validation import rms
 
 __all__ = ["Diagnosis", "FitTask", "Record", "StepFit", "diagnose", "run_fit_task",
            "noise_level", "structure_ratio", "explained_fraction",
-           "make_record"]
+           "make_record", "weigh_effects"]
 
 #: a candidate must cut the pooled held-out r.m.s. by at least this fraction
 MIN_SCORE = 0.05
@@ -427,6 +427,7 @@ class Diagnosis:
             "pair_gain": self.pair_gain,
             "explained_fraction": self.explained,
             "closest": ({"effect": self.closest._added.effect,
+                         "effects": self.closest.effects,
                          "family": self.closest._added.family,
                          "score": self.closest.score,
                          "parameters": self.closest.extension}
@@ -496,6 +497,33 @@ def _unordered(executor: Executor, fn: Callable[[_T], _R], tasks: Iterable[_T]
     futures = {executor.submit(fn, t): i for i, t in enumerate(tasks)}
     for fut in as_completed(futures):
         yield futures[fut], fut.result()
+
+
+def weigh_effects(refit: StepFit, steps: list[StepFit], held: Sequence[Record],
+                  floor: float, pair_gain: float | None,
+                  min_explained: float = MIN_EXPLAINED,
+                  structure: float = STRUCTURE_RATIO
+                  ) -> tuple[list[StepFit], StepFit | None, float, float | None]:
+    """Step 7 on the effects ``steps`` added (``pair_gain``: found as a pair): whether
+    they explain enough of the refitted model's held-out residual on ``held``.
+
+    Returns ``(steps, closest, explained, pair_gain)``: ``steps`` unchanged, unless they
+    remove less than ``min_explained`` of the structured power while the residual stays
+    above ``floor`` and above ``structure`` × its noise level; then no step, and the
+    closest is the first step (for a pair, the pair's fit, scored against ``refit``)."""
+    if not steps:
+        return steps, None, 0.0, pair_gain
+    ref_held = [r.residual(refit.model()) for r in held]
+    final_held = [r.residual(steps[-1].model()) for r in held]
+    explained = explained_fraction(ref_held, final_held)
+    if (explained >= min_explained or structure_ratio(final_held) <= structure
+            or pooled_rms(final_held) <= floor):
+        return steps, None, explained, pair_gain
+    closest = steps[0]
+    if pair_gain is not None:  # the pair's fit, scored as a pair
+        closest = steps[-1]
+        closest.score_against(refit, False)
+    return [], closest, explained, None
 
 
 def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
@@ -675,14 +703,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     ref_held = [r.residual(refit.model()) for r in held]
     floor, noise = floor_level(held, ref_held)
     structure_ref = structure_ratio(ref_held)
-    closest = None
-    explained = 0.0
-    if steps:
-        final_held = [r.residual(steps[-1].model()) for r in held]
-        explained = explained_fraction(ref_held, final_held)
-        if (explained < MIN_EXPLAINED and structure_ratio(final_held) > STRUCTURE_RATIO
-                and pooled_rms(final_held) > floor):
-            closest, steps, pair_gain = steps[0], [], None
+    steps, closest, explained, pair_gain = weigh_effects(refit, steps, held, floor, pair_gain)
     if steps:
         family, effect = steps[0]._added.family, steps[0]._added.effect
     else:

@@ -566,7 +566,11 @@ class TestDynoBridge:
         want = ForceStatus.FORCE_TIMEOUT | ForceStatus.CAN_STATE_TIMEOUT
         assert all(int(v["Status"]) == want and v["Force"] == 0.0 for _, v in frames)
         checked = lone.checked(FORCE, t0)
-        assert checked.total.dropped == 0
+        # (2026-11-26, once in many runs: counter 1, lost 6; the next three runs clean.
+        # The largest receive gap tells a listener stall from frames never sent)
+        assert checked.total.dropped == 0, (
+            f"{checked.total}; largest gap between frames received "
+            f"{np.max(np.diff(t)) * 1e-6:.1f} ms")
 
 
     def test_forces_and_fault_frames_share_one_counter_sequence(self, dyno_rig):

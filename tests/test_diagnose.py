@@ -191,9 +191,10 @@ def test_two_effects_the_identification_files_confound_are_found_as_a_pair():
     # effects, its gain against the refitted model) as the closest: here by demanding
     # more than all of the structured power
     held = [r for r in diag.records if r.held_out]
+    ref_held = [r.residual(diag.refit.model()) for r in held]
     steps, closest, explained, gain = weigh_effects(
-        diag.refit, list(diag.steps), held, 0.0, diag.pair_gain, min_explained=1.0,
-        structure=0.0)
+        diag.refit, ref_held, list(diag.steps), held, 0.0, diag.pair_gain,
+        min_explained=1.0, structure=0.0)
     assert steps == [] and gain is None and explained == pytest.approx(diag.explained)
     assert closest is diag.steps[-1] and closest.effects == list(pair)
     assert closest.score == pytest.approx(diag.pair_gain)

@@ -499,13 +499,14 @@ def _unordered(executor: Executor, fn: Callable[[_T], _R], tasks: Iterable[_T]
         yield futures[fut], fut.result()
 
 
-def weigh_effects(refit: StepFit, steps: list[StepFit], held: Sequence[Record],
-                  floor: float, pair_gain: float | None,
+def weigh_effects(refit: StepFit, ref_held: Sequence[np.ndarray], steps: list[StepFit],
+                  held: Sequence[Record], floor: float, pair_gain: float | None,
                   min_explained: float = MIN_EXPLAINED,
                   structure: float = STRUCTURE_RATIO
                   ) -> tuple[list[StepFit], StepFit | None, float, float | None]:
     """Step 7 on the effects ``steps`` added (``pair_gain``: found as a pair): whether
-    they explain enough of the refitted model's held-out residual on ``held``.
+    they explain enough of the refitted model's held-out residual ``ref_held`` (on the
+    records ``held``).
 
     Returns ``(steps, closest, explained, pair_gain)``: ``steps`` unchanged, unless they
     remove less than ``min_explained`` of the structured power while the residual stays
@@ -513,7 +514,6 @@ def weigh_effects(refit: StepFit, steps: list[StepFit], held: Sequence[Record],
     closest is the first step (for a pair, the pair's fit, scored against ``refit``)."""
     if not steps:
         return steps, None, 0.0, pair_gain
-    ref_held = [r.residual(refit.model()) for r in held]
     final_held = [r.residual(steps[-1].model()) for r in held]
     explained = explained_fraction(ref_held, final_held)
     if (explained >= min_explained or structure_ratio(final_held) <= structure
@@ -626,8 +626,10 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             (the lowest ΔBIC, at most ``MAX_DELTA_BIC``) fitted with each other candidate,
             each pair scored against ``ref``; ``[lead, partner]`` (the partner scored
             against the lead, as a second step is) or ``None``."""
+            if len(fits) < 2:
+                return None
             lead = min(fits, key=lambda f: f.delta_bic)
-            if lead.delta_bic > MAX_DELTA_BIC or len(fits) < 2:
+            if lead.delta_bic > MAX_DELTA_BIC:
                 return None
             name = lead._added.effect
             say(f"round 2: nothing significant alone; {name} (ΔBIC {lead.delta_bic:.0f}, "
@@ -703,7 +705,8 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     ref_held = [r.residual(refit.model()) for r in held]
     floor, noise = floor_level(held, ref_held)
     structure_ref = structure_ratio(ref_held)
-    steps, closest, explained, pair_gain = weigh_effects(refit, steps, held, floor, pair_gain)
+    steps, closest, explained, pair_gain = weigh_effects(refit, ref_held, steps, held, floor,
+                                                         pair_gain)
     if steps:
         family, effect = steps[0]._added.family, steps[0]._added.effect
     else:

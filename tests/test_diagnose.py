@@ -457,6 +457,67 @@ def test_sigma_is_the_covariance_of_the_resolved_parameters_and_infinite_for_the
     assert std[(0, "time_constant_s")] == math.inf
 
 
+def test_the_effective_sample_count_is_that_of_the_mean_of_an_ar1_series():
+    """``n (1 − ρ)/(1 + ρ)`` independent samples: the variance of the mean of an AR(1)
+    series of n samples is σ²/n_eff (large n), checked on 400 simulated series, with ρ
+    estimated by :func:`lag1` as the fit does."""
+    from damper_emulator.diagnose.joint import effective_samples, lag1
+
+    rng = np.random.default_rng(7)
+    n, rho = 4000, 0.9
+    e = rng.standard_normal((400, n)) * math.sqrt(1.0 - rho ** 2)  # unit variance
+    x = np.empty_like(e)
+    x[:, 0] = rng.standard_normal(400)
+    for k in range(1, n):
+        x[:, k] = rho * x[:, k - 1] + e[:, k]
+    n_eff = effective_samples(n, float(np.median([lag1(r) for r in x[:50]])))
+    assert np.var(x.mean(axis=1)) * n_eff == pytest.approx(1.0, abs=0.2)
+    assert effective_samples(n, 0.0) == n
+
+
+def test_a_joint_fit_stops_after_a_step_that_moves_neither_measure(monkeypatch):
+    """The joint fit's stop (:meth:`Space.solve` with ``min_bic_step``): a step is too
+    small only when it lowers the cost by less than ``JOINT_MIN_RELATIVE_STEP`` *and* the
+    effective BIC by less than one unit.  White residuals 0.05 % lower are ~40 BIC units
+    on 40,000 samples (go on); the same on a smooth, strongly autocorrelated residual are
+    a fraction of one (stop); 5 % lower is never too small.  A stopped fit returns the
+    point it had accepted, its cost, and the differenced Jacobian there (for σ)."""
+    from damper_emulator.diagnose import joint
+
+    sheet, data = _session(())
+    space, s = _lag_space(sheet, data, monkeypatch, lambda tau: False)
+    rng = np.random.default_rng(3)
+    n = space.n
+    white = rng.standard_normal(n)
+    smooth = np.sin(np.linspace(0.0, 6.0 * np.pi, n)) + 0.01 * white
+    monkeypatch.setattr(space, "jacobian", lambda x: "jacobian")
+    space._min_bic_step = joint.JOINT_MIN_BIC_STEP
+
+    def step(before, factor):
+        space._accepted = before
+        space._last = (s, before * factor, False)
+        try:
+            return space._jacobian_unless_done(s)
+        except joint._Converged:
+            return "stop"
+
+    small = math.sqrt(1.0 - 0.5 * joint.JOINT_MIN_RELATIVE_STEP)
+    assert step(white, small) == "jacobian"
+    assert step(smooth, small) == "stop"
+    assert step(smooth, 0.95) == "jacobian"
+    assert step(white, 1.0) == "stop"
+
+    monkeypatch.undo()
+    space, s = _lag_space(sheet, data, monkeypatch, lambda tau: False)
+    monkeypatch.setattr(joint, "JOINT_MIN_RELATIVE_STEP", 1.0)
+    sol = space.solve(s, 10, min_bic_step=1e30)  # every step too small: stop at the first
+    assert sol.status == -2
+    f = space.residuals(sol.x)
+    assert sol.cost == pytest.approx(0.5 * float(f @ f), rel=1e-12)
+    assert sol.cost < 0.5 * float(space.residuals(s) @ space.residuals(s))
+    np.testing.assert_array_equal(sol.jac, space.jacobian(sol.x))
+
+
 def test_the_slow_test_gets_its_own_friction_as_a_smooth_seal_gives_it():
     """The truth's seal friction is ``F tanh(ẋ / v_f)`` (``truth.REALISTIC``): the
     quasi-static test's constant 4 mm/s sees ``F tanh(4/5)`` = 0.66 F, the chirp mostly F.

@@ -28,10 +28,10 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 
 from damper_emulator.diagnose.candidates import Candidate, Parameter
 from damper_emulator.dyno.measured import MeasuredData
@@ -39,9 +39,6 @@ from damper_emulator.model.compressible import DamperModel
 from damper_emulator.model.valve import FLOW_EXPONENT
 from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ModelConfig, ParameterError
 from damper_emulator.validation import record_velocity, simulate_measured
-
-if TYPE_CHECKING:  # pragma: no cover
-    from scipy.optimize import OptimizeResult
 
 
 @dataclass(frozen=True)
@@ -114,6 +111,20 @@ MIN_DIFF_STEP = float(np.sqrt(np.finfo(float).eps))
 JOINT_NFEV = 25
 #: ... relative cost change below which it stops.
 JOINT_FTOL = 1e-6
+#: ... and it stops after a step that moved neither of the two measures the selection
+#: decides by: the cost (the r.m.s.) by less than this fraction ...
+JOINT_MIN_RELATIVE_STEP = 1e-3
+#: ... and the effective BIC of the identification files (:func:`bic_gain`) by less than
+#: this.  A cost 10⁻³ lower is an r.m.s. 0.05 % lower, a hundredth of the least held-out
+#: gain that counts (``MIN_SCORE``, 5 %); one BIC unit is a tenth of the threshold
+#: (``MAX_DELTA_BIC``, −10) and half of what Kass & Raftery (1995) call "not worth more than
+#: a bare mention".  Either alone would not do: a residual far above its noise is strongly
+#: autocorrelated, and its effective sample count so small that a first step 7 % down
+#: gains under one BIC unit; a residual at its noise is white, and 10⁻³ of it is ~60 units.
+#: Measured 2026-11-26 (sport damper, LuGre friction and valve lag): a valve-lag fit with
+#: end stops on top crawled by 2.8·10⁻⁴ … 2.3·10⁻⁵ of its cost per step for 25 steps, each
+#: a simulation per parameter, and its held-out r.m.s. did not change by 0.1 N.
+JOINT_MIN_BIC_STEP = 1.0
 #: Evaluations per start of the extension-only pre-fit, and for the best start after.
 SCREEN_NFEV = 4
 PREFIT_NFEV = 10
@@ -123,6 +134,14 @@ ACTIVE_FORCE_FRACTION = 0.02
 #: ... and an effect is local (its samples are left out of a re-identification) when it
 #: acts on at most this fraction of each record.
 MAX_ACTIVE_FRACTION = 0.6
+#: A re-identification's valve fits take at most this many chirp samples per direction
+#: (``identify``'s ``max_valve_samples``): half of what the paper's protocol selects
+#: (about 13,400).  It is only a start for the joint fit, which takes every sample; its
+#: complex-step valve Jacobian was a quarter of a candidate's time (end stops, 8 of 35 s,
+#: 2026-11-26).  A quarter (3,400) was faster still, but the valve lag fitted on top of a
+#: cavity then started in the other of the two basins docs/diagnose.md describes (3 Hz
+#: sine 784 N against 129 N): the sport damper's cavity is that sensitive to the start.
+REIDENTIFY_VALVE_SAMPLES = 6_700
 #: Cost of a residual vector for parameters the model refuses (every element); a simulation
 #: whose weighted residual leaves ±FAILED_COST anywhere (a force error of order 10⁹ N: the
 #: model ran away) counts as refused too.
@@ -283,6 +302,10 @@ class JointFit:
         return model_of(cfg, self.base_values, list(zip(candidates, self.values)))
 
 
+class _Converged(Exception):
+    """A joint fit's step gained too little to go on (:meth:`Space.solve`)."""
+
+
 class Space:
     """The search space of a fit: the free parameters (paper's and each effect's), the
     held ones, and the residual function over the fit records."""
@@ -311,6 +334,11 @@ class Space:
         #: last point evaluated with its residual and that flag (the Jacobian's base point)
         self.refused = False
         self._last: tuple[np.ndarray, np.ndarray, bool] | None = None
+        #: the residual at the last point :meth:`solve` accepted, and its stop's BIC step
+        self._accepted: np.ndarray | None = None
+        self._min_bic_step = JOINT_MIN_BIC_STEP
+        #: where each record's residual ends in the concatenated vector
+        self._ends = np.cumsum([r.counted for r in records])[:-1]
 
     def encode(self, base_values: Mapping[str, float], values: Sequence[Mapping[str, float]]
                ) -> np.ndarray:
@@ -408,10 +436,48 @@ class Space:
         self._last = (s.copy(), f0, base_refused)
         return jac
 
-    def solve(self, s0: np.ndarray, nfev: int) -> OptimizeResult:
-        return least_squares(self.residuals, s0, jac=self.jacobian, bounds=(0.0, 1.0),
-                             method="trf", x_scale="jac", max_nfev=nfev, ftol=JOINT_FTOL,
-                             xtol=1e-6)
+    def _jacobian_unless_done(self, s: np.ndarray) -> np.ndarray:
+        """:meth:`jacobian` at ``s``, the point the solver has just accepted, unless the
+        step there lowered the cost by less than :data:`JOINT_MIN_RELATIVE_STEP` and the
+        effective BIC by less than ``self._min_bic_step`` (:func:`bic_gain`): then
+        :class:`_Converged` (the Jacobian is not needed to go on)."""
+        if self._last is None or not np.array_equal(self._last[0], s):
+            self.residuals(s)
+        assert self._last is not None  # set by every residuals()
+        _, f, refused = self._last
+        if self._accepted is not None and not refused:
+            ss0, ss1 = float(np.dot(self._accepted, self._accepted)), float(np.dot(f, f))
+            if (ss1 > (1.0 - JOINT_MIN_RELATIVE_STEP) * ss0
+                    and bic_gain(np.split(self._accepted, self._ends),
+                                 np.split(f, self._ends)) < self._min_bic_step):
+                raise _Converged
+        self._accepted = f
+        return self.jacobian(s)
+
+    def solve(self, s0: np.ndarray, nfev: int, min_bic_step: float | None = None
+              ) -> OptimizeResult:
+        """Bounded least squares from ``s0``: at most ``nfev`` evaluations (Jacobians not
+        counted), until the relative cost change is below ``JOINT_FTOL`` or (with
+        ``min_bic_step``) a step has lowered the cost by less than
+        :data:`JOINT_MIN_RELATIVE_STEP` and the effective BIC by less than that."""
+        if min_bic_step is None:
+            return least_squares(self.residuals, s0, jac=self.jacobian, bounds=(0.0, 1.0),
+                                 method="trf", x_scale="jac", max_nfev=nfev,
+                                 ftol=JOINT_FTOL, xtol=1e-6)
+        self._accepted, self._min_bic_step = None, min_bic_step
+        evaluations = self.evaluations
+        try:
+            return least_squares(self.residuals, s0, jac=self._jacobian_unless_done,
+                                 bounds=(0.0, 1.0), method="trf", x_scale="jac",
+                                 max_nfev=nfev, ftol=JOINT_FTOL, xtol=1e-6)
+        except _Converged:
+            # the point just accepted, as least_squares would have returned it
+            assert self._last is not None
+            s, f, _ = self._last
+            s = s.copy()
+            return OptimizeResult(x=s, fun=f, cost=0.5 * float(np.dot(f, f)),
+                                  jac=self.jacobian(s), status=-2,
+                                  nfev=self.evaluations - evaluations)
 
     def std(self, sol: OptimizeResult, rho: float) -> dict[tuple[int, str], float]:
         """One standard deviation of each free parameter from the Jacobian at ``sol``
@@ -455,6 +521,24 @@ NULL_COMPONENT = 1e-3
 MAX_RHO = 0.999
 
 
+def effective_samples(n: int, rho: float) -> float:
+    """The number of independent samples ``n (1 − ρ)/(1 + ρ)`` of ``n`` samples of an AR(1)
+    series of lag-1 autocorrelation ``ρ``."""
+    return n * (1.0 - rho) / (1.0 + rho)
+
+
+def bic_gain(before: Sequence[np.ndarray], after: Sequence[np.ndarray]) -> float:
+    """How much lower the effective BIC of residuals ``after`` is than of ``before`` (the
+    same files, one array each; no parameter counted): ``Σ_f n_eff,f ln(SS_f,before /
+    SS_f,after)``, ``n_eff`` of ``after`` (:func:`effective_samples`, :func:`lag1`)."""
+    gain = 0.0
+    for r0, r1 in zip(before, after):
+        ss0, ss1 = float(np.dot(r0, r0)), float(np.dot(r1, r1))
+        gain += (effective_samples(r1.size, lag1(r1))
+                 * math.log(max(ss0, 1e-300) / max(ss1, 1e-300)))
+    return gain
+
+
 def lag1(r: np.ndarray) -> float:
     """Lag-1 autocorrelation of ``r`` (mean removed), clipped to ``[0, MAX_RHO]``."""
     r = r - r.mean()
@@ -485,7 +569,9 @@ def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
                masks: Sequence[np.ndarray] | None = None) -> dict[str, float] | None:
     """The paper's parameters identified again (``identify``, the staged fits) on
     ``records`` with ``cfg`` (its data sheet values), without the samples ``masks`` (where
-    an effect acts; ``None``: every sample); ``None`` when that identification fails."""
+    an effect acts; ``None``: every sample), its valve fits on at most
+    :data:`REIDENTIFY_VALVE_SAMPLES` chirp samples per direction; ``None`` when that
+    identification fails."""
     from damper_emulator.identify.pipeline import identify
     from damper_emulator.identify.quasi_static import IdentificationError
 
@@ -496,7 +582,8 @@ def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
     exclude = (None if masks is None else
                (np.concatenate(masks[:n_quasi_static]), np.concatenate(masks[n_quasi_static:])))
     try:
-        ident = identify(qs, chirp, cfg, exclude=exclude)
+        ident = identify(qs, chirp, cfg, exclude=exclude,
+                         max_valve_samples=REIDENTIFY_VALVE_SAMPLES)
     except (IdentificationError, ParameterError, ValueError):
         return None
     return {bp.path: _get(ident.config, bp.path) for bp in BASE_PARAMETERS}
@@ -612,7 +699,7 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     free = base_parameters(config_with(cfg, base_values), fit_data, [c.effect for c in cands])
     space = Space(cfg, free, base_values, cands, values, [True] * len(cands), records,
                   weights, n_quasi_static)
-    sol = space.solve(space.encode(base_values, values), nfev)
+    sol = space.solve(space.encode(base_values, values), nfev, JOINT_MIN_BIC_STEP)
     base, vals = space.decode(sol.x)
     # the residuals the fit minimised (each quasi-static record at its own friction)
     rho = max(lag1(rec.residual(m, fast=True)) for rec, m in zip(records, space.models(sol.x)))

@@ -86,6 +86,7 @@ from damper_emulator.diagnose.joint import (
     JOINT_NFEV,
     Record,
     base_parameters,
+    effective_samples,
     joint_fit,
     lag1,
     make_record,
@@ -314,8 +315,7 @@ class StepFit:
              - sum(len(c.parameters) for c in ref.candidates))
         dbic, n_eff_total = 0.0, 0.0
         for name, f in self.out["fit"].items():
-            rho = f["rho"]  # lag1: already clipped to MAX_RHO
-            n_eff = f["n"] * (1.0 - rho) / (1.0 + rho)
+            n_eff = effective_samples(f["n"], f["rho"])  # rho: lag1, clipped to MAX_RHO
             dbic += n_eff * math.log(max(f["mse"], 1e-300)
                                      / max(ref.out["fit"][name]["mse"], 1e-300))
             n_eff_total += n_eff

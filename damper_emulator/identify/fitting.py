@@ -1,22 +1,33 @@
 """Least-squares fitting with log-scaled parameters and fit statistics (eqs 33–35).
 
 A thin layer over :func:`scipy.optimize.least_squares`: the caller supplies residuals and
-their exact Jacobian with respect to the parameters; this module works in ``log θ`` for
-positive parameters (so that constants spanning decades are scaled alike), applies bounds,
-and returns the fit metrics of the paper (eqs 33–35) with standard errors and correlations
-from the Jacobian at the optimum.
+their exact Jacobian with respect to the parameters (or a function that computes it: then
+only at the points the solver asks for it, not at the trial points it rejects); this
+module works in ``log θ`` for positive parameters (so that constants spanning decades are
+scaled alike), applies bounds, and returns the fit metrics of the paper (eqs 33–35) with
+standard errors and correlations from the Jacobian at the optimum.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from damper_emulator.errors import UserError
+
+#: A Jacobian, or the function that computes it on demand (an expensive one: the solver
+#: needs it only at the points it accepts).
+Jacobian: TypeAlias = "np.ndarray | Callable[[], np.ndarray]"
+#: ``θ -> (r, ∂r/∂θ)``: the residual function a fit takes
+ResidualFunction: TypeAlias = Callable[[np.ndarray], "tuple[np.ndarray, Jacobian]"]
+
+
+def _jacobian(jac: Jacobian) -> np.ndarray:
+    return jac() if callable(jac) else jac
 
 
 @dataclass(frozen=True)
@@ -72,17 +83,18 @@ class FitResult:
         }
 
 
-def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-        names: Sequence[str], start: np.ndarray, log_scaled: Sequence[bool] | np.ndarray,
-        lower: np.ndarray, upper: np.ndarray, measured: np.ndarray,
-        fixed: Sequence[bool] | np.ndarray | None = None, penalty_rows: int = 0) -> FitResult:
+def fit(residual_and_jacobian: ResidualFunction, names: Sequence[str], start: np.ndarray,
+        log_scaled: Sequence[bool] | np.ndarray, lower: np.ndarray, upper: np.ndarray,
+        measured: np.ndarray, fixed: Sequence[bool] | np.ndarray | None = None,
+        penalty_rows: int = 0) -> FitResult:
     """Minimise ``Σ r(θ)²`` from ``start`` within ``[lower, upper]`` (natural scale).
 
     Parameters
     ----------
     residual_and_jacobian : callable
         ``θ -> (r, ∂r/∂θ)`` with ``r`` shape (n,) [N] and the Jacobian shape (n, p), both in
-        natural parameter scale (the change to ``log θ`` is applied here).
+        natural parameter scale (the change to ``log θ`` is applied here); the Jacobian
+        may be a function of no arguments that returns it, called only when needed.
     names : sequence of str
     start, lower, upper : ndarray, shape (p,)
     log_scaled : sequence of bool
@@ -112,20 +124,27 @@ def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
     def to_theta(u: np.ndarray) -> np.ndarray:
         return np.where(log_mask, np.exp(u), u)
 
-    cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+    # the last point: its residual, and its Jacobian once asked for
+    cache: dict[bytes, list[Any]] = {}
 
-    def evaluate(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def point(u: np.ndarray) -> list[Any]:
         key = u.tobytes()
         if key not in cache:
             cache.clear()
             theta = to_theta(u)
             r, jac = residual_and_jacobian(theta)
-            cache[key] = (r, jac * np.where(log_mask, theta, 1.0))  # d/d(log θ) = θ d/dθ
+            cache[key] = [r, jac, theta, None]
         return cache[key]
+
+    def evaluate(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        entry = point(u)
+        if entry[3] is None:  # d/d(log θ) = θ d/dθ
+            entry[3] = _jacobian(entry[1]) * np.where(log_mask, entry[2], 1.0)
+        return entry[0], entry[3]
 
     lo, hi = to_u(np.asarray(lower, float)), to_u(np.asarray(upper, float))
     u0 = np.clip(to_u(start), lo + 1e-12 * (hi - lo), hi - 1e-12 * (hi - lo))
-    sol = least_squares(lambda u: evaluate(u)[0], u0, jac=lambda u: evaluate(u)[1],
+    sol = least_squares(lambda u: point(u)[0], u0, jac=lambda u: evaluate(u)[1],
                         bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-12,
                         ftol=1e-12, gtol=1e-12, max_nfev=500)
     theta = to_theta(sol.x)
@@ -149,16 +168,16 @@ def fit(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarr
                      (), at_bound)
 
 
-def _fit_subset(residual_and_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-                names: Sequence[str], start: np.ndarray, log_scaled: Sequence[bool] | np.ndarray,
+def _fit_subset(residual_and_jacobian: ResidualFunction, names: Sequence[str],
+                start: np.ndarray, log_scaled: Sequence[bool] | np.ndarray,
                 lower: np.ndarray, upper: np.ndarray, measured: np.ndarray,
                 free: np.ndarray, penalty_rows: int) -> FitResult:
     """:func:`fit` over the free parameters only, reported over all of them."""
-    def residual(theta_free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def residual(theta_free: np.ndarray) -> tuple[np.ndarray, Jacobian]:
         theta = start.copy()
         theta[free] = theta_free
         r, jac = residual_and_jacobian(theta)
-        return r, jac[:, free]
+        return r, lambda: _jacobian(jac)[:, free]
 
     sub = fit(residual, [n for n, f in zip(names, free) if f], start[free],
               np.asarray(log_scaled, bool)[free], np.asarray(lower, float)[free],

@@ -243,14 +243,16 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
              fixed: Mapping[str, Mapping[str, float]] | None = None,
              fit_alpha: bool = False,
              alpha_bounds_per_pa: tuple[float, float] | None = None,
-             exclude: tuple[np.ndarray | None, np.ndarray | None] | None = None
+             exclude: tuple[np.ndarray | None, np.ndarray | None] | None = None,
+             max_valve_samples: int = MAX_VALVE_FIT_SAMPLES
              ) -> Identification:
     """Identify gas spring, friction and both valves (see the module docstring).
 
     ``exclude`` = ``(quasi-static mask, chirp mask)`` (either ``None``): samples of the
     joined quasi-static and chirp records that no fit uses, e.g. where an effect the
     paper's model lacks is known to act (``diagnose`` leaves out the samples where a
-    cavity is open or an end stop engaged).
+    cavity is open or an end stop engaged).  ``max_valve_samples``: the valve fit of one
+    direction takes at most this many chirp samples (:func:`thin_selection`).
 
     With ``fit_alpha`` the oil compressibility α (eq 1) is fitted too, as the paper
     suggests ("adjusted slightly to absorb other compliances"): a bounded scalar search on
@@ -273,10 +275,11 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
     """
     if not fit_alpha:
         return _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
-                              hysteresis_filter_on, start_factors, fixed, exclude)
+                              hysteresis_filter_on, start_factors, fixed, exclude,
+                              max_valve_samples)
     return _identify_alpha(quasi_static, chirp, base, progress, alpha_bounds_per_pa,
                            correct_compressibility, hysteresis_filter_on, start_factors, fixed,
-                           exclude)
+                           exclude, max_valve_samples)
 
 
 def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Identification:
@@ -326,7 +329,8 @@ def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Id
 
 
 def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
-                   hysteresis_filter_on, start_factors, fixed, exclude=None) -> Identification:
+                   hysteresis_filter_on, start_factors, fixed, exclude=None,
+                   max_valve_samples=MAX_VALVE_FIT_SAMPLES) -> Identification:
     say = progress or (lambda msg: None)
     d = base.damper
     a_rod, a_ann, gamma = d.rod_area_m2, d.annulus_area_m2, d.gas_gamma
@@ -385,12 +389,12 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
         usable = {side: int(m.sum()) for side, m in masks.items()}
         strides = {}
         for side in masks:
-            masks[side], strides[side] = thin_selection(masks[side], MAX_VALVE_FIT_SAMPLES)
+            masks[side], strides[side] = thin_selection(masks[side], max_valve_samples)
         if rounds == 1 and max(strides.values()) > 1:
             say(f"round 1: the valve fits take 1 in {strides['rebound']} of the "
                 f"{usable['rebound']} usable rebound and 1 in {strides['compression']} of the "
                 f"{usable['compression']} compression chirp samples (at most "
-                f"{MAX_VALVE_FIT_SAMPLES} per direction)")
+                f"{max_valve_samples} per direction)")
         for side in ("rebound", "compression"):
             m = masks[side]
             qa = np.abs(q_all[m])

@@ -25,7 +25,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from damper_emulator.identify.fitting import FitResult, fit
+from damper_emulator.identify.fitting import FitResult, Jacobian, fit
 from damper_emulator.identify.quasi_static import IdentificationError
 from damper_emulator.model.valve import (
     FLOW_EXPONENT,
@@ -181,15 +181,20 @@ def fit_valve(q: np.ndarray, dp_measured: np.ndarray, area_m2: float, nu_m2_s: f
 
     scale_n = float(np.sqrt(np.mean((area_m2 * dp_measured) ** 2)))
 
-    def residual(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def residual(theta: np.ndarray) -> tuple[np.ndarray, Jacobian]:
         r = w * (pressure_drop_array(q, theta, nu_m2_s, form) - dp_measured)
-        jac = w[:, None] * pressure_drop_jacobian(q, theta, nu_m2_s, form)
         # penalty row: the eq 29 extension must not fall below zero at Q = 0
         excess, grad = extension_intercept_excess(theta, nu_m2_s)
         active = excess > 0
         r_pen = MONOTONIC_PENALTY * scale_n * (excess if active else 0.0)
         jac_pen = MONOTONIC_PENALTY * scale_n * (grad if active else np.zeros(grad.size))
-        return np.append(r, r_pen), np.vstack((jac, jac_pen))
+
+        def jacobian() -> np.ndarray:
+            # (on demand: five complex evaluations per sample, 15× the residual's cost)
+            jac = w[:, None] * pressure_drop_jacobian(q, theta, nu_m2_s, form)
+            return np.vstack((jac, jac_pen))
+
+        return np.append(r, r_pen), jacobian
 
     # a held value is its own centre (it may lie outside the anchor's bounds)
     centre = start if anchor is None else np.where(held, start, np.asarray(anchor, float))

@@ -29,6 +29,10 @@ from damper_emulator.ros.launch import NodeProcess, node_command, ros_environmen
 
 #: interface-local IPv6 multicast groups (never leave the host) for private loopback runs
 PRIVATE_GROUP_PREFIX = "ff11::d4"
+#: A force that came back more than this many sample periods after its state was sent is
+#: counted ``late_samples``: the emulator computed it on a stale input (a host stall; the
+#: loop's own round trip is about one emulator period, 1 ms)
+LATE_PERIODS = 2.0
 
 
 def default_bus(interface: str | None = None, channel: str | None = None) -> BusConfig:
@@ -128,8 +132,9 @@ class Loopback:
         diff_q = r.force_n - offline_q
         diff = r.force_n - offline
         lat = r.latency_s[np.isfinite(r.latency_s)] * 1e3
+        rate = float(1.0 / np.median(np.diff(t)))
         self.comparisons.append({
-            "samples": n, "rate_hz": float(1.0 / np.median(np.diff(t))),
+            "samples": n, "rate_hz": rate,
             "force_rms_n": f_rms,
             "rms_diff_vs_offline_quantised_n": float(np.sqrt(np.mean(diff_q ** 2))),
             "relative_rms_vs_offline_quantised": float(np.sqrt(np.mean(diff_q ** 2)) / f_rms),
@@ -138,6 +143,8 @@ class Loopback:
             "relative_rms_vs_offline": float(np.sqrt(np.mean(diff ** 2)) / f_rms),
             "round_trip_p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
             "round_trip_p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
+            "round_trip_max_ms": float(np.max(lat)) if lat.size else None,
+            "late_samples": int(np.count_nonzero(lat > LATE_PERIODS / rate * 1e3)),
             "frames_dropped": r.dropped, "fault_frames": r.fault_frames,
             "status_bits_seen": int(np.bitwise_or.reduce(r.status[r.status >= 0]))
             if (r.status >= 0).any() else 0,

@@ -650,12 +650,16 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
         # run (largest difference about 50 N of 1.9 kN here).  A host stall of this VM
         # (issue 14) can put one sample's force up to ~900 N off (seen once in a clean-clone
         # run, 2026-11-25: 20 N r.m.s. from that sample alone): at most 0.5 % of the samples
-        # may be further off than 5 % of the force r.m.s., plus the samples the longest
-        # stall the dyno measured in its own send timing spans (and one either side: an
-        # 18 ms stall at 500 Hz put 11 of 2001 off, 2026-11-25), and the others must agree
+        # may be further off than 5 % of the force r.m.s., plus the samples a measured
+        # stall spans (and one either side): the longest stall the dyno measured in its
+        # own send timing (an 18 ms stall at 500 Hz put 11 of 2001 off, 2026-11-25), or
+        # the forces that came back late, computed on a stale input (a stall on the
+        # emulator's side: 22 off where the dyno's own stall of 12.3 ms allowed 19, the
+        # round trip's p99 16.6 ms, 2026-11-26), whichever is more; the others must agree
         # to 1 %.
         outliers = err > 0.05 * f_rms
-        stalled = math.ceil(run["send_interval_error_max_ms"] * 1e-3 * run["rate_hz"]) + 2
+        stalled = max(math.ceil(run["send_interval_error_max_ms"] * 1e-3 * run["rate_hz"]),
+                      run["late_samples"]) + 2
         assert outliers.sum() <= 0.005 * outliers.size + stalled, (
             f"{name}: {outliers.sum()} samples off; run {run}")
         diff = np.sqrt(np.mean(err[~outliers] ** 2))

@@ -478,10 +478,11 @@ def test_the_effective_sample_count_is_that_of_the_mean_of_an_ar1_series():
 def test_a_joint_fit_stops_after_a_step_that_moves_neither_measure(monkeypatch):
     """The joint fit's stop (:meth:`Space.solve` with ``min_bic_step``): a step is too
     small only when it lowers the cost by less than ``JOINT_MIN_RELATIVE_STEP`` *and* the
-    effective BIC by less than one unit.  White residuals 0.05 % lower are ~40 BIC units
-    on 40,000 samples (go on); the same on a smooth, strongly autocorrelated residual are
-    a fraction of one (stop); 5 % lower is never too small.  A stopped fit returns the
-    point it had accepted, its cost, and the differenced Jacobian there (for σ)."""
+    effective BIC by less than one unit.  White residuals 0.05 % lower are ~30 BIC units
+    on the ~67,000 samples of the identification files (go on); the same on a smooth,
+    strongly autocorrelated residual are a fraction of one (stop); 5 % lower is never too
+    small.  A stopped fit returns the point it had accepted, its cost, and the
+    differenced Jacobian there (for σ)."""
     from damper_emulator.diagnose import joint
 
     sheet, data = _session(())

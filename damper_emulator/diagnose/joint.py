@@ -460,24 +460,21 @@ class Space:
         counted), until the relative cost change is below ``JOINT_FTOL`` or (with
         ``min_bic_step``) a step has lowered the cost by less than
         :data:`JOINT_MIN_RELATIVE_STEP` and the effective BIC by less than that."""
-        if min_bic_step is None:
-            return least_squares(self.residuals, s0, jac=self.jacobian, bounds=(0.0, 1.0),
+        self._accepted = None
+        jac = self.jacobian
+        if min_bic_step is not None:
+            self._min_bic_step, jac = min_bic_step, self._jacobian_unless_done
+        try:
+            return least_squares(self.residuals, s0, jac=jac, bounds=(0.0, 1.0),
                                  method="trf", x_scale="jac", max_nfev=nfev,
                                  ftol=JOINT_FTOL, xtol=1e-6)
-        self._accepted, self._min_bic_step = None, min_bic_step
-        evaluations = self.evaluations
-        try:
-            return least_squares(self.residuals, s0, jac=self._jacobian_unless_done,
-                                 bounds=(0.0, 1.0), method="trf", x_scale="jac",
-                                 max_nfev=nfev, ftol=JOINT_FTOL, xtol=1e-6)
         except _Converged:
             # the point just accepted, as least_squares would have returned it
             assert self._last is not None
             s, f, _ = self._last
             s = s.copy()
             return OptimizeResult(x=s, fun=f, cost=0.5 * float(np.dot(f, f)),
-                                  jac=self.jacobian(s), status=-2,
-                                  nfev=self.evaluations - evaluations)
+                                  jac=self.jacobian(s), status=-2)
 
     def std(self, sol: OptimizeResult, rho: float) -> dict[tuple[int, str], float]:
         """One standard deviation of each free parameter from the Jacobian at ``sol``
@@ -527,16 +524,20 @@ def effective_samples(n: int, rho: float) -> float:
     return n * (1.0 - rho) / (1.0 + rho)
 
 
+def bic_term(n: int, rho: float, ms_after: float, ms_before: float) -> float:
+    """One file's change of the effective BIC from mean square ``ms_before`` to
+    ``ms_after`` (no parameter counted): ``n_eff ln(ms_after / ms_before)``, ``n_eff`` of
+    ``n`` samples with the lag-1 autocorrelation ``rho`` of the residual after
+    (:func:`effective_samples`); negative when the residual got smaller."""
+    return effective_samples(n, rho) * math.log(max(ms_after, 1e-300)
+                                                / max(ms_before, 1e-300))
+
+
 def bic_gain(before: Sequence[np.ndarray], after: Sequence[np.ndarray]) -> float:
     """How much lower the effective BIC of residuals ``after`` is than of ``before`` (the
-    same files, one array each; no parameter counted): ``Σ_f n_eff,f ln(SS_f,before /
-    SS_f,after)``, ``n_eff`` of ``after`` (:func:`effective_samples`, :func:`lag1`)."""
-    gain = 0.0
-    for r0, r1 in zip(before, after):
-        ss0, ss1 = float(np.dot(r0, r0)), float(np.dot(r1, r1))
-        gain += (effective_samples(r1.size, lag1(r1))
-                 * math.log(max(ss0, 1e-300) / max(ss1, 1e-300)))
-    return gain
+    same files, one array each): ``−Σ_f`` :func:`bic_term`."""
+    return -sum(bic_term(r1.size, lag1(r1), float(np.dot(r1, r1)), float(np.dot(r0, r0)))
+                for r0, r1 in zip(before, after))
 
 
 def lag1(r: np.ndarray) -> float:

@@ -86,6 +86,7 @@ from damper_emulator.diagnose.joint import (
     JOINT_NFEV,
     Record,
     base_parameters,
+    bic_term,
     effective_samples,
     joint_fit,
     lag1,
@@ -315,10 +316,9 @@ class StepFit:
              - sum(len(c.parameters) for c in ref.candidates))
         dbic, n_eff_total = 0.0, 0.0
         for name, f in self.out["fit"].items():
-            n_eff = effective_samples(f["n"], f["rho"])  # rho: lag1, clipped to MAX_RHO
-            dbic += n_eff * math.log(max(f["mse"], 1e-300)
-                                     / max(ref.out["fit"][name]["mse"], 1e-300))
-            n_eff_total += n_eff
+            # rho: lag1, clipped to MAX_RHO
+            dbic += bic_term(f["n"], f["rho"], f["mse"], ref.out["fit"][name]["mse"])
+            n_eff_total += effective_samples(f["n"], f["rho"])
         self.delta_bic = dbic + k * math.log(max(n_eff_total, 2.0))
         self.significant = bool(not floor_reached and self.score >= MIN_SCORE
                                 and self.delta_bic <= MAX_DELTA_BIC)

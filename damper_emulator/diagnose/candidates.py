@@ -86,6 +86,10 @@ class Candidate:
     #: identified one (``ModelConfig -> ModelConfig``), for an effect that changes what a
     #: stage's closed form assumes; ``None``: the identified configuration
     identify_as: Callable[[ModelConfig], ModelConfig] | None = None
+    #: where it acts, the effect holds the force at a level that trades with the friction
+    #: at speed (a cavity's plateau, ``p_gas A_pt − p_cav A_annulus`` less the friction):
+    #: its re-identification searches the friction at speed (``joint_fit``)
+    friction_coupled: bool = False
     family: str = field(init=False)
 
     def __post_init__(self) -> None:
@@ -94,10 +98,13 @@ class Candidate:
     @property
     def relative_cost(self) -> int:
         """A rough rank of this candidate's fit cost: its start vectors times its
-        parameters (the multi-start pre-fit), more when it re-identifies the damper.  The
+        parameters (the multi-start pre-fit), more when it re-identifies the damper (and
+        more again when it searches the friction at speed doing so).  The
         longest fits are started first so that a round does not end on one alone."""
         reidentifies = self.may_act is not None or self.identify_as is not None
-        return len(self.starts()) * len(self.parameters) + (3 if reidentifies else 0)
+        searches = 7 if self.friction_coupled else 1  # joint.search_friction's levels
+        return (len(self.starts()) * len(self.parameters)
+                + (3 * searches if reidentifies else 0))
 
     def starts(self) -> list[np.ndarray]:
         """Start vectors in the internal (search) coordinates."""
@@ -200,7 +207,8 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
 
     out.append(Candidate(
         "cavitation", (Parameter("cavitation_pressure_pa", 1e3, p_hi, 2e4, True, "Pa"),),
-        _with({}), extra_starts=((1e5,), (min(4e5, 0.5 * p_hi),)), may_act=may_cavitate))
+        _with({}), extra_starts=((1e5,), (min(4e5, 0.5 * p_hi),)), may_act=may_cavitate,
+        friction_coupled=True))
 
     # valve dynamics: opening time constants from 10 µs to 50 ms
     out.append(Candidate(

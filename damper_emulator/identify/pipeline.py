@@ -81,6 +81,8 @@ class Identification:
     #: chirp samples usable by the valve fits, per direction, before
     #: :func:`thin_selection` (``chirp_samples`` when nothing was dropped)
     chirp_samples_usable: dict = dataclasses.field(default_factory=dict)
+    #: the configuration's friction (the valve fits') over the quasi-static fit's
+    chirp_friction_factor: float = 1.0
 
     def as_dict(self) -> dict:
         d = self.config.damper
@@ -102,6 +104,7 @@ class Identification:
             "chirp_samples": self.chirp_samples,
             "chirp_samples_usable": self.chirp_samples_usable,
             "alpha_fit": self.alpha_fit,
+            "chirp_friction_factor": self.chirp_friction_factor,
         }
 
 
@@ -244,8 +247,8 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
              fit_alpha: bool = False,
              alpha_bounds_per_pa: tuple[float, float] | None = None,
              exclude: tuple[np.ndarray | None, np.ndarray | None] | None = None,
-             max_valve_samples: int = MAX_VALVE_FIT_SAMPLES
-             ) -> Identification:
+             max_valve_samples: int = MAX_VALVE_FIT_SAMPLES,
+             chirp_friction_factor: float = 1.0) -> Identification:
     """Identify gas spring, friction and both valves (see the module docstring).
 
     ``exclude`` = ``(quasi-static mask, chirp mask)`` (either ``None``): samples of the
@@ -253,6 +256,12 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
     paper's model lacks is known to act (``diagnose`` leaves out the samples where a
     cavity is open or an end stop engaged).  ``max_valve_samples``: the valve fit of one
     direction takes at most this many chirp samples (:func:`thin_selection`).
+    ``chirp_friction_factor``: the friction at the chirp's speeds, which the valve fits
+    take out of the measured force (eq 4) and the configuration gets, is this multiple of
+    the quasi-static fit's (1: the paper's method, one friction).  A seal's friction is not
+    the same at a few mm/s as at 1 m/s; the valves take up the difference (both
+    directions' pressure drops move by it), which ``diagnose`` searches where an effect's
+    force trades with the friction (:mod:`damper_emulator.diagnose.joint`).
 
     With ``fit_alpha`` the oil compressibility α (eq 1) is fitted too, as the paper
     suggests ("adjusted slightly to absorb other compliances"): a bounded scalar search on
@@ -276,10 +285,10 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
     if not fit_alpha:
         return _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
                               hysteresis_filter_on, start_factors, fixed, exclude,
-                              max_valve_samples)
+                              max_valve_samples, chirp_friction_factor)
     return _identify_alpha(quasi_static, chirp, base, progress, alpha_bounds_per_pa,
                            correct_compressibility, hysteresis_filter_on, start_factors, fixed,
-                           exclude, max_valve_samples)
+                           exclude, max_valve_samples, chirp_friction_factor)
 
 
 def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Identification:
@@ -330,7 +339,8 @@ def _identify_alpha(quasi_static, chirp, base, progress, bounds, *options) -> Id
 
 def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
                    hysteresis_filter_on, start_factors, fixed, exclude=None,
-                   max_valve_samples=MAX_VALVE_FIT_SAMPLES) -> Identification:
+                   max_valve_samples=MAX_VALVE_FIT_SAMPLES,
+                   chirp_friction_factor=1.0) -> Identification:
     say = progress or (lambda msg: None)
     d = base.damper
     a_rod, a_ann, gamma = d.rod_area_m2, d.annulus_area_m2, d.gas_gamma
@@ -338,6 +348,9 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
     quasi_static, _ = join_tests(quasi_static)
     chirp, chirp_files = join_tests(chirp)
     fixed = fixed or {}
+    if not (math.isfinite(chirp_friction_factor) and chirp_friction_factor >= 0):
+        raise IdentificationError("the chirp's friction factor must be a finite number ≥ 0, "
+                                  f"got {chirp_friction_factor!r}")
     unknown = set(fixed) - {"rebound", "compression"}
     if unknown:
         raise IdentificationError(f"fixed valve parameters for unknown side(s) {sorted(unknown)} "
@@ -373,7 +386,8 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
         say(f"round {rounds}: quasi-static P_gas {p_gas / 1e6:.4f} MPa, V_gas "
             f"{v_gas * 1e6:.2f} cm³, friction {friction:.1f} N (r.m.s. {qs.rms:.2f} N)")
         parts = [valve_flow_and_pressure_drop(tc[f], xc[f], vc[f], fc[f], d, p_gas, v_gas,
-                                              friction, correct_compressibility)
+                                              chirp_friction_factor * friction,
+                                              correct_compressibility)
                  for f in chirp_files]
         q_all, dp_all, q_noise = (np.concatenate(a) for a in zip(*parts))
         force_sd = qs.rms  # the quasi-static residual: the force measurement's noise
@@ -418,7 +432,7 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
         try:
             cfg = dataclasses.replace(base, damper=dataclasses.replace(
                 d, gas_pressure_static_pa=float(p_gas), gas_volume_static_m3=float(v_gas),
-                friction_force_n=float(friction),
+                friction_force_n=float(chirp_friction_factor * friction),
                 rebound=ValveParams(*map(float, fits["rebound"].values)),
                 compression=ValveParams(*map(float, fits["compression"].values))))
             validate(cfg)
@@ -433,4 +447,5 @@ def _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
               "chirp": chirp, "chirp_files": chirp_files}
     return Identification(cfg, qs, fits["rebound"], fits["compression"], rounds,
                           {k: int(m.sum()) for k, m in masks.items()}, series,
-                          chirp_samples_usable=usable)
+                          chirp_samples_usable=usable,
+                          chirp_friction_factor=chirp_friction_factor)

@@ -749,8 +749,12 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
                                                                    [(c, v)])))
                 if m is not None:
                     masks = m if masks is None else [a | b for a, b in zip(masks, m)]
-            if masks is not None and candidate.friction_coupled:
-                # (a search of seven: the pre-fits from the first one's values only)
+            if (masks is not None and candidate.friction_coupled
+                    and active_samples(records, plain, model_of(
+                        cfg, base_values, [(candidate, pre_values)])) is not None):
+                # where the pre-fitted effect acts at all (a cavity that opens nowhere
+                # trades with nothing); a search of seven: the pre-fits from the first
+                # one's values only
                 tried = search_friction(lambda f: restart(f, masks, screen=False))
             elif masks is not None:
                 tried.append(restart(1.0, masks))

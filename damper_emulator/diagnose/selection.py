@@ -618,7 +618,8 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                 e = res["effect"] or "paper's model alone"
                 say(f"{label} [{n_done}/{len(tasks)}] {e}: held-out r.m.s. "
                     + ", ".join(f"{v['rms']:.1f}" for v in res["held"].values())
-                    + f" N ({res['evaluations']} simulations, {res['seconds']:.1f} s)")
+                    + f" N ({res['evaluations']} simulations, {res['seconds']:.1f} s; "
+                    f"{time.perf_counter() - t_start:.0f} s into the diagnosis)")
             return cast("list[StepFit]", out)  # every task has filled its slot
 
         def pair_search(ref: StepFit, fits: list[StepFit]) -> list[StepFit] | None:

@@ -351,6 +351,16 @@ def test_bad_fix_option_exits_2_with_one_line(tmp_path, cli, spec, words):
     assert len(lines) == 1 and words in lines[0], proc.stderr
 
 
+@pytest.mark.parametrize("value", ["nan", "-0.5"])
+def test_bad_chirp_friction_factor_exits_2_with_one_line(tmp_path, cli, value):
+    proc = cli("identify", "--quasi-static", tmp_path / "qs.csv", "--chirp",
+               tmp_path / "c.csv", "--chirp-friction-factor", value, "--out",
+               tmp_path / "P.yaml")
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--chirp-friction-factor" in lines[0], proc.stderr
+
+
 def test_a_fast_quasi_static_file_is_warned_about(round_trip, tmp_path):
     """A chirp given as the quasi-static test: one warning line naming it before the fit
     (here the fit then refuses the data with one error line); the slow file: no warning."""

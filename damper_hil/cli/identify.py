@@ -60,6 +60,12 @@ def add_parser(sub) -> None:
                        default=None,
                        help="alpha search range [1/Pa] (default: 0.1x to 100x the base "
                             "alpha)")
+    ident.add_argument("--chirp-friction-factor", metavar="F", type=float, default=1.0,
+                       help="the friction at the chirp's speeds (taken out of the force "
+                            "before the valve fits, and the parameter file's friction) is F "
+                            "times the quasi-static fit's; 1 is the paper's one friction. A "
+                            "seal with less friction at a few mm/s than at speed otherwise "
+                            "moves both valves' pressure drops by the difference")
     ident.add_argument("--no-compressibility-correction", action="store_true",
                        help="use the rigid-oil valve flow |v|(A_pt − A_rod) as the paper does")
     ident.set_defaults(handler=run)
@@ -71,6 +77,9 @@ def run(args: argparse.Namespace) -> int:
     from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config, save_config
 
     started = time.perf_counter()
+    factor = args.chirp_friction_factor
+    if not (math.isfinite(factor) and factor >= 0):
+        raise CliError(f"--chirp-friction-factor {factor!r}: must be a finite number ≥ 0")
     base = load_config(args.base)
     fixed = _fixed_valve_parameters(args.fix)
     qs = [read_measured_csv(p) for p in args.quasi_static]
@@ -90,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
                                                                  flush=True),
                       correct_compressibility=not args.no_compressibility_correction,
                       fixed=fixed, fit_alpha=args.fit_alpha,
-                      alpha_bounds_per_pa=args.alpha_bounds)
+                      alpha_bounds_per_pa=args.alpha_bounds,
+                      chirp_friction_factor=args.chirp_friction_factor)
     cfg = result.config
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_config(cfg, args.out)

@@ -123,6 +123,12 @@ def test_each_family_is_found_after_identify_on_the_same_files(effect):
             truth_params[name], rel=PARAMETER_TOLERANCE), (effect, name, main)
     # each fitted parameter has a finite uncertainty
     assert all(math.isfinite(f["std"]) for f in main["fitted"].values()), main
+    if effect == "cavitation":
+        # its fit started from a re-identification with the friction at speed searched:
+        # the truth's smooth seal has 1/tanh(4/5) = 1.5 times the quasi-static friction
+        first = {f["effect"]: f for f in diag.to_json()["rounds"][0]}
+        assert first["cavitation"]["reidentified"], first["cavitation"]
+        assert first["cavitation"]["friction_factor"] == pytest.approx(1.5, abs=0.25)
 
 
 @pytest.mark.parametrize("damper, effects", [
@@ -144,6 +150,8 @@ def test_without_an_extra_effect_the_answer_is_none_on_two_dampers(damper, effec
     force = np.concatenate([r.data.force[r.start:] for r in diag.records if r.held_out])
     assert diag.floor_n >= FLOOR_FORCE_FRACTION * float(np.sqrt(np.mean(force ** 2))) - 1e-9
     assert diag.to_json()["effects"] == []
+    # no cavity worth the friction search (seven re-identifications) on these dampers
+    assert all(f["friction_factor"] is None for f in diag.to_json()["rounds"][0])
 
 
 def test_two_effects_together_are_both_found_by_forward_selection():

@@ -297,6 +297,9 @@ class JointFit:
     evaluations: int
     #: whether the start came from a re-identification without the effect's samples
     reidentified: bool = False
+    #: where the friction at speed was searched (``Candidate.friction_coupled``): the
+    #: factor over the quasi-static friction of the re-identification started from
+    friction_factor: float | None = None
 
     def model(self, cfg: ModelConfig, candidates: Sequence[Candidate]) -> DamperModel:
         return model_of(cfg, self.base_values, list(zip(candidates, self.values)))
@@ -622,8 +625,8 @@ FRICTION_SEARCH_MIN_GAIN = 0.1
 
 _Tried = TypeVar("_Tried", bound=tuple[Any, ...])
 #: a re-identified start of :func:`joint_fit`: (pre-fit cost, paper's parameters, the
-#: candidate's pre-fitted values, simulations)
-_Restart = tuple[float, dict[str, float], dict[str, float], int]
+#: candidate's pre-fitted values, simulations, the friction factor it was identified with)
+_Restart = tuple[float, dict[str, float], dict[str, float], int, float]
 
 
 def search_friction(score: Callable[[float], _Tried | None]) -> list[_Tried | None]:
@@ -694,6 +697,7 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     fit_data = [r.data for r in records]
     evaluations = 0
     reidentified = False
+    friction_factor: float | None = None
     if candidate is not None:
         def prefit(bv: Mapping[str, float], vals: Sequence[Mapping[str, float]], free: int,
                    starts_values: Sequence[Mapping[str, float]]
@@ -740,14 +744,14 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
             """Re-identified base (``friction_factor``), the candidate pre-fitted on it
             (from its own starts and the first pre-fit's values, or with ``screen``
             false from the latter only): ``(cost, base, candidate's values,
-            simulations)``; ``None`` if the re-identification failed."""
+            simulations, factor)``; ``None`` if the re-identification failed."""
             nb = reidentify(as_cfg, records, n_quasi_static, masks, factor)
             if nb is None:
                 return None
             nb = {**base_values, **nb}
             vals, cost, n = prefit(nb, [*values, pre_values], last,
                                    [*start_values, pre_values] if screen else [pre_values])
-            return cost, nb, vals, n
+            return cost, nb, vals, n, factor
 
         tried: list[_Restart | None] = []
         if not accepted and candidate.identify_as is not None:
@@ -776,9 +780,11 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
         evaluations += sum(t[3] for t in tried if t is not None)
         done = [t for t in tried if t is not None]
         if done:
-            alt_cost, new_base, alt_values, _ = min(done, key=lambda t: t[0])
+            alt_cost, new_base, alt_values, _, factor = min(done, key=lambda t: t[0])
             if alt_cost < pre_cost:
                 base_values, pre_values, reidentified = new_base, alt_values, True
+                if len(tried) > 1:  # searched
+                    friction_factor = factor
         values.append(pre_values)
     # bounds around the start (the identified values, or the re-identified ones)
     free = base_parameters(config_with(cfg, base_values), fit_data, [c.effect for c in cands])
@@ -795,4 +801,4 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
                     std=[{p.name: std.get((k, p.name), 0.0) for p in c.parameters}
                          for k, c in enumerate(cands)],
                     cost=float(sol.cost), evaluations=evaluations + space.evaluations,
-                    reidentified=reidentified)
+                    reidentified=reidentified, friction_factor=friction_factor)

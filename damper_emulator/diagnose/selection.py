@@ -237,7 +237,7 @@ def run_fit_task(task: FitTask) -> dict[str, Any]:
                              "rms": rms(x)} for r, x in zip(fit, fit_res)},
             "held": {r.name: {"sse": float(np.dot(x, x)), "rms": rms(x)}
                      for r, x in zip(held, held_res)},
-            "reidentified": jf.reidentified,
+            "reidentified": jf.reidentified, "friction_factor": jf.friction_factor,
             "evaluations": jf.evaluations, "seconds": time.perf_counter() - t0}
 
 
@@ -335,6 +335,7 @@ class StepFit:
                         for p in c.parameters} if c else {}),
             "rms_fit": self.rms_fit, "rms_held_out": self.rms_held_out,
             "reidentified": bool(self.out.get("reidentified")),
+            "friction_factor": self.out.get("friction_factor"),
             "evaluations": self.evaluations, "seconds": round(self.seconds, 2)}
         if c is not None and c.note:
             doc["note"] = c.note
@@ -442,7 +443,9 @@ class Diagnosis:
             "rounds": [[{"effect": f.candidate.effect if f.candidate else None,
                          "effects": f.effects,
                          "score": f.score, "delta_bic": f.delta_bic,
-                         "significant": f.significant} for f in rnd]
+                         "significant": f.significant,
+                         "reidentified": bool(f.out.get("reidentified")),
+                         "friction_factor": f.out.get("friction_factor")} for f in rnd]
                        for rnd in self.rounds],
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,

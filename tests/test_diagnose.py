@@ -150,7 +150,7 @@ def test_without_an_extra_effect_the_answer_is_none_on_two_dampers(damper, effec
     force = np.concatenate([r.data.force[r.start:] for r in diag.records if r.held_out])
     assert diag.floor_n >= FLOOR_FORCE_FRACTION * float(np.sqrt(np.mean(force ** 2))) - 1e-9
     assert diag.to_json()["effects"] == []
-    # no cavity worth the friction search (seven re-identifications) on these dampers
+    # no cavity worth the friction search (four re-identifications) on these dampers
     assert all(f["friction_factor"] is None for f in diag.to_json()["rounds"][0])
 
 
@@ -559,40 +559,43 @@ def test_the_slow_test_gets_its_own_friction_as_a_smooth_seal_gives_it():
         p.name for p in base_parameters(cfg, data[:2], ["lugre_friction"])}
 
 
-def test_the_friction_search_tries_each_level_then_halves_the_step_around_the_best():
-    """``search_friction`` scores every level of ``FRICTION_SEARCH_FACTORS``, then the
-    two points ``FRICTION_SEARCH_REFINE`` either side of the best (within the range); a
-    failed level (``None``) is kept as tried but never chosen."""
-    from damper_emulator.diagnose.joint import (
-        FRICTION_SEARCH_FACTORS,
-        FRICTION_SEARCH_REFINE,
-        search_friction,
-    )
+def test_the_friction_search_tries_three_levels_then_the_least_of_their_parabola():
+    """``search_friction`` scores each of ``FRICTION_SEARCH_FACTORS``, then once more
+    where the parabola through their costs is least: on a cost quadratic in the factor
+    that is its exact minimum (closed form ``c``); where the three are not convex, half-way
+    from the best to its better neighbour; a failed level (``None``) is kept as tried and
+    nothing more is tried."""
+    from damper_emulator.diagnose.joint import FRICTION_SEARCH_FACTORS, search_friction
 
-    calls = []
-    best_factor = 1.6  # between two levels: the refinement must reach past the grid
-
-    def score(f):
-        calls.append(f)
-        return None if f == max(FRICTION_SEARCH_FACTORS) else (abs(f - best_factor), f)
-
-    out = search_friction(score)
     grid = list(FRICTION_SEARCH_FACTORS)
-    assert calls[:len(grid)] == grid
-    nearest = min((f for f in grid[:-1]), key=lambda f: abs(f - best_factor))
-    assert sorted(calls[len(grid):]) == [nearest - FRICTION_SEARCH_REFINE,
-                                         nearest + FRICTION_SEARCH_REFINE]
-    assert len(out) == len(calls) and out.count(None) == 1
-    chosen = min((t for t in out if t is not None), key=lambda t: t[0])
-    assert abs(chosen[1] - best_factor) < abs(nearest - best_factor)
-    # the lowest level best: only the refinement inside the range
-    calls.clear()
-    search_friction(lambda f: (calls.append(f), (f, f))[1])
-    assert calls[len(grid):] == [grid[0] + FRICTION_SEARCH_REFINE]
-    # every level failing: nothing more is tried
-    calls.clear()
-    assert search_friction(lambda f: calls.append(f)) == [None] * len(grid)
+    assert len(grid) == 3 and grid[1] - grid[0] == pytest.approx(grid[2] - grid[1])
+    for c in (1.6, 1.13, grid[0] + 0.01):
+        calls = []
+
+        def quadratic(f, c=c):
+            calls.append(f)
+            return (3.0 * (f - c) ** 2 + 0.7, f)
+
+        out = search_friction(quadratic)
+        assert calls[:3] == grid and len(calls) == 4 and len(out) == 4
+        assert calls[3] == pytest.approx(c, abs=1e-12)
+    # a cost |f − c| (the pre-fit's valley is V-shaped near its least): close to c
+    calls = []
+    search_friction(lambda f: (calls.append(f), (abs(f - 1.51), f))[1])
+    assert abs(calls[3] - 1.51) < 0.02
+    # a least outside the range: clipped to its end, which is not tried twice
+    calls = []
+    search_friction(lambda f: (calls.append(f), ((f - 3.0) ** 2, f))[1])
     assert calls == grid
+    # not convex (the middle highest): half-way from the best end to the middle
+    calls = []
+    search_friction(lambda f: (calls.append(f), (-((f - grid[1]) ** 2) - 0.1 * f, f))[1])
+    assert calls[3] == pytest.approx(0.5 * (grid[2] + grid[1]))
+    # a failed level: nothing more is tried, and it is never chosen
+    calls = []
+    out = search_friction(lambda f: (calls.append(f),
+                                     None if f == grid[2] else (f, f))[1])
+    assert calls == grid and out.count(None) == 1
 
 
 def test_identify_takes_the_friction_at_speed_as_a_multiple_of_the_quasi_static_one():

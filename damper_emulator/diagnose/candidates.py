@@ -102,7 +102,7 @@ class Candidate:
         more again when it searches the friction at speed doing so).  The
         longest fits are started first so that a round does not end on one alone."""
         reidentifies = self.may_act is not None or self.identify_as is not None
-        searches = 7 if self.friction_coupled else 1  # joint.search_friction's levels
+        searches = 4 if self.friction_coupled else 1  # joint.search_friction's tries
         return (len(self.starts()) * len(self.parameters)
                 + (3 * searches if reidentifies else 0))
 

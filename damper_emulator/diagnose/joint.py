@@ -611,17 +611,20 @@ def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
 #: friction higher at low speed is the friction family's Stribeck effect), up to twice it
 #: (seal friction of dampers rises with speed by tens of percent; the benchmark's smooth
 #: friction is 1.5× at speed what it is at the quasi-static 4 mm/s) ...
-FRICTION_SEARCH_FACTORS = (1.0, 1.25, 1.5, 1.75, 2.0)
-#: ... and then this either side of the best.  The pre-fit's cost is sharp in it: on the
-#: sport damper with a cavity (truth 1.51) 72, 33, 1.7, 20 and 56 at the five factors.
-FRICTION_SEARCH_REFINE = 0.125
+FRICTION_SEARCH_FACTORS = (1.0, 1.5, 2.0)
+#: ... and then once more at the least of the parabola through the three costs (clipped to
+#: their range; :func:`search_friction`).  The pre-fit's cost is sharp and smooth in the
+#: factor: on the sport damper with a cavity (truth 1.51) 72, 33, 1.7, 20 and 56 at 1,
+#: 1.25, 1.5, 1.75 and 2; the parabola through 72, 1.7 and 56 has its least at 1.53.  A
+#: grid of five with a refinement either side of its best found the same minimum in
+#: seven re-identifications instead of four.
 #: The search is made only where the effect pre-fitted on the present model lowers the
-#: records' cost by at least this fraction: seven re-identifications (about 12 s) for a
-#: cavity that opens only to follow the noise at the largest push do not pay (on the
-#: dampers of the benchmark that do not cavitate the pre-fit still opened one, and the
-#: search made the inertia case 149 → 183 s); on the sport damper with a cavity the
-#: pre-fit took the cost from 5031 to 1107.
-FRICTION_SEARCH_MIN_GAIN = 0.1
+#: records' cost by at least this fraction.  Measured 2026-11-26 (sport damper, round
+#: 1): with a cavity in the data 79 % (the cavity alone) and 62 % (with a valve lag);
+#: without one 20 % (air entrainment with LuGre friction: the cavity follows the
+#: air's lag at the largest pushes), −0.1 % (LuGre and a lag) and less than nothing
+#: (noise only).  Searched on the air case, the diagnosis took 211 s instead of about 180.
+FRICTION_SEARCH_MIN_GAIN = 0.4
 
 _Tried = TypeVar("_Tried", bound=tuple[Any, ...])
 #: a re-identified start of :func:`joint_fit`: (pre-fit cost, paper's parameters, the
@@ -629,18 +632,37 @@ _Tried = TypeVar("_Tried", bound=tuple[Any, ...])
 _Restart = tuple[float, dict[str, float], dict[str, float], int, float]
 
 
+def parabola_least(x: Sequence[float], y: Sequence[float]) -> float | None:
+    """Where the parabola through three equally spaced points ``(x[k], y[k])`` is least,
+    clipped to ``[x[0], x[2]]``; ``None`` when it is not convex (no least)::
+
+        x* = x₁ + h (y₀ − y₂) / (2 (y₀ − 2 y₁ + y₂)),   h = x₁ − x₀
+    """
+    curvature = y[0] - 2.0 * y[1] + y[2]
+    if not curvature > 0.0:
+        return None
+    h = x[1] - x[0]
+    return min(max(x[1] + h * (y[0] - y[2]) / (2.0 * curvature), x[0]), x[2])
+
+
 def search_friction(score: Callable[[float], _Tried | None]) -> list[_Tried | None]:
     """``score(factor)`` (a tuple whose first item is a cost to minimise, or ``None`` for a
-    failure) at each of :data:`FRICTION_SEARCH_FACTORS`, then
-    :data:`FRICTION_SEARCH_REFINE` either side of the best within their range: every
+    failure) at each of :data:`FRICTION_SEARCH_FACTORS`, then, where all three were
+    scored, at the least of the parabola through their costs (:func:`parabola_least`;
+    where that is not convex, half-way from the best to its better neighbour): every
     result, in the order tried."""
-    tried = {f: score(f) for f in FRICTION_SEARCH_FACTORS}
-    done = {f: t for f, t in tried.items() if t is not None}
-    if done:
-        best = min(done, key=lambda f: done[f][0])
-        for f in (best - FRICTION_SEARCH_REFINE, best + FRICTION_SEARCH_REFINE):
-            if min(FRICTION_SEARCH_FACTORS) <= f <= max(FRICTION_SEARCH_FACTORS):
-                tried[f] = score(f)
+    grid = FRICTION_SEARCH_FACTORS
+    tried = {f: score(f) for f in grid}
+    costs = [t[0] if t is not None else None for t in tried.values()]
+    if all(c is not None for c in costs):
+        y = [float(c) for c in costs if c is not None]
+        f = parabola_least(grid, y)
+        if f is None:
+            k = min(range(3), key=lambda i: y[i])
+            near = [i for i in (k - 1, k + 1) if 0 <= i < 3]
+            f = 0.5 * (grid[k] + grid[min(near, key=lambda i: y[i])])
+        if f not in tried:
+            tried[f] = score(f)
     return list(tried.values())
 
 
@@ -773,7 +795,7 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
                     cfg, [], base_values, cands[:-1], values, [False] * len(values),
                     records, weights, n_quasi_static).cost()
             if search:
-                # a search of seven, the pre-fits from the first one's values only
+                # a search of four, the pre-fits from the first one's values only
                 tried = search_friction(lambda f: restart(f, masks, screen=False))
             elif masks is not None:
                 tried.append(restart(1.0, masks))

@@ -596,6 +596,10 @@ def test_the_friction_search_tries_three_levels_then_the_least_of_their_parabola
     out = search_friction(lambda f: (calls.append(f),
                                      None if f == grid[2] else (f, f))[1])
     assert calls == grid and out.count(None) == 1
+    # every level failing: nothing more is tried
+    calls = []
+    assert search_friction(lambda f: calls.append(f)) == [None] * len(grid)
+    assert calls == grid
 
 
 def test_identify_takes_the_friction_at_speed_as_a_multiple_of_the_quasi_static_one():

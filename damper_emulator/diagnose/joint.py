@@ -653,9 +653,9 @@ def search_friction(score: Callable[[float], _Tried | None]) -> list[_Tried | No
     result, in the order tried."""
     grid = FRICTION_SEARCH_FACTORS
     tried = {f: score(f) for f in grid}
-    costs = [t[0] if t is not None else None for t in tried.values()]
-    if all(c is not None for c in costs):
-        y = [float(c) for c in costs if c is not None]
+    done = [t for t in tried.values() if t is not None]
+    if len(done) == len(grid):
+        y = [float(t[0]) for t in done]
         f = parabola_least(grid, y)
         if f is None:
             k = min(range(3), key=lambda i: y[i])
@@ -776,6 +776,7 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
             return cost, nb, vals, n, factor
 
         tried: list[_Restart | None] = []
+        search = False  # the friction at speed searched (search_friction)
         if not accepted and candidate.identify_as is not None:
             tried.append(restart(1.0, None, candidate.identify_as(cfg)))
         else:
@@ -805,7 +806,7 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
             alt_cost, new_base, alt_values, _, factor = min(done, key=lambda t: t[0])
             if alt_cost < pre_cost:
                 base_values, pre_values, reidentified = new_base, alt_values, True
-                if len(tried) > 1:  # searched
+                if search:
                     friction_factor = factor
         values.append(pre_values)
     # bounds around the start (the identified values, or the re-identified ones)

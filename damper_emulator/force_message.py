@@ -69,6 +69,15 @@ def columns(force_n: np.ndarray, status: np.ndarray, stroke_m: np.ndarray,
             np.column_stack([force_n, np.asarray(status).astype(float)]))
 
 
+def input_age_of(position: Sequence[float]) -> float:
+    """The input age [s] of one message's ``position`` (:data:`NO_AGE` when the entry is
+    absent or not finite)."""
+    if len(position) <= STATUS:
+        return NO_AGE
+    age = float(position[STATUS])
+    return age if math.isfinite(age) else NO_AGE
+
+
 def status_of(effort: Sequence[float]) -> int:
     """The status bits of one message's ``effort`` (0 when the entry is absent or not
     finite: a publisher that only fills the contract's entry)."""

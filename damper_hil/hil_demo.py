@@ -172,6 +172,12 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
             node.stop()
     progress("[4/4] report from the bag")
     ride_doc = json.loads(metrics.read_text())
+    delay = ride_doc.get("loop_delay")
+    if delay and not delay["within_bound"]:
+        progress(f"warning: the loop delay exceeded its bound ({delay['bound_ms']:.1f} ms, "
+                 f"45° at the wheel hop) at {delay['over_bound']} of {delay['samples']} "
+                 f"samples (max {delay['max_ms']:.0f} ms): a slow host; the ride's metrics "
+                 "are not the damper's alone")
     recording = read_recording(bag)
     car = load_ride_config().quarter_car
     return write_report(out, recording, ride_doc, stats, car.sprung_mass_kg, {

@@ -149,6 +149,17 @@ def _control_lines(summary: dict[str, Any]) -> list[str]:
     return lines + [""]
 
 
+def _delay_line(delay: dict[str, Any] | None) -> str:
+    """The report's row of the ride's loop delay (:mod:`ride_sim.loop_delay`)."""
+    if not delay:
+        return "| loop delay (state to force applied) | not measured (lockstep clock) |"
+    verdict = ("within" if delay["within_bound"] else
+               f"**over at {delay['over_bound']} of {delay['samples']} samples**:")
+    return (f"| loop delay (state to force applied) p50 / p99 / max | "
+            f"{delay['p50_ms']:.0f} / {delay['p99_ms']:.0f} / {delay['max_ms']:.0f} ms, "
+            f"{verdict} the bound {delay['bound_ms']:.1f} ms (45° at the wheel hop) |")
+
+
 def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
                  stats_file: Path, sprung_mass_kg: float, extra: dict[str, Any]
                  ) -> dict[str, Any]:
@@ -214,6 +225,7 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
         f"m/s² |",
         f"| dynamic tyre load r.m.s. | {m.get('dtl_rms', float('nan')):.0f} N |",
         f"| real-time factor of the ride loop | {ride_doc.get('real_time_factor')} |",
+        _delay_line(ride_doc.get("loop_delay")),
         "",
         "| emulator loop | value |",
         "|---|---|",

@@ -26,6 +26,7 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
 import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -47,6 +48,7 @@ from damper_emulator.ros.common import (
     wait_until_active,
 )
 from damper_emulator.ros.emulator import load_node_model
+from ride_sim import loop_delay
 from ride_sim import quarter_car as qc
 from ride_sim.params import (
     DEFAULT_QUARTER_CAR_FILE,
@@ -91,6 +93,10 @@ class RideNode(Node):
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
         self.main_thread_priority = (executor_priority(cfg.ride.priority)
                                      if cfg.ride.sched_fifo else 0)
+        #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal).  Found
+        #: 2026-11-27: under normal scheduling beside the other nodes' real-time threads
+        #: on a 2-core VM, the force reached the ride up to 0.75 s late
+        self.dds_priority = cfg.ride.dds_priority
         static = DamperStepper(model).force_n
         self.session = RideSession(cfg.quarter_car, cfg.road, cfg.ride, cfg.simulation.step_s,
                                    static)
@@ -111,7 +117,14 @@ class RideNode(Node):
             self._force_sub = self._io_node.create_subscription(
                 JointState, topics.FORCE, lambda _msg: None, qos)
         self._forces: dict[int, tuple[float, int]] = {}     # lockstep: stamp → force
-        self._latest: tuple[int, float, int] | None = None   # realtime: recv, force, status
+        #: realtime: the latest force (received [monotonic ns], force, status, wall-clock
+        #: stamp of the state it answers or -1)
+        self._latest: tuple[int, float, int, int] | None = None
+        #: realtime: each sample's state stamp [wall-clock ns], and the loop delay of the
+        #: force applied at each sample [samples] (:mod:`ride_sim.loop_delay`)
+        self._state_stamps = np.zeros(self.session.n + 1, np.int64)
+        self._delays = np.full(self.session.n + 1, -1, np.int64)
+        self.delay_bound_s = loop_delay.delay_bound_s(cfg.quarter_car)
         self._loop: PeriodicLoop | None = None
         self._started_ns = 0
         self.faults = 0
@@ -138,7 +151,10 @@ class RideNode(Node):
         if self.run_params.clock == "lockstep":
             self._forces[stamp_ns(msg.header.stamp)] = (force, status)
         else:
-            self._latest = (time.monotonic_ns(), force, status)
+            age = force_message.input_age_of(msg.position)
+            answered = (stamp_ns(msg.header.stamp) - int(round(age * 1e9))
+                        if age >= 0.0 else -1)
+            self._latest = (time.monotonic_ns(), force, status, answered)
 
     def _publish_state(self, stamp: int, x: float, v: float) -> None:
         msg = JointState()
@@ -253,16 +269,23 @@ class RideNode(Node):
             for msg, _info in take_all(sub):
                 self._on_force(msg)
             latest = self._latest
+            k = s.k
             if latest is None:
                 force, status = self.static_force_n, 0
                 if now_ns - self._started_ns > timeout_ns:
                     raise TimeoutError(f"no force from the emulator within "
                                        f"{p.force_timeout_s:g} s of the start")
             else:
-                recv, force, status = latest
+                recv, force, status, answered = latest
                 if now_ns - recv > timeout_ns:
                     raise TimeoutError(f"no force from the emulator for "
                                        f"{(now_ns - recv) * 1e-9:.3f} s")
+                if answered >= 0 and k > 0:
+                    # the last sample whose state was published by then (the emulator's
+                    # reception, which its age counts from, follows the publication)
+                    j = int(np.searchsorted(self._state_stamps[:k], answered, "right")) - 1
+                    if j >= 0:
+                        self._delays[k] = k - j
             span = self._span
             if span:
                 span[2], span[3] = s.k, now_ns
@@ -271,6 +294,7 @@ class RideNode(Node):
             stamp = time.time_ns()
             x, v = s.motion()
             self._publish_state(stamp, x, v)
+            self._state_stamps[k] = stamp
             self.faults |= status
             s.apply(force, status)
             self._publish_ride(stamp)
@@ -325,6 +349,14 @@ class RideNode(Node):
             doc["loop"] = {"period_p50_us": st.period_p50_us, "period_p99_us": st.period_p99_us,
                            "period_max_us": st.period_max_us, "overruns": st.overruns,
                            "skipped": st.skipped, "realtime": self._loop.report.summary()}
+            delay = loop_delay.summarise(self._delays[:s.k], s.dt_s, self.delay_bound_s)
+            doc["loop_delay"] = delay
+            if not delay["within_bound"]:
+                self.get_logger().warning(
+                    f"loop delay over its bound ({delay['bound_ms']:.1f} ms: the damper "
+                    f"force 45° late at the wheel hop) at {delay['over_bound']} of "
+                    f"{delay['samples']} samples (max {delay['max_ms']:.0f} ms); the ride "
+                    "is not the damper's alone: a slow host or a stalled emulator")
         self.get_logger().info(
             f"ride done: {s.k} samples in {elapsed:.1f} s; SWS r.m.s. "
             f"{m['sws_rms'] * 1e3:.2f} mm, weighted body acceleration r.m.s. "

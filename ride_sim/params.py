@@ -164,6 +164,10 @@ class RideRunParams:
     sched_fifo: bool = _rule("bool", "realtime clock: SCHED_FIFO for the loop thread when "
                                      "permitted", True)
     priority: int = _rule(("int_range", 1, 99), "SCHED_FIFO priority of the loop thread", 70)
+    dds_priority: int = _rule(("int_range", 0, 99),
+                              "SCHED_FIFO priority of the DDS middleware's threads (receive, "
+                              "events) when permitted; below the loop's, so that the force "
+                              "arrives on a busy machine (0: normal scheduling)", 60)
     metrics_file: str = _rule("text", "write the run's metrics here (JSON) at the end "
                                       "('' = do not)", "")
 

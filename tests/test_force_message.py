@@ -28,6 +28,7 @@ def test_one_output_as_documented_decoded_by_rosbags():
     assert msg.position[0] == 0.0123 and msg.position[1] == 0.0021
     assert msg.velocity[0] == -0.4 and msg.velocity[1] == 0.0
     assert fm.status_of(msg.effort) == int(status)
+    assert fm.input_age_of(msg.position) == 0.0021
 
 
 def test_no_input_writes_zero_motion_and_no_age():
@@ -39,6 +40,8 @@ def test_no_input_writes_zero_motion_and_no_age():
 def test_a_contract_only_message_reads_as_ok_without_age():
     assert fm.status_of([120.0]) == 0
     assert fm.status_of([120.0, math.nan]) == 0
+    assert fm.input_age_of([0.01]) == fm.NO_AGE
+    assert fm.input_age_of([0.01, math.nan]) == fm.NO_AGE
 
 
 def test_columns_round_trip_through_cdr_and_tolerate_contract_only_messages():

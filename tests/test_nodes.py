@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import subprocess
 import sys
 import time
@@ -30,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 #: each test its own domain: 110 + offset (>= 102 would clash with the 0..101 range? no:
 #: the Linux limit is 232; stay well inside it and away from the demo's 40..89)
 DOMAINS = {"lockstep": 121, "stale": 122, "nan": 123, "kill": 124,
-           "params": 125, "badfile": 126}
+           "params": 125, "badfile": 126, "dds": 127}
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 
@@ -75,15 +76,61 @@ def test_closed_loop_demo_writes_a_bag_rosbags_reads(cold_demo):
             assert conn.ext.offered_qos_profiles, conn.topic
             assert conn.ext.serialization_format == "cdr"
     m = summary["ride"]["metrics"]
+    # the loop delay: every sample after the emulator's first force answers an earlier
+    # state (causality: at least one sample), and the verdict agrees with the figures
+    delay = summary["ride"]["loop_delay"]
+    assert delay["samples"] > 0.9 * n_state and delay["p50_ms"] >= 1.0, delay
+    assert delay["within_bound"] == (delay["max_ms"] <= delay["bound_ms"]), delay
     # a real-time loop on a busy 2-core machine may see stale-input faults; the physics is
     # checked exactly by the lockstep test.  Here: the closed loop rode the minor road
     # (offline: SWS 32 mm, DTL 1.66 kN r.m.s.) and did not fall apart.
     # (with the skyhook controller commanding the damper over CAN: SWS +11 %, DTL +21 %)
-    assert 0.016 < m["sws_rms"] < 0.064 and 800 < m["dtl_rms"] < 4000, m
+    if not delay["within_bound"]:
+        assert "the loop delay exceeded its bound" in proc.stdout + proc.stderr, delay
+    if delay["p99_ms"] <= delay["bound_ms"]:
+        assert 0.016 < m["sws_rms"] < 0.064 and 800 < m["dtl_rms"] < 4000, m
+    # else: a slow host; the run says so (above) and its metrics are not the damper's.
+    # Found 2026-11-26/27 on the 2-core VM: the force the ride applied answered a state up
+    # to 0.2-0.75 s old, which pumped the wheel hop (DTL 4.5-4.9 kN r.m.s.); the ride's
+    # DDS threads ran under normal scheduling behind the other nodes' SCHED_FIFO ones
+    # (now ride.dds_priority: max 12-84 ms, DTL 1.84-1.99 kN in four demos)
     assert summary["valve_command"]["count"] > 100, summary["valve_command"]
     assert summary["bridge_diagnostics"], "no /diagnostics from the CAN bridge recorded"
     for f in ("ride.png", "damper.png", "control.png", "loop.png", "report.md", "demo.json"):
         assert (out / f).stat().st_size > 0
+
+
+def _fifo_permitted() -> bool:
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except PermissionError:
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True
+
+
+def test_the_ride_runs_its_middleware_threads_under_sched_fifo(tmp_path):
+    """``ride.dds_priority``: the DDS threads (receive, events) of the ride's process run
+    under SCHED_FIFO at that priority, or normally at 0.  Found 2026-11-27: under normal
+    scheduling, beside the other nodes' real-time threads on a 2-core VM, the emulator's
+    force reached the ride up to 0.75 s late (README, the ride node's loop delay)."""
+    if not _fifo_permitted():
+        pytest.skip("SCHED_FIFO not permitted here")
+    for priority, policy in ((60, os.SCHED_FIFO), (0, os.SCHED_OTHER)):
+        with start("ride", "ride", DOMAINS["dds"], tmp_path / str(priority),
+                   {"ride.emulator_node": "", "ride.dds_priority": priority,
+                    "ride.wait_for_emulator_s": 60.0}) as ride:
+            end = time.monotonic() + 60
+            while "kernels loaded" not in ride.log_tail(50) and time.monotonic() < end:
+                assert ride.poll() is None, ride.log_tail()
+                time.sleep(0.2)
+            tasks = Path(f"/proc/{ride.pid}/task")
+            dds = [int(t.name) for t in tasks.iterdir()
+                   if (t / "comm").read_text().startswith("dds.")]
+            assert dds, "no DDS thread found"
+            for tid in dds:
+                assert os.sched_getscheduler(tid) == policy, tid
+                assert os.sched_getparam(tid).sched_priority == priority, tid
 
 
 def test_lockstep_ride_equals_the_offline_simulation(tmp_path):

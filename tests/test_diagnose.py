@@ -489,8 +489,8 @@ def test_a_joint_fit_stops_after_a_step_that_moves_neither_measure(monkeypatch):
     effective BIC by less than one unit.  White residuals 0.05 % lower are ~30 BIC units
     on the ~67,000 samples of the identification files (go on); the same on a smooth,
     strongly autocorrelated residual are a fraction of one (stop); 5 % lower is never too
-    small.  A stopped fit returns the point it had accepted, its cost, and the
-    differenced Jacobian there (for σ)."""
+    small.  A stopped fit returns the point that step started from (the last one whose
+    Jacobian it took), its cost, and the differenced Jacobian there (for σ)."""
     from damper_emulator.diagnose import joint
 
     sheet, data = _session(())
@@ -503,7 +503,7 @@ def test_a_joint_fit_stops_after_a_step_that_moves_neither_measure(monkeypatch):
     space._min_bic_step = joint.JOINT_MIN_BIC_STEP
 
     def step(before, factor):
-        space._accepted = before
+        space._accepted = (s, before, None)
         space._last = (s, before * factor, False)
         try:
             return space._jacobian_unless_done(s)
@@ -521,10 +521,12 @@ def test_a_joint_fit_stops_after_a_step_that_moves_neither_measure(monkeypatch):
     monkeypatch.setattr(joint, "JOINT_MIN_RELATIVE_STEP", 1.0)
     sol = space.solve(s, 10, min_bic_step=1e30)  # every step too small: stop at the first
     assert sol.status == -2
+    np.testing.assert_array_equal(sol.x, s)  # where the first step started
     f = space.residuals(sol.x)
     assert sol.cost == pytest.approx(0.5 * float(f @ f), rel=1e-12)
-    assert sol.cost < 0.5 * float(space.residuals(s) @ space.residuals(s))
     np.testing.assert_array_equal(sol.jac, space.jacobian(sol.x))
+    # it stopped where trf asked for the Jacobian after an accepted trial step
+    assert space.evaluations > 1 + s.size
 
 
 def test_the_slow_test_gets_its_own_friction_as_a_smooth_seal_gives_it():

@@ -337,8 +337,9 @@ class Space:
         #: last point evaluated with its residual and that flag (the Jacobian's base point)
         self.refused = False
         self._last: tuple[np.ndarray, np.ndarray, bool] | None = None
-        #: the residual at the last point :meth:`solve` accepted, and its stop's BIC step
-        self._accepted: np.ndarray | None = None
+        #: the last point :meth:`solve` accepted with its residual and Jacobian, and its
+        #: stop's BIC step
+        self._accepted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._min_bic_step = JOINT_MIN_BIC_STEP
         #: where each record's residual ends in the concatenated vector
         self._ends = np.cumsum([r.counted for r in records])[:-1]
@@ -454,13 +455,15 @@ class Space:
         assert self._last is not None  # set by every residuals()
         _, f, refused = self._last
         if self._accepted is not None and not refused:
-            ss0, ss1 = float(np.dot(self._accepted, self._accepted)), float(np.dot(f, f))
+            f0 = self._accepted[1]
+            ss0, ss1 = float(np.dot(f0, f0)), float(np.dot(f, f))
             if (ss1 > (1.0 - JOINT_MIN_RELATIVE_STEP) * ss0
-                    and bic_gain(np.split(self._accepted, self._ends),
+                    and bic_gain(np.split(f0, self._ends),
                                  np.split(f, self._ends)) < self._min_bic_step):
                 raise _Converged
-        self._accepted = f
-        return self.jacobian(s)
+        jac = self.jacobian(s)
+        self._accepted = (s.copy(), f, jac)
+        return jac
 
     def solve(self, s0: np.ndarray, nfev: int, min_bic_step: float | None = None
               ) -> OptimizeResult:
@@ -477,12 +480,13 @@ class Space:
                                  method="trf", x_scale="jac", max_nfev=nfev,
                                  ftol=JOINT_FTOL, xtol=1e-6)
         except _Converged:
-            # the point just accepted, as least_squares would have returned it
-            assert self._last is not None
-            s, f, _ = self._last
-            s = s.copy()
-            return OptimizeResult(x=s, fun=f, cost=0.5 * float(np.dot(f, f)),
-                                  jac=self.jacobian(s), status=-2)
+            # where the step that gained nothing that counts started: its Jacobian is at
+            # hand (the point that step reached would need one more, one simulation per
+            # free parameter, for a cost lower by under JOINT_MIN_RELATIVE_STEP)
+            assert self._accepted is not None
+            s, f, jac = self._accepted
+            return OptimizeResult(x=s, fun=f, cost=0.5 * float(np.dot(f, f)), jac=jac,
+                                  status=-2)
 
     def std(self, sol: OptimizeResult, rho: float) -> dict[tuple[int, str], float]:
         """One standard deviation of each free parameter from the Jacobian at ``sol``

@@ -26,6 +26,7 @@ from damper_emulator.recording import read_recording
 from damper_emulator.ros import topics
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
 from damper_hil.hil_report import write_report
+from ride_sim import loop_delay
 from ride_sim.params import load_ride_config
 
 #: Seconds allowed beyond the ride's own length for start-up and shut-down.
@@ -172,12 +173,9 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
             node.stop()
     progress("[4/4] report from the bag")
     ride_doc = json.loads(metrics.read_text())
-    delay = ride_doc.get("loop_delay")
-    if delay and not delay["within_bound"]:
-        progress(f"warning: the loop delay exceeded its bound ({delay['bound_ms']:.1f} ms, "
-                 f"45° at the wheel hop) at {delay['over_bound']} of {delay['samples']} "
-                 f"samples (max {delay['max_ms']:.0f} ms): a slow host; the ride's metrics "
-                 "are not the damper's alone")
+    late = loop_delay.warning(ride_doc["loop_delay"]) if "loop_delay" in ride_doc else None
+    if late:
+        progress(f"warning: {late}")
     recording = read_recording(bag)
     car = load_ride_config().quarter_car
     return write_report(out, recording, ride_doc, stats, car.sprung_mass_kg, {

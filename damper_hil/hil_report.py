@@ -4,6 +4,7 @@ recorded bag, the ride node's metrics and the emulator's loop record.  No rclpy.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,7 @@ from damper_emulator.dyno.plots import decorate, new_figure, save
 from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.loop import load_record
 from damper_emulator.recording import Recording
+from ride_sim.loop_delay import MAX_PHASE_LAG
 
 
 def plot_ride(path: Path, rec: Recording, sprung_mass_kg: float) -> Path:
@@ -157,7 +159,8 @@ def _delay_line(delay: dict[str, Any] | None) -> str:
                f"**over at {delay['over_bound']} of {delay['samples']} samples**:")
     return (f"| loop delay (state to force applied) p50 / p99 / max | "
             f"{delay['p50_ms']:.0f} / {delay['p99_ms']:.0f} / {delay['max_ms']:.0f} ms, "
-            f"{verdict} the bound {delay['bound_ms']:.1f} ms (45° at the wheel hop) |")
+            f"{verdict} the bound {delay['bound_ms']:.1f} ms "
+            f"({math.degrees(MAX_PHASE_LAG):.0f}° at the wheel hop) |")
 
 
 def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],

@@ -18,6 +18,7 @@ This module holds the bound and the summary of a run's delays; the ride node
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -46,7 +47,8 @@ def summarise(delays: NDArray[np.int64], dt_s: float, bound_s: float) -> dict[st
     ride advanced; negative where the force answered no known state, e.g. the static
     force before the emulator's first).  Percentiles and maximum in ms; ``over_bound``:
     samples whose delay exceeded ``bound_s``; ``within_bound``: none did."""
-    known = np.asarray(delays)[np.asarray(delays) >= 0] * dt_s * 1e3
+    d = np.asarray(delays)
+    known = d[d >= 0] * dt_s * 1e3
     over = int(np.count_nonzero(known > bound_s * 1e3))
     if known.size == 0:
         p50 = p99 = peak = math.nan
@@ -56,3 +58,15 @@ def summarise(delays: NDArray[np.int64], dt_s: float, bound_s: float) -> dict[st
     return {"samples": int(known.size), "p50_ms": p50, "p99_ms": p99, "max_ms": peak,
             "bound_ms": bound_s * 1e3, "over_bound": over,
             "within_bound": known.size > 0 and over == 0}
+
+
+def warning(delay: Mapping[str, Any]) -> str | None:
+    """One line for a run whose :func:`summarise` block is over its bound (``None``
+    within it): the ride node logs it, the demo prints it."""
+    if delay["within_bound"]:
+        return None
+    return (f"the loop delay exceeded its bound ({delay['bound_ms']:.1f} ms, the damper "
+            f"force {math.degrees(MAX_PHASE_LAG):.0f}° late at the wheel hop) at "
+            f"{delay['over_bound']} of {delay['samples']} samples (max "
+            f"{delay['max_ms']:.0f} ms): a slow host or a stalled emulator; the ride's "
+            "metrics are not the damper's alone")

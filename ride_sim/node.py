@@ -351,12 +351,9 @@ class RideNode(Node):
                            "skipped": st.skipped, "realtime": self._loop.report.summary()}
             delay = loop_delay.summarise(self._delays[:s.k], s.dt_s, self.delay_bound_s)
             doc["loop_delay"] = delay
-            if not delay["within_bound"]:
-                self.get_logger().warning(
-                    f"loop delay over its bound ({delay['bound_ms']:.1f} ms: the damper "
-                    f"force 45° late at the wheel hop) at {delay['over_bound']} of "
-                    f"{delay['samples']} samples (max {delay['max_ms']:.0f} ms); the ride "
-                    "is not the damper's alone: a slow host or a stalled emulator")
+            late = loop_delay.warning(delay)
+            if late:
+                self.get_logger().warning(late)
         self.get_logger().info(
             f"ride done: {s.k} samples in {elapsed:.1f} s; SWS r.m.s. "
             f"{m['sws_rms'] * 1e3:.2f} mm, weighted body acceleration r.m.s. "

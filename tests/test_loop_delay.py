@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from ride_sim.loop_delay import MAX_PHASE_LAG, delay_bound_s, summarise, wheel_hop_rad_s
+from ride_sim.loop_delay import MAX_PHASE_LAG, delay_bound_s, summarise, warning, wheel_hop_rad_s
 from ride_sim.params import load_ride_config
 
 
@@ -38,5 +38,8 @@ def test_the_summary_counts_the_samples_over_the_bound():
     assert d["over_bound"] == 1 and d["within_bound"] is False
     ok = summarise(delays[delays < 10], 1e-3, 10e-3)
     assert ok["over_bound"] == 0 and ok["within_bound"] is True
+    assert warning(ok) is None
+    line = warning(d)
+    assert line and "exceeded its bound (10.0 ms" in line and "1 of 8 samples (max 15 ms)" in line
     none = summarise(np.array([-1, -1], np.int64), 1e-3, 10e-3)
     assert none["samples"] == 0 and math.isnan(none["max_ms"]) and none["within_bound"] is False

@@ -254,6 +254,40 @@ def test_the_fits_run_on_any_executor_in_self_contained_tasks():
     assert remote.rms_after == pytest.approx(local.rms_after, rel=1e-4)
 
 
+def test_a_fit_task_runs_blas_on_one_thread_and_gives_the_caller_its_threads_back(
+        monkeypatch):
+    """Each fit task is one core's work: BLAS threads of its own would compete with the
+    other workers' fits (a diagnosis 1.4x slower on 2 cores) and make its arithmetic
+    depend on the machine's core count."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from damper_emulator.diagnose import selection
+    from damper_emulator.diagnose.selection import FIT_BLAS_THREADS, FitTask, run_fit_task
+
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    seen: list[list[int]] = []
+
+    class Stop(Exception):
+        pass
+
+    def joint_fit(*args, **kwargs):
+        seen.append(blas_threads())
+        raise Stop
+
+    monkeypatch.setattr(selection, "joint_fit", joint_fit)
+    _, data = _session("valve_lag")
+    task = FitTask(load_config(), (data[0], data[1]), (data[2],), (1.0, 1.0), {}, (), None)
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        assert before and all(n == 2 for n in before)  # numpy's and scipy's OpenBLAS
+        with pytest.raises(Stop):
+            run_fit_task(task)
+        assert blas_threads() == before
+    assert seen == [[FIT_BLAS_THREADS] * len(before)]
+
+
 def test_noise_level_and_structure_ratio_follow_their_definitions():
     rng = np.random.default_rng(0)
     noise = rng.normal(0.0, 3.0, 20000)

@@ -28,7 +28,7 @@ ROSDEP = {"numpy": "python3-numpy", "scipy": "python3-scipy", "numba": "python3-
           "python-can": "python3-can", "cantools": "python3-cantools-pip",
           "msgpack": "python3-msgpack", "rosbags": "python3-rosbags-pip",
           "ros-jazzy-rclpy": "rclpy", "ros-jazzy-common-interfaces": "sensor_msgs",
-          "dask": None, "pyarrow": None}
+          "dask": None, "pyarrow": None, "threadpoolctl": None}
 
 
 def test_package_xml_is_valid_and_declares_every_dependency():

@@ -79,6 +79,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar, cast
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from damper_emulator.diagnose.candidates import Candidate
 from damper_emulator.diagnose.candidates import candidates as make_candidates
@@ -211,10 +212,29 @@ class FitTask:
     alternative: tuple[Mapping[str, float], Mapping[str, Mapping[str, float]]] | None = None
 
 
+#: BLAS threads a fit task runs with (:func:`run_fit_task`).  The fits are the parallel
+#: work, one task per core; OpenBLAS would otherwise start a pool of one thread per core in
+#: every worker, and those threads (which spin before they sleep) competed with the other
+#: worker's fit: on the 2-core Xeon VM (2026-11-27, sport damper, cavitation and valve lag,
+#: 2 processes) every task ran 1.4x longer than alone (round 1: 193 s of task time
+#: against 140 s in one process), and the diagnosis took 198 s; with one BLAS thread per
+#: task 139 s (the whole truth benchmark: median 90 -> 66 s, max 232 -> 178 s).  Dask's
+#: nanny sets the same for its workers (``OPENBLAS_NUM_THREADS=1``,
+#: ``distributed.nanny.pre-spawn-environ``).  It also keeps the fits' sums independent of
+#: the machine's core count (threaded BLAS splits them by thread, and a fit's path can
+#: follow the last bits: docs/diagnose.md).
+FIT_BLAS_THREADS = 1
+
+
 def run_fit_task(task: FitTask) -> dict[str, Any]:
-    """Run one :class:`FitTask` (in any process): the joint fit and the plain figures the
-    selection needs (per file: MSE, lag-1 autocorrelation and samples of the fit files,
-    SSE of the held-out files)."""
+    """Run one :class:`FitTask` (in any process, with :data:`FIT_BLAS_THREADS` BLAS
+    threads): the joint fit and the plain figures the selection needs (per file: MSE,
+    lag-1 autocorrelation and samples of the fit files, SSE of the held-out files)."""
+    with threadpool_limits(limits=FIT_BLAS_THREADS, user_api="blas"):
+        return _run_fit_task(task)
+
+
+def _run_fit_task(task: FitTask) -> dict[str, Any]:
     t0 = time.perf_counter()
     fit = [make_record(d, False) for d in task.fit]
     held = [make_record(d, True) for d in task.held]

@@ -5,7 +5,7 @@ paper's hysteresis filter: only samples where velocity and acceleration differ i
 (the decelerating part of each half cycle) are kept.  The gas force is that of the
 quasi-static fit at the measured stroke (eq 37; the paper holds it at the static value,
 which differs by ±16 N over the ±16 mm of the default chirp), and friction is the
-quasi-static friction.  The residual Jacobian is exact: complex-step differentiation of the
+quasi-static friction.  The residual Jacobian is exact: the analytic derivatives of the
 compiled valve characteristic (:func:`damper_emulator.model.valve.pressure_drop_jacobian`).
 
 Start values come from the data: the measured pressure drop ``Δp = (F − F_gas − F_f sgn ẋ)
@@ -190,7 +190,7 @@ def fit_valve(q: np.ndarray, dp_measured: np.ndarray, area_m2: float, nu_m2_s: f
         jac_pen = MONOTONIC_PENALTY * scale_n * (grad if active else np.zeros(grad.size))
 
         def jacobian() -> np.ndarray:
-            # (on demand: five complex evaluations per sample, 15× the residual's cost)
+            # (on demand: about 1.4× the residual's cost)
             jac = w[:, None] * pressure_drop_jacobian(q, theta, nu_m2_s, form)
             return np.vstack((jac, jac_pen))
 

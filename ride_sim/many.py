@@ -1,24 +1,26 @@
 """Many quarter cars with compressible dampers at once, on one road (issue 17: virtual
 tuning runs thousands of valve designs over the same roads).
 
-:func:`simulate_many` advances ``D`` designs together, in blocks of :data:`BLOCK`: per
-block one loop over the road's samples, and inside each sample one loop over the block's
-designs, on structure-of-arrays state (the
+:func:`simulate_many` advances ``D`` designs together on structure-of-arrays state (the
 designs' parameter vectors, valve tables and stepper states are rows of 2-D arrays, their
-car states the rows of a ``(D, 4)`` array).  Every design's sample is exactly what
-:func:`ride_sim.quarter_car.simulate` does for one: the same compiled damper step
-(:func:`damper_emulator.model.compressible.step`), the same exact vehicle update and the
-same output formulas (the :mod:`ride_sim.quarter_car` kernels), so the histories agree
-with the single-design path to the last bit (tested to 1e-9 relative); there is no second
-copy of the physics.  The designs share the vehicle's discretisation matrix and the road,
-which the single path reads once per design.
+car states the rows of a ``(D, 4)`` array), sharing the road and the vehicle's
+discretisation matrix.  Two loops, chosen per design:
 
-What it does not do: vectorise across designs in SIMD lanes.  The damper step solves the
-pressure equation (eq 2) by a safeguarded Newton iteration whose iteration count depends
-on the design and the sample; lanes would all run the slowest design's iterations and a
-second, branch-free copy of the solver would be needed.  The gain over the single path
-comes from the shared road and matrix and from the independent designs' work overlapping
-in the processor (benchmarks/many_bench.py).
+* **In SIMD lanes** (:func:`_loop_lanes`), the designs without a model extension
+  (:func:`damper_emulator.model.lanes.lane_eligible`): blocks of
+  :data:`~damper_emulator.model.lanes.LANES` designs over the whole road, the damper step
+  of a block's designs in one call of :func:`damper_emulator.model.lanes.step_lanes`
+  (its Newton solves in lockstep, their arithmetic vectorised), then each design's
+  vehicle update.
+* **One by one** (:func:`_loop_many`), the others: blocks of :data:`BLOCK` designs over
+  the whole road, each design's sample the compiled one-design step
+  (:func:`damper_emulator.model.compressible.step`).
+
+Both use the same equations as :func:`ride_sim.quarter_car.simulate` (the damper step's
+formulas, the exact vehicle update and the output formulas of :mod:`ride_sim.quarter_car`);
+there is no second copy of the physics.  The one-by-one loop agrees with the single-design
+path to the last bit, the lanes to rounding (tested to 1e-9 relative;
+benchmarks/many_bench.py measures both).
 
 Memory: three histories (SWS, body acceleration, DTL) of ``D × n`` doubles; a caller with
 many designs runs them in chunks (``tune`` runs one chunk per Dask task).
@@ -35,6 +37,19 @@ from numpy.typing import ArrayLike, NDArray
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.model.compressible import step as _compressible_step
 from damper_emulator.model.jit import kernel
+from damper_emulator.model.lanes import (
+    L_FLAGS,
+    L_FORCE,
+    L_V,
+    L_X,
+    LANE_BUFFER,
+    LANES,
+    lane_compatible,
+    lane_eligible,
+    load_lanes,
+    step_lanes,
+    store_lanes,
+)
 from damper_emulator.model.valve_table import TABLE_COLUMNS
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.params import QuarterCarParams
@@ -98,6 +113,40 @@ def _loop_block(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, c
                 _advance(d, sj, (force[j] - qj[Q_FSTATIC]) / qj[Q_MR], u0, u1)
 
 
+@kernel
+def _loop_lanes(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, coef_r: _Vec,
+                n_r: NDArray[np.int64], coef_c: _Vec, n_c: NDArray[np.int64], dstate: _Vec,
+                out: _Vec, faults: NDArray[np.int64], lv: _Vec) -> None:
+    """:func:`_loop_many` for designs the damper step runs in SIMD lanes
+    (:func:`damper_emulator.model.lanes.step_lanes`; ``D`` a multiple of
+    :data:`~damper_emulator.model.lanes.LANES`): per block of lanes, per sample, the lanes'
+    strokes and velocities, their step, then each car's outputs and update."""
+    n = road.size
+    for first in range(0, s.shape[0], LANES):
+        load_lanes(prm, n_r, n_c, dstate, first, lv)
+        for k in range(n):
+            u0, u1 = _road_pair(road, k)
+            if k > 0:
+                for b in range(LANES):
+                    x, v = _motion(q[first + b], s[first + b])
+                    lv[L_X * LANES + b] = x
+                    lv[L_V * LANES + b] = v
+                step_lanes(prm, coef_r, n_r, coef_c, n_c, dstate, first, q[first, Q_DT], lv)
+                for b in range(LANES):
+                    force[first + b] = lv[L_FORCE * LANES + b]
+                    faults[first + b] |= int(lv[L_FLAGS * LANES + b])
+            for j in range(first, first + LANES):
+                qj = q[j]
+                sj = s[j]
+                sws, accel, dtl = _outputs(qj, sj, force[j], u0, u1)
+                out[j, M_SWS, k] = sws
+                out[j, M_ACC, k] = accel
+                out[j, M_DTL, k] = dtl
+                if k + 1 < n:
+                    _advance(d, sj, (force[j] - qj[Q_FSTATIC]) / qj[Q_MR], u0, u1)
+        store_lanes(dstate, first, lv)
+
+
 @dataclass(frozen=True)
 class ManyResult:
     """Histories of :func:`simulate_many`, one row per design, one column per road sample
@@ -122,7 +171,7 @@ def _stack_tables(tables: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]
 
 def simulate_many(params: QuarterCarParams, models: Sequence[DamperModel],
                   road_height_m: ArrayLike, dt_s: float = 1e-3, *,
-                  initial_state: ArrayLike | None = None) -> ManyResult:
+                  initial_state: ArrayLike | None = None, lanes: bool = True) -> ManyResult:
     """Ride simulation of every damper of ``models`` on the car ``params`` over one road.
 
     Each design starts as :func:`ride_sim.quarter_car.simulate` starts one: the car at
@@ -140,6 +189,10 @@ def simulate_many(params: QuarterCarParams, models: Sequence[DamperModel],
         Road height under the tyre [m, up +] at the samples, linear in between.
     dt_s : float
         Sample period [s].
+    lanes : bool
+        Step the designs the damper's SIMD lanes can take (no model extension;
+        :mod:`damper_emulator.model.lanes`) in them (default), the others one by one;
+        ``False``: every design one by one (the results agree to rounding).
     """
     road = road_array(road_height_m)
     if not models:
@@ -158,5 +211,26 @@ def simulate_many(params: QuarterCarParams, models: Sequence[DamperModel],
     dstate = np.ascontiguousarray(np.stack([p.kernel_spec.state for p in plugins]))
     out = np.empty((len(cars), M_SIZE, road.size))
     faults = np.zeros(len(cars), dtype=np.int64)
-    _loop_many(d, q, road, s, force, prm, coef_r, n_r, coef_c, n_c, dstate, out, faults)
+    in_lanes = np.flatnonzero(lane_eligible(prm)) if lanes else np.zeros(0, np.int64)
+    if in_lanes.size and not lane_compatible(prm[in_lanes]):
+        in_lanes = np.zeros(0, np.int64)
+    alone = np.setdiff1d(np.arange(len(cars)), in_lanes)
+    if alone.size == len(cars):
+        _loop_many(d, q, road, s, force, prm, coef_r, n_r, coef_c, n_c, dstate, out, faults)
+    elif alone.size:
+        o, f = out[alone], faults[alone]
+        _loop_many(d, q[alone], road, s[alone], force[alone], prm[alone], coef_r[alone],
+                   n_r[alone], coef_c[alone], n_c[alone], dstate[alone], o, f)
+        out[alone], faults[alone] = o, f
+    if in_lanes.size:
+        # whole blocks of lanes, the last one filled up with copies of the last design
+        # (their results dropped)
+        rows = np.full(-(-in_lanes.size // LANES) * LANES, in_lanes[-1])
+        rows[:in_lanes.size] = in_lanes
+        o = np.empty((rows.size, M_SIZE, road.size))
+        f = np.zeros(rows.size, dtype=np.int64)
+        _loop_lanes(d, q[rows], road, s[rows], force[rows], prm[rows], coef_r[rows],
+                    n_r[rows], coef_c[rows], n_c[rows], dstate[rows], o, f,
+                    np.zeros(LANE_BUFFER))
+        out[in_lanes], faults[in_lanes] = o[:in_lanes.size], f[:in_lanes.size]
     return ManyResult(out[:, M_SWS], out[:, M_ACC], out[:, M_DTL], faults, cars[0].dt_s)

@@ -92,12 +92,17 @@ def circle_area(diameter_m: float) -> float:
 @kernel
 def bypass_flow(dp: float, area: float, a: float, b: float) -> tuple[float, float]:
     """Bypass flow ``Q_b`` [m³/s] (rebound → compression +) at ``Δp`` [Pa] through the open
-    area ``area`` [m²], and ``dQ_b/dΔp``; ``(0, 0)`` when the bypass is closed."""
-    if area <= 0.0:
-        return 0.0, 0.0
-    a2 = area * area
+    area ``area`` [m²], and ``dQ_b/dΔp``; ``(0, 0)`` when the bypass is closed.
+
+    Selects, no branch, and every division guarded by a test the compiler can see (so
+    that it raises nothing): the SIMD lanes of :mod:`damper_emulator.model.lanes` run
+    this inside their vectorised loop."""
+    a2 = area * area if area > 0.0 else 0.0
     root = math.sqrt(a * a + 4.0 * b * a2 * abs(dp))
-    return 2.0 * a2 * dp / (a + root), a2 / root
+    den = a + root
+    q = 2.0 * a2 * dp / den if den > 0.0 else 0.0
+    dq = a2 / root if root > 0.0 else 0.0
+    return q, dq
 
 
 @kernel

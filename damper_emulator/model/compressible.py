@@ -59,7 +59,7 @@ from damper_emulator.model.extensions import (
     viscosity_scale,
 )
 from damper_emulator.model.gas import compression_chamber_pressure_kernel
-from damper_emulator.model.jit import kernel
+from damper_emulator.model.jit import inlined_kernel, kernel
 from damper_emulator.model.valve_table import (
     EXTRAPOLATION_LIMIT,
     build_valve_tables,
@@ -198,6 +198,112 @@ def _flow_state(z: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec, area: float, gr
     return dp, ddp, q, dq, beyond, q_valve
 
 
+@inlined_kernel
+def eq2_gain(max_extension: float, area: float, alpha: float, x: float, h: float) -> float:
+    """``k = h / (V_reb α)`` of the implicit step of eq 2 over ``h`` [s] at stroke ``x``,
+    with the rebound chamber's volume ``V_reb = (L_pt − X0 − x)(A_pt − A_rod)``
+    (``max_extension = L_pt − X0``, ``area = A_pt − A_rod``)."""
+    gain: float = h / ((max_extension - x) * area * alpha)
+    return gain
+
+
+@kernel
+def eq2_residual(p: float, dp_dz: float, q: float, dq_dz: float, p_old: float, k: float,
+                 q_in: float, alpha: float) -> tuple[float, float]:
+    """Residual of the implicit step of eq 2, ``R = p − p_old − k (q_in − Q)(1 − α p)``, and
+    ``dR/dz``, at chamber pressure ``p`` and valve flow ``Q`` (with their derivatives in
+    the table coordinate ``z``); ``q_in = ẋ (A_pt − A_rod)``, ``k`` from :func:`eq2_gain`."""
+    r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
+    dr = dp_dz + k * dq_dz * (1.0 - alpha * p) + k * (q_in - q) * alpha * dp_dz
+    return r, dr
+
+
+@inlined_kernel
+def bdf2_weight(h: float, h_prev: float) -> float:
+    """Step ratio ``w = h / h_prev`` of variable-step BDF2, or 0 (backward Euler) on the
+    first sub-step and after a ratio of :data:`BDF2_MAX_STEP_RATIO` or more."""
+    if h_prev > 0.0 and h / h_prev < BDF2_MAX_STEP_RATIO:
+        return h / h_prev
+    return 0.0
+
+
+@inlined_kernel
+def bdf2_combination(y: float, y_prev: float, w: float) -> float:
+    """BDF2's ``ŷ = ((1 + w)² y − w² y_prev) / (1 + 2w)``: the step is ``y_new − ŷ =
+    h_eff f(y_new)`` with ``h_eff = h (1 + w)/(1 + 2w)`` (:func:`bdf2_step`)."""
+    combined: float = ((1.0 + w) ** 2 * y - w * w * y_prev) / (1.0 + 2.0 * w)
+    return combined
+
+
+@inlined_kernel
+def bdf2_step(h: float, w: float) -> float:
+    """``h_eff = h (1 + w) / (1 + 2w)`` of :func:`bdf2_combination`."""
+    h_eff: float = h * (1.0 + w) / (1.0 + 2.0 * w)
+    return h_eff
+
+
+@kernel
+def clamp_input(prm: _Vec, x: float, v: float) -> tuple[float, float, int]:
+    """Stroke and velocity clamped to the travel and to the valve table's velocity, with
+    the fault bits that say so."""
+    flags = 0
+    if x < prm[P_X_MIN]:
+        x = prm[P_X_MIN]
+        flags |= _STROKE_CLAMPED
+    elif x > prm[P_X_MAX]:
+        x = prm[P_X_MAX]
+        flags |= _STROKE_CLAMPED
+    if abs(v) > prm[P_V_MAX]:
+        v = math.copysign(prm[P_V_MAX], v)
+        flags |= _VELOCITY_CLAMPED
+    return x, v, flags
+
+
+@kernel
+def substeps(prm: _Vec, dt: float) -> tuple[int, float]:
+    """Number of implicit sub-steps of a step of ``dt`` [s] (none longer than
+    ``numerics.max_substep_s``) and their length."""
+    n_sub = max(1, int(math.ceil(dt / prm[P_SUBSTEP] - 1e-9)))
+    return n_sub, dt / n_sub
+
+
+@kernel
+def newton_update(z: float, r: float, dr: float, lo: float, hi: float, last_step: float,
+                   tol: float) -> tuple[float, float, float, float, bool, float]:
+    """One safeguarded Newton update of the implicit solve of eq 2 in ``z``.
+
+    ``r`` and ``dr`` are the residual and its derivative at ``z``; ``[lo, hi]`` brackets the
+    root (``r`` increases with ``z``), ``last_step`` is the last Newton step's length (0:
+    none yet, or the last update bisected), ``tol`` the relative tolerance on ``z``.  The
+    update is the Newton step ``z − r/dr``, or the bracket's midpoint where that step leaves
+    the bracket or ``dr <= 0``.  The solve is done when ``r`` is 0, when the step is
+    within the tolerance of ``z`` (tested before the bracket: ``z`` is always one end of it,
+    and a step below ``z``'s last bit would otherwise restart bisection), or when the
+    iteration is quadratic: this step is at most :data:`NEWTON_CONTRACTION` of the last and
+    the next one it predicts, step³/last², is within the tolerance.
+
+    Returns ``(z_next, lo, hi, last_step, done, dz)``; when ``done``, the root is ``z``
+    (``dz == 0``) or, by the quadratic shortcut, ``z_next = z + dz``, whose values the
+    caller takes to first order in ``dz`` instead of evaluating once more (2 valve
+    evaluations instead of 3 in most solves; they differ from the evaluated ones by
+    ``O(dz²)``, far below the tolerance).  Written with selects only, no branch on the
+    data, so that a loop over designs may run it in SIMD lanes.
+    """
+    hi = z if r > 0.0 else hi
+    lo = lo if r > 0.0 else z
+    mid = 0.5 * (lo + hi)
+    z_newton = z - r / dr if dr > 0.0 else mid
+    z_tol = tol * (1.0 + abs(z))
+    step_len = abs(z_newton - z)
+    outside = z_newton <= lo or z_newton >= hi
+    converged = r == 0.0 or step_len <= z_tol or (outside and abs(mid - z) <= z_tol)
+    quadratic = (not converged and not outside and step_len <= NEWTON_CONTRACTION * last_step
+                 and step_len * step_len * step_len <= z_tol * last_step * last_step)
+    z_next = mid if outside else z_newton
+    dz = z_newton - z if quadratic else 0.0
+    return z_next, lo, hi, 0.0 if outside else step_len, converged or quadratic, dz
+
+
 @kernel
 def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old: float,
                       x: float, v: float, h: float, bp_area: float, p_com: float,
@@ -228,7 +334,7 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
     """
     area = prm[P_A_ANNULUS]
     alpha = prm[P_ALPHA]
-    k = h / ((prm[P_MAX_EXT] - x) * area * alpha)
+    k = eq2_gain(prm[P_MAX_EXT], area, alpha, x, h)
     q_in = v * area
     air_c = prm[P_AIR_EPS] * P_ATM / alpha
     lo = -prm[P_ZLIM_C]
@@ -279,50 +385,22 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
                 p += gas_c * (f_spring - f_ref)
                 dpz += gas_c * df_spring
                 q_in = v * area - mount_c * (f_spring - mount_hat)
-        r = p - p_old - k * (q_in - q) * (1.0 - alpha * p)
-        if ext and air_c > 0.0:
-            r += air_c * (air_hat - 1.0 / max(p, AIR_PRESSURE_FLOOR))
-        if r == 0.0:
-            break
-        dr = dpz + k * dq * (1.0 - alpha * p) + k * (q_in - q) * alpha * dpz
+        r, dr = eq2_residual(p, dpz, q, dq, p_old, k, q_in, alpha)
         if ext:
+            if air_c > 0.0:
+                r += air_c * (air_hat - 1.0 / max(p, AIR_PRESSURE_FLOOR))
             if mount_c > 0.0:
                 dr += k * mount_c * df_spring * (1.0 - alpha * p)
             if air_c > 0.0 and p > AIR_PRESSURE_FLOOR:
                 dr += air_c * dpz / (p * p)
-        if r > 0.0:
-            hi = z
-        else:
-            lo = z
-        z_new = z - r / dr if dr > 0.0 else 0.5 * (lo + hi)
-        z_tol = tol * (1.0 + abs(z))
-        if abs(z_new - z) <= z_tol:
-            # z (evaluated above) is within the tolerance of the root.  Tested before the
-            # bracket: z is always one end of it, and a Newton step below z's last bit
-            # leaves z_new == z on that end; taken as out of the bracket, it restarted
-            # bisection on the whole remaining bracket, 30-40 more evaluations in 5 % of
-            # the ride's solves (found 2026-11-25)
-            break
-        if z_new <= lo or z_new >= hi:
-            z_new = 0.5 * (lo + hi)
-            if abs(z_new - z) <= z_tol:
-                break
-            last_step = 0.0
-        else:
-            step_len = abs(z_new - z)
-            if (step_len <= NEWTON_CONTRACTION * last_step
-                    and step_len * step_len * step_len <= z_tol * last_step * last_step):
-                # Quadratic convergence: this step is C·(last step)², so the next one would
-                # be C·(this step)² = step³/last² — within the tolerance.  Take the step
-                # and its first-order values instead of evaluating the valve once more only
-                # to confirm it (2 evaluations instead of 3 in most solves; the values so
-                # taken differ from the evaluated ones by O(step²), far below tolerance).
-                dz = z_new - z
+        z_new, lo, hi, last_step, done, dz = newton_update(z, r, dr, lo, hi, last_step, tol)
+        if done:
+            if dz != 0.0:
+                # the quadratic shortcut: the step and its first-order values
                 p += dpz * dz
                 q_valve += dq_valve * dz
                 z = z_new
-                break
-            last_step = step_len
+            break
         z = z_new
     else:
         dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)  # Δp only
@@ -501,16 +579,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
     if cmd != state[S_CMD]:
         cmd = solenoid_lag(cmd, state[S_CMD], dt, prm[P_BP_T63])
         state[S_CMD_EFF] = cmd
-    flags = 0
-    if x < prm[P_X_MIN]:
-        x = prm[P_X_MIN]
-        flags |= _STROKE_CLAMPED
-    elif x > prm[P_X_MAX]:
-        x = prm[P_X_MAX]
-        flags |= _STROKE_CLAMPED
-    if abs(v) > prm[P_V_MAX]:
-        v = math.copysign(prm[P_V_MAX], v)
-        flags |= _VELOCITY_CLAMPED
+    x, v, flags = clamp_input(prm, x, v)
     if dt > prm[P_SETTLE]:
         # after a gap far longer than the pressure time constants the damper is in
         # quasi-steady equilibrium at the new sample (the heat model cools meanwhile)
@@ -522,8 +591,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
     bp_area = _bypass_area_of(prm, cmd)
     fr = _friction(prm, state, v, dt)
     visc = _viscosity_factor(prm, state)
-    n_sub = max(1, int(math.ceil(dt / prm[P_SUBSTEP] - 1e-9)))
-    h = dt / n_sub
+    n_sub, h = substeps(prm, dt)
     x0 = state[S_X]
     v0 = state[S_V]
     p = state[S_P_REB]
@@ -549,17 +617,16 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
         vs = v0 + frac * (v - v0)
         air_hat = 0.0
         mount_hat = mount_f
-        w = 0.0
-        if h_prev > 0.0 and h / h_prev < BDF2_MAX_STEP_RATIO:
+        w = bdf2_weight(h, h_prev)
+        if w > 0.0:
             # variable-step BDF2: p − p̂ = h_eff f(p)
-            w = h / h_prev
-            p_hat = ((1.0 + w) ** 2 * p - w * w * p_prev) / (1.0 + 2.0 * w)
-            h_eff = h * (1.0 + w) / (1.0 + 2.0 * w)
+            p_hat = bdf2_combination(p, p_prev, w)
+            h_eff = bdf2_step(h, w)
             if k_m > 0.0:
-                mount_hat = ((1.0 + w) ** 2 * mount_f - w * w * mount_prev) / (1.0 + 2.0 * w)
+                mount_hat = bdf2_combination(mount_f, mount_prev, w)
             if air:
-                air_hat = ((1.0 + w) ** 2 / max(p, AIR_PRESSURE_FLOOR)
-                           - w * w / max(p_prev, AIR_PRESSURE_FLOOR)) / (1.0 + 2.0 * w)
+                air_hat = bdf2_combination(1.0 / max(p, AIR_PRESSURE_FLOOR),
+                                           1.0 / max(p_prev, AIR_PRESSURE_FLOOR), w)
         else:
             p_hat = p
             h_eff = h

@@ -132,11 +132,35 @@ def _registered(dispatcher: Any) -> Any:
 _physics = njit(cache=True, fastmath=set(FASTMATH_FLAGS),
                 _nrt=False)  # type: ignore[call-overload]
 _plain = njit(cache=True)
+#: :data:`_physics` inlined into each caller by numba itself (its own IR, before LLVM),
+#: and so compiled under the caller's options: a small formula that both the one-design
+#: step and a loop over SIMD lanes use, or the body of such a loop (a call left
+#: out of line stops the loop's vectorisation).
+_inlined = njit(cache=True, fastmath=set(FASTMATH_FLAGS), _nrt=False,
+                inline="always")  # type: ignore[call-overload]
+#: The loops over SIMD lanes (:mod:`damper_emulator.model.lanes`): :data:`_physics` with
+#: numpy's error model, in which a float division by zero gives ±inf or NaN instead of
+#: raising.  Under Python's model every division tests its divisor and may raise, and
+#: a loop with a possible raise is not vectorised.  Only loops whose divisors cannot be
+#: zero use it (each says why).
+_lanes = njit(cache=True, fastmath=set(FASTMATH_FLAGS), _nrt=False,
+              error_model="numpy")  # type: ignore[call-overload]
 
 
 def kernel(func: _F) -> _F:
     """Decorator for every compiled physics kernel (fast-math, cached, registered)."""
     return cast(_F, _registered(_physics(func)))
+
+
+def inlined_kernel(func: _F) -> _F:
+    """Decorator for a physics kernel that numba inlines into its callers (:data:`_inlined`):
+    the body of a loop over SIMD lanes."""
+    return cast(_F, _registered(_inlined(func)))
+
+
+def lane_kernel(func: _F) -> _F:
+    """Decorator for a loop over SIMD lanes (:data:`_lanes`: numpy's error model)."""
+    return cast(_F, _registered(_lanes(func)))
 
 
 def plain_kernel(func: _F) -> _F:

@@ -112,13 +112,28 @@ def valve_point(coef: NDArray[np.float64], step: float, scale_pa: float, z: floa
         q, dq, beyond = table_flow(coef, step, z)
         return dp, ddp, q, dq, beyond
     t = z - i * step
-    c3, c2, c1, c0 = coef[i, 0], coef[i, 1], coef[i, 2], coef[i, 3]
+    dp, ddp, q, dq = valve_row_point(coef[i, 0], coef[i, 1], coef[i, 2], coef[i, 3],
+                                     coef[i, C_EXP], coef[i, C_EXPM1], t, scale_pa)
+    return dp, ddp, q, dq, False
+
+
+@kernel
+def valve_row_point(c3: float, c2: float, c1: float, c0: float, e_node: float,
+                    expm1_node: float, t: float, scale_pa: float
+                    ) -> tuple[float, float, float, float]:
+    """:func:`valve_point` inside the table, from one row's values: the cubic's
+    coefficients, ``e^(z_i)`` and ``e^(z_i) − 1`` at the interval's first node ``z_i``,
+    and the offset ``t = z − z_i``.  Returns ``Δp``, ``dΔp/dz``, ``Q``, ``dQ/dz``.
+
+    Arithmetic only, no branch and no library call: a loop over designs that gathers
+    each design's row first can run this in SIMD lanes (:mod:`damper_emulator.model.lanes`).
+    """
     e_t = t * (1.0 + t * (0.5 + t * (1.0 / 6.0 + t * (1.0 / 24.0 + t * (
         1.0 / 120.0 + t * (1.0 / 720.0))))))
-    u = coef[i, C_EXPM1] + coef[i, C_EXP] * e_t
+    u = expm1_node + e_node * e_t
     u34 = math.sqrt(u * math.sqrt(u))
     return (scale_pa * u * u34, scale_pa * FLOW_EXPONENT * u34 * (u + 1.0),
-            ((c3 * t + c2) * t + c1) * t + c0, (3.0 * c3 * t + 2.0 * c2) * t + c1, False)
+            ((c3 * t + c2) * t + c1) * t + c0, (3.0 * c3 * t + 2.0 * c2) * t + c1)
 
 
 @kernel

@@ -1,0 +1,494 @@
+"""The compressible damper's step for many designs at once, in SIMD lanes (issue 17).
+
+:func:`step_lanes` advances :data:`LANES` designs by one sample, as
+:func:`damper_emulator.model.compressible.step` advances one, out of the same equations:
+the sub-steps (:func:`~damper_emulator.model.compressible.substeps`), the BDF2 combination
+(:func:`~damper_emulator.model.compressible.bdf2_combination`), the gas law (eq 3), the
+residual of eq 2 (:func:`~damper_emulator.model.compressible.eq2_residual`), the valve table
+(:func:`~damper_emulator.model.valve_table.valve_row_point`), the bypass
+(:func:`~damper_emulator.model.adaptive.bypass_flow`), the safeguarded Newton update
+(:func:`~damper_emulator.model.compressible.newton_update`) and the force (eq 4).  What
+differs is only the order: each phase of the step runs for every lane before the next
+phase, and the Newton solves of the lanes run in lockstep until the last lane has
+converged (a converged lane's values are held by selects).  The phase that costs most, a
+Newton iteration's arithmetic, has no branch and reads the lanes' values from one buffer
+at fixed offsets, so the compiler runs it in SIMD lanes; the table rows are gathered in a
+scalar loop before it.  The forces agree with the one-design step to rounding
+(fast-math orders sums differently in the two compiled loops; tested to 1e-9 relative).
+
+**Which designs.**  The paper's damper with any valves, gas and friction, end stops and
+the adaptive bypass at a settled command (:func:`lane_eligible`).  The model extensions
+(LuGre friction, viscosity–temperature, cavitation, valve lag, series compliance, air,
+groove, gas heat transfer) are not in the lanes: a design with one runs the one-design
+step.  So does any lane at a sample the lanes do not handle: invalid input, a gap longer
+than ``numerics.settle_time_s``, or a valve command still moving through the solenoid's lag;
+and an evaluation beyond the table, or past the iteration cap, takes the one-design
+valve look-up for that lane.
+
+**Buffer.**  ``lanes`` is a caller's array of :data:`LANE_BUFFER` doubles: the inputs
+(stroke in ``lanes[L_X * LANES + b]``, velocity in ``L_V``), the outputs (force ``L_FORCE``,
+fault bits ``L_FLAGS``) and the work values, each quantity a run of :data:`LANES`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from damper_emulator.model.adaptive import bypass_flow
+from damper_emulator.model.compressible import (
+    _SOLVER,
+    _VALVE_EXTRAPOLATED,
+    P_A_ANNULUS,
+    P_AIR_EPS,
+    P_ALPHA,
+    P_BP_LAMINAR,
+    P_BP_TURBULENT,
+    P_CAV_ON,
+    P_GR_AREA,
+    P_GT_TAU,
+    P_LG_S0,
+    P_MAX_EXT,
+    P_MAXIT,
+    P_MOUNT_K,
+    P_SCALE_C,
+    P_SCALE_R,
+    P_SETTLE,
+    P_STEP_C,
+    P_STEP_R,
+    P_SUBSTEP,
+    P_TH_BETA,
+    P_TOL,
+    P_VL_TAU,
+    P_ZLIM_C,
+    P_ZLIM_R,
+    S_CMD,
+    S_CMD_EFF,
+    S_FORCE,
+    S_H_PREV,
+    S_P_COM,
+    S_P_PREV,
+    S_P_REB,
+    S_Q_VALVE,
+    S_V,
+    S_X,
+    S_Z,
+    S_Z_PREV,
+    _bypass_area_of,
+    _force,
+    _friction,
+    _gas_pressure,
+    _valve_state,
+    bdf2_combination,
+    bdf2_step,
+    bdf2_weight,
+    clamp_input,
+    eq2_gain,
+    eq2_residual,
+    newton_update,
+    step,
+    substeps,
+)
+from damper_emulator.model.jit import inlined_kernel, kernel, lane_kernel
+from damper_emulator.model.valve_table import C_EXP, C_EXPM1, MAX_STEP, valve_row_point
+
+_Vec = NDArray[np.float64]
+_Int = NDArray[np.int64]
+
+#: Designs per call of :func:`step_lanes`.  A run of 16 per quantity: the compiler
+#: vectorises the Newton arithmetic over a loop of this constant length (at 8 it unrolled
+#: the loop instead of vectorising it; measured 2026-11-27 on the 2-core Xeon VM).
+LANES = 16
+
+# Quantities of the lane buffer, each a run of LANES doubles: the input and output, the
+# designs' constants, the state carried between sub-steps, the Newton solve's values and
+# the valve-table row it gathers.
+(L_X, L_V, L_FORCE, L_FLAGS, L_SKIP,
+ L_MAX_EXT, L_AREA, L_ALPHA, L_TOL, L_ZLIM_R, L_ZLIM_C, L_STEP_R, L_STEP_C, L_SCALE_R,
+ L_SCALE_C, L_N_R, L_N_C, L_BP_AREA, L_BP_A, L_BP_B, L_FR,
+ L_X0, L_V0, L_P, L_P_PREV, L_H_PREV, L_Z, L_Z_PREV, L_P_COM,
+ L_P_HAT, L_K, L_Q_IN, L_LO, L_HI, L_LAST, L_DONE,
+ L_SIGN, L_IDX, L_T, L_SCALE, L_PRE, L_C3, L_C2, L_C1, L_C0, L_CE, L_CM, L_DP, L_DDP, L_Q,
+ L_DQ, L_BEYOND, L_SIZE) = range(53)
+#: Length of the lane buffer [doubles].
+LANE_BUFFER = L_SIZE * LANES
+
+#: Packed parameters of the model extensions the lanes leave to the one-design step (each
+#: off at 0).
+_EXTENSIONS = (P_LG_S0, P_TH_BETA, P_CAV_ON, P_VL_TAU, P_MOUNT_K, P_AIR_EPS, P_GR_AREA,
+               P_GT_TAU)
+
+
+def lane_eligible(prm: np.ndarray) -> np.ndarray:
+    """Which rows of packed parameter vectors (``(D, P_SIZE)``) :func:`step_lanes` can
+    step: those with no model extension in use."""
+    prm = np.atleast_2d(prm)
+    eligible: np.ndarray = np.all(prm[:, list(_EXTENSIONS)] <= 0.0, axis=1)
+    return eligible
+
+
+def lane_compatible(prm: np.ndarray) -> bool:
+    """Whether the designs of ``prm`` (``(D, P_SIZE)``, all :func:`lane_eligible`) can
+    share lanes: the same sub-step and iteration cap (the lanes run in lockstep)."""
+    prm = np.atleast_2d(prm)
+    return bool(np.all(prm[:, P_SUBSTEP] == prm[0, P_SUBSTEP])
+                and np.all(prm[:, P_MAXIT] == prm[0, P_MAXIT]))
+
+
+@kernel
+def _load_lane(prm: _Vec, n_r: _Int, n_c: _Int, dstate: _Vec, j: int, lv: _Vec, b: int
+               ) -> None:
+    """Design ``j``'s constants and stepper state into lane ``b``."""
+    pr = prm[j]
+    st = dstate[j]
+    lv[L_MAX_EXT * LANES + b] = pr[P_MAX_EXT]
+    lv[L_AREA * LANES + b] = pr[P_A_ANNULUS]
+    lv[L_ALPHA * LANES + b] = pr[P_ALPHA]
+    lv[L_TOL * LANES + b] = pr[P_TOL]
+    lv[L_ZLIM_R * LANES + b] = pr[P_ZLIM_R]
+    lv[L_ZLIM_C * LANES + b] = pr[P_ZLIM_C]
+    lv[L_STEP_R * LANES + b] = pr[P_STEP_R]
+    lv[L_STEP_C * LANES + b] = pr[P_STEP_C]
+    lv[L_SCALE_R * LANES + b] = pr[P_SCALE_R]
+    lv[L_SCALE_C * LANES + b] = pr[P_SCALE_C]
+    lv[L_N_R * LANES + b] = n_r[j]
+    lv[L_N_C * LANES + b] = n_c[j]
+    lv[L_BP_AREA * LANES + b] = _bypass_area_of(pr, st[S_CMD_EFF])
+    lv[L_BP_A * LANES + b] = pr[P_BP_LAMINAR]
+    lv[L_BP_B * LANES + b] = pr[P_BP_TURBULENT]
+    lv[L_X0 * LANES + b] = st[S_X]
+    lv[L_V0 * LANES + b] = st[S_V]
+    lv[L_P * LANES + b] = st[S_P_REB]
+    lv[L_P_PREV * LANES + b] = st[S_P_PREV]
+    lv[L_H_PREV * LANES + b] = st[S_H_PREV]
+    lv[L_Z * LANES + b] = st[S_Z]
+    lv[L_Z_PREV * LANES + b] = st[S_Z_PREV]
+    lv[L_P_COM * LANES + b] = st[S_P_COM]
+    lv[L_FORCE * LANES + b] = st[S_FORCE]
+
+
+@kernel
+def _store_lane(dstate: _Vec, j: int, lv: _Vec, b: int) -> None:
+    """Lane ``b``'s state into design ``j``'s stepper state, as the one-design step
+    leaves it."""
+    st = dstate[j]
+    st[S_X] = lv[L_X0 * LANES + b]
+    st[S_V] = lv[L_V0 * LANES + b]
+    st[S_P_REB] = lv[L_P * LANES + b]
+    st[S_P_PREV] = lv[L_P_PREV * LANES + b]
+    st[S_H_PREV] = lv[L_H_PREV * LANES + b]
+    st[S_Z] = lv[L_Z * LANES + b]
+    st[S_Z_PREV] = lv[L_Z_PREV * LANES + b]
+    st[S_P_COM] = lv[L_P_COM * LANES + b]
+    st[S_FORCE] = lv[L_FORCE * LANES + b]
+    if lv[L_H_PREV * LANES + b] > 0.0:
+        # stepped: without the valve lag the one-design solve keeps no valve flow
+        st[S_Q_VALVE] = 0.0
+
+
+@kernel
+def load_lanes(prm: _Vec, n_r: _Int, n_c: _Int, dstate: _Vec, first: int, lv: _Vec
+               ) -> None:
+    """Designs ``first … first + LANES − 1`` into the lane buffer ``lv``, which holds
+    their state from then on (:func:`step_lanes`) until :func:`store_lanes`."""
+    for b in range(LANES):
+        _load_lane(prm, n_r, n_c, dstate, first + b, lv, b)
+
+
+@kernel
+def store_lanes(dstate: _Vec, first: int, lv: _Vec) -> None:
+    """The lanes' state back into the designs' stepper states (``dstate`` rows ``first …
+    first + LANES − 1``), as the one-design step would have left them."""
+    for b in range(LANES):
+        _store_lane(dstate, first + b, lv, b)
+
+
+@kernel
+def _begin(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dstate: _Vec,
+           first: int, dt: float, lv: _Vec) -> bool:
+    """Phase 1: each lane's input checked and clamped and its friction; a lane the lanes do
+    not handle this sample takes the one-design step (its state through ``dstate``).
+    Returns whether any lane's bypass is open."""
+    bypass = False
+    step_ok = math.isfinite(dt) and dt > 0.0
+    for b in range(LANES):
+        j = first + b
+        pr = prm[j]
+        st = dstate[j]
+        x = lv[L_X * LANES + b]
+        v = lv[L_V * LANES + b]
+        if (not (step_ok and math.isfinite(x) and math.isfinite(v)) or dt > pr[P_SETTLE]
+                or st[S_CMD] != st[S_CMD_EFF]):
+            _store_lane(dstate, j, lv, b)
+            f, fl = step(pr, coef_r[j, :n_r[j]], coef_c[j, :n_c[j]], st, x, v, dt)
+            _load_lane(prm, n_r, n_c, dstate, j, lv, b)
+            lv[L_FLAGS * LANES + b] = fl
+            lv[L_SKIP * LANES + b] = 1.0
+            continue
+        lv[L_SKIP * LANES + b] = 0.0
+        x, v, fl = clamp_input(pr, x, v)
+        lv[L_X * LANES + b] = x
+        lv[L_V * LANES + b] = v
+        lv[L_FLAGS * LANES + b] = fl
+        lv[L_FR * LANES + b] = _friction(pr, st, v, dt)
+        bypass |= lv[L_BP_AREA * LANES + b] > 0.0
+    return bypass
+
+
+@inlined_kernel
+def _locate(lv: _Vec, b: int, z: float) -> None:
+    """Where lane ``b``'s valve look-up at ``z`` falls (as in ``valve_point``): the side
+    (rebound ``z >= 0``), its interval ``i`` and the offset ``t`` in it, and whether the
+    look-up must take the one-design path (beyond the table, or a table too coarse for
+    the polynomial)."""
+    # every value loaded before it is chosen: a load under a condition is not vectorised
+    step_r = lv[L_STEP_R * LANES + b]
+    step_c = lv[L_STEP_C * LANES + b]
+    n_r = lv[L_N_R * LANES + b]
+    n_c = lv[L_N_C * LANES + b]
+    scale_r = lv[L_SCALE_R * LANES + b]
+    scale_c = lv[L_SCALE_C * LANES + b]
+    rebound = z >= 0.0
+    za = z if rebound else -z
+    step_z = step_r if rebound else step_c
+    n = n_r if rebound else n_c
+    # z >= 0: the floor is valve_point's int(); held as a float, exact below 2^53
+    i = math.floor(za / step_z)
+    lv[L_SIGN * LANES + b] = 1.0 if rebound else -1.0
+    lv[L_IDX * LANES + b] = i
+    lv[L_T * LANES + b] = za - i * step_z
+    lv[L_SCALE * LANES + b] = scale_r if rebound else scale_c
+    lv[L_PRE * LANES + b] = 1.0 if (i >= n or step_z > MAX_STEP) else 0.0
+
+
+@kernel
+def _gas(prm: _Vec, first: int, frac: float, h: float, lv: _Vec) -> None:
+    """Phase 2a, per sub-step: the gas pressure (eq 3) at each lane's stroke there (a
+    library power: not in the vectorised loop)."""
+    for b in range(LANES):
+        if lv[L_SKIP * LANES + b] != 0.0:
+            continue
+        x0 = lv[L_X0 * LANES + b]
+        xs = x0 + frac * (lv[L_X * LANES + b] - x0)
+        # (no gas heat transfer in the lanes: the gas law alone)
+        lv[L_P_COM * LANES + b] = _gas_pressure(prm[first + b], xs, xs, 1.0, h)[0]
+
+
+@lane_kernel
+def _substep_begin(frac: float, h: float, lv: _Vec) -> None:
+    """Phase 2b, per sub-step: the stroke and velocity there, the BDF2 combination and
+    the Newton solve's start (as in ``compressible.step``), vectorised.  Divisors: ``h_prev``
+    tested, ``1 + 2w >= 1``, and the chamber volume, positive inside the clamped travel;
+    a skipped lane's values are not used."""
+    for b in range(LANES):
+        x0 = lv[L_X0 * LANES + b]
+        v0 = lv[L_V0 * LANES + b]
+        xs = x0 + frac * (lv[L_X * LANES + b] - x0)
+        vs = v0 + frac * (lv[L_V * LANES + b] - v0)
+        # a skipped lane's state (here and below) is kept: it took the one-design step
+        live = lv[L_SKIP * LANES + b] == 0.0
+        p = lv[L_P * LANES + b]
+        p_prev = lv[L_P_PREV * LANES + b]
+        w = bdf2_weight(h, lv[L_H_PREV * LANES + b])
+        restart = w == 0.0
+        p_hat = p if restart else bdf2_combination(p, p_prev, w)
+        h_eff = h if restart else bdf2_step(h, w)
+        lv[L_P_PREV * LANES + b] = p if live else p_prev
+        lv[L_P_HAT * LANES + b] = p_hat
+        z = lv[L_Z * LANES + b]
+        z_prev = lv[L_Z_PREV * LANES + b]
+        z_start = z + (z - z_prev) * w
+        lv[L_Z_PREV * LANES + b] = z if live else z_prev
+        area = lv[L_AREA * LANES + b]
+        lv[L_K * LANES + b] = eq2_gain(lv[L_MAX_EXT * LANES + b], area,
+                                       lv[L_ALPHA * LANES + b], xs, h_eff)
+        lv[L_Q_IN * LANES + b] = vs * area
+        lo = -lv[L_ZLIM_C * LANES + b]
+        hi = lv[L_ZLIM_R * LANES + b]
+        lv[L_LO * LANES + b] = lo
+        lv[L_HI * LANES + b] = hi
+        z_first = min(max(z_start, lo), hi)
+        lv[L_Z * LANES + b] = z_first if live else z
+        lv[L_LAST * LANES + b] = 0.0
+        lv[L_DONE * LANES + b] = 0.0
+        _locate(lv, b, z_first)
+
+
+@kernel
+def _gather(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
+            lv: _Vec) -> None:
+    """Phase 3a, per Newton iteration: each unconverged lane's valve-table row (where
+    :func:`_locate` put it), or the one-design look-up's values."""
+    for b in range(LANES):
+        if lv[L_SKIP * LANES + b] != 0.0 or lv[L_DONE * LANES + b] != 0.0:
+            continue
+        j = first + b
+        if lv[L_PRE * LANES + b] != 0.0:
+            dp, ddp, q, dq, beyond = _valve_state(lv[L_Z * LANES + b], prm[j],
+                                                  coef_r[j, :n_r[j]], coef_c[j, :n_c[j]])
+            lv[L_DP * LANES + b] = dp
+            lv[L_DDP * LANES + b] = ddp
+            lv[L_Q * LANES + b] = q
+            lv[L_DQ * LANES + b] = dq
+            lv[L_BEYOND * LANES + b] = 1.0 if beyond else 0.0
+            continue
+        i = int(lv[L_IDX * LANES + b])
+        row = coef_r[j, i] if lv[L_SIGN * LANES + b] > 0.0 else coef_c[j, i]
+        lv[L_BEYOND * LANES + b] = 0.0
+        lv[L_C3 * LANES + b] = row[0]
+        lv[L_C2 * LANES + b] = row[1]
+        lv[L_C1 * LANES + b] = row[2]
+        lv[L_C0 * LANES + b] = row[3]
+        lv[L_CE * LANES + b] = row[C_EXP]
+        lv[L_CM * LANES + b] = row[C_EXPM1]
+
+
+@inlined_kernel
+def _newton_lane(lv: _Vec, b: int, bypass: bool) -> int:
+    """Lane ``b`` of :func:`_newton_lanes`; 1 while it is unconverged."""
+    dpa, ddpa, qa, dqa = valve_row_point(
+        lv[L_C3 * LANES + b], lv[L_C2 * LANES + b], lv[L_C1 * LANES + b],
+        lv[L_C0 * LANES + b], lv[L_CE * LANES + b], lv[L_CM * LANES + b],
+        lv[L_T * LANES + b], lv[L_SCALE * LANES + b])
+    # every value loaded before it is chosen (a load under a condition is not vectorised)
+    pre = lv[L_PRE * LANES + b] != 0.0
+    sign = lv[L_SIGN * LANES + b]
+    dp_pre = lv[L_DP * LANES + b]
+    ddp_pre = lv[L_DDP * LANES + b]
+    q_pre = lv[L_Q * LANES + b]
+    dq_pre = lv[L_DQ * LANES + b]
+    dp = dp_pre if pre else sign * dpa
+    ddp = ddp_pre if pre else ddpa
+    q = q_pre if pre else sign * qa
+    dq = dq_pre if pre else dqa
+    if bypass:
+        qb, dqb = bypass_flow(dp, lv[L_BP_AREA * LANES + b], lv[L_BP_A * LANES + b],
+                              lv[L_BP_B * LANES + b])
+        q += qb
+        dq += dqb * ddp
+    p = lv[L_P_COM * LANES + b] + dp
+    r, dr = eq2_residual(p, ddp, q, dq, lv[L_P_HAT * LANES + b], lv[L_K * LANES + b],
+                         lv[L_Q_IN * LANES + b], lv[L_ALPHA * LANES + b])
+    z = lv[L_Z * LANES + b]
+    z_new, lo, hi, last, done, dz = newton_update(
+        z, r, dr, lv[L_LO * LANES + b], lv[L_HI * LANES + b], lv[L_LAST * LANES + b],
+        lv[L_TOL * LANES + b])
+    skip = lv[L_SKIP * LANES + b]
+    was_done = lv[L_DONE * LANES + b]
+    p_old = lv[L_P * LANES + b]
+    lo_old = lv[L_LO * LANES + b]
+    hi_old = lv[L_HI * LANES + b]
+    last_old = lv[L_LAST * LANES + b]
+    live = skip == 0.0 and was_done == 0.0
+    shortcut = done and dz != 0.0
+    z_out = z_new if (shortcut or not done) else z
+    p_out = p + ddp * dz if shortcut else p
+    lv[L_Z * LANES + b] = z_out if live else z
+    lv[L_P * LANES + b] = p_out if live else p_old
+    lv[L_LO * LANES + b] = lo if live else lo_old
+    lv[L_HI * LANES + b] = hi if live else hi_old
+    lv[L_LAST * LANES + b] = last if live else last_old
+    finished = done or not live
+    lv[L_DONE * LANES + b] = 1.0 if finished else 0.0
+    # the next iteration's look-up (a finished lane's is not used)
+    _locate(lv, b, z_out)
+    return 0 if finished else 1
+
+
+@lane_kernel
+def _newton_lanes(lv: _Vec, bypass: bool) -> int:
+    """Phase 3b, per Newton iteration: every lane's valve point, eq 2's residual and the
+    safeguarded update, by selects (no branch on a lane's data: the compiler vectorises
+    this loop); a converged or skipped lane keeps its values.  ``bypass``: some lane's
+    bypass is open (else its flow, a square root and two divisions a lane, is not
+    evaluated, as the one-design solve skips it; two loops, so that each is vectorised
+    without a test per lane).  Divisors: the Newton step's is tested, the bypass's are
+    tested, the table step is positive.  Returns the lanes still unconverged."""
+    active = 0
+    if bypass:
+        for b in range(LANES):
+            active += _newton_lane(lv, b, True)
+    else:
+        for b in range(LANES):
+            active += _newton_lane(lv, b, False)
+    return active
+
+
+@kernel
+def _substep_end(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
+                 h: float, lv: _Vec) -> None:
+    """Phase 4, per sub-step: a lane that reached the iteration cap takes the valve's
+    pressure at its last ``z`` and says so (as the one-design solve does); the fault
+    bits; the sub-step becomes the one before."""
+    for b in range(LANES):
+        if lv[L_SKIP * LANES + b] != 0.0:
+            continue
+        flags = int(lv[L_FLAGS * LANES + b])
+        if lv[L_DONE * LANES + b] == 0.0:
+            j = first + b
+            dp, _d, _q, _dq, beyond = _valve_state(lv[L_Z * LANES + b], prm[j],
+                                                   coef_r[j, :n_r[j]], coef_c[j, :n_c[j]])
+            lv[L_P * LANES + b] = lv[L_P_COM * LANES + b] + dp
+            lv[L_BEYOND * LANES + b] = 1.0 if beyond else 0.0
+            flags |= _SOLVER
+        if lv[L_BEYOND * LANES + b] != 0.0:
+            flags |= _VALVE_EXTRAPOLATED
+        lv[L_FLAGS * LANES + b] = flags
+        lv[L_H_PREV * LANES + b] = h
+
+
+@kernel
+def _end(prm: _Vec, first: int, lv: _Vec) -> None:
+    """Phase 5: the force (eq 4); the sample becomes the one before."""
+    for b in range(LANES):
+        if lv[L_SKIP * LANES + b] != 0.0:
+            continue
+        x = lv[L_X * LANES + b]
+        lv[L_FORCE * LANES + b] = _force(prm[first + b], lv[L_P * LANES + b],
+                                         lv[L_P_COM * LANES + b], lv[L_FR * LANES + b], x)
+        lv[L_X0 * LANES + b] = x
+        lv[L_V0 * LANES + b] = lv[L_V * LANES + b]
+
+
+@kernel
+def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dstate: _Vec,
+               first: int, dt: float, lv: _Vec) -> None:
+    """Advance designs ``first … first + LANES − 1``, loaded into ``lv`` by
+    :func:`load_lanes`, to their next sample, ``dt`` [s] after the last, as
+    :func:`damper_emulator.model.compressible.step` advances one.
+
+    Parameters
+    ----------
+    prm : ndarray, shape (D, P_SIZE)
+        The designs' packed parameters (every one :func:`lane_eligible`, all
+        :func:`lane_compatible`).
+    coef_r, coef_c : ndarray, shape (D, L, TABLE_COLUMNS)
+        The designs' rebound and compression valve tables, zero-padded to one length.
+    n_r, n_c : ndarray of int64, shape (D,)
+        The tables' own lengths.
+    dstate : ndarray, shape (D, S_SIZE)
+        The designs' stepper states: only the lanes that take the one-design step this
+        sample go through them (the others' state is in ``lv``, :func:`load_lanes`).
+    first : int
+        The first design of this call.
+    dt : float
+        Time since the last sample [s].
+    lv : ndarray, shape (LANE_BUFFER,)
+        Lane buffer (module docstring): strokes and velocities in, forces and fault bits
+        out.
+    """
+    bypass = _begin(prm, coef_r, n_r, coef_c, n_c, dstate, first, dt, lv)
+    n_sub, h = substeps(prm[first], dt)
+    maxit = int(prm[first, P_MAXIT])
+    for sub in range(1, n_sub + 1):
+        frac = sub / n_sub
+        _gas(prm, first, frac, h, lv)
+        _substep_begin(frac, h, lv)
+        for _ in range(maxit):
+            _gather(prm, coef_r, n_r, coef_c, n_c, first, lv)
+            if _newton_lanes(lv, bypass) == 0:
+                break
+        _substep_end(prm, coef_r, n_r, coef_c, n_c, first, h, lv)
+    _end(prm, first, lv)

@@ -1,0 +1,173 @@
+"""The damper step in SIMD lanes (``damper_emulator.model.lanes``) against the one-design
+step (``compressible.step``), sample by sample: forces to 1e-9 of the largest, the same
+fault bits, the same final state; over designs that differ in valves, gas, friction, end
+stops, valve command (bypass open and closed) and table resolution, through the paths a
+lane leaves the lanes by (invalid input, a long gap, a moving valve command, a table too
+coarse for the polynomial, the velocity clamp).  And which designs the lanes take."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, with_extensions
+from damper_emulator.model import compressible as comp
+from damper_emulator.model.compressible import DamperModel, DamperStepper, step
+from damper_emulator.model.lanes import (
+    L_FLAGS,
+    L_FORCE,
+    L_V,
+    L_X,
+    LANE_BUFFER,
+    LANES,
+    lane_compatible,
+    lane_eligible,
+    load_lanes,
+    step_lanes,
+    store_lanes,
+)
+from damper_emulator.model.valve_table import MAX_STEP
+from damper_emulator.params import EXTENSION_TYPES
+from ride_sim.many import _stack_tables, simulate_many
+from ride_sim.params import load_ride_config
+from ride_sim.road import random_road
+
+RTOL = 1e-9
+DT = 1e-3
+SAMPLES = 2500
+#: where the inputs take the lanes' exits: a NaN stroke for one design, a gap longer than
+#: the settle time for all, a valve command that starts moving for one design
+NAN_AT, GAP_AT, COMMAND_AT = 400, 900, 1300
+
+
+def _designs(cfg):
+    """2 × LANES designs: valves ×0.5…×2, gas, friction, end stops, a coarse table, the
+    bypass open at command 0.3 on some."""
+    rng = np.random.default_rng(7)
+    d = cfg.damper
+    out = []
+    for k in range(2 * LANES):
+        f = 2.0 ** rng.uniform(-1.0, 1.0, 8)
+        reb = dataclasses.replace(d.rebound, k_leak=d.rebound.k_leak * f[0],
+                                  k_port=d.rebound.k_port * f[1],
+                                  k_spring=d.rebound.k_spring * f[2],
+                                  preload_pa=d.rebound.preload_pa * f[3])
+        com = dataclasses.replace(d.compression, k_leak=d.compression.k_leak * f[4],
+                                  k_port=d.compression.k_port * f[5],
+                                  k_spring=d.compression.k_spring * f[6],
+                                  preload_pa=d.compression.preload_pa * f[7])
+        c = dataclasses.replace(cfg, damper=dataclasses.replace(
+            d, rebound=reb, compression=com, friction_force_n=20.0 + 4.0 * k,
+            gas_pressure_static_pa=d.gas_pressure_static_pa * (0.8 + 0.02 * k)))
+        if k == 3:
+            c = with_extensions(c, {"end_stops": EXAMPLE_EFFECTS["end_stops"]["params"]})
+        if k == 5:  # a table too coarse for the polynomial: the one-design look-up
+            c = dataclasses.replace(c, numerics=dataclasses.replace(
+                c.numerics, valve_table_points=16))
+        if k == 6:  # the velocity clamp
+            c = dataclasses.replace(c, numerics=dataclasses.replace(
+                c.numerics, valve_table_max_velocity_m_s=0.8))
+        out.append(DamperStepper(DamperModel(c), valve_command=0.3 if k % 4 == 1 else 1.0))
+    return out
+
+
+def _inputs(n_designs):
+    rng = np.random.default_rng(11)
+    t = np.arange(SAMPLES) * DT
+    x = np.zeros((n_designs, SAMPLES))
+    v = np.zeros((n_designs, SAMPLES))
+    for j in range(n_designs):
+        for _ in range(3):
+            a, f, ph = rng.uniform(0.003, 0.02), rng.uniform(0.5, 12.0), rng.uniform(0, 6.3)
+            x[j] += a * np.sin(2 * np.pi * f * t + ph)
+            v[j] += a * 2 * np.pi * f * np.cos(2 * np.pi * f * t + ph)
+    x[2, NAN_AT] = np.nan
+    return x, v
+
+
+def test_the_lanes_step_as_the_one_design_step(sport_cfg):
+    steppers = _designs(sport_cfg)
+    n = len(steppers)
+    prm = np.stack([s.model.prm for s in steppers])
+    assert lane_eligible(prm).all() and lane_compatible(prm)
+    coef_r, n_r = _stack_tables([s.model.tables[0].coef for s in steppers])
+    coef_c, n_c = _stack_tables([s.model.tables[1].coef for s in steppers])
+    x, v = _inputs(n)
+    ref_state = [s.state.copy() for s in steppers]
+    dstate = np.stack([s.state.copy() for s in steppers])
+    lv = np.zeros((n // LANES, LANE_BUFFER))
+    for first in range(0, n, LANES):
+        load_lanes(prm, n_r, n_c, dstate, first, lv[first // LANES])
+    f_ref = np.zeros((n, SAMPLES))
+    fl_ref = np.zeros((n, SAMPLES), dtype=np.int64)
+    f_lanes = np.zeros((n, SAMPLES))
+    fl_lanes = np.zeros((n, SAMPLES), dtype=np.int64)
+    for k in range(1, SAMPLES):
+        dt = 0.3 if k == GAP_AT else DT
+        if k == COMMAND_AT:  # design 9's command starts moving (the solenoid's lag)
+            ref_state[9][comp.S_CMD] = 0.0
+            dstate[9, comp.S_CMD] = 0.0
+        for j, s in enumerate(steppers):
+            f_ref[j, k], fl_ref[j, k] = step(s.model.prm, s.model.tables[0].coef,
+                                             s.model.tables[1].coef, ref_state[j], x[j, k],
+                                             v[j, k], dt)
+        for first in range(0, n, LANES):
+            buf = lv[first // LANES]
+            buf[L_X * LANES:(L_X + 1) * LANES] = x[first:first + LANES, k]
+            buf[L_V * LANES:(L_V + 1) * LANES] = v[first:first + LANES, k]
+            step_lanes(prm, coef_r, n_r, coef_c, n_c, dstate, first, dt, buf)
+            f_lanes[first:first + LANES, k] = buf[L_FORCE * LANES:(L_FORCE + 1) * LANES]
+            fl_lanes[first:first + LANES, k] = buf[L_FLAGS * LANES:(L_FLAGS + 1) * LANES]
+    for first in range(0, n, LANES):
+        store_lanes(dstate, first, lv[first // LANES])
+    scale = np.abs(f_ref).max()
+    np.testing.assert_allclose(f_lanes, f_ref, rtol=0.0, atol=RTOL * scale)
+    np.testing.assert_array_equal(fl_lanes, fl_ref)
+    np.testing.assert_allclose(dstate, np.stack(ref_state), rtol=1e-9, atol=1e-12)
+    # every exit was taken: the invalid input, the velocity clamp, the solver's look-up
+    # on the coarse table (no fault), and the moving command (the bypass's area changes)
+    assert fl_ref[2, NAN_AT] == int(comp.Fault.INVALID_INPUT)
+    assert np.any(fl_ref[6] & int(comp.Fault.VELOCITY_CLAMPED))
+    assert dstate[9, comp.S_CMD_EFF] < 0.01
+    assert steppers[5].model.prm[comp.P_STEP_R] > MAX_STEP
+    assert np.any(fl_ref & int(comp.Fault.VALVE_EXTRAPOLATED))
+    # the designs differ
+    assert np.std(f_ref[:, 1:], axis=0).max() > 0.1 * np.abs(f_ref).max()
+
+
+@pytest.mark.parametrize("name", list(EXTENSION_TYPES))
+def test_which_designs_the_lanes_take(sport_cfg, name):
+    with_one = DamperModel(with_extensions(sport_cfg, {name: EXAMPLE_EFFECTS[name]["params"]}))
+    # end stops act in the force alone (eq 4's sum), which the lanes evaluate with the
+    # one-design formula; every other extension acts inside the sub-steps
+    assert bool(lane_eligible(with_one.prm)[0]) is (name == "end_stops")
+    assert lane_eligible(DamperModel(sport_cfg).prm)[0]
+
+
+def test_designs_of_different_numerics_do_not_share_lanes(sport_cfg):
+    fine = dataclasses.replace(sport_cfg, numerics=dataclasses.replace(
+        sport_cfg.numerics, max_substep_s=2.5e-4))
+    prm = np.stack([DamperModel(sport_cfg).prm, DamperModel(fine).prm])
+    assert not lane_compatible(prm)
+    assert lane_compatible(prm[:1])
+
+
+def test_simulate_many_in_lanes_and_one_by_one(sport_cfg):
+    """More designs than a block of lanes (the last block filled up), with and without
+    the lanes, and one design with an extension among them (one by one either way)."""
+    rc = load_ride_config()
+    road = rc.road
+    heights = random_road(road.roughness, road.waviness, 60.0,
+                          band_cycles_per_m=(0.02, 0.8), spacing_m=20.0 * DT,
+                          seed=5).height_m
+    models = [s.model for s in _designs(sport_cfg)[:LANES + 3]]
+    models.append(DamperModel(with_extensions(sport_cfg, {"valve_lag": {
+        "time_constant_s": 3e-3}})))
+    a = simulate_many(rc.quarter_car, models, heights, DT)
+    b = simulate_many(rc.quarter_car, models, heights, DT, lanes=False)
+    for name in ("sws_m", "body_accel_m_s2", "dtl_n"):
+        x, y = getattr(a, name), getattr(b, name)
+        np.testing.assert_allclose(x, y, rtol=0.0, atol=RTOL * np.abs(y).max())
+    np.testing.assert_array_equal(a.faults, b.faults)

@@ -69,6 +69,9 @@ def _designs(cfg):
         if k == 6:  # the velocity clamp
             c = dataclasses.replace(c, numerics=dataclasses.replace(
                 c.numerics, valve_table_max_velocity_m_s=0.8))
+        if k == 7:  # a small gas volume: beyond the gas law's series (the library's power)
+            c = dataclasses.replace(c, damper=dataclasses.replace(
+                c.damper, gas_volume_static_m3=4e-6))
         out.append(DamperStepper(DamperModel(c), valve_command=0.3 if k % 4 == 1 else 1.0))
     return out
 
@@ -83,6 +86,8 @@ def _inputs(n_designs):
             a, f, ph = rng.uniform(0.003, 0.02), rng.uniform(0.5, 12.0), rng.uniform(0, 6.3)
             x[j] += a * np.sin(2 * np.pi * f * t + ph)
             v[j] += a * 2 * np.pi * f * np.cos(2 * np.pi * f * t + ph)
+    x[7] *= 3.0  # design 7 (the small gas volume) beyond the gas law's series both ways
+    v[7] *= 3.0
     x[2, NAN_AT] = np.nan
     return x, v
 
@@ -132,6 +137,9 @@ def test_the_lanes_step_as_the_one_design_step(sport_cfg):
     assert np.any(fl_ref[6] & int(comp.Fault.VELOCITY_CLAMPED))
     assert dstate[9, comp.S_CMD_EFF] < 0.01
     assert steppers[5].model.prm[comp.P_STEP_R] > MAX_STEP
+    p7 = steppers[7].model.prm
+    ratio = p7[comp.V_GAS] / (p7[comp.V_GAS] + p7[comp.P_A_ROD] * np.nan_to_num(x[7]))
+    assert ratio.min() < 0.6 and ratio.max() > 5.0 / 3.0  # both sides of the series' domain
     assert np.any(fl_ref & int(comp.Fault.VALVE_EXTRAPOLATED))
     # the designs differ
     assert np.std(f_ref[:, 1:], axis=0).max() > 0.1 * np.abs(f_ref).max()

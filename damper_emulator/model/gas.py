@@ -2,30 +2,98 @@
 
 from __future__ import annotations
 
-from typing import TypeVar
+import math
+from typing import Any, TypeVar
 
 import numpy as np
+from numba import types
+from numba.extending import overload
 from numpy.typing import NDArray
 
-from damper_emulator.model.jit import kernel
+from damper_emulator.model.jit import inlined_kernel, kernel
 
 #: a stroke: one value, or an array of them (the result has its type)
 _X = TypeVar("_X", float, NDArray[np.float64])
 
+#: The compiled power ``r^γ`` of eq 3 (:func:`adiabatic_power`) sums series where
+#: ``|s| = |r − 1| / (r + 1)`` is at most this (``0.6 <= r <= 5/3``: a gas volume within
+#: ±40 % of its static one) and ``|γ ln r|`` at most :data:`SERIES_MAX_EXPONENT`; elsewhere
+#: it takes the library's power.
+SERIES_MAX_S = 0.25
+SERIES_MAX_EXPONENT = 1.0
+#: Terms of ``atanh(s) = Σ s^(2k+1)/(2k+1)``: the first left out is below
+#: ``0.25^29/29 < 1e-19`` of ``s``.
+ATANH_TERMS = 14
+#: Terms of ``e^y = Σ y^k/k!`` after the 1: the remainder is below ``e/20! < 1e-18`` for
+#: ``|y| <= 1``.
+EXP_TERMS = 19
+# Horner's coefficients, unrolled into the compiled code as constants (with a division by
+# the loop's counter a power took 30 divisions, 1.7x the library power's time; indexed in
+# a loop, the tuple stopped the lanes' vectorisation)
+_ATANH_COEFFICIENTS = 1.0 / (2.0 * np.arange(ATANH_TERMS - 1, -1, -1) + 1.0)
+_EXP_STEPS = 1.0 / np.arange(EXP_TERMS, 0, -1.0)
+
+
+def adiabatic_power(ratio: Any, gamma: float, series: bool = False) -> Any:
+    """``ratio^gamma``: numpy's power on arrays and in Python.
+
+    Compiled (:data:`compression_chamber_pressure_kernel`), it is the series
+    ``exp(2γ atanh(s))``, ``s = (r − 1)/(r + 1)``, summed by Horner's rule within
+    :data:`SERIES_MAX_S` and :data:`SERIES_MAX_EXPONENT`, the
+    library's power outside: the same number to a few units in the last place (tested
+    against 40-digit arithmetic).  ``series=True`` (a constant where it is compiled):
+    the series, NaN outside its domain (the caller takes the library's power there); it
+    has no call left, so a loop over designs runs it in SIMD lanes
+    (:mod:`damper_emulator.model.lanes`; the library's power was a quarter of that loop's
+    time, measured 2026-11-27).
+    """
+    return ratio ** gamma
+
+
+@overload(adiabatic_power, inline="always")
+def _adiabatic_power_compiled(ratio: Any, gamma: Any, series: Any = False) -> Any:
+    if not isinstance(ratio, types.Float):
+        return None
+
+    # (numba requires the implementation's signature to be the overloaded one's)
+    def impl(ratio: Any, gamma: Any, series: Any = False) -> Any:
+        s = (ratio - 1.0) / (ratio + 1.0)
+        s2 = s * s
+        acc = 0.0
+        for k in range(ATANH_TERMS):
+            acc = acc * s2 + _ATANH_COEFFICIENTS[k]
+        y = 2.0 * gamma * s * acc  # γ ln r
+        summed = abs(s) <= SERIES_MAX_S and abs(y) <= SERIES_MAX_EXPONENT
+        if not series and not summed:
+            power: float = ratio ** gamma
+            return power
+        e = 1.0
+        for k in range(EXP_TERMS):
+            e = 1.0 + y * e * _EXP_STEPS[k]
+        return e if summed else math.nan
+
+    return impl
+
 
 def compression_chamber_pressure(x_m: _X, p_gas_static_pa: float, v_gas_static_m3: float,
-                                 rod_area_m2: float, gamma: float) -> _X:
+                                 rod_area_m2: float, gamma: float, series: bool = False) -> _X:
     """Compression-chamber (gas) pressure ``P_com`` [Pa], eq 3.
 
     ``P_com = P_gas,static (V_gas,static / (V_gas,static + A_rod x))^γ``: extension (``x > 0``)
     withdraws the rod and enlarges the gas volume.  Works on scalars and numpy arrays (the
-    kernels call :data:`compression_chamber_pressure_kernel`, this source compiled).
+    kernels call :data:`compression_chamber_pressure_kernel`, this source compiled, whose
+    power is :func:`adiabatic_power`'s series; ``series``: as there).
     """
-    p_com: _X = p_gas_static_pa * (v_gas_static_m3 / (v_gas_static_m3 + rod_area_m2 * x_m)) \
-        ** gamma
+    p_com: _X = p_gas_static_pa * adiabatic_power(
+        v_gas_static_m3 / (v_gas_static_m3 + rod_area_m2 * x_m), gamma, series)
     return p_com
 
 
 #: :func:`compression_chamber_pressure` compiled for the kernels, on scalars (the kernels
 #: run without numba's runtime and cannot allocate the array an array argument returns)
 compression_chamber_pressure_kernel = kernel(compression_chamber_pressure)
+#: the same, inlined into its caller (a loop over SIMD lanes, ``series=True``)
+compression_chamber_pressure_inlined = inlined_kernel(compression_chamber_pressure)
+
+# up to a monatomic gas (γ = 5/3) every ratio within SERIES_MAX_S takes the series
+assert 2.0 * math.atanh(SERIES_MAX_S) * 5.0 / 3.0 < SERIES_MAX_EXPONENT

@@ -42,11 +42,14 @@ from damper_emulator.model.compressible import (
     _SOLVER,
     _VALVE_EXTRAPOLATED,
     P_A_ANNULUS,
+    P_A_ROD,
     P_AIR_EPS,
     P_ALPHA,
     P_BP_LAMINAR,
     P_BP_TURBULENT,
     P_CAV_ON,
+    P_GAMMA,
+    P_GAS,
     P_GR_AREA,
     P_GT_TAU,
     P_LG_S0,
@@ -76,10 +79,10 @@ from damper_emulator.model.compressible import (
     S_X,
     S_Z,
     S_Z_PREV,
+    V_GAS,
     _bypass_area_of,
     _force,
     _friction,
-    _gas_pressure,
     _valve_state,
     bdf2_combination,
     bdf2_step,
@@ -90,6 +93,10 @@ from damper_emulator.model.compressible import (
     newton_update,
     step,
     substeps,
+)
+from damper_emulator.model.gas import (
+    compression_chamber_pressure_inlined,
+    compression_chamber_pressure_kernel,
 )
 from damper_emulator.model.jit import inlined_kernel, kernel, lane_kernel
 from damper_emulator.model.valve_table import C_EXP, C_EXPM1, MAX_STEP, valve_row_point
@@ -107,11 +114,12 @@ LANES = 16
 # the valve-table row it gathers.
 (L_X, L_V, L_FORCE, L_FLAGS, L_SKIP,
  L_MAX_EXT, L_AREA, L_ALPHA, L_TOL, L_ZLIM_R, L_ZLIM_C, L_STEP_R, L_STEP_C, L_SCALE_R,
- L_SCALE_C, L_N_R, L_N_C, L_BP_AREA, L_BP_A, L_BP_B, L_FR,
+ L_SCALE_C, L_N_R, L_N_C, L_BP_AREA, L_BP_A, L_BP_B, L_P_GAS, L_V_GAS, L_A_ROD, L_GAMMA,
+ L_FR,
  L_X0, L_V0, L_P, L_P_PREV, L_H_PREV, L_Z, L_Z_PREV, L_P_COM,
  L_P_HAT, L_K, L_Q_IN, L_LO, L_HI, L_LAST, L_DONE,
  L_SIGN, L_IDX, L_T, L_SCALE, L_PRE, L_C3, L_C2, L_C1, L_C0, L_CE, L_CM, L_DP, L_DDP, L_Q,
- L_DQ, L_BEYOND, L_SIZE) = range(53)
+ L_DQ, L_BEYOND, L_ROW, L_SIZE) = range(58)
 #: Length of the lane buffer [doubles].
 LANE_BUFFER = L_SIZE * LANES
 
@@ -158,6 +166,10 @@ def _load_lane(prm: _Vec, n_r: _Int, n_c: _Int, dstate: _Vec, j: int, lv: _Vec, 
     lv[L_BP_AREA * LANES + b] = _bypass_area_of(pr, st[S_CMD_EFF])
     lv[L_BP_A * LANES + b] = pr[P_BP_LAMINAR]
     lv[L_BP_B * LANES + b] = pr[P_BP_TURBULENT]
+    lv[L_P_GAS * LANES + b] = pr[P_GAS]
+    lv[L_V_GAS * LANES + b] = pr[V_GAS]
+    lv[L_A_ROD * LANES + b] = pr[P_A_ROD]
+    lv[L_GAMMA * LANES + b] = pr[P_GAMMA]
     lv[L_X0 * LANES + b] = st[S_X]
     lv[L_V0 * LANES + b] = st[S_V]
     lv[L_P * LANES + b] = st[S_P_REB]
@@ -167,6 +179,7 @@ def _load_lane(prm: _Vec, n_r: _Int, n_c: _Int, dstate: _Vec, j: int, lv: _Vec, 
     lv[L_Z_PREV * LANES + b] = st[S_Z_PREV]
     lv[L_P_COM * LANES + b] = st[S_P_COM]
     lv[L_FORCE * LANES + b] = st[S_FORCE]
+    lv[L_ROW * LANES + b] = 0.0  # no valve-table row held
 
 
 @kernel
@@ -263,17 +276,33 @@ def _locate(lv: _Vec, b: int, z: float) -> None:
     lv[L_PRE * LANES + b] = 1.0 if (i >= n or step_z > MAX_STEP) else 0.0
 
 
-@kernel
-def _gas(prm: _Vec, first: int, frac: float, h: float, lv: _Vec) -> None:
-    """Phase 2a, per sub-step: the gas pressure (eq 3) at each lane's stroke there (a
-    library power: not in the vectorised loop)."""
+@lane_kernel
+def _gas(frac: float, lv: _Vec) -> None:
+    """Phase 2a, per sub-step: the gas pressure (eq 3) at each lane's stroke there,
+    vectorised (the power's series; NaN where the gas volume is beyond its domain, see
+    :func:`_gas_beyond`; no gas heat transfer in the lanes).  Divisor: the gas volume,
+    positive inside the travel; a skipped lane keeps its pressure."""
     for b in range(LANES):
-        if lv[L_SKIP * LANES + b] != 0.0:
-            continue
         x0 = lv[L_X0 * LANES + b]
         xs = x0 + frac * (lv[L_X * LANES + b] - x0)
-        # (no gas heat transfer in the lanes: the gas law alone)
-        lv[L_P_COM * LANES + b] = _gas_pressure(prm[first + b], xs, xs, 1.0, h)[0]
+        p_com = compression_chamber_pressure_inlined(
+            xs, lv[L_P_GAS * LANES + b], lv[L_V_GAS * LANES + b], lv[L_A_ROD * LANES + b],
+            lv[L_GAMMA * LANES + b], True)
+        p_old = lv[L_P_COM * LANES + b]
+        lv[L_P_COM * LANES + b] = p_com if lv[L_SKIP * LANES + b] == 0.0 else p_old
+
+
+@kernel
+def _gas_beyond(frac: float, lv: _Vec) -> None:
+    """Phase 2a': a lane whose gas volume is beyond the series' domain (±40 % of the
+    static volume) takes eq 3 with the library's power."""
+    for b in range(LANES):
+        if math.isnan(lv[L_P_COM * LANES + b]):
+            x0 = lv[L_X0 * LANES + b]
+            xs = x0 + frac * (lv[L_X * LANES + b] - x0)
+            lv[L_P_COM * LANES + b] = compression_chamber_pressure_kernel(
+                xs, lv[L_P_GAS * LANES + b], lv[L_V_GAS * LANES + b],
+                lv[L_A_ROD * LANES + b], lv[L_GAMMA * LANES + b])
 
 
 @lane_kernel
@@ -334,9 +363,17 @@ def _gather(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: 
             lv[L_DQ * LANES + b] = dq
             lv[L_BEYOND * LANES + b] = 1.0 if beyond else 0.0
             continue
-        i = int(lv[L_IDX * LANES + b])
-        row = coef_r[j, i] if lv[L_SIGN * LANES + b] > 0.0 else coef_c[j, i]
+        # the row the lane holds already (most iterations and sub-steps stay in one
+        # interval): nothing to load
+        sign = lv[L_SIGN * LANES + b]
+        idx = lv[L_IDX * LANES + b]
+        key = sign * (idx + 1.0)
         lv[L_BEYOND * LANES + b] = 0.0
+        if key == lv[L_ROW * LANES + b]:
+            continue
+        lv[L_ROW * LANES + b] = key
+        i = int(idx)
+        row = coef_r[j, i] if sign > 0.0 else coef_c[j, i]
         lv[L_C3 * LANES + b] = row[0]
         lv[L_C2 * LANES + b] = row[1]
         lv[L_C1 * LANES + b] = row[2]
@@ -484,7 +521,8 @@ def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dsta
     maxit = int(prm[first, P_MAXIT])
     for sub in range(1, n_sub + 1):
         frac = sub / n_sub
-        _gas(prm, first, frac, h, lv)
+        _gas(frac, lv)
+        _gas_beyond(frac, lv)
         _substep_begin(frac, h, lv)
         for _ in range(maxit):
             _gather(prm, coef_r, n_r, coef_c, n_c, first, lv)

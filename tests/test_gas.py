@@ -1,0 +1,66 @@
+"""The gas law (eq 3) as the kernels compute it: the power's series against 40-digit
+arithmetic, the library's power beyond the series' domain, and numpy's array version."""
+
+from __future__ import annotations
+
+from decimal import Decimal, getcontext
+
+import numpy as np
+import pytest
+
+from damper_emulator.model.gas import (
+    SERIES_MAX_S,
+    compression_chamber_pressure,
+    compression_chamber_pressure_inlined,
+    compression_chamber_pressure_kernel,
+)
+from damper_emulator.model.jit import kernel
+
+#: the bound on the relative error: two machine epsilons (the library's power: 0.5)
+BOUND = 2 * np.finfo(float).eps
+
+
+@kernel
+def _series_only(x: float, gamma: float) -> float:
+    value: float = compression_chamber_pressure_inlined(x, 1.0, 1.0, 1.0, gamma, True)
+    return value
+
+
+def _exact(x: float, gamma: float) -> Decimal:
+    """``r^γ`` to 40 digits of the volume ratio ``r`` as the kernel rounds it (the power's
+    own error is what is tested)."""
+    getcontext().prec = 40
+    return Decimal(1.0 / (1.0 + x)) ** Decimal(gamma)
+
+
+@pytest.mark.parametrize("gamma", [1.0, 1.3, 1.4, 5.0 / 3.0])
+def test_the_series_against_40_digits(gamma):
+    # gas volumes V = 1 + x from 0.6 to 1.67 of the static one (the series' domain)
+    worst = 0.0
+    for x in np.linspace(-0.4, 0.66, 801):
+        got = compression_chamber_pressure_kernel(x, 1.0, 1.0, 1.0, gamma)
+        exact = _exact(x, gamma)
+        worst = max(worst, float(abs((Decimal(got) - exact) / exact)))
+        assert _series_only(x, gamma) == got
+    assert worst <= BOUND
+
+
+def test_beyond_the_series_the_library_power():
+    for x in (-0.9, -0.5, 0.8, 5.0):
+        ratio = 1.0 / (1.0 + x)
+        assert abs((ratio - 1.0) / (ratio + 1.0)) > SERIES_MAX_S
+        assert compression_chamber_pressure_kernel(x, 2.0e6, 1.0, 1.0, 1.4) == \
+            2.0e6 * ratio ** 1.4
+        assert np.isnan(_series_only(x, 1.4))  # the lanes take the library's there
+    # a large exponent leaves the series too
+    assert np.isnan(_series_only(0.3, 4.0))
+    assert compression_chamber_pressure_kernel(0.3, 1.0, 1.0, 1.0, 4.0) == \
+        (1.0 / 1.3) ** 4.0
+
+
+def test_numpy_arrays_and_the_kernel_agree():
+    x = np.linspace(-0.05, 0.1, 301)
+    args = (1.6e6, 1.2e-4, 1.33e-4, 1.4)
+    array = compression_chamber_pressure(x, *args)
+    compiled = np.array([compression_chamber_pressure_kernel(v, *args) for v in x])
+    np.testing.assert_allclose(compiled, array, rtol=2 * BOUND, atol=0.0)

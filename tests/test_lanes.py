@@ -16,6 +16,7 @@ from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, with_extensions
 from damper_emulator.model import compressible as comp
 from damper_emulator.model.compressible import DamperModel, DamperStepper, step
 from damper_emulator.model.lanes import (
+    L_CMD,
     L_FLAGS,
     L_FORCE,
     L_V,
@@ -113,7 +114,7 @@ def test_the_lanes_step_as_the_one_design_step(sport_cfg):
         dt = 0.3 if k == GAP_AT else DT
         if k == COMMAND_AT:  # design 9's command starts moving (the solenoid's lag)
             ref_state[9][comp.S_CMD] = 0.0
-            dstate[9, comp.S_CMD] = 0.0
+            lv[9 // LANES, L_CMD * LANES + 9 % LANES] = 0.0
         for j, s in enumerate(steppers):
             f_ref[j, k], fl_ref[j, k] = step(s.model.prm, s.model.tables[0].coef,
                                              s.model.tables[1].coef, ref_state[j], x[j, k],

@@ -242,21 +242,39 @@ def bdf2_step(h: float, w: float) -> float:
     return h_eff
 
 
-@kernel
-def clamp_input(prm: _Vec, x: float, v: float) -> tuple[float, float, int]:
-    """Stroke and velocity clamped to the travel and to the valve table's velocity, with
-    the fault bits that say so."""
-    flags = 0
-    if x < prm[P_X_MIN]:
-        x = prm[P_X_MIN]
-        flags |= _STROKE_CLAMPED
-    elif x > prm[P_X_MAX]:
-        x = prm[P_X_MAX]
-        flags |= _STROKE_CLAMPED
-    if abs(v) > prm[P_V_MAX]:
-        v = math.copysign(prm[P_V_MAX], v)
-        flags |= _VELOCITY_CLAMPED
+@inlined_kernel
+def clamp_input(x: float, v: float, x_min: float, x_max: float, v_max: float
+                ) -> tuple[float, float, int]:
+    """Stroke clamped to the travel ``[x_min, x_max]`` and velocity to ``±v_max`` (the
+    valve table's), with the fault bits that say so (selects only: the lanes vectorise
+    it)."""
+    stroke_clamped = x < x_min or x > x_max
+    velocity_clamped = abs(v) > v_max
+    flags = ((_STROKE_CLAMPED if stroke_clamped else 0)
+             | (_VELOCITY_CLAMPED if velocity_clamped else 0))
+    x = min(max(x, x_min), x_max)
+    v = math.copysign(v_max, v) if velocity_clamped else v
     return x, v, flags
+
+
+@inlined_kernel
+def coulomb_friction(friction_n: float, v: float) -> float:
+    """Eq 4's friction term ``F_friction sgn(ẋ)`` [N, rebound +]."""
+    sgn = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+    force: float = friction_n * sgn
+    return force
+
+
+@inlined_kernel
+def damper_force(a_annulus: float, a_piston: float, p_reb: float, p_com: float,
+                 friction: float, x: float, stop_reb: float, stop_com: float,
+                 stop_k: float) -> float:
+    """Damper force [N, rebound +], eq 4: ``(A_pt − A_rod) P_reb − A_pt P_com`` plus the
+    friction term, plus the end stops' force at stroke ``x`` when they are in use
+    (``stop_k > 0``; :func:`~damper_emulator.model.extensions.end_stop_force`)."""
+    force: float = a_annulus * p_reb - a_piston * p_com + friction
+    stops = end_stop_force(x, stop_reb, stop_com, stop_k)
+    return force + stops if stop_k > 0.0 else force
 
 
 @kernel
@@ -430,19 +448,15 @@ def _friction(prm: _Vec, state: _Vec, v: float, dt: float) -> float:
         state[S_BRISTLE] = zb
         f_lugre: float = s0 * zb
         return f_lugre
-    sgn = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-    f_coulomb: float = prm[P_FRICTION] * sgn
-    return f_coulomb
+    return coulomb_friction(prm[P_FRICTION], v)
 
 
 @kernel
 def _force(prm: _Vec, p_reb: float, p_com: float, friction: float, x: float) -> float:
     """Damper force [N, rebound +], eq 4 (``friction`` its last term), plus the end stops'
     force at stroke ``x`` when they are in use."""
-    f: float = prm[P_A_ANNULUS] * p_reb - prm[P_A_PISTON] * p_com + friction
-    if prm[P_ES_K] > 0.0:
-        f += end_stop_force(x, prm[P_ES_XR], prm[P_ES_XC], prm[P_ES_K])
-    return f
+    return damper_force(prm[P_A_ANNULUS], prm[P_A_PISTON], p_reb, p_com, friction, x,
+                        prm[P_ES_XR], prm[P_ES_XC], prm[P_ES_K])
 
 
 @kernel
@@ -579,7 +593,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
     if cmd != state[S_CMD]:
         cmd = solenoid_lag(cmd, state[S_CMD], dt, prm[P_BP_T63])
         state[S_CMD_EFF] = cmd
-    x, v, flags = clamp_input(prm, x, v)
+    x, v, flags = clamp_input(x, v, prm[P_X_MIN], prm[P_X_MAX], prm[P_V_MAX])
     if dt > prm[P_SETTLE]:
         # after a gap far longer than the pressure time constants the damper is in
         # quasi-steady equilibrium at the new sample (the heat model cools meanwhile)

@@ -59,7 +59,7 @@ from __future__ import annotations
 
 import math
 
-from damper_emulator.model.jit import kernel
+from damper_emulator.model.jit import inlined_kernel, kernel
 
 #: Atmospheric pressure [Pa]: the pressure at which the air fraction is stated.
 P_ATM = 101325.0
@@ -111,7 +111,7 @@ def heat_rise(rise: float, power: float, dt: float, capacity: float, tau: float)
     return target + (rise - target) * math.exp(-dt / tau)
 
 
-@kernel
+@inlined_kernel
 def end_stop_force(x: float, x_reb: float, x_com: float, k: float) -> float:
     """Force of the progressive end stops [N, rebound +] at stroke ``x``."""
     if x > x_reb:

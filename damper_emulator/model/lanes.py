@@ -42,12 +42,17 @@ from damper_emulator.model.compressible import (
     _SOLVER,
     _VALVE_EXTRAPOLATED,
     P_A_ANNULUS,
+    P_A_PISTON,
     P_A_ROD,
     P_AIR_EPS,
     P_ALPHA,
     P_BP_LAMINAR,
     P_BP_TURBULENT,
     P_CAV_ON,
+    P_ES_K,
+    P_ES_XC,
+    P_ES_XR,
+    P_FRICTION,
     P_GAMMA,
     P_GAS,
     P_GR_AREA,
@@ -64,7 +69,10 @@ from damper_emulator.model.compressible import (
     P_SUBSTEP,
     P_TH_BETA,
     P_TOL,
+    P_V_MAX,
     P_VL_TAU,
+    P_X_MAX,
+    P_X_MIN,
     P_ZLIM_C,
     P_ZLIM_R,
     S_CMD,
@@ -81,13 +89,13 @@ from damper_emulator.model.compressible import (
     S_Z_PREV,
     V_GAS,
     _bypass_area_of,
-    _force,
-    _friction,
     _valve_state,
     bdf2_combination,
     bdf2_step,
     bdf2_weight,
     clamp_input,
+    coulomb_friction,
+    damper_force,
     eq2_gain,
     eq2_residual,
     newton_update,
@@ -108,6 +116,8 @@ _Int = NDArray[np.int64]
 #: vectorises the Newton arithmetic over a loop of this constant length (at 8 it unrolled
 #: the loop instead of vectorising it; measured 2026-11-27 on the 2-core Xeon VM).
 LANES = 16
+#: Lanes left unconverged that finish one at a time instead of in lockstep (:func:`_finish`).
+STRAGGLERS = 2
 
 # Quantities of the lane buffer, each a run of LANES doubles: the input and output, the
 # designs' constants, the state carried between sub-steps, the Newton solve's values and
@@ -115,11 +125,12 @@ LANES = 16
 (L_X, L_V, L_FORCE, L_FLAGS, L_SKIP,
  L_MAX_EXT, L_AREA, L_ALPHA, L_TOL, L_ZLIM_R, L_ZLIM_C, L_STEP_R, L_STEP_C, L_SCALE_R,
  L_SCALE_C, L_N_R, L_N_C, L_BP_AREA, L_BP_A, L_BP_B, L_P_GAS, L_V_GAS, L_A_ROD, L_GAMMA,
- L_FR,
+ L_X_MIN, L_X_MAX, L_V_MAX, L_FRICTION, L_SETTLE, L_CMD, L_CMD_EFF, L_A_PISTON, L_ES_XR,
+ L_ES_XC, L_ES_K, L_FR,
  L_X0, L_V0, L_P, L_P_PREV, L_H_PREV, L_Z, L_Z_PREV, L_P_COM,
  L_P_HAT, L_K, L_Q_IN, L_LO, L_HI, L_LAST, L_DONE,
  L_SIGN, L_IDX, L_T, L_SCALE, L_PRE, L_C3, L_C2, L_C1, L_C0, L_CE, L_CM, L_DP, L_DDP, L_Q,
- L_DQ, L_BEYOND, L_ROW, L_SIZE) = range(58)
+ L_DQ, L_BEYOND, L_ROW, L_SIZE) = range(69)
 #: Length of the lane buffer [doubles].
 LANE_BUFFER = L_SIZE * LANES
 
@@ -170,6 +181,17 @@ def _load_lane(prm: _Vec, n_r: _Int, n_c: _Int, dstate: _Vec, j: int, lv: _Vec, 
     lv[L_V_GAS * LANES + b] = pr[V_GAS]
     lv[L_A_ROD * LANES + b] = pr[P_A_ROD]
     lv[L_GAMMA * LANES + b] = pr[P_GAMMA]
+    lv[L_X_MIN * LANES + b] = pr[P_X_MIN]
+    lv[L_X_MAX * LANES + b] = pr[P_X_MAX]
+    lv[L_V_MAX * LANES + b] = pr[P_V_MAX]
+    lv[L_FRICTION * LANES + b] = pr[P_FRICTION]
+    lv[L_SETTLE * LANES + b] = pr[P_SETTLE]
+    lv[L_CMD * LANES + b] = st[S_CMD]
+    lv[L_CMD_EFF * LANES + b] = st[S_CMD_EFF]
+    lv[L_A_PISTON * LANES + b] = pr[P_A_PISTON]
+    lv[L_ES_XR * LANES + b] = pr[P_ES_XR]
+    lv[L_ES_XC * LANES + b] = pr[P_ES_XC]
+    lv[L_ES_K * LANES + b] = pr[P_ES_K]
     lv[L_X0 * LANES + b] = st[S_X]
     lv[L_V0 * LANES + b] = st[S_V]
     lv[L_P * LANES + b] = st[S_P_REB]
@@ -187,6 +209,7 @@ def _store_lane(dstate: _Vec, j: int, lv: _Vec, b: int) -> None:
     """Lane ``b``'s state into design ``j``'s stepper state, as the one-design step
     leaves it."""
     st = dstate[j]
+    st[S_CMD] = lv[L_CMD * LANES + b]
     st[S_X] = lv[L_X0 * LANES + b]
     st[S_V] = lv[L_V0 * LANES + b]
     st[S_P_REB] = lv[L_P * LANES + b]
@@ -218,36 +241,48 @@ def store_lanes(dstate: _Vec, first: int, lv: _Vec) -> None:
         _store_lane(dstate, first + b, lv, b)
 
 
-@kernel
-def _begin(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dstate: _Vec,
-           first: int, dt: float, lv: _Vec) -> bool:
-    """Phase 1: each lane's input checked and clamped and its friction; a lane the lanes do
-    not handle this sample takes the one-design step (its state through ``dstate``).
-    Returns whether any lane's bypass is open."""
-    bypass = False
+@lane_kernel
+def _inputs(dt: float, lv: _Vec) -> tuple[int, bool]:
+    """Phase 1, vectorised: each lane's input checked, its stroke and velocity clamped and
+    its friction.  A lane with invalid input, after a gap longer than the settle time, or
+    with its valve command moving through the solenoid's lag is marked to take the
+    one-design step (:func:`_alone`).  Returns the number of those and whether any other
+    lane's bypass is open."""
     step_ok = math.isfinite(dt) and dt > 0.0
+    alone = 0
+    open_bypass = 0
     for b in range(LANES):
-        j = first + b
-        pr = prm[j]
-        st = dstate[j]
         x = lv[L_X * LANES + b]
         v = lv[L_V * LANES + b]
-        if (not (step_ok and math.isfinite(x) and math.isfinite(v)) or dt > pr[P_SETTLE]
-                or st[S_CMD] != st[S_CMD_EFF]):
-            _store_lane(dstate, j, lv, b)
-            f, fl = step(pr, coef_r[j, :n_r[j]], coef_c[j, :n_c[j]], st, x, v, dt)
-            _load_lane(prm, n_r, n_c, dstate, j, lv, b)
-            lv[L_FLAGS * LANES + b] = fl
-            lv[L_SKIP * LANES + b] = 1.0
+        settle = lv[L_SETTLE * LANES + b]
+        steady = lv[L_CMD * LANES + b] == lv[L_CMD_EFF * LANES + b]
+        ok = step_ok and math.isfinite(x) and math.isfinite(v) and dt <= settle and steady
+        xc, vc, flags = clamp_input(x, v, lv[L_X_MIN * LANES + b], lv[L_X_MAX * LANES + b],
+                                    lv[L_V_MAX * LANES + b])
+        lv[L_SKIP * LANES + b] = 0.0 if ok else 1.0
+        lv[L_X * LANES + b] = xc if ok else x
+        lv[L_V * LANES + b] = vc if ok else v
+        lv[L_FLAGS * LANES + b] = flags
+        lv[L_FR * LANES + b] = coulomb_friction(lv[L_FRICTION * LANES + b], vc)
+        alone += 0 if ok else 1
+        open_bypass += 1 if (ok and lv[L_BP_AREA * LANES + b] > 0.0) else 0
+    return alone, open_bypass > 0
+
+
+@kernel
+def _alone(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dstate: _Vec,
+           first: int, dt: float, lv: _Vec) -> None:
+    """Phase 1': the lanes :func:`_inputs` marked take the one-design step, their state
+    through ``dstate``."""
+    for b in range(LANES):
+        if lv[L_SKIP * LANES + b] == 0.0:
             continue
-        lv[L_SKIP * LANES + b] = 0.0
-        x, v, fl = clamp_input(pr, x, v)
-        lv[L_X * LANES + b] = x
-        lv[L_V * LANES + b] = v
-        lv[L_FLAGS * LANES + b] = fl
-        lv[L_FR * LANES + b] = _friction(pr, st, v, dt)
-        bypass |= lv[L_BP_AREA * LANES + b] > 0.0
-    return bypass
+        j = first + b
+        _store_lane(dstate, j, lv, b)
+        _f, flags = step(prm[j], coef_r[j, :n_r[j]], coef_c[j, :n_c[j]], dstate[j],
+                         lv[L_X * LANES + b], lv[L_V * LANES + b], dt)
+        _load_lane(prm, n_r, n_c, dstate, j, lv, b)
+        lv[L_FLAGS * LANES + b] = flags
 
 
 @inlined_kernel
@@ -345,41 +380,47 @@ def _substep_begin(frac: float, h: float, lv: _Vec) -> None:
         _locate(lv, b, z_first)
 
 
+@inlined_kernel
+def _gather_lane(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
+                 lv: _Vec, b: int) -> None:
+    """Lane ``b``'s valve-table row (where :func:`_locate` put it), or the one-design
+    look-up's values."""
+    j = first + b
+    if lv[L_PRE * LANES + b] != 0.0:
+        dp, ddp, q, dq, beyond = _valve_state(lv[L_Z * LANES + b], prm[j],
+                                              coef_r[j, :n_r[j]], coef_c[j, :n_c[j]])
+        lv[L_DP * LANES + b] = dp
+        lv[L_DDP * LANES + b] = ddp
+        lv[L_Q * LANES + b] = q
+        lv[L_DQ * LANES + b] = dq
+        lv[L_BEYOND * LANES + b] = 1.0 if beyond else 0.0
+        return
+    # the row the lane holds already (most iterations and sub-steps stay in one
+    # interval): nothing to load
+    sign = lv[L_SIGN * LANES + b]
+    idx = lv[L_IDX * LANES + b]
+    key = sign * (idx + 1.0)
+    lv[L_BEYOND * LANES + b] = 0.0
+    if key == lv[L_ROW * LANES + b]:
+        return
+    lv[L_ROW * LANES + b] = key
+    i = int(idx)
+    row = coef_r[j, i] if sign > 0.0 else coef_c[j, i]
+    lv[L_C3 * LANES + b] = row[0]
+    lv[L_C2 * LANES + b] = row[1]
+    lv[L_C1 * LANES + b] = row[2]
+    lv[L_C0 * LANES + b] = row[3]
+    lv[L_CE * LANES + b] = row[C_EXP]
+    lv[L_CM * LANES + b] = row[C_EXPM1]
+
+
 @kernel
 def _gather(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
             lv: _Vec) -> None:
-    """Phase 3a, per Newton iteration: each unconverged lane's valve-table row (where
-    :func:`_locate` put it), or the one-design look-up's values."""
+    """Phase 3a, per Newton iteration: each unconverged lane's valve-table row."""
     for b in range(LANES):
-        if lv[L_SKIP * LANES + b] != 0.0 or lv[L_DONE * LANES + b] != 0.0:
-            continue
-        j = first + b
-        if lv[L_PRE * LANES + b] != 0.0:
-            dp, ddp, q, dq, beyond = _valve_state(lv[L_Z * LANES + b], prm[j],
-                                                  coef_r[j, :n_r[j]], coef_c[j, :n_c[j]])
-            lv[L_DP * LANES + b] = dp
-            lv[L_DDP * LANES + b] = ddp
-            lv[L_Q * LANES + b] = q
-            lv[L_DQ * LANES + b] = dq
-            lv[L_BEYOND * LANES + b] = 1.0 if beyond else 0.0
-            continue
-        # the row the lane holds already (most iterations and sub-steps stay in one
-        # interval): nothing to load
-        sign = lv[L_SIGN * LANES + b]
-        idx = lv[L_IDX * LANES + b]
-        key = sign * (idx + 1.0)
-        lv[L_BEYOND * LANES + b] = 0.0
-        if key == lv[L_ROW * LANES + b]:
-            continue
-        lv[L_ROW * LANES + b] = key
-        i = int(idx)
-        row = coef_r[j, i] if sign > 0.0 else coef_c[j, i]
-        lv[L_C3 * LANES + b] = row[0]
-        lv[L_C2 * LANES + b] = row[1]
-        lv[L_C1 * LANES + b] = row[2]
-        lv[L_C0 * LANES + b] = row[3]
-        lv[L_CE * LANES + b] = row[C_EXP]
-        lv[L_CM * LANES + b] = row[C_EXPM1]
+        if lv[L_SKIP * LANES + b] == 0.0 and lv[L_DONE * LANES + b] == 0.0:
+            _gather_lane(prm, coef_r, n_r, coef_c, n_c, first, lv, b)
 
 
 @inlined_kernel
@@ -454,6 +495,21 @@ def _newton_lanes(lv: _Vec, bypass: bool) -> int:
 
 
 @kernel
+def _finish(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
+            lv: _Vec, bypass: bool, iterations: int) -> None:
+    """Phase 3c: the last few unconverged lanes, one at a time (the same look-up and
+    update, up to ``iterations`` more): a lockstep iteration costs every lane's work,
+    and about one lane in thirteen needs a third iteration (which, in lockstep, took
+    seven blocks in ten into one; measured 2026-11-27)."""
+    for b in range(LANES):
+        for _ in range(iterations):
+            if lv[L_SKIP * LANES + b] != 0.0 or lv[L_DONE * LANES + b] != 0.0:
+                break
+            _gather_lane(prm, coef_r, n_r, coef_c, n_c, first, lv, b)
+            _newton_lane(lv, b, bypass)
+
+
+@kernel
 def _substep_end(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
                  h: float, lv: _Vec) -> None:
     """Phase 4, per sub-step: a lane that reached the iteration cap takes the valve's
@@ -476,17 +532,23 @@ def _substep_end(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, fi
         lv[L_H_PREV * LANES + b] = h
 
 
-@kernel
-def _end(prm: _Vec, first: int, lv: _Vec) -> None:
-    """Phase 5: the force (eq 4); the sample becomes the one before."""
+@lane_kernel
+def _end(lv: _Vec) -> None:
+    """Phase 5, vectorised: the force (eq 4 and the end stops); the sample becomes the one
+    before."""
     for b in range(LANES):
-        if lv[L_SKIP * LANES + b] != 0.0:
-            continue
+        live = lv[L_SKIP * LANES + b] == 0.0
         x = lv[L_X * LANES + b]
-        lv[L_FORCE * LANES + b] = _force(prm[first + b], lv[L_P * LANES + b],
-                                         lv[L_P_COM * LANES + b], lv[L_FR * LANES + b], x)
-        lv[L_X0 * LANES + b] = x
-        lv[L_V0 * LANES + b] = lv[L_V * LANES + b]
+        force = damper_force(lv[L_AREA * LANES + b], lv[L_A_PISTON * LANES + b],
+                             lv[L_P * LANES + b], lv[L_P_COM * LANES + b],
+                             lv[L_FR * LANES + b], x, lv[L_ES_XR * LANES + b],
+                             lv[L_ES_XC * LANES + b], lv[L_ES_K * LANES + b])
+        force_old = lv[L_FORCE * LANES + b]
+        x_old = lv[L_X0 * LANES + b]
+        v_old = lv[L_V0 * LANES + b]
+        lv[L_FORCE * LANES + b] = force if live else force_old
+        lv[L_X0 * LANES + b] = x if live else x_old
+        lv[L_V0 * LANES + b] = lv[L_V * LANES + b] if live else v_old
 
 
 @kernel
@@ -516,7 +578,9 @@ def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dsta
         Lane buffer (module docstring): strokes and velocities in, forces and fault bits
         out.
     """
-    bypass = _begin(prm, coef_r, n_r, coef_c, n_c, dstate, first, dt, lv)
+    alone, bypass = _inputs(dt, lv)
+    if alone:
+        _alone(prm, coef_r, n_r, coef_c, n_c, dstate, first, dt, lv)
     n_sub, h = substeps(prm[first], dt)
     maxit = int(prm[first, P_MAXIT])
     for sub in range(1, n_sub + 1):
@@ -524,9 +588,14 @@ def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dsta
         _gas(frac, lv)
         _gas_beyond(frac, lv)
         _substep_begin(frac, h, lv)
-        for _ in range(maxit):
+        for iteration in range(maxit):
             _gather(prm, coef_r, n_r, coef_c, n_c, first, lv)
-            if _newton_lanes(lv, bypass) == 0:
+            active = _newton_lanes(lv, bypass)
+            if active == 0:
+                break
+            if active <= STRAGGLERS:
+                _finish(prm, coef_r, n_r, coef_c, n_c, first, lv, bypass,
+                        maxit - iteration - 1)
                 break
         _substep_end(prm, coef_r, n_r, coef_c, n_c, first, h, lv)
-    _end(prm, first, lv)
+    _end(lv)

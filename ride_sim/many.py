@@ -169,6 +169,25 @@ def _stack_tables(tables: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]
     return out, n
 
 
+#: Fewest designs in a block of lanes: a block of fewer is mostly copies (each lane costs
+#: the same) and its designs run one by one instead; with 16 lanes a design there costs
+#: about 0.45 of one by one (benchmarks/many_bench.py, 2026-11-27).
+MIN_BLOCK = LANES // 2
+
+
+def _lane_designs(prm: np.ndarray) -> np.ndarray:
+    """Indices of the designs :func:`simulate_many` steps in lanes: the eligible ones
+    (:func:`damper_emulator.model.lanes.lane_eligible`; all of one sub-step and iteration
+    cap, else none), without a last block of fewer than :data:`MIN_BLOCK`."""
+    eligible = np.flatnonzero(lane_eligible(prm))
+    if eligible.size == 0 or not lane_compatible(prm[eligible]):
+        return np.zeros(0, np.int64)
+    tail = eligible.size % LANES
+    keep = eligible.size if tail == 0 or tail >= MIN_BLOCK else eligible.size - tail
+    chosen: np.ndarray = eligible[:keep]
+    return chosen
+
+
 def simulate_many(params: QuarterCarParams, models: Sequence[DamperModel],
                   road_height_m: ArrayLike, dt_s: float = 1e-3, *,
                   initial_state: ArrayLike | None = None, lanes: bool = True) -> ManyResult:
@@ -209,28 +228,36 @@ def simulate_many(params: QuarterCarParams, models: Sequence[DamperModel],
     coef_r, n_r = _stack_tables([p.kernel_spec.coef_r for p in plugins])
     coef_c, n_c = _stack_tables([p.kernel_spec.coef_c for p in plugins])
     dstate = np.ascontiguousarray(np.stack([p.kernel_spec.state for p in plugins]))
-    out = np.empty((len(cars), M_SIZE, road.size))
-    faults = np.zeros(len(cars), dtype=np.int64)
-    in_lanes = np.flatnonzero(lane_eligible(prm)) if lanes else np.zeros(0, np.int64)
-    if in_lanes.size and not lane_compatible(prm[in_lanes]):
-        in_lanes = np.zeros(0, np.int64)
+    in_lanes = _lane_designs(prm) if lanes else np.zeros(0, np.int64)
     alone = np.setdiff1d(np.arange(len(cars)), in_lanes)
-    if alone.size == len(cars):
-        _loop_many(d, q, road, s, force, prm, coef_r, n_r, coef_c, n_c, dstate, out, faults)
-    elif alone.size:
-        o, f = out[alone], faults[alone]
-        _loop_many(d, q[alone], road, s[alone], force[alone], prm[alone], coef_r[alone],
-                   n_r[alone], coef_c[alone], n_c[alone], dstate[alone], o, f)
-        out[alone], faults[alone] = o, f
-    if in_lanes.size:
-        # whole blocks of lanes, the last one filled up with copies of the last design
-        # (their results dropped)
-        rows = np.full(-(-in_lanes.size // LANES) * LANES, in_lanes[-1])
-        rows[:in_lanes.size] = in_lanes
-        o = np.empty((rows.size, M_SIZE, road.size))
-        f = np.zeros(rows.size, dtype=np.int64)
+    # whole blocks of lanes, the last one filled up with copies of the last design (their
+    # results dropped)
+    rows = np.full(-(-in_lanes.size // LANES) * LANES, in_lanes[-1] if in_lanes.size else 0)
+    rows[:in_lanes.size] = in_lanes
+    if alone.size == 0:  # all in lanes: their rows are the output's, no copy
+        out = np.empty((rows.size, M_SIZE, road.size))
+        faults = np.zeros(rows.size, dtype=np.int64)
         _loop_lanes(d, q[rows], road, s[rows], force[rows], prm[rows], coef_r[rows],
-                    n_r[rows], coef_c[rows], n_c[rows], dstate[rows], o, f,
+                    n_r[rows], coef_c[rows], n_c[rows], dstate[rows], out, faults,
                     np.zeros(LANE_BUFFER))
-        out[in_lanes], faults[in_lanes] = o[:in_lanes.size], f[:in_lanes.size]
+        out, faults = out[:len(cars)], faults[:len(cars)]
+    else:
+        out = np.empty((len(cars), M_SIZE, road.size))
+        faults = np.zeros(len(cars), dtype=np.int64)
+        if alone.size == len(cars):
+            _loop_many(d, q, road, s, force, prm, coef_r, n_r, coef_c, n_c, dstate, out,
+                       faults)
+        else:
+            o, f = out[alone], faults[alone]
+            _loop_many(d, q[alone], road, s[alone], force[alone], prm[alone],
+                       coef_r[alone], n_r[alone], coef_c[alone], n_c[alone], dstate[alone],
+                       o, f)
+            out[alone], faults[alone] = o, f
+        if in_lanes.size:
+            o = np.empty((rows.size, M_SIZE, road.size))
+            f = np.zeros(rows.size, dtype=np.int64)
+            _loop_lanes(d, q[rows], road, s[rows], force[rows], prm[rows], coef_r[rows],
+                        n_r[rows], coef_c[rows], n_c[rows], dstate[rows], o, f,
+                        np.zeros(LANE_BUFFER))
+            out[in_lanes], faults[in_lanes] = o[:in_lanes.size], f[:in_lanes.size]
     return ManyResult(out[:, M_SWS], out[:, M_ACC], out[:, M_DTL], faults, cars[0].dt_s)

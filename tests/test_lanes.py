@@ -31,7 +31,7 @@ from damper_emulator.model.lanes import (
 )
 from damper_emulator.model.valve_table import MAX_STEP
 from damper_emulator.params import EXTENSION_TYPES
-from ride_sim.many import _stack_tables, simulate_many
+from ride_sim.many import MIN_BLOCK, _lane_designs, _stack_tables, simulate_many
 from ride_sim.params import load_ride_config
 from ride_sim.road import random_road
 
@@ -171,9 +171,16 @@ def test_simulate_many_in_lanes_and_one_by_one(sport_cfg):
     heights = random_road(road.roughness, road.waviness, 60.0,
                           band_cycles_per_m=(0.02, 0.8), spacing_m=20.0 * DT,
                           seed=5).height_m
-    models = [s.model for s in _designs(sport_cfg)[:LANES + 3]]
+    # one block, a second of 9 (filled up with copies) and one design with an extension
+    # (one by one)
+    models = [s.model for s in _designs(sport_cfg)[:LANES + MIN_BLOCK + 1]]
     models.append(DamperModel(with_extensions(sport_cfg, {"valve_lag": {
         "time_constant_s": 3e-3}})))
+    in_lanes = _lane_designs(np.stack([m.prm for m in models]))
+    np.testing.assert_array_equal(in_lanes, np.arange(LANES + MIN_BLOCK + 1))
+    # a last block of fewer than MIN_BLOCK runs one by one
+    prm = np.stack([m.prm for m in models[:LANES + MIN_BLOCK - 1]])
+    np.testing.assert_array_equal(_lane_designs(prm), np.arange(LANES))
     a = simulate_many(rc.quarter_car, models, heights, DT)
     b = simulate_many(rc.quarter_car, models, heights, DT, lanes=False)
     for name in ("sws_m", "body_accel_m_s2", "dtl_n"):

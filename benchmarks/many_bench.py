@@ -6,10 +6,11 @@ Damper + quarter-car steps per second on one core: 500 m of the ride's random ro
 20 m/s sampled at the ride's rate (1 kHz: 25,000 samples), the compressible damper with 2
 BDF2 sub-steps per sample.  The single path runs ``ride_sim.quarter_car.simulate`` once
 per design; the batch ``simulate_many`` with D designs at once (D = 1 … 256), each design
-a different valve set (a scrambled Sobol design of ×0.5…×2 on the valve constants).  The
-set-up (valve tables) is not timed.  Each configuration runs ``--repeats`` times in turn;
-the table gives the median rate with its range, and the ratio to the single path of the
-same repeat.
+a different valve set (a scrambled Sobol design of ×0.5…×2 on the valve constants), in
+the damper's SIMD lanes (the default) and, for 64 designs, one by one
+(``lanes=False``).  The set-up (valve tables) is not timed.  Each configuration runs
+``--repeats`` times in turn; the table gives the median rate with its range, and the
+ratio to the single path of the same repeat.
 
 Usage: ``python benchmarks/many_bench.py [--repeats 3] [--length 500]``
 """
@@ -60,11 +61,12 @@ def main() -> None:
     heights = random_road(road.roughness, road.waviness, args.length,
                           band_cycles_per_m=road.band_cycles_per_m,
                           spacing_m=road.speed_m_s * dt, seed=0).height_m
-    models = designs(max(args.sizes))
+    models = designs(max(64, *args.sizes))
     simulate_many(car, models[:2], heights[:100], dt)            # JIT: compile or load
     simulate(car, CompressiblePlugin(models[0]), heights[:100], dt)
     n_single = 8
-    rates: dict[str, list[float]] = {"single": [], **{f"many{d}": [] for d in args.sizes}}
+    rates: dict[str, list[float]] = {"single": [], "alone64": [],
+                                     **{f"many{d}": [] for d in args.sizes}}
     for _ in range(args.repeats):
         plugins = [CompressiblePlugin(m) for m in models[:n_single]]
         t0 = time.perf_counter()
@@ -75,6 +77,9 @@ def main() -> None:
             t0 = time.perf_counter()
             simulate_many(car, models[:d], heights, dt)
             rates[f"many{d}"].append(d * heights.size / (time.perf_counter() - t0))
+        t0 = time.perf_counter()
+        simulate_many(car, models[:64], heights, dt, lanes=False)
+        rates["alone64"].append(64 * heights.size / (time.perf_counter() - t0))
     print(f"# damper-hil many-design kernel benchmark — {time.strftime('%Y-%m-%d')}, "
           f"{cpu_name()}, one core")
     print()
@@ -87,10 +92,11 @@ def main() -> None:
     print(f"| single-design `simulate`, one design after another | {n_single} | "
           f"{statistics.median(single) / 1e6:.2f} ({min(single) / 1e6:.2f}–"
           f"{max(single) / 1e6:.2f}) | 1.00 |")
-    for d in args.sizes:
-        r = rates[f"many{d}"]
+    rows = [("`simulate_many(lanes=False)`", 64, rates["alone64"])]
+    rows += [("`simulate_many`", d, rates[f"many{d}"]) for d in args.sizes]
+    for name, d, r in rows:
         ratio = statistics.median([a / b for a, b in zip(r, single)])
-        print(f"| `simulate_many` | {d} | {statistics.median(r) / 1e6:.2f} "
+        print(f"| {name} | {d} | {statistics.median(r) / 1e6:.2f} "
               f"({min(r) / 1e6:.2f}–{max(r) / 1e6:.2f}) | {ratio:.2f} |")
 
 

@@ -117,7 +117,8 @@ class TuneSettings:
                                                "at the wheel [m]", 0.08)
     bypass: bool = rule("bool", "also tune the adaptive bypass diameters (the base damper "
                                 "needs a damper.adaptive group)", False)
-    chunk: int = rule(("int_range", 1, 10_000), "designs per task", 25)
+    chunk: int = rule(("int_range", 1, 10_000),
+                      "designs per task (a multiple of the damper step's 16 SIMD lanes)", 32)
 
     def variables(self) -> tuple[str, ...]:
         """The design variables (:class:`TuneBounds` field names) in use."""

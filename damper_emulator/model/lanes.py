@@ -414,7 +414,7 @@ def _gather_lane(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, fi
     lv[L_CM * LANES + b] = row[C_EXPM1]
 
 
-@kernel
+@inlined_kernel
 def _gather(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
             lv: _Vec) -> None:
     """Phase 3a, per Newton iteration: each unconverged lane's valve-table row."""
@@ -510,6 +510,21 @@ def _finish(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: 
 
 
 @kernel
+def _solve(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
+           lv: _Vec, bypass: bool, maxit: int) -> None:
+    """Phase 3: the lanes' Newton solves of eq 2 (lockstep, then the stragglers), at most
+    ``maxit`` iterations each."""
+    for iteration in range(maxit):
+        _gather(prm, coef_r, n_r, coef_c, n_c, first, lv)
+        active = _newton_lanes(lv, bypass)
+        if active == 0:
+            return
+        if active <= STRAGGLERS:
+            _finish(prm, coef_r, n_r, coef_c, n_c, first, lv, bypass, maxit - iteration - 1)
+            return
+
+
+@kernel
 def _substep_end(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
                  h: float, lv: _Vec) -> None:
     """Phase 4, per sub-step: a lane that reached the iteration cap takes the valve's
@@ -588,14 +603,6 @@ def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dsta
         _gas(frac, lv)
         _gas_beyond(frac, lv)
         _substep_begin(frac, h, lv)
-        for iteration in range(maxit):
-            _gather(prm, coef_r, n_r, coef_c, n_c, first, lv)
-            active = _newton_lanes(lv, bypass)
-            if active == 0:
-                break
-            if active <= STRAGGLERS:
-                _finish(prm, coef_r, n_r, coef_c, n_c, first, lv, bypass,
-                        maxit - iteration - 1)
-                break
+        _solve(prm, coef_r, n_r, coef_c, n_c, first, lv, bypass, maxit)
         _substep_end(prm, coef_r, n_r, coef_c, n_c, first, h, lv)
     _end(lv)

@@ -47,7 +47,7 @@ from scipy.linalg import expm
 
 from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import step as _compressible_step
-from damper_emulator.model.jit import kernel
+from damper_emulator.model.jit import inlined_kernel, kernel
 from ride_sim.dampers import CompressibleSpec, DamperPlugin, StatelessSpec, stateless_force
 from ride_sim.params import QuarterCarParams, validate_quarter_car
 
@@ -121,30 +121,66 @@ def _discretise(params: QuarterCarParams, dt_s: float,
 # batch loops.
 
 
+@inlined_kernel
+def car_advance(d: _Vec, z1: float, z1d: float, z2: float, z2d: float, f: float, u0: float,
+                u1: float) -> tuple[float, float, float, float]:
+    """The state ``D (z1, z1', z2, z2', f, u0, u1)`` one sample on (exact step, see
+    :func:`discretise`; ``f`` the wheel-side damper force over the static one)."""
+    return ((d[0, 0] * z1 + d[0, 1] * z1d + d[0, 2] * z2 + d[0, 3] * z2d
+             + d[0, 4] * f + d[0, 5] * u0 + d[0, 6] * u1),
+            (d[1, 0] * z1 + d[1, 1] * z1d + d[1, 2] * z2 + d[1, 3] * z2d
+             + d[1, 4] * f + d[1, 5] * u0 + d[1, 6] * u1),
+            (d[2, 0] * z1 + d[2, 1] * z1d + d[2, 2] * z2 + d[2, 3] * z2d
+             + d[2, 4] * f + d[2, 5] * u0 + d[2, 6] * u1),
+            (d[3, 0] * z1 + d[3, 1] * z1d + d[3, 2] * z2 + d[3, 3] * z2d
+             + d[3, 4] * f + d[3, 5] * u0 + d[3, 6] * u1))
+
+
+@inlined_kernel
+def wheel_force(damper_force: float, static_force: float, motion_ratio: float) -> float:
+    """The damper force over its static value, at the wheel [N]."""
+    f: float = (damper_force - static_force) / motion_ratio
+    return f
+
+
+@inlined_kernel
+def car_motion(motion_ratio: float, z1: float, z1d: float, z2: float, z2d: float
+               ) -> tuple[float, float]:
+    """Damper stroke and velocity (extension +) of the state ``(z1, z1', z2, z2')``."""
+    return -(z1 - z2) / motion_ratio, -(z1d - z2d) / motion_ratio
+
+
+@inlined_kernel
+def car_outputs(mb: float, kt: float, ks: float, ci: float, ct: float, mr: float, dt: float,
+                static_force: float, z1: float, z1d: float, z2: float, z2d: float,
+                damper_force: float, u0: float, u1: float) -> tuple[float, float, float]:
+    """``(sws, body acceleration, dtl)`` at the sample of the state ``(z1, z1', z2, z2')``,
+    the force held over the next step; the vehicle's constants as packed (``Q_MB …``)."""
+    f = wheel_force(damper_force, static_force, mr)
+    sws = z1 - z2
+    accel = (ks * sws + ci * (z1d - z2d) - f) / mb
+    dtl = kt * (u0 - z1) + ct * ((u1 - u0) / dt - z1d)
+    return sws, accel, dtl
+
+
 @kernel
 def _advance(d: _Vec, s: _Vec, f: float, u0: float, u1: float) -> None:
-    """``s ← D (s, f, u0, u1)`` in place (exact step, see :func:`discretise`)."""
-    a0, a1, a2, a3 = s[0], s[1], s[2], s[3]
-    for i in range(4):
-        s[i] = (d[i, 0] * a0 + d[i, 1] * a1 + d[i, 2] * a2 + d[i, 3] * a3
-                + d[i, 4] * f + d[i, 5] * u0 + d[i, 6] * u1)
+    """``s ← D (s, f, u0, u1)`` in place (:func:`car_advance`)."""
+    s[0], s[1], s[2], s[3] = car_advance(d, s[0], s[1], s[2], s[3], f, u0, u1)
 
 
 @kernel
 def _motion(q: _Vec, s: _Vec) -> tuple[float, float]:
     """Damper stroke and velocity (extension +) of state ``s``."""
-    return -(s[0] - s[2]) / q[Q_MR], -(s[1] - s[3]) / q[Q_MR]
+    return car_motion(q[Q_MR], s[0], s[1], s[2], s[3])
 
 
 @kernel
 def _outputs(q: _Vec, s: _Vec, damper_force: float, u0: float, u1: float
              ) -> tuple[float, float, float]:
     """``(sws, body acceleration, dtl)`` at the sample, force held over the next step."""
-    f = (damper_force - q[Q_FSTATIC]) / q[Q_MR]
-    sws = s[0] - s[2]
-    accel = (q[Q_KS] * sws + q[Q_CI] * (s[1] - s[3]) - f) / q[Q_MB]
-    dtl = q[Q_KT] * (u0 - s[0]) + q[Q_CT] * ((u1 - u0) / q[Q_DT] - s[1])
-    return sws, accel, dtl
+    return car_outputs(q[Q_MB], q[Q_KT], q[Q_KS], q[Q_CI], q[Q_CT], q[Q_MR], q[Q_DT],
+                       q[Q_FSTATIC], s[0], s[1], s[2], s[3], damper_force, u0, u1)
 
 
 @kernel
@@ -193,7 +229,7 @@ def _loop_compressible(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force0: float, prm
         u0, u1 = _road_pair(road, k)
         _record(q, s, k, force, fault, u0, u1, out, faults)
         if k + 1 < n:
-            _advance(d, s, (force - q[Q_FSTATIC]) / q[Q_MR], u0, u1)
+            _advance(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]), u0, u1)
 
 
 @kernel
@@ -211,7 +247,7 @@ def _loop_stateless(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force0: float, kind: 
         u0, u1 = _road_pair(road, k)
         _record(q, s, k, force, 0, u0, u1, out, faults)
         if k + 1 < n:
-            _advance(d, s, (force - q[Q_FSTATIC]) / q[Q_MR], u0, u1)
+            _advance(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]), u0, u1)
 
 
 # --------------------------------------------------------------------------------------
@@ -306,7 +342,7 @@ class QuarterCar:
     def advance(self, damper_force_n: float, road_now_m: float, road_next_m: float) -> None:
         """Advance exactly by ``dt`` with ``damper_force_n`` (full damper force, rebound +)
         held and the road linear from ``road_now_m`` to ``road_next_m``."""
-        f = (float(damper_force_n) - self.static_force_n) / self.params.motion_ratio
+        f = wheel_force(float(damper_force_n), self.static_force_n, self.params.motion_ratio)
         _advance(self.matrix, self._s, f, float(road_now_m), float(road_next_m))
 
 

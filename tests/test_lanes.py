@@ -43,10 +43,13 @@ SAMPLES = 2500
 NAN_AT, GAP_AT, COMMAND_AT = 400, 900, 1300
 
 
-def _designs(cfg):
+def _designs(cfg, max_iterations=None):
     """2 × LANES designs: valves ×0.5…×2, gas, friction, end stops, a coarse table, the
-    bypass open at command 0.3 on some."""
+    bypass open at command 0.3 on some; ``max_iterations``: every design's Newton cap."""
     rng = np.random.default_rng(7)
+    if max_iterations is not None:
+        cfg = dataclasses.replace(cfg, numerics=dataclasses.replace(
+            cfg.numerics, newton_max_iterations=max_iterations))
     d = cfg.damper
     out = []
     for k in range(2 * LANES):
@@ -93,8 +96,11 @@ def _inputs(n_designs):
     return x, v
 
 
-def test_the_lanes_step_as_the_one_design_step(sport_cfg):
-    steppers = _designs(sport_cfg)
+@pytest.mark.parametrize("max_iterations", [None, 4])
+def test_the_lanes_step_as_the_one_design_step(sport_cfg, max_iterations):
+    """``max_iterations`` 4 (the least allowed): some solves stop at the cap (the SOLVER
+    fault)."""
+    steppers = _designs(sport_cfg, max_iterations)
     n = len(steppers)
     prm = np.stack([s.model.prm for s in steppers])
     assert lane_eligible(prm).all() and lane_compatible(prm)
@@ -142,6 +148,7 @@ def test_the_lanes_step_as_the_one_design_step(sport_cfg):
     ratio = p7[comp.V_GAS] / (p7[comp.V_GAS] + p7[comp.P_A_ROD] * np.nan_to_num(x[7]))
     assert ratio.min() < 0.6 and ratio.max() > 5.0 / 3.0  # both sides of the series' domain
     assert np.any(fl_ref & int(comp.Fault.VALVE_EXTRAPOLATED))
+    assert bool(np.any(fl_ref & int(comp.Fault.SOLVER))) is (max_iterations == 4)
     # the designs differ
     assert np.std(f_ref[:, 1:], axis=0).max() > 0.1 * np.abs(f_ref).max()
 

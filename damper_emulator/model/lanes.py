@@ -496,55 +496,68 @@ def _newton_lanes(lv: _Vec, bypass: bool) -> int:
 
 @kernel
 def _finish(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
-            lv: _Vec, bypass: bool, iterations: int) -> None:
+            lv: _Vec, bypass: bool, iterations: int) -> int:
     """Phase 3c: the last few unconverged lanes, one at a time (the same look-up and
     update, up to ``iterations`` more): a lockstep iteration costs every lane's work,
     and about one lane in thirteen needs a third iteration (which, in lockstep, took
-    seven blocks in ten into one; measured 2026-11-27)."""
+    seven blocks in ten into one; measured 2026-11-27).  Returns the number of lanes left
+    unconverged."""
+    left = 0
     for b in range(LANES):
         for _ in range(iterations):
             if lv[L_SKIP * LANES + b] != 0.0 or lv[L_DONE * LANES + b] != 0.0:
                 break
             _gather_lane(prm, coef_r, n_r, coef_c, n_c, first, lv, b)
             _newton_lane(lv, b, bypass)
+        left += 1 if (lv[L_SKIP * LANES + b] == 0.0 and lv[L_DONE * LANES + b] == 0.0) else 0
+    return left
 
 
 @kernel
 def _solve(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
-           lv: _Vec, bypass: bool, maxit: int) -> None:
+           lv: _Vec, bypass: bool, maxit: int) -> int:
     """Phase 3: the lanes' Newton solves of eq 2 (lockstep, then the stragglers), at most
-    ``maxit`` iterations each."""
+    ``maxit`` iterations each.  Returns the number of lanes left unconverged."""
+    active = 0
     for iteration in range(maxit):
         _gather(prm, coef_r, n_r, coef_c, n_c, first, lv)
         active = _newton_lanes(lv, bypass)
         if active == 0:
-            return
+            return 0
         if active <= STRAGGLERS:
-            _finish(prm, coef_r, n_r, coef_c, n_c, first, lv, bypass, maxit - iteration - 1)
-            return
+            return _finish(prm, coef_r, n_r, coef_c, n_c, first, lv, bypass,
+                           maxit - iteration - 1)
+    return active
 
 
 @kernel
-def _substep_end(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
-                 h: float, lv: _Vec) -> None:
-    """Phase 4, per sub-step: a lane that reached the iteration cap takes the valve's
-    pressure at its last ``z`` and says so (as the one-design solve does); the fault
-    bits; the sub-step becomes the one before."""
+def _unconverged(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: int,
+                 lv: _Vec) -> None:
+    """Phase 4', per sub-step, when some lane reached the iteration cap: it takes the
+    valve's pressure at its last ``z`` and says so (as the one-design solve does)."""
     for b in range(LANES):
-        if lv[L_SKIP * LANES + b] != 0.0:
+        if lv[L_SKIP * LANES + b] != 0.0 or lv[L_DONE * LANES + b] != 0.0:
             continue
-        flags = int(lv[L_FLAGS * LANES + b])
-        if lv[L_DONE * LANES + b] == 0.0:
-            j = first + b
-            dp, _d, _q, _dq, beyond = _valve_state(lv[L_Z * LANES + b], prm[j],
-                                                   coef_r[j, :n_r[j]], coef_c[j, :n_c[j]])
-            lv[L_P * LANES + b] = lv[L_P_COM * LANES + b] + dp
-            lv[L_BEYOND * LANES + b] = 1.0 if beyond else 0.0
-            flags |= _SOLVER
-        if lv[L_BEYOND * LANES + b] != 0.0:
-            flags |= _VALVE_EXTRAPOLATED
-        lv[L_FLAGS * LANES + b] = flags
-        lv[L_H_PREV * LANES + b] = h
+        j = first + b
+        dp, _d, _q, _dq, beyond = _valve_state(lv[L_Z * LANES + b], prm[j],
+                                               coef_r[j, :n_r[j]], coef_c[j, :n_c[j]])
+        lv[L_P * LANES + b] = lv[L_P_COM * LANES + b] + dp
+        lv[L_BEYOND * LANES + b] = 1.0 if beyond else 0.0
+        lv[L_FLAGS * LANES + b] = int(lv[L_FLAGS * LANES + b]) | _SOLVER
+
+
+@lane_kernel
+def _substep_end(h: float, lv: _Vec) -> None:
+    """Phase 4, per sub-step, vectorised: the fault bits; the sub-step becomes the one
+    before (a skipped lane keeps its own)."""
+    for b in range(LANES):
+        live = lv[L_SKIP * LANES + b] == 0.0
+        flags_old = lv[L_FLAGS * LANES + b]
+        beyond = lv[L_BEYOND * LANES + b] != 0.0
+        flags = int(flags_old) | (_VALVE_EXTRAPOLATED if beyond else 0)
+        h_old = lv[L_H_PREV * LANES + b]
+        lv[L_FLAGS * LANES + b] = flags if live else flags_old
+        lv[L_H_PREV * LANES + b] = h if live else h_old
 
 
 @lane_kernel
@@ -603,6 +616,7 @@ def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dsta
         _gas(frac, lv)
         _gas_beyond(frac, lv)
         _substep_begin(frac, h, lv)
-        _solve(prm, coef_r, n_r, coef_c, n_c, first, lv, bypass, maxit)
-        _substep_end(prm, coef_r, n_r, coef_c, n_c, first, h, lv)
+        if _solve(prm, coef_r, n_r, coef_c, n_c, first, lv, bypass, maxit):
+            _unconverged(prm, coef_r, n_r, coef_c, n_c, first, lv)
+        _substep_end(h, lv)
     _end(lv)

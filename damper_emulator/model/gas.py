@@ -58,6 +58,9 @@ def _adiabatic_power_compiled(ratio: Any, gamma: Any, series: Any = False) -> An
 
     # (numba requires the implementation's signature to be the overloaded one's)
     def impl(ratio: Any, gamma: Any, series: Any = False) -> Any:
+        if not series:
+            power: float = ratio ** gamma
+            return power
         s = (ratio - 1.0) / (ratio + 1.0)
         s2 = s * s
         acc = 0.0
@@ -65,9 +68,6 @@ def _adiabatic_power_compiled(ratio: Any, gamma: Any, series: Any = False) -> An
             acc = acc * s2 + _ATANH_COEFFICIENTS[k]
         y = 2.0 * gamma * s * acc  # γ ln r
         summed = abs(s) <= SERIES_MAX_S and abs(y) <= SERIES_MAX_EXPONENT
-        if not series:
-            power: float = ratio ** gamma
-            return power
         e = 1.0
         for k in range(EXP_TERMS):
             e = 1.0 + y * e * _EXP_STEPS[k]

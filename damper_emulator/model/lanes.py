@@ -609,6 +609,9 @@ def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dsta
     alone, bypass = _inputs(dt, lv)
     if alone:
         _alone(prm, coef_r, n_r, coef_c, n_c, dstate, first, dt, lv)
+        if alone == LANES:
+            # (a gap or a bad dt for all: no sub-step to run, and dt may be NaN)
+            return
     n_sub, h = substeps(prm[first], dt)
     maxit = int(prm[first, P_MAXIT])
     for sub in range(1, n_sub + 1):

@@ -78,6 +78,21 @@ BLOCK = 8
 
 
 @kernel
+def _car_sample(d: _Vec, q: _Vec, s: _Vec, force: float, out: _Vec, j: int, k: int,
+                u0: float, u1: float) -> None:
+    """Car ``j``'s outputs at sample ``k`` with its damper's ``force`` held, and its state
+    one sample on (not after the road's last sample)."""
+    qj = q[j]
+    sj = s[j]
+    sws, accel, dtl = _outputs(qj, sj, force, u0, u1)
+    out[j, M_SWS, k] = sws
+    out[j, M_ACC, k] = accel
+    out[j, M_DTL, k] = dtl
+    if k + 1 < out.shape[2]:
+        _advance(d, sj, wheel_force(force, qj[Q_FSTATIC], qj[Q_MR]), u0, u1)
+
+
+@kernel
 def _loop_many(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, coef_r: _Vec,
                n_r: NDArray[np.int64], coef_c: _Vec, n_c: NDArray[np.int64], dstate: _Vec,
                out: _Vec, faults: NDArray[np.int64]) -> None:
@@ -106,12 +121,7 @@ def _loop_block(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, c
                                               dstate[j], x, v, qj[Q_DT])
                 force[j] = f
                 faults[j] |= fault
-            sws, accel, dtl = _outputs(qj, sj, force[j], u0, u1)
-            out[j, M_SWS, k] = sws
-            out[j, M_ACC, k] = accel
-            out[j, M_DTL, k] = dtl
-            if k + 1 < n:
-                _advance(d, sj, wheel_force(force[j], qj[Q_FSTATIC], qj[Q_MR]), u0, u1)
+            _car_sample(d, q, s, force[j], out, j, k, u0, u1)
 
 
 @kernel
@@ -143,14 +153,7 @@ def _loop_lanes(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, c
                     force[first + b] = lv[L_FORCE * LANES + b]
                     faults[first + b] |= int(lv[L_FLAGS * LANES + b])
             for j in range(first, first + LANES):
-                qj = q[j]
-                sj = s[j]
-                sws, accel, dtl = _outputs(qj, sj, force[j], u0, u1)
-                out[j, M_SWS, k] = sws
-                out[j, M_ACC, k] = accel
-                out[j, M_DTL, k] = dtl
-                if k + 1 < n:
-                    _advance(d, sj, wheel_force(force[j], qj[Q_FSTATIC], qj[Q_MR]), u0, u1)
+                _car_sample(d, q, s, force[j], out, j, k, u0, u1)
         store_lanes(dstate, first, lv)
 
 

@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.model.compressible import step as _compressible_step
-from damper_emulator.model.jit import kernel
+from damper_emulator.model.jit import inlined_kernel, kernel
 from damper_emulator.model.lanes import (
     L_FLAGS,
     L_FORCE,
@@ -77,7 +77,7 @@ BLOCK = 8
 (M_SWS, M_ACC, M_DTL, M_SIZE) = range(4)
 
 
-@kernel
+@inlined_kernel
 def _car_sample(d: _Vec, q: _Vec, s: _Vec, force: float, out: _Vec, j: int, k: int,
                 u0: float, u1: float) -> None:
     """Car ``j``'s outputs at sample ``k`` with its damper's ``force`` held, and its state

@@ -107,7 +107,7 @@ from damper_emulator.model.gas import (
     compression_chamber_pressure_kernel,
 )
 from damper_emulator.model.jit import inlined_kernel, kernel, lane_kernel
-from damper_emulator.model.valve_table import C_EXP, C_EXPM1, MAX_STEP, valve_row_point
+from damper_emulator.model.valve_table import C_EXP, C_EXPM1, table_interval, valve_row_point
 
 _Vec = NDArray[np.float64]
 _Int = NDArray[np.int64]
@@ -299,16 +299,13 @@ def _locate(lv: _Vec, b: int, z: float) -> None:
     scale_r = lv[L_SCALE_R * LANES + b]
     scale_c = lv[L_SCALE_C * LANES + b]
     rebound = z >= 0.0
-    za = z if rebound else -z
-    step_z = step_r if rebound else step_c
-    n = n_r if rebound else n_c
-    # z >= 0: the floor is valve_point's int(); held as a float, exact below 2^53
-    i = math.floor(za / step_z)
+    i, t, inside = table_interval(z if rebound else -z, step_r if rebound else step_c,
+                                  n_r if rebound else n_c)
     lv[L_SIGN * LANES + b] = 1.0 if rebound else -1.0
     lv[L_IDX * LANES + b] = i
-    lv[L_T * LANES + b] = za - i * step_z
+    lv[L_T * LANES + b] = t
     lv[L_SCALE * LANES + b] = scale_r if rebound else scale_c
-    lv[L_PRE * LANES + b] = 1.0 if (i >= n or step_z > MAX_STEP) else 0.0
+    lv[L_PRE * LANES + b] = 0.0 if inside else 1.0
 
 
 @lane_kernel

@@ -244,13 +244,14 @@ def simulate_many(params: QuarterCarParams, models: Sequence[DamperModel],
     # results dropped)
     rows = np.full(-(-in_lanes.size // LANES) * LANES, in_lanes[-1] if in_lanes.size else 0)
     rows[:in_lanes.size] = in_lanes
-    if alone.size == 0:  # all in lanes: their rows are the output's, no copy
-        out = np.empty((rows.size, M_SIZE, road.size))
-        faults = np.zeros(rows.size, dtype=np.int64)
+    if in_lanes.size:
+        lane_out = np.empty((rows.size, M_SIZE, road.size))
+        lane_faults = np.zeros(rows.size, dtype=np.int64)
         _loop_lanes(d, q[rows], road, s[rows], force[rows], prm[rows], coef_r[rows],
-                    n_r[rows], coef_c[rows], n_c[rows], dstate[rows], out, faults,
-                    np.zeros(LANE_BUFFER))
-        out, faults = out[:len(cars)], faults[:len(cars)]
+                    n_r[rows], coef_c[rows], n_c[rows], dstate[rows], lane_out,
+                    lane_faults, np.zeros(LANE_BUFFER))
+    if alone.size == 0:  # all in lanes: their rows are the output's, no copy
+        out, faults = lane_out[:len(cars)], lane_faults[:len(cars)]
     else:
         out = np.empty((len(cars), M_SIZE, road.size))
         faults = np.zeros(len(cars), dtype=np.int64)
@@ -263,11 +264,6 @@ def simulate_many(params: QuarterCarParams, models: Sequence[DamperModel],
                        coef_r[alone], n_r[alone], coef_c[alone], n_c[alone], dstate[alone],
                        o, f)
             out[alone], faults[alone] = o, f
-        if in_lanes.size:
-            o = np.empty((rows.size, M_SIZE, road.size))
-            f = np.zeros(rows.size, dtype=np.int64)
-            _loop_lanes(d, q[rows], road, s[rows], force[rows], prm[rows], coef_r[rows],
-                        n_r[rows], coef_c[rows], n_c[rows], dstate[rows], o, f,
-                        np.zeros(LANE_BUFFER))
-            out[in_lanes], faults[in_lanes] = o[:in_lanes.size], f[:in_lanes.size]
+            out[in_lanes] = lane_out[:in_lanes.size]
+            faults[in_lanes] = lane_faults[:in_lanes.size]
     return ManyResult(out[:, M_SWS], out[:, M_ACC], out[:, M_DTL], faults, cars[0].dt_s)

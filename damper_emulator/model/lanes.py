@@ -130,7 +130,7 @@ STRAGGLERS = 2
  L_X0, L_V0, L_P, L_P_PREV, L_H_PREV, L_Z, L_Z_PREV, L_P_COM,
  L_P_HAT, L_K, L_Q_IN, L_LO, L_HI, L_LAST, L_DONE,
  L_SIGN, L_IDX, L_T, L_SCALE, L_PRE, L_C3, L_C2, L_C1, L_C0, L_CE, L_CM, L_DP, L_DDP, L_Q,
- L_DQ, L_BEYOND, L_ROW, L_SIZE) = range(69)
+ L_DQ, L_BEYOND, L_ROW, L_EXTRAP, L_SIZE) = range(70)
 #: Length of the lane buffer [doubles].
 LANE_BUFFER = L_SIZE * LANES
 
@@ -256,16 +256,17 @@ def _inputs(dt: float, lv: _Vec) -> tuple[int, bool]:
         v = lv[L_V * LANES + b]
         settle = lv[L_SETTLE * LANES + b]
         steady = lv[L_CMD * LANES + b] == lv[L_CMD_EFF * LANES + b]
-        ok = step_ok and math.isfinite(x) and math.isfinite(v) and dt <= settle and steady
+        ok = step_ok & math.isfinite(x) & math.isfinite(v) & (dt <= settle) & steady
         xc, vc, flags = clamp_input(x, v, lv[L_X_MIN * LANES + b], lv[L_X_MAX * LANES + b],
                                     lv[L_V_MAX * LANES + b])
         lv[L_SKIP * LANES + b] = 0.0 if ok else 1.0
         lv[L_X * LANES + b] = xc if ok else x
         lv[L_V * LANES + b] = vc if ok else v
         lv[L_FLAGS * LANES + b] = flags
+        lv[L_EXTRAP * LANES + b] = 0.0
         lv[L_FR * LANES + b] = coulomb_friction(lv[L_FRICTION * LANES + b], vc)
         alone += 0 if ok else 1
-        open_bypass += 1 if (ok and lv[L_BP_AREA * LANES + b] > 0.0) else 0
+        open_bypass += 1 if (ok & (lv[L_BP_AREA * LANES + b] > 0.0)) else 0
     return alone, open_bypass > 0
 
 
@@ -426,7 +427,7 @@ def _gather(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, first: 
         sign = lv[L_SIGN * LANES + b]
         i = min(max(int(lv[L_IDX * LANES + b]), 0), last)
         row = coef_r[j, i] if sign > 0.0 else coef_c[j, i]
-        live = lv[L_SKIP * LANES + b] == 0.0 and lv[L_DONE * LANES + b] == 0.0
+        live = (lv[L_SKIP * LANES + b] == 0.0) & (lv[L_DONE * LANES + b] == 0.0)
         beyond_old = lv[L_BEYOND * LANES + b]
         lv[L_BEYOND * LANES + b] = 0.0 if live else beyond_old
         lv[L_ROW * LANES + b] = sign * (i + 1.0)
@@ -489,16 +490,16 @@ def _update_lane(lv: _Vec, b: int, bypass: bool) -> int:
     lo_old = lv[L_LO * LANES + b]
     hi_old = lv[L_HI * LANES + b]
     last_old = lv[L_LAST * LANES + b]
-    live = skip == 0.0 and was_done == 0.0
-    shortcut = done and dz != 0.0
-    z_out = z_new if (shortcut or not done) else z
+    live = (skip == 0.0) & (was_done == 0.0)
+    shortcut = done & (dz != 0.0)
+    z_out = z_new if (shortcut | (not done)) else z
     p_out = p + ddp * dz if shortcut else p
     lv[L_Z * LANES + b] = z_out if live else z
     lv[L_P * LANES + b] = p_out if live else p_old
     lv[L_LO * LANES + b] = lo if live else lo_old
     lv[L_HI * LANES + b] = hi if live else hi_old
     lv[L_LAST * LANES + b] = last if live else last_old
-    finished = done or not live
+    finished = done | (not live)
     lv[L_DONE * LANES + b] = 1.0 if finished else 0.0
     return 0 if finished else 1
 
@@ -594,16 +595,26 @@ def _unconverged(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, fi
 
 @lane_kernel
 def _substep_end(h: float, lv: _Vec) -> None:
-    """Phase 4, per sub-step, vectorised: the fault bits; the sub-step becomes the one
+    """Phase 4, per sub-step, vectorised: whether the lane's valve look-up was beyond its
+    table (its fault bit is set once a sample, :func:`_extrapolated`: the bit operation
+    on a lane's flags held as a double is not vectorised); the sub-step becomes the one
     before (a skipped lane keeps its own)."""
     for b in range(LANES):
         live = lv[L_SKIP * LANES + b] == 0.0
-        flags_old = lv[L_FLAGS * LANES + b]
-        beyond = lv[L_BEYOND * LANES + b] != 0.0
-        flags = int(flags_old) | (_VALVE_EXTRAPOLATED if beyond else 0)
+        extrap_old = lv[L_EXTRAP * LANES + b]
+        beyond = lv[L_BEYOND * LANES + b]
         h_old = lv[L_H_PREV * LANES + b]
-        lv[L_FLAGS * LANES + b] = flags if live else flags_old
+        lv[L_EXTRAP * LANES + b] = max(extrap_old, beyond) if live else extrap_old
         lv[L_H_PREV * LANES + b] = h if live else h_old
+
+
+@kernel
+def _extrapolated(lv: _Vec) -> None:
+    """Phase 5', once a sample: the valve-extrapolated fault bit of each lane whose
+    look-up was beyond its table in some sub-step (:func:`_substep_end`)."""
+    for b in range(LANES):
+        if lv[L_EXTRAP * LANES + b] != 0.0:
+            lv[L_FLAGS * LANES + b] = int(lv[L_FLAGS * LANES + b]) | _VALVE_EXTRAPOLATED
 
 
 @lane_kernel
@@ -669,3 +680,4 @@ def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, dsta
             _unconverged(prm, coef_r, n_r, coef_c, n_c, first, lv)
         _substep_end(h, lv)
     _end(lv)
+    _extrapolated(lv)

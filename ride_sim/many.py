@@ -46,6 +46,7 @@ from damper_emulator.model.lanes import (
     LANES,
     lane_compatible,
     lane_eligible,
+    lane_tables,
     load_lanes,
     step_lanes,
     store_lanes,
@@ -126,8 +127,8 @@ def _loop_block(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, c
 
 @kernel
 def _loop_lanes(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, coef_r: _Vec,
-                n_r: NDArray[np.int64], coef_c: _Vec, n_c: NDArray[np.int64], dstate: _Vec,
-                out: _Vec, faults: NDArray[np.int64], lv: _Vec) -> None:
+                n_r: NDArray[np.int64], coef_c: _Vec, n_c: NDArray[np.int64], sides: _Vec,
+                dstate: _Vec, out: _Vec, faults: NDArray[np.int64], lv: _Vec) -> None:
     """:func:`_loop_many` for designs the damper step runs in SIMD lanes
     (:func:`damper_emulator.model.lanes.step_lanes`; ``D`` a multiple of
     :data:`~damper_emulator.model.lanes.LANES`): per block of lanes, per sample, the
@@ -148,7 +149,8 @@ def _loop_lanes(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, c
                     x, v = _motion(q[first + b], s[first + b])
                     lv[L_X * LANES + b] = x
                     lv[L_V * LANES + b] = v
-                step_lanes(prm, coef_r, n_r, coef_c, n_c, dstate, first, q[first, Q_DT], lv)
+                step_lanes(prm, coef_r, n_r, coef_c, n_c, sides, dstate, first, q[first, Q_DT],
+                           lv)
                 for b in range(LANES):
                     force[first + b] = lv[L_FORCE * LANES + b]
                     faults[first + b] |= int(lv[L_FLAGS * LANES + b])
@@ -247,9 +249,10 @@ def simulate_many(params: QuarterCarParams, models: Sequence[DamperModel],
     if in_lanes.size:
         lane_out = np.empty((rows.size, M_SIZE, road.size))
         lane_faults = np.zeros(rows.size, dtype=np.int64)
-        _loop_lanes(d, q[rows], road, s[rows], force[rows], prm[rows], coef_r[rows],
-                    n_r[rows], coef_c[rows], n_c[rows], dstate[rows], lane_out,
-                    lane_faults, np.zeros(LANE_BUFFER))
+        cr, cc = coef_r[rows], coef_c[rows]
+        _loop_lanes(d, q[rows], road, s[rows], force[rows], prm[rows], cr, n_r[rows], cc,
+                    n_c[rows], lane_tables(cr, cc), dstate[rows], lane_out, lane_faults,
+                    np.zeros(LANE_BUFFER))
     if alone.size == 0:  # all in lanes: their rows are the output's, no copy
         out, faults = lane_out[:len(cars)], lane_faults[:len(cars)]
     else:

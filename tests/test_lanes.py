@@ -25,6 +25,7 @@ from damper_emulator.model.lanes import (
     LANES,
     lane_compatible,
     lane_eligible,
+    lane_tables,
     load_lanes,
     step_lanes,
     store_lanes,
@@ -109,6 +110,7 @@ def test_the_lanes_step_as_the_one_design_step(sport_cfg, max_iterations):
     assert lane_eligible(prm).all() and lane_compatible(prm)
     coef_r, n_r = _stack_tables([s.model.tables[0].coef for s in steppers])
     coef_c, n_c = _stack_tables([s.model.tables[1].coef for s in steppers])
+    sides = lane_tables(coef_r, coef_c)
     x, v = _inputs(n)
     ref_state = [s.state.copy() for s in steppers]
     dstate = np.stack([s.state.copy() for s in steppers])
@@ -132,7 +134,7 @@ def test_the_lanes_step_as_the_one_design_step(sport_cfg, max_iterations):
             buf = lv[first // LANES]
             buf[L_X * LANES:(L_X + 1) * LANES] = x[first:first + LANES, k]
             buf[L_V * LANES:(L_V + 1) * LANES] = v[first:first + LANES, k]
-            step_lanes(prm, coef_r, n_r, coef_c, n_c, dstate, first, dt, buf)
+            step_lanes(prm, coef_r, n_r, coef_c, n_c, sides, dstate, first, dt, buf)
             f_lanes[first:first + LANES, k] = buf[L_FORCE * LANES:(L_FORCE + 1) * LANES]
             fl_lanes[first:first + LANES, k] = buf[L_FLAGS * LANES:(L_FLAGS + 1) * LANES]
     for first in range(0, n, LANES):

@@ -13,8 +13,10 @@ import pytest
 from damper_emulator.model.gas import (
     SERIES_MAX_S,
     compression_chamber_pressure,
-    compression_chamber_pressure_inlined,
     compression_chamber_pressure_kernel,
+    exp_series,
+    gas_volume_ratio,
+    log_series,
 )
 from damper_emulator.model.jit import kernel
 
@@ -24,7 +26,8 @@ BOUND = 2 * np.finfo(float).eps
 
 @kernel
 def _series_only(x: float, gamma: float) -> float:
-    value: float = compression_chamber_pressure_inlined(x, 1.0, 1.0, 1.0, gamma, True)
+    # as the lanes compute it (damper_emulator.model.lanes._gas_exponent, _gas)
+    value: float = exp_series(log_series(gas_volume_ratio(x, 1.0, 1.0), gamma))
     return value
 
 

@@ -7,7 +7,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 from numba import types
-from numba.extending import overload
+from numba.extending import overload, register_jitable
 from numpy.typing import NDArray
 
 from damper_emulator.model.jit import inlined_kernel, kernel
@@ -51,6 +51,30 @@ def adiabatic_power(ratio: Any, gamma: float, series: bool = False) -> Any:
     return ratio ** gamma
 
 
+@inlined_kernel
+def log_series(ratio: float, gamma: float) -> float:
+    """``γ ln r`` of :func:`adiabatic_power`'s series, ``2γ atanh(s)``, ``s = (r − 1)/(r +
+    1)``, by Horner's rule; NaN where ``|s|`` exceeds :data:`SERIES_MAX_S` (compiled code
+    only)."""
+    s = (ratio - 1.0) / (ratio + 1.0)
+    s2 = s * s
+    acc = 0.0
+    for k in range(ATANH_TERMS):
+        acc = acc * s2 + _ATANH_COEFFICIENTS[k]
+    y: float = 2.0 * gamma * s * acc
+    return y if abs(s) <= SERIES_MAX_S else math.nan
+
+
+@inlined_kernel
+def exp_series(y: float) -> float:
+    """``e^y`` of :func:`adiabatic_power`'s series by Horner's rule; NaN where ``|y|``
+    exceeds :data:`SERIES_MAX_EXPONENT` or is NaN (compiled code only)."""
+    e = 1.0
+    for k in range(EXP_TERMS):
+        e = 1.0 + y * e * _EXP_STEPS[k]
+    return e if abs(y) <= SERIES_MAX_EXPONENT else math.nan
+
+
 @overload(adiabatic_power, inline="always")
 def _adiabatic_power_compiled(ratio: Any, gamma: Any, series: Any = False) -> Any:
     if not isinstance(ratio, types.Float):
@@ -61,19 +85,17 @@ def _adiabatic_power_compiled(ratio: Any, gamma: Any, series: Any = False) -> An
         if not series:
             power: float = ratio ** gamma
             return power
-        s = (ratio - 1.0) / (ratio + 1.0)
-        s2 = s * s
-        acc = 0.0
-        for k in range(ATANH_TERMS):
-            acc = acc * s2 + _ATANH_COEFFICIENTS[k]
-        y = 2.0 * gamma * s * acc  # γ ln r
-        summed = abs(s) <= SERIES_MAX_S and abs(y) <= SERIES_MAX_EXPONENT
-        e = 1.0
-        for k in range(EXP_TERMS):
-            e = 1.0 + y * e * _EXP_STEPS[k]
-        return e if summed else math.nan
+        return exp_series(log_series(ratio, gamma))
 
     return impl
+
+
+@register_jitable(inline="always")
+def gas_volume_ratio(x_m: _X, v_gas_static_m3: float, rod_area_m2: float) -> _X:
+    """``V_gas,static / (V_gas,static + A_rod x)``, the base of eq 3's power at stroke
+    ``x`` (scalars or arrays; compiled code calls it too)."""
+    ratio: _X = v_gas_static_m3 / (v_gas_static_m3 + rod_area_m2 * x_m)
+    return ratio
 
 
 def compression_chamber_pressure(x_m: _X, p_gas_static_pa: float, v_gas_static_m3: float,
@@ -86,15 +108,13 @@ def compression_chamber_pressure(x_m: _X, p_gas_static_pa: float, v_gas_static_m
     ``series``: the power's series, :func:`adiabatic_power`).
     """
     p_com: _X = p_gas_static_pa * adiabatic_power(
-        v_gas_static_m3 / (v_gas_static_m3 + rod_area_m2 * x_m), gamma, series)
+        gas_volume_ratio(x_m, v_gas_static_m3, rod_area_m2), gamma, series)
     return p_com
 
 
 #: :func:`compression_chamber_pressure` compiled for the kernels, on scalars (the kernels
 #: run without numba's runtime and cannot allocate the array an array argument returns)
 compression_chamber_pressure_kernel = kernel(compression_chamber_pressure)
-#: the same, inlined into its caller (a loop over SIMD lanes, ``series=True``)
-compression_chamber_pressure_inlined = inlined_kernel(compression_chamber_pressure)
 
 # up to a monatomic gas (γ = 5/3) every ratio within SERIES_MAX_S is summed
 assert 2.0 * math.atanh(SERIES_MAX_S) * 5.0 / 3.0 < SERIES_MAX_EXPONENT

@@ -183,7 +183,8 @@ def _stack_tables(tables: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]
 
 #: Fewest designs in a block of lanes: a block of fewer is mostly copies (each lane costs
 #: the same) and its designs run one by one instead; with 16 lanes a design there costs
-#: about 0.45 of one by one (benchmarks/many_bench.py, 2026-11-27).
+#: about 0.36 of one by one (benchmarks/many_bench.py, 2026-11-27: 5.7 against 2.06 M
+#: steps/s; a block of 6 would break even).
 MIN_BLOCK = LANES // 2
 
 

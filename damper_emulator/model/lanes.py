@@ -25,6 +25,14 @@ than ``numerics.settle_time_s``, or a valve command still moving through the sol
 and an evaluation beyond the table, or past the iteration cap, takes the one-design
 valve look-up for that lane.
 
+**What makes it fast** (each measured, docs/tune.md):  numba's compiler vectorises a loop
+over the lanes only when its trip count is a constant, the lanes' values sit at constant
+offsets of one buffer, no division may raise (numpy's error model, each divisor provably
+non-zero), no load sits under a condition, no library function is called and the logic is
+written with ``&``/``|`` (``and``/``or`` become branches, then masked loads and scatters).
+Long chains of dependent operations are split into short loops (a Newton iteration into
+three, eq 3's power into two), so that the processor overlaps the groups of lanes.
+
 **Buffer.**  ``lanes`` is a caller's array of :data:`LANE_BUFFER` doubles: the inputs
 (stroke in ``lanes[L_X * LANES + b]``, velocity in ``L_V``), the outputs (force ``L_FORCE``,
 fault bits ``L_FLAGS``) and the work values, each quantity a run of :data:`LANES`.
@@ -329,8 +337,9 @@ def _gas(lv: _Vec) -> None:
     :func:`_gas_exponent`'s exponent, vectorised; a skipped lane keeps its pressure.  (Eq
     3's power is the series' two halves, :func:`~damper_emulator.model.gas.log_series`
     and :func:`~damper_emulator.model.gas.exp_series`, in two loops: in one, a group of
-    lanes waited for the long chain of the group before it; 3.8 times faster in two,
-    measured 2026-11-27.)"""
+    lanes waited for the long chain of the group before it; in two the gas law took 38
+    instead of 50 cycles of the time-stamp counter a design and sample, measured
+    2026-11-27.)"""
     for b in range(LANES):
         p_com = lv[L_P_GAS * LANES + b] * exp_series(lv[L_GAS_Y * LANES + b])
         p_old = lv[L_P_COM * LANES + b]

@@ -14,6 +14,7 @@ import pytest
 
 from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, with_extensions
 from damper_emulator.model import compressible as comp
+from damper_emulator.model import lanes
 from damper_emulator.model.compressible import DamperModel, DamperStepper, step
 from damper_emulator.model.lanes import (
     L_CMD,
@@ -30,7 +31,7 @@ from damper_emulator.model.lanes import (
     step_lanes,
     store_lanes,
 )
-from damper_emulator.model.valve_table import MAX_STEP
+from damper_emulator.model.valve_table import C_EXP, C_EXPM1, MAX_STEP, TABLE_COLUMNS
 from damper_emulator.params import EXTENSION_TYPES
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.many import MIN_BLOCK, _lane_designs, _stack_tables, simulate_many
@@ -225,3 +226,61 @@ def test_simulate_many_in_lanes_and_one_by_one(sport_cfg):
         x, y = getattr(a, name), getattr(b, name)
         np.testing.assert_allclose(x, y, rtol=0.0, atol=RTOL * np.abs(y).max())
     np.testing.assert_array_equal(a.faults, b.faults)
+
+
+def test_the_gather_clamps_each_lanes_row_into_the_table():
+    """Every lane's row is loaded without a test on the lane (:func:`lanes._gather`): an
+    index beyond the table, negative or NaN (a lane whose look-up is not used) reads a row
+    inside it; the tables' sides side by side (:func:`lane_tables`), padded to the longer."""
+    n, rows_r, rows_c = LANES, 5, 3
+    coef_r = np.zeros((n, rows_r, TABLE_COLUMNS))
+    coef_c = np.zeros((n, rows_c, TABLE_COLUMNS))
+    for j in range(n):  # each entry says where it is: design, side, row, column
+        for i in range(rows_r):
+            coef_r[j, i] = 1000 * j + 10 * i + np.arange(TABLE_COLUMNS)
+        for i in range(rows_c):
+            coef_c[j, i] = 1000 * j + 500 + 10 * i + np.arange(TABLE_COLUMNS)
+    sides = lane_tables(coef_r, coef_c)
+    assert sides.shape == (n, 2, rows_r, TABLE_COLUMNS)
+    assert not sides[:, 1, rows_c:].any()  # the shorter side zero-padded
+    idx = [0, 2, 4, 7, -3, np.nan, np.inf, 1e300, 0, 1, 2, 3, -1, np.nan, 9, 1]
+    sign = [1.0] * 8 + [-1.0] * 8
+    lv = np.zeros(LANE_BUFFER)
+    lv[lanes.L_IDX * LANES:(lanes.L_IDX + 1) * LANES] = idx
+    lv[lanes.L_SIGN * LANES:(lanes.L_SIGN + 1) * LANES] = sign
+    prm = np.zeros((n, comp.P_SIZE))
+    n_r = np.full(n, rows_r, dtype=np.int64)
+    n_c = np.full(n, rows_c, dtype=np.int64)
+    lanes._gather(prm, coef_r, n_r, coef_c, n_c, sides, 0, lv)
+    for b in range(n):
+        last = rows_r - 1 if sign[b] > 0 else sides.shape[2] - 1
+        i = 0 if not idx[b] > 0 else int(min(idx[b], last))
+        expected = sides[b, 0 if sign[b] > 0 else 1, i]
+        got = [lv[q * LANES + b] for q in (lanes.L_C3, lanes.L_C2, lanes.L_C1, lanes.L_C0,
+                                            lanes.L_CE, lanes.L_CM)]
+        np.testing.assert_array_equal(got, expected[[0, 1, 2, 3, C_EXP, C_EXPM1]],
+                                      err_msg=f"lane {b}")
+
+
+def test_the_extrapolated_bit_from_any_sub_step_of_the_sample():
+    """A look-up beyond the table in the first sub-step and not the second still sets the
+    lane's fault bit; a skipped lane's bits are the one-design step's."""
+    lv = np.zeros(LANE_BUFFER)
+    extrap = slice(lanes.L_EXTRAP * LANES, (lanes.L_EXTRAP + 1) * LANES)
+    lv[extrap] = 1.0  # the sample before's
+    lanes._inputs(1e-3, lv)  # a new sample: reset
+    assert not lv[extrap].any()
+    lv[lanes.L_SKIP * LANES:(lanes.L_SKIP + 1) * LANES] = 0.0
+    lv[lanes.L_SKIP * LANES + 4] = 1.0  # took the one-design step this sample
+    lv[lanes.L_FLAGS * LANES:(lanes.L_FLAGS + 1) * LANES] = 0.0
+    lv[lanes.L_FLAGS * LANES + 4] = float(comp.Fault.STROKE_CLAMPED)
+    lv[lanes.L_BEYOND * LANES + 3] = 1.0
+    lv[lanes.L_BEYOND * LANES + 4] = 1.0
+    lanes._substep_end(5e-4, lv)
+    lv[lanes.L_BEYOND * LANES:(lanes.L_BEYOND + 1) * LANES] = 0.0
+    lanes._substep_end(5e-4, lv)
+    lanes._extrapolated(lv)
+    flags = lv[lanes.L_FLAGS * LANES:(lanes.L_FLAGS + 1) * LANES].astype(np.int64)
+    assert flags[3] == int(comp.Fault.VALVE_EXTRAPOLATED)
+    assert flags[4] == int(comp.Fault.STROKE_CLAMPED)
+    assert not np.delete(flags, [3, 4]).any()

@@ -15,11 +15,11 @@ from damper_emulator.model.jit import inlined_kernel, kernel
 #: a stroke: one value, or an array of them (the result has its type)
 _X = TypeVar("_X", float, NDArray[np.float64])
 
-#: The power ``r^γ`` of eq 3 as the SIMD lanes compute it (:func:`adiabatic_power` with
-#: ``series=True``) sums series where ``|s| = |r − 1| / (r + 1)`` is at most this
-#: (``0.6 <= r <= 5/3``: a gas volume within ±40 % of its static one) and ``|γ ln r|`` at
-#: most :data:`SERIES_MAX_EXPONENT`; elsewhere it is NaN and the lanes take the library's
-#: power.
+#: The power ``r^γ`` of eq 3 as the SIMD lanes compute it (:func:`log_series` and
+#: :func:`exp_series`, :func:`adiabatic_power` with ``series=True``) sums series where
+#: ``|s| = |r − 1| / (r + 1)`` is at most this (``0.6 <= r <= 5/3``: a gas volume within
+#: ±40 % of its static one) and ``|γ ln r|`` at most :data:`SERIES_MAX_EXPONENT`; elsewhere
+#: it is NaN and the lanes take the library's power.
 SERIES_MAX_S = 0.25
 SERIES_MAX_EXPONENT = 1.0
 #: Terms of ``atanh(s) = Σ s^(2k+1)/(2k+1)``: the first left out is below
@@ -38,7 +38,8 @@ _EXP_STEPS = 1.0 / np.arange(EXP_TERMS, 0, -1.0)
 def adiabatic_power(ratio: Any, gamma: float, series: bool = False) -> Any:
     """``ratio^gamma``: numpy's power on arrays and in Python, the library's compiled.
 
-    ``series=True`` (compiled, a constant where it is called): the series
+    ``series=True`` (compiled, a constant where it is called): the series, its two halves
+    :func:`log_series` and :func:`exp_series` (which the lanes call in two loops):
     ``exp(2γ atanh(s))``, ``s = (r − 1)/(r + 1)``, summed by Horner's rule within
     :data:`SERIES_MAX_S` and :data:`SERIES_MAX_EXPONENT`, NaN outside (the caller takes
     the library's power there): within two machine epsilons of the exact power (the
@@ -54,8 +55,9 @@ def adiabatic_power(ratio: Any, gamma: float, series: bool = False) -> Any:
 @inlined_kernel
 def log_series(ratio: float, gamma: float) -> float:
     """``γ ln r`` of :func:`adiabatic_power`'s series, ``2γ atanh(s)``, ``s = (r − 1)/(r +
-    1)``, by Horner's rule; NaN where ``|s|`` exceeds :data:`SERIES_MAX_S` (compiled code
-    only)."""
+    1)``, by Horner's rule; NaN where ``|s|`` exceeds :data:`SERIES_MAX_S` or is NaN
+    (compiled code only; the lanes call it in one loop and :func:`exp_series` in the
+    next)."""
     s = (ratio - 1.0) / (ratio + 1.0)
     s2 = s * s
     acc = 0.0

@@ -131,7 +131,8 @@ STRAGGLERS = 2
 
 # Quantities of the lane buffer, each a run of LANES doubles: the input and output, the
 # designs' constants, the state carried between sub-steps, the Newton solve's values and
-# the valve-table row it gathers.
+# the valve-table row it gathers, whether a look-up was beyond the table in some sub-step
+# of the sample (L_EXTRAP) and the gas law's exponent between its two loops (L_GAS_Y).
 (L_X, L_V, L_FORCE, L_FLAGS, L_SKIP,
  L_MAX_EXT, L_AREA, L_ALPHA, L_TOL, L_ZLIM_R, L_ZLIM_C, L_STEP_R, L_STEP_C, L_SCALE_R,
  L_SCALE_C, L_N_R, L_N_C, L_BP_AREA, L_BP_A, L_BP_B, L_P_GAS, L_V_GAS, L_A_ROD, L_GAMMA,
@@ -348,7 +349,7 @@ def _gas(lv: _Vec) -> None:
 
 @kernel
 def _gas_beyond(frac: float, lv: _Vec) -> None:
-    """Phase 2a': a lane whose gas volume is beyond the series' domain (±40 % of the
+    """Phase 2b': a lane whose gas volume is beyond the series' domain (±40 % of the
     static volume) takes eq 3 with the library's power."""
     for b in range(LANES):
         if math.isnan(lv[L_P_COM * LANES + b]):
@@ -361,7 +362,7 @@ def _gas_beyond(frac: float, lv: _Vec) -> None:
 
 @lane_kernel
 def _substep_begin(frac: float, h: float, lv: _Vec) -> None:
-    """Phase 2b, per sub-step: the stroke and velocity there, the BDF2 combination and
+    """Phase 2c, per sub-step: the stroke and velocity there, the BDF2 combination and
     the Newton solve's start (as in ``compressible.step``), vectorised.  Divisors: ``h_prev``
     tested, ``1 + 2w >= 1``, and the chamber volume, positive inside the clamped travel;
     a skipped lane's values are not used."""
@@ -400,11 +401,15 @@ def _substep_begin(frac: float, h: float, lv: _Vec) -> None:
 
 
 def lane_tables(coef_r: np.ndarray, coef_c: np.ndarray) -> np.ndarray:
-    """The designs' rebound and compression valve tables (each ``(D, L, TABLE_COLUMNS)``,
-    zero-padded to one length) side by side, ``(D, 2, L, TABLE_COLUMNS)``, as
+    """The designs' rebound and compression valve tables (``(D, L_r, TABLE_COLUMNS)`` and
+    ``(D, L_c, TABLE_COLUMNS)``, zero-padded) side by side, ``(D, 2, max(L_r, L_c),
+    TABLE_COLUMNS)``, as
     :func:`step_lanes` gathers their rows: a lane's row is then an offset computed from
     its side, not a choice between two arrays (25 % of the gather, measured 2026-11-27)."""
-    sides: np.ndarray = np.ascontiguousarray(np.stack((coef_r, coef_c), axis=1))
+    length = max(coef_r.shape[1], coef_c.shape[1])
+    sides = np.zeros((coef_r.shape[0], 2, length, coef_r.shape[2]))
+    sides[:, 0, :coef_r.shape[1]] = coef_r
+    sides[:, 1, :coef_c.shape[1]] = coef_c
     return sides
 
 
@@ -413,7 +418,9 @@ def _row(sides: _Vec, j: int, lv: _Vec, b: int) -> None:
     """Lane ``b``'s valve-table row, where :func:`_locate` put it (design ``j``; the index
     clamped into the padded table, so that a lane whose look-up is beyond it, or not
     used, still reads a row)."""
-    i = min(max(int(lv[L_IDX * LANES + b]), 0), sides.shape[2] - 1)
+    idx = lv[L_IDX * LANES + b]
+    # clamped as a float (a NaN index, a lane not in the solve's, to row 0)
+    i = int(min(idx if idx > 0.0 else 0.0, sides.shape[2] - 1.0))
     row = sides[j, 0 if lv[L_SIGN * LANES + b] > 0.0 else 1, i]
     lv[L_C3 * LANES + b] = row[0]
     lv[L_C2 * LANES + b] = row[1]
@@ -542,15 +549,15 @@ def _newton_lane(lv: _Vec, b: int, bypass: bool) -> int:
 def _newton_lanes(lv: _Vec, bypass: bool) -> int:
     """Phase 3b, per Newton iteration: every lane's valve point, eq 2's residual and the
     safeguarded update, by selects (no branch on a lane's data: the compiler vectorises
-    these loops); a converged or skipped lane keeps its values.  Three loops, each over
+    these loops); a converged or skipped lane keeps its state.  Three loops, each over
     every lane, not one: a lane's iteration is one chain of dependent operations (two
     square roots and two divisions among them) about as long as the processor's
     out-of-order window, so that in one loop a group of lanes waited for the group before
     it; in three short loops the groups overlap.  ``bypass``: some lane's bypass is open
     (else its flow, a square root and two divisions a lane, is not evaluated, as the
-    one-design solve skips it; two loops, so that each is vectorised without a test per
-    lane).  Divisors: the Newton step's is tested, the bypass's are tested, the table step
-    is positive.  Returns the lanes still unconverged."""
+    one-design solve skips it; the update in two loops, so that each is vectorised without
+    a test per lane).  Divisors: the Newton step's is tested, the bypass's are tested, the
+    table step is positive.  Returns the lanes still unconverged."""
     for b in range(LANES):
         _valve_lane(lv, b)
     active = 0

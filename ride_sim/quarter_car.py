@@ -122,65 +122,36 @@ def _discretise(params: QuarterCarParams, dt_s: float,
 
 
 @inlined_kernel
-def car_advance(d: _Vec, z1: float, z1d: float, z2: float, z2d: float, f: float, u0: float,
-                u1: float) -> tuple[float, float, float, float]:
-    """The state ``D (z1, z1', z2, z2', f, u0, u1)`` one sample on (exact step, see
-    :func:`discretise`; ``f`` the wheel-side damper force over the static one)."""
-    return ((d[0, 0] * z1 + d[0, 1] * z1d + d[0, 2] * z2 + d[0, 3] * z2d
-             + d[0, 4] * f + d[0, 5] * u0 + d[0, 6] * u1),
-            (d[1, 0] * z1 + d[1, 1] * z1d + d[1, 2] * z2 + d[1, 3] * z2d
-             + d[1, 4] * f + d[1, 5] * u0 + d[1, 6] * u1),
-            (d[2, 0] * z1 + d[2, 1] * z1d + d[2, 2] * z2 + d[2, 3] * z2d
-             + d[2, 4] * f + d[2, 5] * u0 + d[2, 6] * u1),
-            (d[3, 0] * z1 + d[3, 1] * z1d + d[3, 2] * z2 + d[3, 3] * z2d
-             + d[3, 4] * f + d[3, 5] * u0 + d[3, 6] * u1))
-
-
-@inlined_kernel
 def wheel_force(damper_force: float, static_force: float, motion_ratio: float) -> float:
     """The damper force over its static value, at the wheel [N]."""
     f: float = (damper_force - static_force) / motion_ratio
     return f
 
 
-@inlined_kernel
-def car_motion(motion_ratio: float, z1: float, z1d: float, z2: float, z2d: float
-               ) -> tuple[float, float]:
-    """Damper stroke and velocity (extension +) of the state ``(z1, z1', z2, z2')``."""
-    return -(z1 - z2) / motion_ratio, -(z1d - z2d) / motion_ratio
-
-
-@inlined_kernel
-def car_outputs(mb: float, kt: float, ks: float, ci: float, ct: float, mr: float, dt: float,
-                static_force: float, z1: float, z1d: float, z2: float, z2d: float,
-                damper_force: float, u0: float, u1: float) -> tuple[float, float, float]:
-    """``(sws, body acceleration, dtl)`` at the sample of the state ``(z1, z1', z2, z2')``,
-    the force held over the next step; the vehicle's constants as packed (``Q_MB …``)."""
-    f = wheel_force(damper_force, static_force, mr)
-    sws = z1 - z2
-    accel = (ks * sws + ci * (z1d - z2d) - f) / mb
-    dtl = kt * (u0 - z1) + ct * ((u1 - u0) / dt - z1d)
-    return sws, accel, dtl
-
-
 @kernel
 def _advance(d: _Vec, s: _Vec, f: float, u0: float, u1: float) -> None:
-    """``s ← D (s, f, u0, u1)`` in place (:func:`car_advance`)."""
-    s[0], s[1], s[2], s[3] = car_advance(d, s[0], s[1], s[2], s[3], f, u0, u1)
+    """``s ← D (s, f, u0, u1)`` in place (exact step, see :func:`discretise`)."""
+    a0, a1, a2, a3 = s[0], s[1], s[2], s[3]
+    for i in range(4):
+        s[i] = (d[i, 0] * a0 + d[i, 1] * a1 + d[i, 2] * a2 + d[i, 3] * a3
+                + d[i, 4] * f + d[i, 5] * u0 + d[i, 6] * u1)
 
 
 @kernel
 def _motion(q: _Vec, s: _Vec) -> tuple[float, float]:
     """Damper stroke and velocity (extension +) of state ``s``."""
-    return car_motion(q[Q_MR], s[0], s[1], s[2], s[3])
+    return -(s[0] - s[2]) / q[Q_MR], -(s[1] - s[3]) / q[Q_MR]
 
 
 @kernel
 def _outputs(q: _Vec, s: _Vec, damper_force: float, u0: float, u1: float
              ) -> tuple[float, float, float]:
     """``(sws, body acceleration, dtl)`` at the sample, force held over the next step."""
-    return car_outputs(q[Q_MB], q[Q_KT], q[Q_KS], q[Q_CI], q[Q_CT], q[Q_MR], q[Q_DT],
-                       q[Q_FSTATIC], s[0], s[1], s[2], s[3], damper_force, u0, u1)
+    f = wheel_force(damper_force, q[Q_FSTATIC], q[Q_MR])
+    sws = s[0] - s[2]
+    accel = (q[Q_KS] * sws + q[Q_CI] * (s[1] - s[3]) - f) / q[Q_MB]
+    dtl = q[Q_KT] * (u0 - s[0]) + q[Q_CT] * ((u1 - u0) / q[Q_DT] - s[1])
+    return sws, accel, dtl
 
 
 @kernel

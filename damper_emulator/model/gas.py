@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import math
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import numpy as np
-from numba import types
-from numba.extending import overload, register_jitable
+from numba.extending import register_jitable
 from numpy.typing import NDArray
 
 from damper_emulator.model.jit import inlined_kernel, kernel
@@ -15,8 +14,8 @@ from damper_emulator.model.jit import inlined_kernel, kernel
 #: a stroke: one value, or an array of them (the result has its type)
 _X = TypeVar("_X", float, NDArray[np.float64])
 
-#: The power ``r^γ`` of eq 3 as the SIMD lanes compute it (:func:`log_series` and
-#: :func:`exp_series`, :func:`adiabatic_power` with ``series=True``) sums series where
+#: The power ``r^γ`` of eq 3 as the SIMD lanes compute it (:func:`log_series`, then
+#: :func:`exp_series`) sums series where
 #: ``|s| = |r − 1| / (r + 1)`` is at most this (``0.6 <= r <= 5/3``: a gas volume within
 #: ±40 % of its static one) and ``|γ ln r|`` at most :data:`SERIES_MAX_EXPONENT`; elsewhere
 #: it is NaN and the lanes take the library's power.
@@ -35,29 +34,20 @@ _ATANH_COEFFICIENTS = 1.0 / (2.0 * np.arange(ATANH_TERMS - 1, -1, -1) + 1.0)
 _EXP_STEPS = 1.0 / np.arange(EXP_TERMS, 0, -1.0)
 
 
-def adiabatic_power(ratio: Any, gamma: float, series: bool = False) -> Any:
-    """``ratio^gamma``: numpy's power on arrays and in Python, the library's compiled.
-
-    ``series=True`` (compiled, a constant where it is called): the series, its two halves
-    :func:`log_series` and :func:`exp_series` (which the lanes call in two loops):
-    ``exp(2γ atanh(s))``, ``s = (r − 1)/(r + 1)``, summed by Horner's rule within
-    :data:`SERIES_MAX_S` and :data:`SERIES_MAX_EXPONENT`, NaN outside (the caller takes
-    the library's power there): within two machine epsilons of the exact power (the
-    library's: half of one; tested against 40-digit arithmetic).  It has no library call,
-    so a loop over designs runs it in SIMD lanes (:mod:`damper_emulator.model.lanes`: the
-    library's power was a quarter of that loop's time, measured 2026-11-27).  The
-    one-design step keeps the library's power: in its one chain of dependent operations
-    the series' 33 multiply-adds took longer (3-5 % of a ride simulation).
-    """
-    return ratio ** gamma
-
-
 @inlined_kernel
 def log_series(ratio: float, gamma: float) -> float:
-    """``γ ln r`` of :func:`adiabatic_power`'s series, ``2γ atanh(s)``, ``s = (r − 1)/(r +
-    1)``, by Horner's rule; NaN where ``|s|`` exceeds :data:`SERIES_MAX_S` or is NaN
-    (compiled code only; the lanes call it in one loop and :func:`exp_series` in the
-    next)."""
+    """``γ ln r`` as the series ``2γ atanh(s)``, ``s = (r − 1)/(r + 1)``, by Horner's rule;
+    NaN where ``|s|`` exceeds :data:`SERIES_MAX_S` or is NaN (compiled code only).
+
+    With :func:`exp_series` it is eq 3's power ``r^γ`` as the SIMD lanes compute it
+    (:mod:`damper_emulator.model.lanes`, the two halves in two loops): within two machine
+    epsilons of the exact power (the library's: half of one; tested against 40-digit
+    arithmetic), with no library call, so that a loop over designs runs it in SIMD lanes
+    (the library's power was a quarter of that loop's time, measured 2026-11-27).  The
+    one-design step keeps the library's power (:func:`compression_chamber_pressure`): in
+    its one chain of dependent operations the series' 33 multiply-adds took longer (3-5 %
+    of a ride simulation).
+    """
     s = (ratio - 1.0) / (ratio + 1.0)
     s2 = s * s
     acc = 0.0
@@ -69,27 +59,12 @@ def log_series(ratio: float, gamma: float) -> float:
 
 @inlined_kernel
 def exp_series(y: float) -> float:
-    """``e^y`` of :func:`adiabatic_power`'s series by Horner's rule; NaN where ``|y|``
+    """``e^y`` as its series by Horner's rule (:func:`log_series`); NaN where ``|y|``
     exceeds :data:`SERIES_MAX_EXPONENT` or is NaN (compiled code only)."""
     e = 1.0
     for k in range(EXP_TERMS):
         e = 1.0 + y * e * _EXP_STEPS[k]
     return e if abs(y) <= SERIES_MAX_EXPONENT else math.nan
-
-
-@overload(adiabatic_power, inline="always")
-def _adiabatic_power_compiled(ratio: Any, gamma: Any, series: Any = False) -> Any:
-    if not isinstance(ratio, types.Float):
-        return None
-
-    # (numba requires the implementation's signature to be the overloaded one's)
-    def impl(ratio: Any, gamma: Any, series: Any = False) -> Any:
-        if not series:
-            power: float = ratio ** gamma
-            return power
-        return exp_series(log_series(ratio, gamma))
-
-    return impl
 
 
 @register_jitable(inline="always")
@@ -101,16 +76,15 @@ def gas_volume_ratio(x_m: _X, v_gas_static_m3: float, rod_area_m2: float) -> _X:
 
 
 def compression_chamber_pressure(x_m: _X, p_gas_static_pa: float, v_gas_static_m3: float,
-                                 rod_area_m2: float, gamma: float, series: bool = False) -> _X:
+                                 rod_area_m2: float, gamma: float) -> _X:
     """Compression-chamber (gas) pressure ``P_com`` [Pa], eq 3.
 
     ``P_com = P_gas,static (V_gas,static / (V_gas,static + A_rod x))^γ``: extension (``x > 0``)
     withdraws the rod and enlarges the gas volume.  Works on scalars and numpy arrays (the
-    kernels call :data:`compression_chamber_pressure_kernel`, this source compiled;
-    ``series``: the power's series, :func:`adiabatic_power`).
+    kernels call :data:`compression_chamber_pressure_kernel`, this source compiled, with
+    the library's power; the SIMD lanes take the power as a series, :func:`log_series`).
     """
-    p_com: _X = p_gas_static_pa * adiabatic_power(
-        gas_volume_ratio(x_m, v_gas_static_m3, rod_area_m2), gamma, series)
+    p_com: _X = p_gas_static_pa * gas_volume_ratio(x_m, v_gas_static_m3, rod_area_m2) ** gamma
     return p_com
 
 

@@ -18,8 +18,6 @@ import time
 import can
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from lifecycle_msgs.msg import State as LifecycleStateMsg
-from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
@@ -37,7 +35,6 @@ from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
-    ManagedNode,
     NotReadyError,
     SubscriptionThread,
     control_qos,
@@ -47,6 +44,7 @@ from damper_emulator.ros.common import (
     set_stamp,
     wait_until_active,
 )
+from damper_emulator.ros.managed import ManagedNode
 
 #: The emulator's status bits that DAMPER_FORCE.Status carries as they are (1..8).
 EMULATOR_BITS = 0x0F
@@ -113,7 +111,7 @@ class BridgeNode(ManagedNode):
 
     # ---- lifecycle --------------------------------------------------------------------
 
-    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+    def _configure(self) -> str | None:
         p = self.params
         self.core = BridgeCore(p, self._db)
         self._force_id = self.core.force_encoder.frame_id
@@ -129,12 +127,10 @@ class BridgeNode(ManagedNode):
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._diag_timer = self.create_timer(p.diagnostics_period_s,
                                              self._publish_diagnostics)
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
-        return TransitionCallbackReturn.SUCCESS
+        return None
 
-    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+    def _activate(self) -> None:
         p = self.params
-        result = super().on_activate(state)
         inputs = [(JointState, topics.FORCE, self._on_force)]
         if p.mode == "controller":
             inputs += [(JointState, topics.STATE, self._on_damper_state),
@@ -149,8 +145,6 @@ class BridgeNode(ManagedNode):
         self._ros_in.start()
         self._inactive_reason = ""
         self.get_logger().info(f"active: bridging {p.mode} frames")
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_ACTIVE, "active")
-        return result
 
     def _stop_io(self) -> None:
         self._stop.set()
@@ -205,10 +199,12 @@ class BridgeNode(ManagedNode):
             # emulator's forces arrive); this only says what the bridge waits for
             try:
                 waited = wait_until_active(self, p.emulator_node, p.wait_for_emulator_s,
-                                           executor=executor)
+                                           executor=executor, stop=lambda: self.stopping)
                 self.get_logger().info(f"/{p.emulator_node} is active (waited "
                                        f"{waited:.1f} s)")
             except NotReadyError as exc:
+                if self.stopping:
+                    return
                 self.get_logger().error(f"{exc}; sending DAMPER_FORCE fault frames until "
                                         f"forces arrive")
 

@@ -10,12 +10,10 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import rclpy
-from lifecycle_msgs.msg import State as LifecycleStateMsg
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
-from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RclpyParameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -306,9 +304,17 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     run under ``SCHED_FIFO`` at the node's ``dds_priority`` when it has one (> 0) and it is
     permitted, else under the normal policy.
 
+    A node class whose ``OWN_SIGNALS`` is true (a managed node,
+    :class:`~damper_emulator.ros.managed.ManagedNode`) handles SIGINT and SIGTERM itself:
+    rclpy installs no handler of its own, which would shut the context down at once and
+    leave the node no way to send its safe output.
+
     A :class:`ParameterError` or ``ValueError`` while building is one line on stderr and
     exit status 2.
     """
+    from rclpy.signals import SignalHandlerOptions
+
+    own_signals = bool(getattr(build, "OWN_SIGNALS", False))
     # A loop thread waiting for the GIL waits at most this long for a Python thread that
     # holds it (default 5 ms, several loop periods).
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
@@ -327,7 +333,9 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
     inherit = ThreadInheritance()
     with inherit:
         try:
-            rclpy.init(args=["--ros-args", *ros_args] if ros_args else None)
+            rclpy.init(args=["--ros-args", *ros_args] if ros_args else None,
+                       signal_handler_options=SignalHandlerOptions.NO if own_signals
+                       else None)
         except _rclpy_impl.RCLError as exc:   # a malformed --ros-args: one line
             print(f"{PROG}: error: --ros-args: {' '.join(str(exc).split())}",
                   file=sys.stderr)
@@ -409,7 +417,8 @@ class NotReadyError(DamperHilError, RuntimeError):
 
 
 def wait_until_active(node: Node, target: str, timeout_s: float,
-                      say: Callable[[str], None] | None = None, executor=None) -> float:
+                      say: Callable[[str], None] | None = None, executor=None,
+                      stop: Callable[[], bool] | None = None) -> float:
     """Wait until the managed node ``target`` (e.g. ``damper_emulator``) is in the
     lifecycle state ``active``: the project's readiness handshake (a node becomes active
     only once its compiled code is loaded and exercised and its loop runs).
@@ -422,8 +431,9 @@ def wait_until_active(node: Node, target: str, timeout_s: float,
 
     ``say`` (default: ``node``'s logger) hears what is being waited for, at once and then
     every :data:`WAIT_REPORT_PERIOD_S`.  ``executor`` spins ``node`` meanwhile (default: a
-    private one).  Returns the seconds waited; raises :class:`NotReadyError` after
-    ``timeout_s``.
+    private one).  ``stop`` (optional) ends the wait early when it returns true (a
+    :class:`NotReadyError` saying so).  Returns the seconds waited; raises
+    :class:`NotReadyError` after ``timeout_s``.
     """
     from lifecycle_msgs.msg import State
 
@@ -444,6 +454,9 @@ def wait_until_active(node: Node, target: str, timeout_s: float,
             now = time.monotonic()
             last = (f"lifecycle state '{seen[-1]}'" if seen else
                     "no state yet (the node is not up, or is still loading)")
+            if stop is not None and stop():
+                raise NotReadyError(f"stopped while waiting for /{target.strip('/')} "
+                                    f"(last seen: {last})")
             if now >= deadline or not node.context.ok():
                 raise NotReadyError(f"/{target.strip('/')} did not become active within "
                                     f"{timeout_s:g} s (last seen: {last}; on {topic})")
@@ -591,94 +604,3 @@ class SubscriptionThread:
                 self._node.get_logger().error(f"{self._thread.name} thread stopped: {exc!r}")
                 self.failed = True
                 rclpy.try_shutdown(context=context)
-
-
-# --------------------------------------------------------------------------------------
-# managed (lifecycle) nodes
-
-#: The managed nodes' own parameter: configure and activate at start.
-AUTOSTART = "autostart"
-
-
-class ManagedNode(LifecycleNode):
-    """What the project's managed nodes share (the emulator, the CAN bridge).
-
-    * ``autostart`` (a read-only bool parameter, default true): :meth:`run` configures and
-      activates the node itself; false: it waits for a lifecycle manager's transitions on
-      the standard ``lifecycle_msgs`` services (``/<name>/change_state``, ``get_state``,
-      ...);
-    * the latched ``/<name>/lifecycle_state`` topic, which :meth:`announce` publishes at
-      every state the node reaches (what :func:`wait_until_active` reads);
-    * ``exit_status`` (0; 1 when a transition of the autostart failed);
-    * ``deactivate``, ``cleanup`` and ``shutdown``, from the subclass's ``_leave_active``
-      (stop, then the safe state and the reason), ``_stop_io`` and ``_release``.
-    """
-
-    def __init__(self, name: str) -> None:
-        super().__init__(name)
-        self.autostart = bool(self.declare_parameter(
-            AUTOSTART, True, ParameterDescriptor(
-                type=ParameterType.PARAMETER_BOOL, read_only=True,
-                description="configure and activate at start (false: wait for a lifecycle "
-                            "manager's transitions)")).value)
-        self.exit_status = 0
-        self._lifecycle_pub = self.create_publisher(LifecycleStateMsg,
-                                                    lifecycle_state_topic(name),
-                                                    latched_qos())
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
-
-    def announce(self, state_id: int, label: str) -> None:
-        """Publish the lifecycle state on the latched ``/<name>/lifecycle_state``."""
-        self._lifecycle_pub.publish(LifecycleStateMsg(id=state_id, label=label))
-
-    # ---- what a managed node provides ---------------------------------------------------
-
-    def _stop_io(self) -> None:
-        """Stop the threads that read inputs and publish outputs."""
-        raise NotImplementedError
-
-    def _leave_active(self, reason: str) -> None:
-        """Stop the outputs, leave them in the safe state and say ``reason`` on
-        ``/diagnostics``."""
-        raise NotImplementedError
-
-    def _release(self) -> None:
-        """Release what ``configure`` built (publishers, timers, the bus, ...)."""
-        raise NotImplementedError
-
-    # ---- the transitions, the same for every managed node --------------------------------
-
-    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._leave_active("deactivated by a lifecycle transition")
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
-        return super().on_deactivate(state)
-
-    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._release()
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
-        return super().on_cleanup(state)
-
-    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        if state.state_id == LifecycleStateMsg.PRIMARY_STATE_ACTIVE:
-            self._leave_active("shut down by a lifecycle transition")
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_FINALIZED, "finalized")
-        self._stop_io()
-        self._release()
-        return super().on_shutdown(state)
-
-    def before_spin(self, executor: SingleThreadedExecutor) -> None:
-        """Called by :meth:`run` after the autostart transitions (default: nothing)."""
-
-    def run(self, executor: SingleThreadedExecutor) -> None:
-        if self.autostart:
-            for name, trigger in (("configure", self.trigger_configure),
-                                  ("activate", self.trigger_activate)):
-                if trigger() != TransitionCallbackReturn.SUCCESS:
-                    self.get_logger().error(f"autostart: the {name} transition failed")
-                    self.exit_status = 1
-                    return
-            self.before_spin(executor)
-        else:
-            self.get_logger().info("autostart false: waiting for a lifecycle manager "
-                                   f"(/{self.get_name()}/change_state)")
-        executor.spin()

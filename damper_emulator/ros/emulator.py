@@ -32,9 +32,7 @@ import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from lifecycle_msgs.msg import State as LifecycleStateMsg
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.lifecycle import LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -63,7 +61,6 @@ from damper_emulator.realtime.settings import (
 )
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
-    ManagedNode,
     SubscriptionThread,
     control_qos,
     declare_parameters,
@@ -77,6 +74,7 @@ from damper_emulator.ros.common import (
     unflatten,
 )
 from damper_emulator.ros.live import LiveServer, require_sdk
+from damper_emulator.ros.managed import ManagedNode
 
 NODE_NAME = "damper_emulator"
 #: how often the emulator's own live view (``live_port``) sends its latest output [Hz]
@@ -200,19 +198,14 @@ class EmulatorNode(ManagedNode):
 
     # ---- lifecycle --------------------------------------------------------------------
 
-    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+    def _configure(self) -> str | None:
         p = self.params
         self.get_logger().info(f"configuring: loading and exercising the compiled model "
                                f"(kernel cache {jit.CACHE_DIR}; the first run compiles, "
                                f"some seconds)")
         start = time.monotonic()
-        try:
-            self.core = EmulatorCore(self.model, p)
-            self.core.warm_up()
-        except Exception as exc:  # noqa: BLE001 - a bug: reported, the transition fails
-            self.get_logger().error(f"configure failed (a bug): {exc!r}")
-            self.core = None
-            return TransitionCallbackReturn.FAILURE
+        self.core = EmulatorCore(self.model, p)
+        self.core.warm_up()
         self.warm_up_s = time.monotonic() - start
         self._force_pub = self.create_lifecycle_publisher(JointState, topics.FORCE,
                                                           control_qos(topics.CONTROL_DEPTH))
@@ -234,22 +227,19 @@ class EmulatorNode(ManagedNode):
             try:
                 self._live = LiveServer(p.live_port, name=NODE_NAME)
             except UserError as exc:  # the port is taken, ...
-                self.get_logger().error(f"configure failed: {exc}")
-                return TransitionCallbackReturn.FAILURE
+                return str(exc)
             # the latest output, from the executor thread: the loop never waits for the view
             self._live_timer = self.create_timer(1.0 / LIVE_RATE_HZ, self._publish_live)
             self.get_logger().info(f"live view on ws://127.0.0.1:{self._live.port}")
         self.get_logger().info(f"configured: model exercised in {self.warm_up_s:.2f} s")
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_INACTIVE, "inactive")
-        return TransitionCallbackReturn.SUCCESS
+        return None
 
-    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+    def _activate(self) -> None:
         p = self.params
         # everything built so far is long-lived: keep the cyclic collector off it
         gc.collect()
         gc.freeze()
         self._compiled_at_ready = jit.compiled_signatures()
-        result = super().on_activate(state)
         if p.trigger == "input":
             # one force per input, computed on a thread of its own as each input arrives
             self._input_thread = SubscriptionThread(
@@ -274,8 +264,6 @@ class EmulatorNode(ManagedNode):
             log(f"real-time settings: {self._realtime_summary}")
         self._inactive_reason = ""
         self.get_logger().info("active: publishing " + topics.FORCE)
-        self.announce(LifecycleStateMsg.PRIMARY_STATE_ACTIVE, "active")
-        return result
 
     def _leave_active(self, reason: str) -> None:
         """Stop the loop (or input thread), then publish one last output in the configured

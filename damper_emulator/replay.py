@@ -623,8 +623,13 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
                emulator_params_file: str | os.PathLike[str] | None = None,
                plot: bool = True,
                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Replay ``bag`` into ``out`` (module docstring); returns the JSON document, also
-    written to ``out/replay.json`` and ``json_path``.
+    """Replay ``bag`` into the folder ``out`` (module docstring); returns the JSON
+    document, also written to ``out/replay.json`` and ``json_path``.
+
+    ``out`` and ``json_path`` are written as one set
+    (:class:`~damper_emulator.outputs.Outputs`): checked before the replay, renamed into
+    place when it is done (an earlier replay's folder replaced as a whole), left as they
+    were when it fails; ``progress`` hears ``wrote ...`` for each once in place.
 
     Raises
     ------
@@ -632,16 +637,30 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
         Unreadable or malformed bag, output bag that cannot be written.
     ValueError
         Bad parameter files (:class:`~damper_emulator.params.ParameterError`).
-    OSError
-        Output files that cannot be written.
+    OutputError
+        An output that cannot be written.
     """
+    from damper_emulator.outputs import Outputs
+
+    with Outputs(say=progress, inputs=[bag, params_file, emulator_params_file]) as outputs:
+        staged = outputs.folder(Path(out))
+        json_at = outputs.file(Path(json_path)) if json_path is not None else None
+        return _replay(Path(bag), Path(out), staged, json_at, params_file,
+                       emulator_params_file, plot, progress)
+
+
+def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
+            params_file: str | os.PathLike[str] | None,
+            emulator_params_file: str | os.PathLike[str] | None, plot: bool,
+            progress: Callable[[str], None] | None) -> dict[str, Any]:
+    """:func:`run_replay`, its outputs written into ``staged`` (named as in ``out``) and
+    ``json_at``."""
     import json
 
     from damper_emulator.bag import messages
     from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config
 
     say = progress or (lambda _text: None)
-    bag, out = Path(bag), Path(out)
     t_setup = time.perf_counter()
     model = DamperModel(load_config(params_file))
     params, emulator_source = load_emulator_params(emulator_params_file)
@@ -662,8 +681,8 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
         t1 = time.perf_counter()
         rep = emulate(data, model, params)
         t2 = time.perf_counter()
-        out.mkdir(parents=True, exist_ok=True)
-        bag_out = write_replay_bag(out / REPLAY_BAG, data, rep, params)
+        write_replay_bag(staged / REPLAY_BAG, data, rep, params)
+        bag_out = out / REPLAY_BAG
         t3 = time.perf_counter()
         cmp = compare(data, rep)
         t4 = time.perf_counter()
@@ -672,7 +691,6 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
             gc.enable()
     timings = {"read": t1 - t0, "emulate": t2 - t1, "write_bag": t3 - t2, "compare": t4 - t3}
     elapsed = t4 - t0
-    say(f"wrote {bag_out}")
     if cmp.stroke_mismatches:
         say(f"note: {cmp.stroke_mismatches} of {cmp.compared} replayed strokes differ from "
             f"the recorded ones: was the bag recorded with other emulator parameters "
@@ -713,19 +731,13 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
         rms = (f"r.m.s. {cmp.rms_n:.3g} N ({100 * cmp.relative_rms:.3g} % of the recorded)"
                if cmp.rms_n is not None and cmp.relative_rms is not None else
                f"r.m.s. {cmp.rms_n:.3g} N" if cmp.rms_n is not None else "nothing compared")
-        png = plot_replay(out / REPLAY_PNG, data, rep, cmp,
-                          f"Replay of {bag} ({rep.trigger} trigger, damper "
-                          f"'{model.cfg.damper.name}'): {rms}")
+        plot_replay(staged / REPLAY_PNG, data, rep, cmp,
+                    f"Replay of {bag} ({rep.trigger} trigger, damper "
+                    f"'{model.cfg.damper.name}'): {rms}")
         doc["timings_s"]["plot"] = round(time.perf_counter() - t5, 6)
         doc["files"].insert(1, REPLAY_PNG)
-        say(f"wrote {png}")
     text = json.dumps(doc, indent=2) + "\n"
-    targets = [out / REPLAY_JSON]
-    if json_path is not None:
-        json_path = Path(json_path)
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        targets.append(json_path)
-    for target in targets:
-        target.write_text(text)
-        say(f"wrote {target}")
+    for target in (staged / REPLAY_JSON, json_at):
+        if target is not None:
+            target.write_text(text, encoding="utf-8")
     return doc

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.dyno.plots import decorate, new_figure, save
+from damper_emulator.outputs import write_text
 from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.loop import load_record
 from damper_emulator.recording import Recording
@@ -209,7 +210,7 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
             "max": float(rec.valve_command[1].max())},
         "files": files + ["demo.json", "report.md"],
     }
-    (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_text(out / "demo.json", json.dumps(summary, indent=2) + "\n")
     m = ride_doc.get("metrics", {})
     loop = summary["emulator_loop"] or {}
     after = loop.get("after_first_input") or {}
@@ -260,5 +261,5 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
         *[f"![{f}]({f})" for f in files],
         "",
     ]
-    (out / "report.md").write_text("\n".join(lines))
+    write_text(out / "report.md", "\n".join(lines))
     return summary

@@ -34,6 +34,7 @@ from sensor_msgs.msg import JointState
 
 from damper_emulator import force_message
 from damper_emulator.model.compressible import DamperStepper
+from damper_emulator.outputs import write_text
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
@@ -362,7 +363,7 @@ class RideNode(Node):
             path = Path(self.run_params.metrics_file)
             try:
                 path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_text(json.dumps(doc, indent=2) + "\n")
+                write_text(path, json.dumps(doc, indent=2) + "\n")
             except OSError as exc:
                 self.get_logger().error(f"cannot write {path}: {exc.strerror}")
                 self.exit_status = 1

@@ -15,6 +15,7 @@ import contextlib
 import csv
 import json
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -278,3 +279,28 @@ def test_a_task_that_fails_is_its_outcome_not_the_runs():
             lambda x: 1.0 / x, [("a", 2.0), ("b", 0.0), ("c", 4.0)])}
     assert out["a"].value == 0.5 and out["c"].value == 0.25
     assert isinstance(out["b"].error, ZeroDivisionError)
+
+
+def test_a_damper_folder_whose_name_is_not_utf8_is_a_row_with_its_name_escaped(
+        batch, tmp_path):
+    """A folder named ``café`` in Latin-1 (not UTF-8): the fleet finishes, its row's id is
+    ``caf\\xe9`` in the CSV, the Parquet file and the summary, no temporary file is left,
+    and a rerun resumes it by its real name."""
+    data = tmp_path / "data"
+    latin1 = os.fsdecode(b"caf\xe9")
+    shutil.copytree(batch / "unit_01", data / latin1)
+    shutil.copytree(batch / "unit_02", data / "unit_02")
+    out = tmp_path / "out"
+    for attempt in ("first", "rerun"):
+        res = _cli("fleet", data, "--out", out, "--workers", "1")
+        assert res.returncode == 0, (attempt, res.stderr)
+        assert "Traceback" not in res.stderr
+        assert attempt == "rerun" or "caf\\xe9 ok" in res.stderr
+        with (out / "results.csv").open(encoding="utf-8") as fh:
+            rows = {r["id"]: r for r in csv.DictReader(fh)}
+        assert set(rows) == {"caf\\xe9", "unit_02"} and rows["caf\\xe9"]["status"] == "ok"
+        assert {r["id"] for r in _parquet_rows(out / "results.parquet")} == set(rows)
+        assert (out / "summary.md").read_text(encoding="utf-8").startswith("# Fleet summary")
+        assert (out / latin1 / RESULT_FILE).is_file()
+        assert not [p for p in out.iterdir() if ".partial-" in p.name or ".tmp" in p.name]
+    assert "2 of 2 dampers already finished" in res.stderr

@@ -416,15 +416,20 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path, sport_model, capsys):
         [(6, messages.joint_state(5, ["damper"], [0.0], [0.0], []))])
     fails([lacking, "--out", out], "lacks position[0], velocity[0] or effort[0]")
     bag, _ = input_trigger_bag(tmp_path / "good", sport_model, n=50)
-    fails([bag, "--out", tmp_path, "--params", tmp_path / "missing.yaml"], "missing.yaml")
+    fails([bag, "--out", out, "--params", tmp_path / "missing.yaml"], "missing.yaml")
+    # --out is replaced as a whole: a folder with files damper-hil did not write is refused
+    # before the replay, and left as it was
     (tmp_path / "occupied" / REPLAY_BAG).mkdir(parents=True)
     (tmp_path / "occupied" / REPLAY_BAG / "notes.txt").write_text("mine")
-    fails([bag, "--out", tmp_path / "occupied"], "not overwriting")
+    fails([bag, "--out", tmp_path / "occupied"], "files damper-hil did not write")
     assert (tmp_path / "occupied" / REPLAY_BAG / "notes.txt").exists()
-    # replaying DIR/replay_bag into DIR would overwrite the input
+    fails([bag, "--out", tmp_path], "holds the input")
+    # replaying DIR/replay_bag into DIR would destroy the input
     assert main(["replay", str(bag), "--out", str(tmp_path / "r1")]) == 0
     capsys.readouterr()
-    fails([tmp_path / "r1" / REPLAY_BAG, "--out", tmp_path / "r1"], "is the bag being replayed")
+    fails([tmp_path / "r1" / REPLAY_BAG, "--out", tmp_path / "r1"], "holds the input")
+    assert (tmp_path / "r1" / REPLAY_BAG / "metadata.yaml").is_file()
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if ".partial-" in p.name]
 
 
 def test_speed_is_reported(tmp_path, sport_model):

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from damper_emulator.errors import UserError
+from damper_emulator.outputs import atomic_path
 
 #: Columns every file must have, in the order they are written.
 REQUIRED_COLUMNS = ("time", "displacement", "force")
@@ -391,7 +392,8 @@ def _check_force_unit(data: MeasuredData, fail: _Fail) -> None:
 def write_measured_csv(path: str | Path, time: ArrayLike, displacement: ArrayLike,
                        force: ArrayLike, velocity: ArrayLike | None = None,
                        temperature: ArrayLike | None = None) -> Path:
-    """Write a measured-data CSV (gzip-compressed when ``path`` ends in ``.gz``).
+    """Write a measured-data CSV (gzip-compressed when ``path`` ends in ``.gz``), at once
+    (:func:`~damper_emulator.outputs.atomic_path`).
 
     Columns ``time,displacement[,velocity],force[,temperature]`` in SI units, values
     formatted ``%.9g``.  Returns the path written.
@@ -400,7 +402,7 @@ def write_measured_csv(path: str | Path, time: ArrayLike, displacement: ArrayLik
     ------
     ValueError
         Arrays of unequal length or not one-dimensional.
-    OSError
+    OutputError
         The file cannot be written.
     """
     path = Path(path)
@@ -416,6 +418,7 @@ def write_measured_csv(path: str | Path, time: ArrayLike, displacement: ArrayLik
         if a.ndim != 1 or a.size != n:
             raise ValueError(f"measured-data column '{name}' has shape {a.shape}, "
                              f"expected ({n},)")
-    np.savetxt(path, np.column_stack(arrays), fmt="%.9g", delimiter=",",
-               header=",".join(name for name, _ in cols), comments="")
+    with atomic_path(path) as at:
+        np.savetxt(at, np.column_stack(arrays), fmt="%.9g", delimiter=",",
+                   header=",".join(name for name, _ in cols), comments="")
     return path

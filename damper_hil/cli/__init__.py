@@ -14,7 +14,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from damper_emulator.errors import DamperHilError, UserError, one_line
+from damper_emulator.errors import ESCAPE, DamperHilError, UserError, one_line
 from damper_hil.cli import (
     bridge,
     demo,
@@ -71,6 +71,18 @@ def _debug_flag(argv: list[str]) -> tuple[list[str], bool]:
     return [a for a in head if a != "--debug"] + argv[len(head):], True
 
 
+def _escape_terminal() -> None:
+    r"""Names that are not UTF-8 (lone surrogates, PEP 383) print as ``\xNN`` on stdout
+    and stderr instead of stopping the command (:data:`~damper_emulator.errors.ESCAPE`)."""
+    for stream in (sys.stdout, sys.stderr):
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            try:
+                reconfigure(errors=ESCAPE)
+            except (ValueError, OSError):   # a stream that cannot change its errors
+                pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
@@ -80,6 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     (any other exception: one line and a hint; ``--debug`` shows the traceback); 130
     interrupted.
     """
+    _escape_terminal()
     parser = build_parser()
     argv, debug = _debug_flag(list(sys.argv[1:] if argv is None else argv))
     ros_args: list[str] = []

@@ -78,8 +78,21 @@ def check_unique_names(paths: Sequence[Path]) -> None:
         seen[p.name] = p
 
 
+def say(message: str) -> None:
+    """A progress or result line on stderr."""
+    print(message, file=sys.stderr, flush=True)
+
+
+def json_text(doc: dict[str, Any]) -> str:
+    """The project's JSON layout (two-space indent, a final newline)."""
+    return json.dumps(doc, indent=2) + "\n"
+
+
 def write_json(path: Path, doc: dict[str, Any]) -> None:
-    path.write_text(json.dumps(doc, indent=2) + "\n")
+    """``doc`` to ``path`` at once (atomically: a temporary sibling renamed into place)."""
+    from damper_emulator.outputs import write_text
+
+    write_text(path, json_text(doc))
     say_wrote(path)
 
 

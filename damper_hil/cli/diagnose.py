@@ -12,10 +12,11 @@ from damper_hil.cli.common import (
     CliError,
     Formatter,
     check_unique_names,
+    json_text,
     load_model,
     parse_effects,
     positive_int,
-    write_json,
+    say,
 )
 
 
@@ -75,37 +76,17 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from damper_emulator.diagnose.selection import diagnose
-    from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.outputs import Outputs
 
     started = time.perf_counter()
     effects = parse_effects(args.effects)
     check_unique_names([*args.quasi_static, *args.chirp, *args.validate])
-    model, params_file = load_model(args.params)
-    if model.cfg.damper.extensions is not None:
-        raise CliError(f"{params_file}: already holds damper.extensions "
-                       f"({', '.join(model.cfg.damper.extensions.active())}); diagnose needs "
-                       "the identified model without them")
-    fit = [read_measured_csv(p) for p in [*args.quasi_static, *args.chirp]]
-    held = [read_measured_csv(p) for p in args.validate]
-    print(f"diagnosing {params_file}: fit on {', '.join(d.name for d in fit)}, held out "
-          f"{', '.join(d.name for d in held)}", file=sys.stderr, flush=True)
-    import os
-
-    jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, 4)
-    result = diagnose(model, fit, held, effects, jobs=jobs,
-                      n_quasi_static=len(args.quasi_static),
-                      progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    doc = {"params_file": params_file, **result.to_json()}
-    if args.report is not None:
-        from damper_emulator.diagnose.report import write_report
-
-        files = write_report(result, args.report, params_file,
-                             progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-        doc["report_dir"] = str(args.report)
-        doc["report_files"] = [p.name for p in files]
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.json, doc)
+    # the outputs are checked now, and written as one set once the diagnosis is done
+    inputs = [args.params, *args.quasi_static, *args.chirp, *args.validate]
+    with Outputs(say=say, inputs=inputs) as outputs:
+        json_at = outputs.file(args.json)
+        report_at = outputs.folder(args.report) if args.report is not None else None
+        result = _diagnose(args, effects, json_at, report_at)
     width = max(len("file"), *(len(n) for n in result.rms_before))
     print(f"diagnosis: {result.family}" + "".join(
         f"{' +' if k else ''} ({s.candidate.effect}, held-out r.m.s. -{100 * s.score:.1f} %)"
@@ -116,3 +97,35 @@ def run(args: argparse.Namespace) -> int:
               f"{result.rms_before[r.name]:>10.2f}  {result.rms_after[r.name]:>10.2f}")
     print(f"finished in {time.perf_counter() - started:.1f} s", file=sys.stderr)
     return 0
+
+
+def _diagnose(args: argparse.Namespace, effects: list[str] | None, json_at: Path,
+              report_at: Path | None):
+    """The diagnosis, its JSON written at ``json_at`` and its report in ``report_at``;
+    returns the result."""
+    import os
+
+    from damper_emulator.diagnose.selection import diagnose
+    from damper_emulator.dyno.measured import read_measured_csv
+
+    model, params_file = load_model(args.params)
+    if model.cfg.damper.extensions is not None:
+        raise CliError(f"{params_file}: already holds damper.extensions "
+                       f"({', '.join(model.cfg.damper.extensions.active())}); diagnose needs "
+                       "the identified model without them")
+    fit = [read_measured_csv(p) for p in [*args.quasi_static, *args.chirp]]
+    held = [read_measured_csv(p) for p in args.validate]
+    say(f"diagnosing {params_file}: fit on {', '.join(d.name for d in fit)}, held out "
+        f"{', '.join(d.name for d in held)}")
+    jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, 4)
+    result = diagnose(model, fit, held, effects, jobs=jobs,
+                      n_quasi_static=len(args.quasi_static), progress=say)
+    doc = {"params_file": params_file, **result.to_json()}
+    if report_at is not None:
+        from damper_emulator.diagnose.report import write_report
+
+        files = write_report(result, report_at, params_file)
+        doc["report_dir"] = str(args.report)
+        doc["report_files"] = [p.name for p in files]
+    json_at.write_text(json_text(doc), encoding="utf-8")
+    return result

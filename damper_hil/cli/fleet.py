@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from damper_hil.cli.common import PROG, Formatter, add_engine_options, parse_effects, say_wrote
+from damper_hil.cli.common import PROG, Formatter, add_engine_options, parse_effects, say
 
 
 def add_parser(sub) -> None:
@@ -54,6 +53,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from damper_emulator.outputs import Outputs
     from damper_hil.engine import open_engine
     from damper_hil.fleet.inputs import find_dampers
     from damper_hil.fleet.runner import run_fleet
@@ -62,20 +62,19 @@ def run(args: argparse.Namespace) -> int:
     effects = parse_effects(args.effects)
     find_dampers(args.data_dir)  # a wrong DATA_DIR fails before a cluster starts
 
-    def say(msg: str) -> None:
-        print(msg, file=sys.stderr, flush=True)
-
+    # the tables and the summary are one set: checked before any damper runs, renamed into
+    # place together at the end (each damper's own files are written as it finishes)
     try:
-        with open_engine(args.scheduler, args.workers) as engine:
-            result = run_fleet(args.data_dir, args.out, engine, diagnose=args.diagnose,
-                               effects=effects, retry_errors=args.retry_errors, say=say)
+        with Outputs(say=say) as outputs:
+            with open_engine(args.scheduler, args.workers) as engine:
+                result = run_fleet(args.data_dir, args.out, engine, diagnose=args.diagnose,
+                                   effects=effects, retry_errors=args.retry_errors, say=say,
+                                   outputs=outputs)
+            write_summary(result, args.out, outputs)
     except KeyboardInterrupt:
         say(f"{PROG} fleet: interrupted; the finished dampers are in {args.out}: run the "
             "same command again to go on")
         raise
-    for name in ("results.csv", "results.parquet"):
-        say_wrote(args.out / name)
-    say_wrote(write_summary(result, args.out, say=say_wrote))
     ok = sum(r.get("status") == "ok" for r in result.rows)
     flagged = sorted(i for i, fl in result.flags.items() if fl)
     print(f"{ok} of {len(result.rows)} dampers finished, "

@@ -9,7 +9,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from damper_hil.cli.common import CliError, Formatter, say_wrote, write_json
+from damper_hil.cli.common import CliError, Formatter, json_text, say
 
 #: identify warns when a quasi-static file moves faster than this [m/s] (99th percentile):
 #: twice the FSAE slow run's 26 mm/s, twelve times the paper's 4 mm/s
@@ -72,14 +72,34 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from damper_emulator.dyno.measured import read_measured_csv
-    from damper_emulator.identify.pipeline import identify
-    from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config, save_config
+    from damper_emulator.outputs import Outputs
 
     started = time.perf_counter()
     factor = args.chirp_friction_factor
     if not (math.isfinite(factor) and factor >= 0):
         raise CliError(f"--chirp-friction-factor {factor!r}: must be a finite number ≥ 0")
+    # the outputs are checked, and written as one set once the work is done
+    with Outputs(say=say, inputs=[*args.quasi_static, *args.chirp, args.base]) as outputs:
+        params_at = outputs.file(args.out)
+        json_path = args.json or args.out.with_suffix(".json")
+        json_at = outputs.file(json_path)
+        report_at = outputs.folder(args.report) if args.report is not None else None
+        doc, result = _identify(args, started, params_at, report_at)
+        json_at.write_text(json_text(doc), encoding="utf-8")
+    print(f"identified in {doc['elapsed_s']:.1f} s: quasi-static r.m.s. "
+          f"{result.quasi_static.rms:.2f} N, rebound {result.rebound.rms:.2f} N, "
+          f"compression {result.compression.rms:.2f} N", file=sys.stderr)
+    return 0
+
+
+def _identify(args: argparse.Namespace, started: float, params_at: Path,
+              report_at: Path | None):
+    """The identification, its parameter file written at ``params_at`` and its report in
+    ``report_at``; returns the JSON document and the result."""
+    from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.identify.pipeline import identify
+    from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config, save_config
+
     base = load_config(args.base)
     fixed = _fixed_valve_parameters(args.fix)
     qs = [read_measured_csv(p) for p in args.quasi_static]
@@ -101,11 +121,7 @@ def run(args: argparse.Namespace) -> int:
                       fixed=fixed, fit_alpha=args.fit_alpha,
                       alpha_bounds_per_pa=args.alpha_bounds,
                       chirp_friction_factor=args.chirp_friction_factor)
-    cfg = result.config
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    save_config(cfg, args.out)
-    say_wrote(args.out)
-    json_path = args.json or args.out.with_suffix(".json")
+    save_config(result.config, params_at)
     doc = {"params_file": str(args.out),
            "base_params_file": str(args.base or DEFAULT_PARAMS_FILE),
            "quasi_static_file": str(args.quasi_static[0]), "chirp_file": str(args.chirp[0]),
@@ -113,17 +129,13 @@ def run(args: argparse.Namespace) -> int:
            "chirp_files": [str(p) for p in args.chirp], "fixed": fixed,
            "compressibility_correction": not args.no_compressibility_correction,
            **result.as_dict()}
-    if args.report is not None:
+    if report_at is not None:
         from damper_emulator.identify.report import write_report
 
-        write_report(args.report, result, progress=say_wrote)
+        write_report(report_at, result)
         doc["report_dir"] = str(args.report)
     doc["elapsed_s"] = round(time.perf_counter() - started, 3)
-    write_json(json_path, doc)
-    print(f"identified in {doc['elapsed_s']:.1f} s: quasi-static r.m.s. "
-          f"{result.quasi_static.rms:.2f} N, rebound {result.rebound.rms:.2f} N, "
-          f"compression {result.compression.rms:.2f} N", file=sys.stderr)
-    return 0
+    return doc, result
 def _fixed_valve_parameters(specs: Sequence[str]) -> dict[str, dict[str, float]]:
     """``--fix`` options ``[SIDE.]NAME=VALUE`` → ``{side: {name: value}}``."""
     from damper_emulator.identify.valves import NAMES

@@ -13,11 +13,11 @@ from damper_hil.cli.common import (
     PROG,
     CliError,
     Formatter,
+    json_text,
     positive_float,
     positive_int,
-    say_wrote,
+    say,
     schema_type,
-    write_json,
 )
 from ride_sim.params import AMPLITUDE_METHODS, BAND_SCALINGS, RoadParams
 
@@ -117,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, dest) is not None:
             print(f"note: --{dest.replace('_', '-')} does not apply to --figure {fig}; "
                   "ignored", file=sys.stderr)
+    from damper_emulator.outputs import Outputs
     from ride_sim import adaptive_study, study
     from ride_sim.params import load_ride_config
 
@@ -137,42 +138,23 @@ def run(args: argparse.Namespace) -> int:
 
         skyhook = load_skyhook(args.skyhook)
 
-    def progress(message: str) -> None:
-        print(message, file=sys.stderr, flush=True)
-
-    if fig == 10:
-        result = study.figure10(settings, progress=progress)
-    elif fig == 11:
-        result = study.figure11(settings, workers=args.workers, progress=progress)
-    elif fig == "adaptive":
-        result = adaptive_study.adaptive_study(settings, skyhook, progress=progress)
-    else:
-        result = study.figure13(settings, progress=progress)
-    doc = result.doc
-    if args.report is not None:
-        from ride_sim import plots
-
-        report: Path = args.report
-        report.mkdir(parents=True, exist_ok=True)
+    # the outputs are checked now, and written as one set once the study is done
+    with Outputs(say=say, inputs=[args.config, args.skyhook]) as outputs:
+        json_at = outputs.file(args.json)
+        report = outputs.folder(args.report) if args.report is not None else None
         if fig == 10:
-            files = [plots.plot_sws_history(report / "ride_sws_2s.png", result),
-                     plots.plot_psds(report / "ride_psd.png", result, settings),
-                     plots.plot_band_sensitivity(report / "ride_band_sensitivity.png",
-                                                 settings)]
+            result = study.figure10(settings, progress=say)
         elif fig == 11:
-            files = [plots.plot_speed_sweep(report / "ride_speed_sweep.png", doc, settings)]
+            result = study.figure11(settings, workers=args.workers, progress=say)
         elif fig == "adaptive":
-            files = [plots.plot_adaptive_bars(report / "ride_adaptive_bars.png", doc),
-                     plots.plot_adaptive_history(report / "ride_adaptive_history.png",
-                                                 result)]
+            result = adaptive_study.adaptive_study(settings, skyhook, progress=say)
         else:
-            files = [plots.plot_pothole(report / "ride_pothole.png", result)]
-        for path in files:
-            say_wrote(path)
-        doc["report_dir"] = str(report)
-        doc["report_files"] = [p.name for p in files]
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.json, doc)
+            result = study.figure13(settings, progress=say)
+        doc = result.doc
+        if report is not None:
+            doc["report_dir"] = str(args.report)
+            doc["report_files"] = [p.name for p in _plots(fig, report, result, settings)]
+        json_at.write_text(json_text(doc), encoding="utf-8")
     print(doc["title"])
     if fig == 11:
         print(study.sweep_table(doc))
@@ -198,3 +180,20 @@ _RIDE_IGNORED = {13: ("seeds", "length", "band", "band_scaling", "amplitudes", "
                       "skyhook"),
                  10: ("band_scaling", "workers", "skyhook"), 11: ("skyhook",),
                  "adaptive": ("band_scaling", "workers")}
+
+
+def _plots(fig, report: Path, result, settings) -> list[Path]:
+    """The figure's plots, written into ``report``."""
+    from ride_sim import plots
+
+    doc = result.doc
+    if fig == 10:
+        return [plots.plot_sws_history(report / "ride_sws_2s.png", result),
+                plots.plot_psds(report / "ride_psd.png", result, settings),
+                plots.plot_band_sensitivity(report / "ride_band_sensitivity.png", settings)]
+    if fig == 11:
+        return [plots.plot_speed_sweep(report / "ride_speed_sweep.png", doc, settings)]
+    if fig == "adaptive":
+        return [plots.plot_adaptive_bars(report / "ride_adaptive_bars.png", doc),
+                plots.plot_adaptive_history(report / "ride_adaptive_history.png", result)]
+    return [plots.plot_pothole(report / "ride_pothole.png", result)]

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 from pathlib import Path
 
-from damper_hil.cli.common import PROG, Formatter, add_engine_options, say_wrote, schema_type
+from damper_hil.cli.common import PROG, Formatter, add_engine_options, say, schema_type
 
 #: the settings ``tune`` takes as options (the others from --settings only)
 OPTIONS = ("designs", "refine_rounds", "refine_designs", "road_classes", "speed_m_s",
@@ -51,7 +50,7 @@ def add_parser(sub) -> None:
     tune.add_argument("--params", metavar="BASE.yaml", type=Path, default=None,
                       help="the base damper (default: config/sport.yaml)")
     tune.add_argument("--out", metavar="OUT", type=Path, required=True,
-                      help="output folder (created)")
+                      help="output folder (created; an earlier run's is replaced as a whole)")
     tune.add_argument("--settings", metavar="TUNE.yaml", type=Path, default=None,
                       help="the 'tune' group: settings and bounds (default: the "
                            "values of config/tune.yaml; docs/parameters.md); options "
@@ -74,6 +73,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from damper_emulator.outputs import Outputs
     from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config, read_yaml
     from damper_hil.engine import open_engine
     from damper_hil.tune.report import write_results
@@ -92,13 +92,14 @@ def run(args: argparse.Namespace) -> int:
     ride = load_ride_config(args.quarter_car)
     roads(spec.settings, ride.road, ride.simulation.step_s)  # a bad road fails here, once
 
-    def say(msg: str) -> None:
-        print(msg, file=sys.stderr, flush=True)
-
-    with open_engine(args.scheduler, args.workers) as engine:
-        result = run_tune(base, spec, ride.quarter_car, ride.road, ride.simulation.step_s,
-                          engine, say=say)
-    doc_out = write_results(result, base, base_file, args.out, say=say_wrote)
+    # OUT is checked now, and written as a whole once the search is done (an earlier
+    # run's folder is replaced, not mixed with this one's)
+    with Outputs(say=say, inputs=[args.params, args.settings, args.quarter_car]) as outputs:
+        out = outputs.folder(args.out)
+        with open_engine(args.scheduler, args.workers) as engine:
+            result = run_tune(base, spec, ride.quarter_car, ride.road, ride.simulation.step_s,
+                              engine, say=say)
+        doc_out = write_results(result, base, base_file, out)
     c = doc_out["chosen"]["balanced"]
     b = doc_out["baseline"]["objectives"]
     print(f"{doc_out['evaluated']} designs in {doc_out['wall_s']:.1f} s, "

@@ -3,18 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
-from damper_hil.cli.common import (
-    PROG,
-    Formatter,
-    check_unique_names,
-    load_model,
-    say_wrote,
-    write_json,
-)
+from damper_hil.cli.common import PROG, Formatter, check_unique_names, json_text, load_model, say
 
 
 def add_parser(sub) -> None:
@@ -57,39 +49,42 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    paths: list[Path] = args.data
-    check_unique_names(paths)
     from damper_emulator import validation, validation_report
     from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.outputs import Outputs
 
+    paths: list[Path] = args.data
+    check_unique_names(paths)
     json_path: Path = args.json if args.json is not None else (
         (args.report if args.report is not None else Path(".")) / "validation.json")
-    model, params_file = load_model(args.params)
-    datasets = [read_measured_csv(p) for p in paths]  # a malformed file fails before work
-    results: dict[str, Any] = {}
-    n = len(datasets)
-    for k, data in enumerate(datasets, 1):
-        print(f"[{k}/{n}] validating {data.name} ({len(data)} samples, "
-              f"{data.duration_s:.3g} s) ...", file=sys.stderr, flush=True)
-        results[data.name] = validation.validate_file(model, data)
-    json_path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(json_path, {
-        "params_file": params_file,
-        "files": {name: validation.json_summary(r) for name, r in results.items()},
-    })
-    if args.report is not None:
-        report: Path = args.report
-        report.mkdir(parents=True, exist_ok=True)
-        label = f"{args.params.name}, damper '{model.cfg.damper.name}'"
-        for name, r in results.items():
-            png = report / f"validate_{validation.report_stem(name)}.png"
-            say_wrote(validation_report.plot_validation(
-                png, r, title=f"{name} vs compressible model ({label}): "
-                              f"{validation_report.rms_caption(r)}"))
-        say_wrote(validation_report.plot_relative_rms_summary(
-            report / "validation_summary.png", results,
-            title=f"Validation of {args.params.name}: relative r.m.s. force error per file "
-                  "(label: r.m.s. in N)"))
+    # the outputs are checked now, and written as one set once every file is validated
+    with Outputs(say=say, inputs=[args.params, *paths]) as outputs:
+        report: Path | None = (outputs.folder(args.report) if args.report is not None
+                               else None)
+        json_at = outputs.file(json_path)
+        model, params_file = load_model(args.params)
+        datasets = [read_measured_csv(p) for p in paths]  # a bad file fails before work
+        results: dict[str, Any] = {}
+        n = len(datasets)
+        for k, data in enumerate(datasets, 1):
+            say(f"[{k}/{n}] validating {data.name} ({len(data)} samples, "
+                f"{data.duration_s:.3g} s) ...")
+            results[data.name] = validation.validate_file(model, data)
+        json_at.write_text(json_text({
+            "params_file": params_file,
+            "files": {name: validation.json_summary(r) for name, r in results.items()},
+        }), encoding="utf-8")
+        if report is not None:
+            label = f"{args.params.name}, damper '{model.cfg.damper.name}'"
+            for name, r in results.items():
+                validation_report.plot_validation(
+                    report / f"validate_{validation.report_stem(name)}.png", r,
+                    title=f"{name} vs compressible model ({label}): "
+                          f"{validation_report.rms_caption(r)}")
+            validation_report.plot_relative_rms_summary(
+                report / "validation_summary.png", results,
+                title=f"Validation of {args.params.name}: relative r.m.s. force error per "
+                      "file (label: r.m.s. in N)")
     width = max(len("file"), *(len(name) for name in results))
     print(f"{'file':<{width}}  {'samples':>8}  {'rms [N]':>9}  {'relative':>9}  "
           f"{'peak F meas [N]':>17}  {'peak F sim [N]':>17}")

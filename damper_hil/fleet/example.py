@@ -30,6 +30,7 @@ from damper_emulator.diagnose.truth import (
     write_session,
 )
 from damper_emulator.dyno import protocols
+from damper_emulator.outputs import write_text
 from damper_emulator.params import ModelConfig, rule, save_config
 
 #: the force noise of the example's dyno [N] (the diagnosis benchmark's)
@@ -121,5 +122,5 @@ def write_example(out: Path, nominal: ModelConfig, count: int, seed: int = 0,
         say(f"[{k}/{count}] {uid}" + (f" (defect: {defect})" if defect else ""))
     doc = {"count": count, "seed": seed, "protocol": "short" if short else "paper",
            "noise_n": NOISE_N, "scatter": dataclasses.asdict(scatter), "units": units}
-    (out / "truth.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    write_text(out / "truth.json", json.dumps(doc, indent=2) + "\n")
     return doc

@@ -24,7 +24,6 @@ dying, as ``worker lost``.
 from __future__ import annotations
 
 import json
-import os
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
@@ -33,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from damper_emulator.errors import UserError, one_line
+from damper_emulator.outputs import Outputs, write_text
 from damper_hil.engine import Engine
 from damper_hil.fleet import outliers, table
 from damper_hil.fleet.inputs import DamperInputs, find_dampers
@@ -40,6 +40,8 @@ from damper_hil.fleet.task import ERROR, DamperJob, DamperResult, error_row, run
 
 #: a damper's finished marker and row
 RESULT_FILE = "result.json"
+#: the fleet's tables in ``OUT``
+TABLES = ("results.csv", "results.parquet")
 #: width of the progress bar [characters]
 BAR_WIDTH = 24
 
@@ -58,12 +60,6 @@ class FleetRun:
     engine: str = ""
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
 def _read_row(folder: Path) -> dict[str, Any] | None:
     """The row of a finished damper, or ``None`` (not finished, or unreadable)."""
     try:
@@ -77,8 +73,8 @@ def _save(out: Path, damper_id: str, result: DamperResult) -> dict[str, Any]:
     folder = out / damper_id
     folder.mkdir(parents=True, exist_ok=True)
     for name, text in result.files.items():
-        _write_atomic(folder / name, text)
-    _write_atomic(folder / RESULT_FILE, json.dumps(result.row, indent=2) + "\n")
+        write_text(folder / name, text)
+    write_text(folder / RESULT_FILE, json.dumps(result.row, indent=2) + "\n")
     return result.row
 
 
@@ -109,12 +105,28 @@ def bar(done: int, total: int) -> str:
 
 def run_fleet(data_dir: Path, out: Path, engine: Engine, diagnose: bool = False,
               effects: Sequence[str] | None = None, retry_errors: bool = False,
-              say: Say = print) -> FleetRun:
+              say: Say = print, outputs: Outputs | None = None) -> FleetRun:
     """Identify, validate (and diagnose) every damper of ``data_dir`` into ``out``; module
-    docstring.  Returns the rows (every damper, in folder order) and the flags."""
+    docstring.  Returns the rows (every damper, in folder order) and the flags.
+
+    The tables are registered in ``outputs`` before any damper runs (which checks that
+    ``out`` can be written) and written into it at the end; the caller commits it, with
+    whatever else belongs to the run (the summary).  Without ``outputs`` the tables are
+    committed here.
+    """
+    if outputs is None:
+        with Outputs() as own:
+            return _run_fleet(data_dir, out, engine, diagnose, effects, retry_errors, say,
+                              own)
+    return _run_fleet(data_dir, out, engine, diagnose, effects, retry_errors, say, outputs)
+
+
+def _run_fleet(data_dir: Path, out: Path, engine: Engine, diagnose: bool,
+               effects: Sequence[str] | None, retry_errors: bool, say: Say,
+               outputs: Outputs) -> FleetRun:
     started = time.perf_counter()
     dampers = find_dampers(data_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    tables = {name: outputs.file(out / name) for name in TABLES}
     rows: dict[str, dict[str, Any]] = {}
     resumed = []
     for d in dampers:
@@ -170,8 +182,8 @@ def run_fleet(data_dir: Path, out: Path, engine: Engine, diagnose: bool = False,
     flags = outliers.flag_fleet(ordered)
     for r in ordered:
         r["flags"] = ";".join(f.rule.name for f in flags.get(r["id"], []))
-    table.write_csv(ordered, out / "results.csv")
-    table.write_parquet(ordered, out / "results.parquet")
+    table.write_csv(ordered, tables["results.csv"])
+    table.write_parquet(ordered, tables["results.parquet"])
     return FleetRun(ordered, flags, resumed, time.perf_counter() - started,
                     engine.description)
 

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from damper_emulator.errors import ESCAPE, printable
+from damper_emulator.outputs import Outputs
 from damper_hil.fleet.outliers import RULES, SCORED
 from damper_hil.fleet.runner import FleetRun
 
@@ -66,7 +67,7 @@ def plot_parameters(run: FleetRun, path: Path) -> Path:
             ax.scatter(v[red] * scale, jitter[red], s=28, color=COLOURS[1])
             for i, x, y, r in zip(ids, v * scale, jitter, red):
                 if r:
-                    ax.annotate(i, (x, y), fontsize=7, color=COLOURS[1],
+                    ax.annotate(printable(i), (x, y), fontsize=7, color=COLOURS[1],
                                 xytext=(3, 3), textcoords="offset points")
             ax.axvline(float(np.median(v)) * scale, color="0.5", lw=0.8, ls="--")
             if log and np.all(v > 0) and v.max() > LOG_SPAN * v.min():
@@ -94,7 +95,8 @@ def plot_validation(run: FleetRun, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(max(6.0, 0.45 * len(ids) + 2), 3.6))
     colours = [COLOURS[bool(run.flags.get(i))] for i in ids]
     ax.bar(range(len(ids)), v, color=colours)
-    ax.set_xticks(range(len(ids)), ids, rotation=60, ha="right", fontsize=8)
+    ax.set_xticks(range(len(ids)), [printable(i) for i in ids], rotation=60, ha="right",
+                  fontsize=8)
     ax.set_ylabel("validation r.m.s. [N]")
     if v.size:
         ax.axhline(float(np.median(v)), color="0.5", lw=0.8, ls="--")
@@ -125,18 +127,20 @@ def plot_diagnosis(run: FleetRun, path: Path) -> Path:
     return path
 
 
-def write_summary(run: FleetRun, out: Path, say: Callable[[Path], None] = lambda p: None
-                  ) -> Path:
-    """``out/summary.md`` and its plots; returns the summary's path."""
+def write_summary(run: FleetRun, out: Path, outputs: Outputs) -> Path:
+    """``out/summary.md`` and its plots, registered in ``outputs`` (committed by the
+    caller); returns where the summary is written meanwhile."""
     rows = run.rows
     ok = [r for r in rows if r.get("status") == "ok"]
     errors = [r for r in rows if r.get("status") != "ok"]
-    plots = [plot_parameters(run, out / "parameters.png"),
-             plot_validation(run, out / "validation.png")]
+    names = ["parameters.png", "validation.png"]
     if any(r.get("diagnosis_family") for r in ok):
-        plots.append(plot_diagnosis(run, out / "diagnosis.png"))
-    for p in plots:
-        say(p)
+        names.append("diagnosis.png")
+    at = {name: outputs.file(out / name) for name in [*names, "summary.md"]}
+    plots = [plot_parameters(run, at["parameters.png"]),
+             plot_validation(run, at["validation.png"])]
+    if "diagnosis.png" in at:
+        plots.append(plot_diagnosis(run, at["diagnosis.png"]))
     lines = [f"# Fleet summary: {len(rows)} dampers", "",
              f"- {len(ok)} finished, {len(errors)} in error; "
              f"{len(run.resumed)} taken from an earlier run of this folder.",
@@ -166,7 +170,7 @@ def write_summary(run: FleetRun, out: Path, say: Callable[[Path], None] = lambda
         if v.size:
             lo, mid, hi = np.percentile(v, [10, 50, 90])
             lines.append(f"| {column} | {mid:.4g} | {lo:.4g} … {hi:.4g} | {v.size} |")
-    lines += ["", *(f"![{p.stem}]({p.name})" for p in plots), ""]
-    path = out / "summary.md"
-    path.write_text("\n".join(lines), encoding="utf-8")
+    lines += ["", *(f"![{Path(n).stem}]({n})" for n in names), ""]
+    path = at["summary.md"]
+    path.write_text("\n".join(lines), encoding="utf-8", errors=ESCAPE)
     return path

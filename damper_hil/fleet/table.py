@@ -1,19 +1,22 @@
-"""The fleet's results table: one row per damper, as ``results.csv`` and
+r"""The fleet's results table: one row per damper, as ``results.csv`` and
 ``results.parquet`` (docs/fleet.md "Results").
 
 Columns come first in :data:`LEADING` order, then every other column any row has, sorted.
 A column's type is the first non-null value's (string, float, integer or boolean); a
-missing value is empty in the CSV and null in the Parquet file.  Both are written to a
-temporary file and renamed, so that a reader never sees half a table.
+missing value is empty in the CSV and null in the Parquet file.  Text from names that are
+not UTF-8 (a damper folder named ``café`` in Latin-1) is written escaped, ``caf\xe9``
+(:func:`~damper_emulator.errors.printable`).  The caller writes both through
+:class:`~damper_emulator.outputs.Outputs`, so that a reader never sees half a table.
 """
 
 from __future__ import annotations
 
 import csv
-import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from damper_emulator.errors import ESCAPE, printable
 
 #: the columns every row has, first
 LEADING = ("id", "status", "reason", "flags", "wall_s", "worker")
@@ -25,19 +28,13 @@ def columns(rows: Sequence[dict[str, Any]]) -> list[str]:
     return [*LEADING, *rest]
 
 
-def _atomic(path: Path) -> Path:
-    return path.with_name(f".{path.name}.tmp")
-
-
 def write_csv(rows: Sequence[dict[str, Any]], path: Path) -> Path:
     """``rows`` as CSV (header row; empty cells for missing values)."""
-    tmp = _atomic(path)
-    with tmp.open("w", newline="", encoding="utf-8") as f:
+    with path.open("w", newline="", encoding="utf-8", errors=ESCAPE) as f:
         writer = csv.DictWriter(f, fieldnames=columns(rows), restval="")
         writer.writeheader()
         for r in rows:
             writer.writerow({k: ("" if v is None else v) for k, v in r.items()})
-    os.replace(tmp, path)
     return path
 
 
@@ -71,9 +68,7 @@ def write_parquet(rows: Sequence[dict[str, Any]], path: Path) -> Path:
         if kind == pa.float64():
             values = [None if v is None else float(v) for v in values]
         elif kind == pa.string():
-            values = [None if v is None else str(v) for v in values]
+            values = [None if v is None else printable(str(v)) for v in values]
         arrays.append(pa.array(values, type=kind))
-    tmp = _atomic(path)
-    pq.write_table(pa.Table.from_arrays(arrays, names=names), tmp)
-    os.replace(tmp, path)
+    pq.write_table(pa.Table.from_arrays(arrays, names=names), path)
     return path

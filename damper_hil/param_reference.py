@@ -118,10 +118,22 @@ def render() -> str:
                          f"{_cell(s.constraint)} | {_cell(_fmt(_value(obj, key)))} | "
                          f"{'yes' if s.runtime else 'no'} | {_cell(s.description)} |")
         lines.append("")
+    lines += _limits_table()
     lines += _protocol_tables()
     lines += _scatter_table()
     lines += _tune_tables()
     return "\n".join(lines)
+
+
+def _limits_table() -> list[str]:
+    """The bounds every measured sample lies within, from their schema."""
+    from damper_emulator.dyno.limits import MeasuredLimits
+
+    return _options_table("## Measured-data limits", MeasuredLimits, lambda key: "",
+                          intro="Fixed (no params file, no option); checked by every reader "
+                          "of measured data (`damper_emulator.dyno.measured.check_measured`:"
+                          " CSV files, bags, the dyno's recordings), each refusal naming "
+                          "the first bad row.")
 
 
 def _protocol_tables() -> list[str]:

@@ -192,7 +192,8 @@ GOOD = "time,displacement,force\n0,0,1000\n0.001,0.001,2000\n0.002,0.002,3000\n"
      "not strictly increasing"),
     ("time,displacement,force\n0,0,10\n0.001,0.001,20\n0.001,0.002,30\n", 3,
      "not strictly increasing"),
-    ("time,displacement,force\n0,0,10\n0.001,12.5,20\n0.002,25.0,30\n", 3,
+    # the first row beyond the bound
+    ("time,displacement,force\n0,0,10\n0.001,12.5,20\n0.002,25.0,30\n", 2,
      "looks like millimetres; expected metres"),
     ("time,displacement,velocity,force\n0,0,0,10\n0.001,0.001,800,20\n", 2, "mm/s"),
     # force in kN: 0.4 at most while the rod strokes 2 mm (a damper gives tens of N)
@@ -289,3 +290,93 @@ def test_round_trip_gzip_extra_columns_and_optional_columns(tmp_path):
     assert data.velocity is None and data.temperature is None
     np.testing.assert_array_equal(read_measured_csv(
         _write(tmp_path / "good.csv", GOOD)).force, [1000, 2000, 3000])
+
+
+def _sine_file(path: Path, n: int = 2000, rate: float = 1000.0, edit=None) -> Path:
+    """A plausible 2 Hz sine test (40 mm, about 2 kN), optionally edited row by row
+    (``edit(t, x, v, f, T)`` changes the arrays in place)."""
+    t = np.arange(n) / rate
+    x = 0.02 * np.sin(2 * np.pi * 2.0 * t)
+    v = 0.02 * 2 * np.pi * 2.0 * np.cos(2 * np.pi * 2.0 * t)
+    f = 8000.0 * v + 400.0
+    temp = np.full(n, 40.0)
+    if edit is not None:
+        edit(t, x, v, f, temp)
+    write_measured_csv(path, t, x, f, velocity=v, temperature=temp)
+    return path
+
+
+def _set(column: str, row: int, value: float):
+    names = ("t", "x", "v", "f", "T")
+
+    def edit(*arrays):
+        arrays[names.index(column)][row - 1] = value
+    return edit
+
+
+@pytest.mark.parametrize("edit, row, needle", [
+    # a whole file 10^12 times too large, and one absurd sample in a good file
+    (lambda t, x, v, f, T: f.__imul__(1e12), 1, "exceeds 100000 N in magnitude"),
+    (_set("f", 700, 1e9), 700, "exceeds 100000 N in magnitude"),
+    # one sample within the bound but alone far beyond all others: a spike
+    (_set("f", 700, 60e3), 700, "lone spike"),
+    (_set("T", 900, 160.0), 900, "lone spike"),
+    (_set("T", 900, -80.0), 900, "below the -60 °C"),
+    # one displacement sample jumped (within the 1 m bound): faster than any dyno
+    (_set("x", 1200, 0.5), 1200, "displacement jumps"),
+    (_set("v", 50, 35.0), 50, "exceeds 20 m/s"),
+    # a time stamp 0.1 ns after the one before, and a 5-minute gap
+    (lambda t, x, v, f, T: t.__setitem__(slice(301, None), t[301:] - 0.999999e-3), 302,
+     "less than the 1e-06 s"),
+    (lambda t, x, v, f, T: t.__setitem__(slice(1000, None), t[1000:] + 300.0), 1001,
+     "time jumps by 300.001 s"),
+])
+def test_samples_no_dyno_can_produce_are_refused_naming_the_row(tmp_path, edit, row, needle):
+    """Force, displacement, velocity, temperature and time are each bounded above and
+    below by what a damper dyno can produce (damper_emulator.dyno.limits); a single absurd
+    sample is refused naming its row."""
+    path = _sine_file(tmp_path / "sine.csv", edit=edit)
+    with pytest.raises(MeasuredDataError) as exc:
+        read_measured_csv(path)
+    msg = str(exc.value)
+    assert needle in msg and f"row {row} " in msg and "\n" not in msg, msg
+
+
+def test_the_plausible_file_of_those_tests_is_accepted(tmp_path):
+    data = read_measured_csv(_sine_file(tmp_path / "sine.csv"))
+    assert len(data) == 2000 and np.ptp(data.force) > 1000
+
+
+def test_validate_and_identify_refuse_an_absurd_file_with_one_line(tmp_path, cli):
+    """validate used to accept forces 10^12 times too large (r.m.s. 3.9e14 N, exit 0), and
+    identify blamed a spike on the sign convention."""
+    big = _sine_file(tmp_path / "big.csv", edit=lambda t, x, v, f, T: f.__imul__(1e12))
+    res = cli("validate", "--params", "config/sport.yaml", big)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert "exceeds 100000 N" in res.stderr
+    spike = _sine_file(tmp_path / "chirp.csv", edit=_set("f", 700, 60e3))
+    qs = _sine_file(tmp_path / "qs.csv", n=500, rate=50.0)
+    res = cli("identify", "--quasi-static", qs, "--chirp", spike, "--out",
+              tmp_path / "p.yaml")
+    assert res.returncode == 2 and "row 700 " in res.stderr and "lone spike" in res.stderr
+    assert "sign convention" not in res.stderr and res.stderr.count("\n") == 1
+
+
+def test_a_dyno_recording_no_dyno_produces_is_kept_and_refused(tmp_path, sport_model):
+    """The dyno's recordings (the model's, or a dyno's over CAN: whatever engine gives the
+    forces) pass the same checks: a load cell that reads one absurd sample gives one line
+    naming the file and the row, and the recording is kept to look at."""
+    from damper_emulator.dyno.runner import run_sine
+    from damper_emulator.model.compressible import simulate
+
+    def faulty_load_cell(model, t, x, v):
+        res = simulate(model, t, x, v)
+        res.force_n[-100] = 5e5     # in the recorded part (after the lead-in)
+        return res
+
+    with pytest.raises(MeasuredDataError, match=r"sine_2hz.csv: row (\d+): force 500000"
+                       ) as exc:
+        run_sine(sport_model, tmp_path, 2.0, 0.02, engine=faulty_load_cell)
+    kept = np.loadtxt(tmp_path / "sine_2hz.csv", delimiter=",", skiprows=1)
+    row = int(re.search(r"row (\d+)", str(exc.value))[1])
+    assert row == kept.shape[0] - 99 and kept[row - 1, -1] == 5e5

@@ -510,3 +510,38 @@ def test_recorded_valve_commands_drive_the_replay(tmp_path, sport_model):
     blind = R.emulate(dataclasses.replace(data, valve=None), sport_model,
                       R.load_emulator_params()[0])
     assert np.sqrt(np.mean((blind.force_n - expected) ** 2)) > 100.0
+
+
+def test_a_bag_is_measured_data_under_the_same_checks(tmp_path, sport_model, cli):
+    """A bag's /damper/force model outputs are measured data for validate, identify and
+    diagnose (docs/interfaces.md §2), refused by the same checks as a CSV, naming the
+    message."""
+    from damper_emulator.dyno.measured import MeasuredDataError
+    from damper_emulator.dyno.measured_bag import read_measured
+
+    bag, expected = input_trigger_bag(tmp_path / "run", sport_model, n=1500)
+    data = read_measured(bag)
+    tr = sine_track(1500, 1_000_000_000)
+    assert len(data) == 1500 and data.name == "run"
+    np.testing.assert_array_equal(data.force, expected)
+    np.testing.assert_array_equal(data.displacement, tr.stroke)
+    np.testing.assert_allclose(data.time, (tr.stamp_ns - tr.stamp_ns[0]) * 1e-9)
+    res = cli("validate", "--params", "config/sport.yaml", bag, "--json",
+              tmp_path / "v.json")
+    assert res.returncode == 0, res.stderr
+    # fault outputs are not samples; one absurd force is refused naming its message
+    states, forces = [], []
+    for k in range(300):
+        s = 1_000_000_000 + k * MS
+        x = 0.01 * math.sin(k * 0.02)
+        status = int(Status.TIMEOUT) if k in (5, 6) else 0
+        f = 1e9 if k == 200 else 500.0 + 1000.0 * x
+        forces.append((s, force_msg(s, x, 0.0, 0.2 * math.cos(k * 0.02), f, status)))
+    good = write_bag(tmp_path / "good", states, forces[:200] + forces[201:])
+    assert len(read_measured(good)) == 297                 # 299 messages, 2 fault outputs
+    bad = write_bag(tmp_path / "bad", states, forces)
+    with pytest.raises(MeasuredDataError, match=r"/damper/force message 201: force 1e\+09"):
+        read_measured(bad)
+    res = cli("validate", "--params", "config/sport.yaml", bad, "--json", tmp_path / "b.json")
+    assert res.returncode == 2 and "message 201" in res.stderr and \
+        res.stderr.count("\n") == 1

@@ -51,6 +51,7 @@ from scipy.signal import savgol_filter
 
 from damper_emulator.dyno.measured import (
     MeasuredData,
+    check_measured,
     read_csv_table,
     short_text,
     write_measured_csv,
@@ -173,7 +174,8 @@ def read_fsae_ttx25(path: str | Path) -> MeasuredData:
     MeasuredDataError
         One line naming the file and, where it applies, the data row (1-based; the file
         line is given too): unreadable file, missing column, bad number or timestamp,
-        time not strictly increasing, fewer rows than the velocity filter needs.
+        time not strictly increasing, fewer rows than the velocity filter needs, samples
+        no dyno produces (:func:`~damper_emulator.dyno.measured.check_measured`).
     """
     path = Path(path)
     table = read_csv_table(path, _USED, parsers={TIME_COLUMN: _parse_timestamp},
@@ -201,9 +203,11 @@ def read_fsae_ttx25(path: str | Path) -> MeasuredData:
     x = DISPLACEMENT_SIGN * (reading - reference)
     v = _derivative(x, t)
     force = FORCE_SIGN * FORCE_N_PER_V * np.asarray(cols[FORCE_COLUMN])
-    return MeasuredData(time=t, displacement=x, force=force, velocity=v,
+    data = MeasuredData(time=t, displacement=x, force=force, velocity=v,
                         temperature=np.asarray(cols[TEMPERATURE_COLUMN]),
                         name=path.name, path=str(path))
+    check_measured(data, fail)
+    return data
 
 
 def _parse_timestamp(text: str, column: str, row: int, fail) -> datetime:

@@ -26,6 +26,7 @@ from typing import Any, TextIO
 import numpy as np
 from numpy.typing import ArrayLike
 
+from damper_emulator.dyno.limits import LIMITS, MeasuredLimits
 from damper_emulator.errors import UserError
 from damper_emulator.outputs import atomic_path
 
@@ -34,12 +35,9 @@ REQUIRED_COLUMNS = ("time", "displacement", "force")
 #: Columns read when present.
 OPTIONAL_COLUMNS = ("velocity", "temperature")
 
-#: Plausibility limits that catch wrong units by orders of magnitude: a damper's stroke
-#: is well under a metre (so ``|x| > 1`` means millimetres), its velocity well under
-#: 20 m/s (so more means mm/s), its oil temperature below 250 °C (so more means kelvin).
-MAX_ABS_DISPLACEMENT_M = 1.0
-MAX_ABS_VELOCITY_M_S = 20.0
-MAX_TEMPERATURE_C = 250.0
+#: The bounds of what a damper dyno can produce (force, displacement, velocity, temperature,
+#: time): :class:`~damper_emulator.dyno.limits.MeasuredLimits`, checked by
+#: :func:`check_measured`.  Below, the heuristics that tell a wrong unit within them.
 
 #: Force in kilonewtons.  A damper whose rod moves carries at least its seal friction
 #: (43.7 N for the sport damper, about 24 N on the FSAE rig) and, gas-charged, its gas
@@ -59,11 +57,10 @@ MIN_DAMPING_N_S_M = 100.0
 DYNAMIC_SPEED_M_S = 0.1
 #: Time in milliseconds.  A dyno records at tens of hertz or faster (the paper's
 #: quasi-static test at 50 Hz, the FSAE rig at 300 Hz, chirps at 1 kHz): a median sample
-#: interval of MAX_SAMPLE_INTERVAL_S or more (2 Hz or slower) is a file in ms sampled at up
-#: to 2 kHz.  A test runs minutes (the paper's longest 150 s, the FSAE runs up to 96 s): a
-#: file spanning more than MAX_DURATION_S (a day) is a test of more than 86 s in ms.
-MAX_SAMPLE_INTERVAL_S = 0.5
-MAX_DURATION_S = 86_400.0
+#: interval of ``max_median_interval_s`` or more (2 Hz or slower) is a file in ms sampled
+#: at up to 2 kHz.  A test runs minutes (the paper's longest 150 s, the FSAE runs up to
+#: 96 s): a file spanning more than ``max_duration_s`` (a day) is a test of more than 86 s
+#: in ms.
 #: Time in ms (or velocity in mm/s) when a velocity column is given: the least-squares
 #: gain of the velocity on ``d(displacement)/d(time)`` is 1 for consistent units (0.9–1.0
 #: on the FSAE runs, whose velocity is a filtered derivative) and 1000 for either mistake;
@@ -123,6 +120,16 @@ def open_text(path: Path) -> TextIO:
 def short_text(value: str) -> str:
     """A field's text cut to 40 characters for an error message."""
     return value if len(value) <= 40 else value[:37] + "..."
+
+
+def failure(where: str | Path, what: str = "row") -> _Fail:
+    """``fail(message, row=None)`` for measured data that is not read from a CSV table (a
+    recording, a bag): a one-line :class:`MeasuredDataError` naming ``where`` and, with
+    ``row`` (1-based), ``<what> <row>``."""
+    def fail(msg: str, row: int | None = None) -> MeasuredDataError:
+        at = f" {what} {row}" if row is not None else ""
+        return MeasuredDataError(f"{where}:{at}: {msg}")
+    return fail
 
 
 def parse_number(text: str, column: str, row: int, fail: _Fail) -> float:
@@ -296,61 +303,157 @@ def read_measured_csv(path: str | Path) -> MeasuredData:
     if row < 2:
         raise fail(f"{row} data row{'s' if row != 1 else ''}; need at least 2")
     arrays = {c: np.asarray(v, dtype=float) for c, v in values.items()}
-    t = arrays["time"]
+    data = MeasuredData(time=arrays["time"], displacement=arrays["displacement"],
+                        force=arrays["force"], velocity=arrays.get("velocity"),
+                        temperature=arrays.get("temperature"), name=path.name,
+                        path=str(path))
+    check_measured(data, fail)
+    return data
+
+
+def check_measured(data: MeasuredData, fail: _Fail, limits: MeasuredLimits = LIMITS) -> None:
+    """Refuse data a damper dyno cannot have produced, naming the first bad row.
+
+    In order: time strictly increasing, no two samples closer than
+    ``min_sample_interval_s``; every sample within its column's bounds (``limits``: force,
+    displacement, velocity, temperature; a displacement beyond 1 m or a velocity beyond
+    20 m/s is taken for millimetres, a temperature beyond 250 °C for kelvin); the time's
+    unit (median interval, duration) and no single gap longer than ``max_gap_s``; no
+    displacement jump faster than the velocity bound between two samples; no lone sample
+    (one beyond all the others of its column by more than ``lone_sample_ratio`` times their
+    range and ``lone_sample_floor`` of the bound); then the units within the bounds
+    (velocity against the displacement's derivative: time in ms or velocity in mm/s; a
+    force too small for the motion: kN).
+
+    Raises
+    ------
+    MeasuredDataError
+        ``fail(message, row)``: one line naming the row (1-based) and the problem.
+    """
+    lim = limits
+    t = data.time
     bad = np.flatnonzero(~(np.diff(t) > 0))
     if bad.size:
         i = int(bad[0]) + 1  # 0-based index of the offending sample
         raise fail(f"time is not strictly increasing ({t[i - 1]:.9g} s then {t[i]:.9g} s)",
                    i + 1)
-    _check_magnitude(arrays["displacement"], MAX_ABS_DISPLACEMENT_M, "displacement",
-                     "m", "looks like millimetres; expected metres", fail)
-    if "velocity" in arrays:
-        _check_magnitude(arrays["velocity"], MAX_ABS_VELOCITY_M_S, "velocity", "m/s",
-                         "looks like mm/s; expected m/s", fail)
-    if "temperature" in arrays:
-        _check_magnitude(arrays["temperature"], MAX_TEMPERATURE_C, "temperature", "°C",
-                         "looks like kelvin; expected degrees Celsius", fail)
-    data = MeasuredData(time=t, displacement=arrays["displacement"], force=arrays["force"],
-                        velocity=arrays.get("velocity"), temperature=arrays.get("temperature"),
-                        name=path.name, path=str(path))
-    _check_time_unit(data, fail)
+    close = np.flatnonzero(np.diff(t) < lim.min_sample_interval_s)
+    if close.size:
+        i = int(close[0]) + 1
+        raise fail(f"time steps by {t[i] - t[i - 1]:.3g} s ({t[i - 1]:.9g} s then "
+                   f"{t[i]:.9g} s), less than the {lim.min_sample_interval_s:g} s of the "
+                   "fastest dyno sampling: a bad time stamp", i + 1)
+    _check_bound(data.displacement, -lim.max_abs_displacement_m, lim.max_abs_displacement_m,
+                 "displacement", "m", "looks like millimetres; expected metres", fail)
+    if data.velocity is not None:
+        _check_bound(data.velocity, -lim.max_abs_velocity_m_s, lim.max_abs_velocity_m_s,
+                     "velocity", "m/s", "looks like mm/s; expected m/s", fail)
+    if data.temperature is not None:
+        _check_bound(data.temperature, lim.min_temperature_c, lim.max_temperature_c,
+                     "temperature", "°C", "looks like kelvin; expected degrees Celsius", fail,
+                     low_hint="a sensor fault")
+    _check_bound(data.force, -lim.max_abs_force_n, lim.max_abs_force_n, "force", "N",
+                 "not a damper dyno's force: another unit or scale, or a bad sample", fail)
+    _check_time_unit(data, fail, lim)
+    _check_jumps(data, fail, lim)
+    for column, bound in (("force", lim.max_abs_force_n),
+                          ("displacement", lim.max_abs_displacement_m),
+                          ("velocity", lim.max_abs_velocity_m_s),
+                          ("temperature", lim.max_temperature_c - lim.min_temperature_c)):
+        values = getattr(data, column)
+        if values is not None:
+            _check_lone_sample(values, column, bound, fail, lim)
+    _check_velocity_unit(data, fail)
     _check_force_unit(data, fail)
-    return data
 
 
-def _check_magnitude(values: np.ndarray, limit: float, column: str, unit: str, hint: str,
-                     fail: _Fail) -> None:
-    i = int(np.argmax(np.abs(values)))
-    if abs(values[i]) > limit:
-        raise fail(f"{column} {values[i]:.6g} exceeds {limit:g} {unit} in magnitude: {hint}",
+def _check_bound(values: np.ndarray, lo: float, hi: float, column: str, unit: str,
+                 hint: str, fail: _Fail, low_hint: str | None = None) -> None:
+    """Every value in ``[lo, hi]``; else the row of the first beyond."""
+    beyond = np.flatnonzero((values < lo) | (values > hi))
+    if not beyond.size:
+        return
+    i = int(beyond[0])
+    if lo == -hi:
+        raise fail(f"{column} {values[i]:.6g} exceeds {hi:g} {unit} in magnitude: {hint}",
                    i + 1)
+    side = "above" if values[i] > hi else "below"
+    raise fail(f"{column} {values[i]:.6g} {unit} is {side} the {hi if side == 'above' else lo:g}"
+               f" {unit} a damper reaches: {hint if side == 'above' else low_hint or hint}",
+               i + 1)
 
 
-def _check_time_unit(data: MeasuredData, fail: _Fail) -> None:
-    """Refuse time in milliseconds.
+def _check_jumps(data: MeasuredData, fail: _Fail, lim: MeasuredLimits) -> None:
+    """No displacement change between two samples faster than the velocity bound."""
+    rate = np.abs(np.diff(data.displacement)) / np.diff(data.time)
+    fast = np.flatnonzero(rate > lim.max_abs_velocity_m_s)
+    if fast.size:
+        i = int(fast[0]) + 1
+        x, t = data.displacement, data.time
+        raise fail(f"displacement jumps from {x[i - 1]:.6g} m to {x[i]:.6g} m in "
+                   f"{t[i] - t[i - 1]:.3g} s ({rate[i - 1]:.3g} m/s; a damper dyno moves at "
+                   f"most {lim.max_abs_velocity_m_s:g} m/s): a bad sample", i + 1)
+
+
+def _check_lone_sample(values: np.ndarray, column: str, bound: float, fail: _Fail,
+                       lim: MeasuredLimits) -> None:
+    """Refuse a single sample far beyond all the others of its column (a spike)."""
+    n = values.size
+    if n < 3:
+        return
+    part = np.partition(values, (0, 1, n - 2, n - 1))
+    lo1, lo2, hi2, hi1 = part[0], part[1], part[n - 2], part[n - 1]
+    floor = lim.lone_sample_floor * bound
+    for excess, rest, index in ((hi1 - hi2, hi2 - lo1, int(np.argmax(values))),
+                                (lo2 - lo1, hi1 - lo2, int(np.argmin(values)))):
+        if excess > floor and excess > lim.lone_sample_ratio * rest:
+            raise fail(f"{column} {values[index]:.6g} lies {excess:.3g} beyond every other "
+                       f"sample, whose range is {rest:.3g}: a lone spike, not a damper's "
+                       "signal", index + 1)
+
+
+def _check_time_unit(data: MeasuredData, fail: _Fail, lim: MeasuredLimits) -> None:
+    """Refuse time in milliseconds, and a gap within a test.
 
     Raises
     ------
     MeasuredDataError
-        ``fail(message, row)``: a median sample interval of MAX_SAMPLE_INTERVAL_S or more
-        (row: the first such interval's end), a file longer than MAX_DURATION_S (row: the
-        first sample beyond it), or a velocity column MAX_VELOCITY_GAIN times the
-        derivative of the displacement or more (row: the peak velocity; checked where the
-        rod strokes at least MIN_STROKE_M).
+        ``fail(message, row)``: a median sample interval of ``max_median_interval_s`` or
+        more (row: the first such interval's end), a file longer than ``max_duration_s``
+        (row: the first sample beyond it), a single interval longer than ``max_gap_s``
+        (row: its end).
     """
     hint = "looks like milliseconds; expected seconds"
     t = data.time
     steps = np.diff(t)
     step = float(np.median(steps))
-    if step >= MAX_SAMPLE_INTERVAL_S:
-        i = int(np.argmax(steps >= MAX_SAMPLE_INTERVAL_S)) + 1
+    if step >= lim.max_median_interval_s:
+        i = int(np.argmax(steps >= lim.max_median_interval_s)) + 1
         raise fail(f"time steps by {step:.6g} s (median), a dyno samples faster than "
-                   f"{1 / MAX_SAMPLE_INTERVAL_S:g} Hz: {hint}", i + 1)
-    if data.duration_s > MAX_DURATION_S:
-        i = int(np.argmax(t - t[0] > MAX_DURATION_S))
+                   f"{1 / lim.max_median_interval_s:g} Hz: {hint}", i + 1)
+    if data.duration_s > lim.max_duration_s:
+        i = int(np.argmax(t - t[0] > lim.max_duration_s))
         raise fail(f"time spans {data.duration_s:.6g} s, more than a day "
-                   f"({MAX_DURATION_S:g} s) for a dyno test: {hint}", i + 1)
-    x, v = data.displacement, data.velocity
+                   f"({lim.max_duration_s:g} s) for a dyno test: {hint}", i + 1)
+    gap = np.flatnonzero(steps > lim.max_gap_s)
+    if gap.size:
+        i = int(gap[0]) + 1
+        raise fail(f"time jumps by {steps[i - 1]:.6g} s ({t[i - 1]:.9g} s then {t[i]:.9g} s), "
+                   f"more than the {lim.max_gap_s:g} s a test pauses: two tests in one file, "
+                   "or a bad time stamp", i + 1)
+
+
+def _check_velocity_unit(data: MeasuredData, fail: _Fail) -> None:
+    """Refuse a velocity column 1000 times the displacement's derivative.
+
+    Raises
+    ------
+    MeasuredDataError
+        ``fail(message, row)`` (row: the peak velocity) where the velocity is
+        MAX_VELOCITY_GAIN times the derivative of the displacement or more (checked where
+        the rod strokes at least MIN_STROKE_M): time in ms, or velocity in mm/s.
+    """
+    x, v, t = data.displacement, data.velocity, data.time
     if v is None or np.ptp(x) < MIN_STROKE_M:
         return
     derivative = np.gradient(x, t)
@@ -358,8 +461,9 @@ def _check_time_unit(data: MeasuredData, fail: _Fail) -> None:
     gain = float(np.dot(v, derivative)) / power if power > 0 else 0.0
     if abs(gain) > MAX_VELOCITY_GAIN:
         i = int(np.argmax(np.abs(v)))
-        raise fail(f"velocity is {gain:.4g} × d(displacement)/d(time): time {hint} "
-                   "(or velocity is in mm/s, expected m/s)", i + 1)
+        raise fail(f"velocity is {gain:.4g} × d(displacement)/d(time): time looks like "
+                   "milliseconds; expected seconds (or velocity is in mm/s, expected m/s)",
+                   i + 1)
 
 
 def _check_force_unit(data: MeasuredData, fail: _Fail) -> None:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.dyno import plots, protocols
-from damper_emulator.dyno.measured import write_measured_csv
+from damper_emulator.dyno.measured import MeasuredData, check_measured, failure, write_measured_csv
 from damper_emulator.dyno.protocols import Chirp, FourteenSpeed, QuasiStatic, Sine
 from damper_emulator.dyno.simulated import (
     FOURTEEN_SPEED_COLUMNS,
@@ -56,9 +56,16 @@ def _energy(x: np.ndarray, f: np.ndarray) -> float:
 
 
 def _write(out_dir: Path, name: str, progress: Progress, t, x, v, f) -> Path:
+    """Write the measured-data CSV, then check it as every reader does
+    (:func:`~damper_emulator.dyno.measured.check_measured`): a dyno over CAN whose samples
+    no dyno produces is refused naming the row, and its recording is kept for a look."""
     path = write_measured_csv(out_dir / name, t, x, f, velocity=v)
     if progress:
         progress(path)
+    data = MeasuredData(time=np.asarray(t, dtype=float), displacement=np.asarray(x, float),
+                        force=np.asarray(f, dtype=float), velocity=np.asarray(v, float),
+                        name=path.name, path=str(path))
+    check_measured(data, failure(path))
     return path
 
 

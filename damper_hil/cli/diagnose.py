@@ -106,15 +106,15 @@ def _diagnose(args: argparse.Namespace, effects: list[str] | None, json_at: Path
     import os
 
     from damper_emulator.diagnose.selection import diagnose
-    from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.dyno.measured_bag import read_measured
 
     model, params_file = load_model(args.params)
     if model.cfg.damper.extensions is not None:
         raise CliError(f"{params_file}: already holds damper.extensions "
                        f"({', '.join(model.cfg.damper.extensions.active())}); diagnose needs "
                        "the identified model without them")
-    fit = [read_measured_csv(p) for p in [*args.quasi_static, *args.chirp]]
-    held = [read_measured_csv(p) for p in args.validate]
+    fit = [read_measured(p) for p in [*args.quasi_static, *args.chirp]]
+    held = [read_measured(p) for p in args.validate]
     say(f"diagnosing {params_file}: fit on {', '.join(d.name for d in fit)}, held out "
         f"{', '.join(d.name for d in held)}")
     jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, 4)

@@ -96,14 +96,14 @@ def _identify(args: argparse.Namespace, started: float, params_at: Path,
               report_at: Path | None):
     """The identification, its parameter file written at ``params_at`` and its report in
     ``report_at``; returns the JSON document and the result."""
-    from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.dyno.measured_bag import read_measured
     from damper_emulator.identify.pipeline import identify
     from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config, save_config
 
     base = load_config(args.base)
     fixed = _fixed_valve_parameters(args.fix)
-    qs = [read_measured_csv(p) for p in args.quasi_static]
-    chirp = [read_measured_csv(p) for p in args.chirp]
+    qs = [read_measured(p) for p in args.quasi_static]
+    chirp = [read_measured(p) for p in args.chirp]
     print(f"identifying from {', '.join(d.name for d in qs)} "
           f"({sum(len(d) for d in qs)} samples) and {', '.join(d.name for d in chirp)} "
           f"({sum(len(d) for d in chirp)} samples) ...", file=sys.stderr, flush=True)

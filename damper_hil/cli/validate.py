@@ -33,8 +33,8 @@ def add_parser(sub) -> None:
                f"  {PROG} validate --params fitted.yaml --report val_out data/*.csv")
     validate.add_argument("data", metavar="DATA.csv", type=Path, nargs="+",
                           help="measured-data files (CSV or .csv.gz: time [s], "
-                               "displacement [m], force [N], optional velocity [m/s]); "
-                               "base names must differ")
+                               "displacement [m], force [N], optional velocity [m/s]; or "
+                               "a bag's /damper/force); base names must differ")
     validate.add_argument("--params", metavar="PARAMS.yaml", type=Path, required=True,
                           help="damper parameter file to validate (ROS 2 params YAML)")
     validate.add_argument("--json", metavar="FILE", type=Path, default=None,
@@ -50,7 +50,7 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from damper_emulator import validation, validation_report
-    from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.dyno.measured_bag import read_measured
     from damper_emulator.outputs import Outputs
 
     paths: list[Path] = args.data
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
                                else None)
         json_at = outputs.file(json_path)
         model, params_file = load_model(args.params)
-        datasets = [read_measured_csv(p) for p in paths]  # a bad file fails before work
+        datasets = [read_measured(p) for p in paths]  # a bad file fails before work
         results: dict[str, Any] = {}
         n = len(datasets)
         for k, data in enumerate(datasets, 1):

@@ -118,7 +118,7 @@ class BridgeNode(ManagedNode):
         self._motion_id = self.core.motion_encoder.frame_id
         self.bus = ResilientBus(self._bus_config, backoff_initial_s=p.backoff_initial_s,
                                 backoff_max_s=p.backoff_max_s)
-        qos = control_qos(topics.CONTROL_DEPTH)
+        qos = control_qos(topics.PUBLISHER_DEPTH)
         if p.mode == "dyno":
             self._state_pub = self.create_lifecycle_publisher(JointState, topics.STATE, qos)
         else:

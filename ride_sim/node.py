@@ -65,8 +65,6 @@ NODE_NAME = "ride_sim"
 #: Bit of ``damper_fault_bits`` (beside the emulator's Status bits) set when a force message
 #: carried a non-finite force, which the ride ignores (the previous force stays held).
 NON_FINITE_FORCE = 1 << 16
-#: How long the ride waits at the end for its subscribers to acknowledge the last samples [s].
-ACK_TIMEOUT_S = 2.0
 #: the ride's parameter groups (group → dataclass)
 RIDE_SCHEMA: dict[str, type] = {"quarter_car": QuarterCarParams, "simulation": SimulationParams,
                                 "road": RoadParams, "ride": RideRunParams}
@@ -105,8 +103,9 @@ class RideNode(Node):
         self.exit_status = 0
         self.damper_name = "damper"
         qos = control_qos(topics.CONTROL_DEPTH)
-        self._state_pub = self.create_publisher(JointState, topics.STATE, qos)
-        self._ride_pub = (self.create_publisher(JointState, topics.RIDE_STATE, qos)
+        out_qos = control_qos(topics.PUBLISHER_DEPTH)
+        self._state_pub = self.create_publisher(JointState, topics.STATE, out_qos)
+        self._ride_pub = (self.create_publisher(JointState, topics.RIDE_STATE, out_qos)
                           if cfg.ride.publish_ride_state else None)
         if cfg.ride.clock == "lockstep":
             self.create_subscription(JointState, topics.FORCE, self._on_force, qos)
@@ -227,7 +226,7 @@ class RideNode(Node):
         # acknowledge the last samples before the process exits
         for pub in (self._state_pub, self._ride_pub):
             if pub is not None and not pub.wait_for_all_acked(
-                    Duration(seconds=ACK_TIMEOUT_S)):
+                    Duration(seconds=topics.ACK_TIMEOUT_S)):
                 self.get_logger().warning(f"{pub.topic_name}: not every subscriber "
                                           f"acknowledged the last samples")
         if self.exit_status == 0:

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 #: each test its own domain: 110 + offset (>= 102 would clash with the 0..101 range? no:
 #: the Linux limit is 232; stay well inside it and away from the demo's 40..89)
 DOMAINS = {"lockstep": 121, "stale": 122, "nan": 123, "kill": 124,
-           "params": 125, "badfile": 126, "dds": 127}
+           "params": 125, "badfile": 126, "dds": 127, "behind": 128}
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 
@@ -265,6 +265,39 @@ def test_a_killed_recorder_leaves_a_readable_bag(tmp_path):
     assert ks == sorted(ks) and len(set(ks)) == len(ks)
     last_sent_time = dict((kk, t) for t, kk in sent)[last_k]
     assert (killed_at - last_sent_time) * 1e-9 <= 0.5 + 0.1   # at most 0.5 s lost
+
+
+def test_a_recorder_held_back_for_seconds_loses_nothing(tmp_path):
+    """The recorder has the lowest real-time priority: a busy machine holds it back first.
+    Stopped outright (SIGSTOP) for 2 s while 4,000 samples are published, then resumed and
+    stopped with SIGINT once the publisher is gone: every sample is in the bag, in order
+    (the publishers' 5 s history, the recorder's queue, its drain at the stop)."""
+    import signal
+
+    d = DOMAINS["behind"]
+    bag = tmp_path / "bag"
+    rec = start("recorder", "record", d, tmp_path, extra=["--out", str(bag)])
+    probe = Probe(d)
+    n = 4000
+    try:
+        pub = probe.node.create_publisher(JointState, topics.STATE,
+                                          control_qos(topics.PUBLISHER_DEPTH))
+        assert probe.spin_until(lambda: pub.get_subscription_count() > 0, 60), rec.log_tail()
+        rec.proc.send_signal(signal.SIGSTOP)
+        try:
+            for k in range(n):
+                pub.publish(state(k * 1e-6, 0.0))
+            time.sleep(2.0)
+        finally:
+            rec.proc.send_signal(signal.SIGCONT)
+        assert pub.wait_for_all_acked(rclpy.duration.Duration(seconds=30))
+        probe.node.destroy_publisher(pub)
+        assert rec.stop() == 0, rec.log_tail()
+    finally:
+        probe.close()
+        rec.kill()
+    ks = [round(m.position[0] / 1e-6) for _, m in read_bag(bag)[topics.STATE]]
+    assert ks == list(range(n)), (len(ks), ks[:3], ks[-3:])
 
 
 def test_runtime_parameters_are_checked(tmp_path):

@@ -95,7 +95,7 @@ import os
 import struct
 import threading
 import zlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from operator import itemgetter
 from pathlib import Path
@@ -271,6 +271,10 @@ class BagWriter:
     fsync : bool, optional
         ``fdatasync`` the MCAP file after each flush (protects against power
         loss too; it only runs in the flush thread).
+    flush_thread_setup : callable, optional
+        Called first on the background flush thread (e.g. to give it the
+        real-time priority of the thread that calls :meth:`write`: the two share
+        Python's GIL).
 
     Raises
     ------
@@ -294,6 +298,7 @@ class BagWriter:
         flush_period_s: float = 0.25,
         custom_data: Mapping[str, str] | None = None,
         fsync: bool = True,
+        flush_thread_setup: Callable[[], object] | None = None,
     ) -> None:
         self.path = Path(path)
         if (
@@ -373,6 +378,7 @@ class BagWriter:
             raise BagError(f"bag {self.path}: cannot write: {exc.strerror or exc}") from None
 
         self._stop = threading.Event()
+        self._thread_setup = flush_thread_setup
         self._thread = threading.Thread(
             target=self._run, name=f"bag-flush {self.path.name}", daemon=True
         )
@@ -574,6 +580,8 @@ class BagWriter:
             ) from None
 
     def _run(self) -> None:
+        if self._thread_setup is not None:
+            self._thread_setup()
         while not self._stop.wait(self._flush_period):
             with self._io_lock:
                 if self._closed or self._error is not None:

@@ -386,6 +386,46 @@ def spin_node(build: Callable[[], Node], ros_args: list[str]) -> int:
 
 
 # --------------------------------------------------------------------------------------
+# stopping on a signal, for nodes that handle SIGINT and SIGTERM themselves
+
+#: How often a node that handles its stop signals itself looks for one [s].
+SIGNAL_POLL_S = 0.2
+
+
+class StopSignals:
+    """SIGINT and SIGTERM noted, not acted on at once: for a node class whose
+    ``OWN_SIGNALS`` is true (:func:`spin_node` then installs no rclpy handler, whose first
+    act is to shut the context down) and which must still publish, drain or close things
+    when it is stopped.  Create it on the main thread.
+
+    :attr:`name` is the first signal's name (``""``: none yet); :meth:`spin` serves the
+    executor's callbacks until one arrives or the context is shut down.
+    """
+
+    def __init__(self) -> None:
+        import signal
+
+        self.name = ""
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, self._note)
+
+    def _note(self, signum: int, _frame: object) -> None:
+        import signal
+
+        # Python runs this on the main thread between two spins: only note it there
+        self.name = self.name or signal.Signals(signum).name
+
+    def __bool__(self) -> bool:
+        return bool(self.name)
+
+    def spin(self, executor, context) -> None:
+        """Spin ``executor`` until a stop signal or the end of ``context``; the signal is
+        seen within :data:`SIGNAL_POLL_S`."""
+        while context.ok() and not self.name:
+            executor.spin_once(timeout_sec=SIGNAL_POLL_S)
+
+
+# --------------------------------------------------------------------------------------
 # readiness: waiting for a managed node to become active
 
 #: How often a waiting node says again what it is waiting for [s].
@@ -569,10 +609,18 @@ class SubscriptionThread:
         """The node that holds the subscriptions (for graph queries)."""
         return self._io_node
 
-    def stop(self, timeout_s: float = 2.0) -> None:
+    def stop(self, timeout_s: float = 2.0, drain: bool = False) -> None:
+        """Stop the thread; with ``drain``, then hand the handlers (on the caller's thread)
+        every message still queued, which the middleware has already acknowledged to its
+        publishers (the recorder's last messages)."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout_s)
+        if drain and self._io_node is not None and self._node.context.ok() \
+                and not self._thread.is_alive():
+            for sub, handler in self._inputs:
+                for msg, _info in take_all(sub):
+                    handler(msg)
         if self.report is not None:
             self.report.release()
         if self._io_node is not None:

@@ -208,7 +208,7 @@ class EmulatorNode(ManagedNode):
         self.core.warm_up()
         self.warm_up_s = time.monotonic() - start
         self._force_pub = self.create_lifecycle_publisher(JointState, topics.FORCE,
-                                                          control_qos(topics.CONTROL_DEPTH))
+                                                          control_qos(topics.PUBLISHER_DEPTH))
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         if p.trigger == "timer":
             # The loop thread takes the input itself at each tick (no executor thread

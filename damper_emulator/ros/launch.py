@@ -16,6 +16,10 @@ from pathlib import Path
 
 import yaml
 
+#: How long a stopped node has for a clean shutdown before SIGKILL [s]: longer than a
+#: publisher's wait for its subscribers' acknowledgements
+#: (:data:`damper_emulator.ros.topics.ACK_TIMEOUT_S`).
+STOP_TIMEOUT_S = 30.0
 #: Default domain range for runs that were not given one: 40 .. 89 by process id.
 _DOMAIN_BASE, _DOMAIN_SPAN = 40, 50
 
@@ -99,9 +103,10 @@ class NodeProcess:
     def wait(self, timeout_s: float | None = None) -> int:
         return self.proc.wait(timeout_s)
 
-    def stop(self, timeout_s: float = 10.0) -> int:
-        """SIGINT (a clean shutdown: the node closes its files), then SIGKILL after
-        ``timeout_s``.  Returns the exit status."""
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int:
+        """SIGINT (a clean shutdown: the node closes its files and waits for its subscribers
+        to have what it published), then SIGKILL after ``timeout_s``.  Returns the exit
+        status."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
             try:

@@ -30,13 +30,13 @@ The transitions are rclpy's (the standard ``lifecycle_msgs`` services); this cla
   ``_leave_active`` first;
 * SIGINT and SIGTERM (a launch file's Ctrl-C, a service manager's stop) are a ``shutdown``
   transition: from ``active`` the outputs go to their safe state, with the signal as the
-  reason, before the process ends (:func:`~damper_emulator.ros.common.spin_node` leaves
-  these signals to the node, see :attr:`ManagedNode.OWN_SIGNALS`).
+  reason, and every subscriber has what was published, before the process ends
+  (:func:`~damper_emulator.ros.common.spin_node` leaves these signals to the node, see
+  :attr:`ManagedNode.OWN_SIGNALS`).
 """
 
 from __future__ import annotations
 
-import signal
 import time
 import traceback
 from functools import partial
@@ -50,16 +50,12 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
-from damper_emulator.ros.common import latched_qos, lifecycle_state_topic
+from damper_emulator.ros import topics
+from damper_emulator.ros.common import StopSignals, latched_qos, lifecycle_state_topic
 
 #: The managed nodes' own parameter: configure and activate at start.
 AUTOSTART = "autostart"
 
-#: How often the executor of a managed node looks for a stop signal [s].
-SIGNAL_POLL_S = 0.05
-
-#: How long leaving 'active' waits for the subscribers to acknowledge the safe output [s].
-SAFE_OUTPUT_ACK_S = 0.5
 #: rclpy's own topics, which the safe output does not wait for.
 RCLPY_TOPICS = ("/rosout", "/parameter_events")
 
@@ -121,8 +117,8 @@ class ManagedNode(LifecycleNode):
                             "manager's transitions)")).value)
         self.exit_status = 0
         self.lifecycle_state = "unconfigured"
-        #: the name of the signal that stops the node (empty: none yet)
-        self.stop_signal = ""
+        #: the stop signals, once :meth:`run` has installed their handlers
+        self._signals: StopSignals | None = None
         self._lifecycle_pub = self.create_publisher(LifecycleStateMsg,
                                                     lifecycle_state_topic(name),
                                                     latched_qos())
@@ -193,13 +189,14 @@ class ManagedNode(LifecycleNode):
     # ---- the transitions, the same for every managed node --------------------------------
 
     def _leave_active_safely(self, reason: str) -> None:
-        """:meth:`_leave_active`, then wait (at most :data:`SAFE_OUTPUT_ACK_S`) until every
-        subscriber has acknowledged what the node published last: where the publishers are
-        destroyed next (shutdown, error processing, then the end of the process), a
-        publisher destroyed right after a publish can take the safe output with it.
-        (Deactivation keeps the publishers and does not wait.)"""
+        """:meth:`_leave_active`, then wait (at most
+        :data:`~damper_emulator.ros.topics.ACK_TIMEOUT_S`) until every subscriber has
+        acknowledged what the node published: where the publishers are destroyed next
+        (shutdown, error processing, then the end of the process), a publisher destroyed
+        right after a publish takes with it the safe output and what a recorder running
+        behind has not yet taken.  (Deactivation keeps the publishers and does not wait.)"""
         self._leave_active(reason)
-        deadline = time.monotonic() + SAFE_OUTPUT_ACK_S
+        deadline = time.monotonic() + topics.ACK_TIMEOUT_S
         for pub in list(self.publishers):
             if pub.topic_name in RCLPY_TOPICS:
                 continue
@@ -207,7 +204,7 @@ class ManagedNode(LifecycleNode):
             if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
                 self.get_logger().warning(f"{pub.topic_name}: not every subscriber "
                                           f"acknowledged the last output within "
-                                          f"{SAFE_OUTPUT_ACK_S:g} s")
+                                          f"{topics.ACK_TIMEOUT_S:g} s")
 
     def _bug(self, hook: str, exc: BaseException) -> TransitionCallbackReturn:
         """A hook raised: a bug.  Logged with its traceback (rclpy would swallow it); the
@@ -299,18 +296,18 @@ class ManagedNode(LifecycleNode):
     @property
     def stopping(self) -> bool:
         """A stop signal has arrived."""
-        return bool(self.stop_signal)
+        return bool(self._signals)
 
-    def _on_signal(self, signum: int, _frame: object) -> None:
-        # Python runs this on the main thread between two spins: only note it there
-        self.stop_signal = signal.Signals(signum).name
+    @property
+    def stop_signal(self) -> str:
+        """The name of the signal that stops the node (``""``: none)."""
+        return self._signals.name if self._signals is not None else ""
 
     def run(self, executor: SingleThreadedExecutor) -> None:
         """Autostart (when asked), then serve the lifecycle services and the node's
         callbacks until SIGINT or SIGTERM, which end in a ``shutdown`` transition
         (module docstring), or until the context is shut down."""
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, self._on_signal)
+        self._signals = StopSignals()
         if self.autostart:
             for name, trigger in (("configure", self.trigger_configure),
                                   ("activate", self.trigger_activate)):
@@ -325,8 +322,7 @@ class ManagedNode(LifecycleNode):
         else:
             self.get_logger().info("autostart false: waiting for a lifecycle manager "
                                    f"(/{self.get_name()}/change_state)")
-        while self.context.ok() and not self.stopping:
-            executor.spin_once(timeout_sec=SIGNAL_POLL_S)
+        self._signals.spin(executor, self.context)
         if self.stopping and self.lifecycle_state != "finalized":
             self.get_logger().info(f"{self.stop_signal}: shutting down from "
                                    f"'{self.lifecycle_state}'")

@@ -1,6 +1,8 @@
 """The bag recorder (``damper-hil record``): every topic of the project's interface to a
 rosbag2 bag with MCAP storage (:class:`damper_emulator.bag.BagWriter`), flushed every
-0.25 s so that a SIGKILL loses at most 0.5 s and leaves a readable bag.
+0.25 s so that a SIGKILL loses at most 0.5 s and leaves a readable bag.  Stopped by SIGINT
+or SIGTERM, it first takes every message still queued, so that a recorder running behind
+(it has the lowest real-time priority: a busy machine holds it back first) loses nothing.
 
 Messages are recorded as the serialized CDR they arrived in (``raw`` subscriptions), with
 the reception time as the bag timestamp (as rosbag2 does).  A topic enters the bag with its
@@ -18,15 +20,25 @@ from rclpy.node import Node
 
 from damper_emulator.bag import BagWriter, Qos
 from damper_emulator.errors import UserError
-from damper_emulator.realtime.rt import RealtimeRequest
+from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import SubscriptionThread, control_qos, executor_priority, log_info
+from damper_emulator.ros.common import (
+    StopSignals,
+    SubscriptionThread,
+    control_qos,
+    executor_priority,
+    log_info,
+)
 
 NODE_NAME = "damper_hil_recorder"
 #: SCHED_FIFO priority (when permitted) of the recorder's input and DDS threads: below the
 #: emulator's loop and the bridge, above everything that runs normally, so that a busy
 #: machine delays the recording rather than losing it.
 RECORDER_PRIORITY = 50
+#: SCHED_FIFO priority (when permitted) of the bag's flush thread: just below the input
+#: thread.  Every Python thread of the process shares the GIL, and a flush thread at normal
+#: priority that a busy machine preempts while it holds the GIL stops the input thread too.
+FLUSH_PRIORITY = RECORDER_PRIORITY - 2
 _INFINITE_NS = 2 ** 63 - 1
 
 
@@ -62,7 +74,10 @@ class RecorderNode(Node):
             raise UserError(f"cannot record {unknown[0]}: known topics are "
                              f"{', '.join(topics.TYPES)}")
         self.writer = BagWriter(bag_path, flush_period_s=flush_period_s,
-                                custom_data={"recorded_by": "damper-hil record"})
+                                custom_data={"recorded_by": "damper-hil record"},
+                                flush_thread_setup=lambda: apply_realtime(RealtimeRequest(
+                                    sched_fifo=True, priority=FLUSH_PRIORITY,
+                                    lock_memory=False, cpu_dma_latency_us=-1)))
         self.exit_status = 0
         self._handles: dict[str, object] = {}
         self.counts = {t: 0 for t in names}
@@ -80,9 +95,15 @@ class RecorderNode(Node):
         self.main_thread_priority = executor_priority(RECORDER_PRIORITY)
         self.get_logger().info(f"recording {', '.join(names)} to {bag_path}")
 
+    #: Read by :func:`~damper_emulator.ros.common.spin_node`: SIGINT and SIGTERM end
+    #: :meth:`run` (rclpy's handler would shut the context down first, and the messages
+    #: still queued could not be taken any more).
+    OWN_SIGNALS = True
+
     def run(self, executor) -> None:
+        signals = StopSignals()
         self._input.start()
-        executor.spin()
+        signals.spin(executor, self.context)
 
     def _callback(self, name: str):
         writer = self.writer
@@ -102,7 +123,9 @@ class RecorderNode(Node):
         return offered_qos(infos[0].qos_profile) if infos else Qos()
 
     def close(self) -> None:
-        self._input.stop()
+        # every message the middleware holds has been acknowledged to its publisher, which
+        # may be gone: take them all before the bag is closed
+        self._input.stop(drain=True)
         if self._input.failed:
             self.exit_status = 1
         self.writer.close()

@@ -17,11 +17,24 @@ TYPES = {
     RIDE_STATE: "sensor_msgs/msg/JointState",
 }
 
-#: Depth of the control topics' keep-last queues (reliable, volatile): 0.1 s at 1 kHz, so
-#: that a recorder that falls behind for a moment is served from the publisher's history.
+#: Depth of the control topics' subscriptions (reliable, volatile, keep-last): 0.1 s at
+#: 1 kHz; a controller that falls behind wants the latest samples, not a backlog.
 CONTROL_DEPTH = 100
-#: Depth of the recorder's subscriptions (absorbs bursts while it writes).
-RECORDER_DEPTH = 1000
+#: Depth of the control topics' publishers' histories: 5 s at 1 kHz.  A reliable writer
+#: drops a sample a slow reader has not acknowledged once its history is full, so this is
+#: how long the recorder (the lowest real-time priority, so the first a busy machine
+#: holds back) may fall behind without losing a message.  A reader with a shorter queue
+#: (every controller) acknowledges what it has replaced, and costs the history nothing.
+PUBLISHER_DEPTH = 5000
+#: How long a publisher that goes away (the ride at its end, a managed node shutting down)
+#: waits for every subscriber to acknowledge its history [s]: twice the history's span, so
+#: that a recorder running behind takes the last messages before they go with the
+#: publisher.  An up-to-date subscriber acknowledges within milliseconds.
+ACK_TIMEOUT_S = 10.0
+#: Depth of the recorder's subscriptions: 20 s at 1 kHz.  Its middleware thread takes
+#: every message off the publishers' histories as it arrives; this queue holds them while
+#: its Python thread, starved on a busy machine, catches up.
+RECORDER_DEPTH = 20000
 
 
 def message_classes() -> dict:

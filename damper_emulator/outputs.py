@@ -184,6 +184,12 @@ def _contents(folder: Path, shown: int = 6) -> str:
     return f"/ ({len(names)} file{'s' if len(names) != 1 else ''}: {listed})"
 
 
+def _new_folder(path: Path) -> None:
+    """An empty folder output at ``path``, with the marker that says damper-hil wrote it."""
+    path.mkdir()
+    (path / MARKER).write_text(_MARKER_TEXT, encoding="utf-8")
+
+
 def _key(path: Path) -> Path:
     return Path(os.path.abspath(path))
 
@@ -264,17 +270,7 @@ class Outputs:
         if inside is not None:
             inside.parent.mkdir(parents=True, exist_ok=True)
             return inside
-        _make_parent(target)
-        _remove_stale(target)
-        staging = _staging(target)
-        try:
-            staging.write_bytes(b"")
-        except OSError as exc:
-            raise OutputError(f"{target}: cannot write in {target.parent}: "
-                              f"{exc.strerror or exc}") from None
-        self._files[_key(target)] = staging
-        self._given[_key(target)] = target
-        return staging
+        return self._stage(target, self._files, lambda staging: staging.write_bytes(b""))
 
     def folder(self, target: str | os.PathLike[str]) -> Path:
         """Register the folder ``target`` (replaced as a whole); returns the folder to
@@ -310,17 +306,22 @@ class Outputs:
         if inside is not None:
             inside.mkdir(parents=True, exist_ok=True)
             return inside
+        return self._stage(target, self._folders, _new_folder)
+
+    def _stage(self, target: Path, into: dict[Path, Path],
+               make: Callable[[Path], object]) -> Path:
+        """Make ``target``'s temporary sibling with ``make`` (which proves the place
+        writable) and register it in ``into``."""
         _make_parent(target)
         _remove_stale(target)
         staging = _staging(target)
         _remove(staging)
         try:
-            staging.mkdir()
-            (staging / MARKER).write_text(_MARKER_TEXT, encoding="utf-8")
+            make(staging)
         except OSError as exc:
             raise OutputError(f"{target}: cannot write in {target.parent}: "
                               f"{exc.strerror or exc}") from None
-        self._folders[_key(target)] = staging
+        into[_key(target)] = staging
         self._given[_key(target)] = target
         return staging
 

@@ -133,6 +133,7 @@ def test_msgdef_and_type_hash_match_the_installed_ros_descriptions():
         messages.type_hash("nope_msgs/msg/Nope")
 
 
+@pytest.mark.ros
 def test_cdr_equals_rclpy():
     pytest.importorskip("rclpy")
     from rclpy.serialization import deserialize_message, serialize_message
@@ -481,6 +482,7 @@ def _drain(stream, lines):
         lines.append(line)
 
 
+@pytest.mark.slow
 def test_sigkill_loses_at_most_half_a_second(tmp_path):
     delays = (0.7, 1.1, 1.5)  # s after the first message
     env = dict(os.environ, PYTHONUNBUFFERED="1")

@@ -20,6 +20,8 @@ from can_bridge import (
     socketcan_problem,
 )
 
+pytestmark = pytest.mark.can
+
 
 class FakeClock:
     """A settable monotonic clock for the backoff schedule."""

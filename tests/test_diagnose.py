@@ -45,6 +45,8 @@ from damper_emulator.params import EXTENSION_FAMILIES, load_config, save_config
 from damper_emulator.validation import validate_file
 from damper_hil.cli import main
 
+pytestmark = pytest.mark.slow
+
 #: a shorter chirp and one quasi-static cycle keep the suite quick; the rest as the paper
 PROTOCOL = Protocol(chirp=Chirp(duration_s=12.0), quasi_static=QuasiStatic(cycles=1))
 NOISE_N = 4.0

@@ -39,6 +39,7 @@ def is_png(path: Path) -> bool:
 # dyno: end to end
 
 
+@pytest.mark.slow
 def test_sine_writes_readable_file_with_requested_motion(tmp_path):
     out = tmp_path / "dyno"
     res = run_cli("dyno", "--protocol", "sine", "--frequency", 3, "--amplitude", 0.05,
@@ -156,6 +157,7 @@ def test_chirp_with_noise_is_reproducible(tmp_path, capsys):
     assert f"wrote {tmp_path / 'a' / 'chirp.csv'}" in err
 
 
+@pytest.mark.slow
 def test_demo_writes_everything(tmp_path, capsys):
     assert main(["dyno-demo", "--duration", "2", "--out", str(tmp_path)]) == 0
     err = capsys.readouterr().err

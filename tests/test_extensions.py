@@ -483,6 +483,7 @@ def _lag_reference(model, tau, t, x_of, v_of, v_start=None):
     return d.annulus_area_m2 * sol.y[0] - d.piston_area_m2 * _p_com(x_of(t), d)
 
 
+@pytest.mark.slow
 def test_valve_lag_matches_the_two_state_ode(sport_cfg, sport_model):
     """3 Hz at 50 mm and 12 Hz at 5 mm, sampled at 10 kHz, after a lead-in cycle."""
     tau = EXAMPLE_EFFECTS["valve_lag"]["params"]["time_constant_s"]

@@ -31,6 +31,8 @@ from damper_hil.engine import EngineError, command_cluster, open_engine
 from damper_hil.fleet.example import DEFECTS, write_example
 from damper_hil.fleet.runner import RESULT_FILE, run_fleet
 
+pytestmark = pytest.mark.slow
+
 #: the batch of the tests: 8 units, so that every seeded defect (units 3, 5, 8) is in it
 UNITS = 8
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from damper_emulator import force_message as fm
 from damper_emulator.bag import cdr_fast, messages
@@ -44,6 +45,7 @@ def test_a_contract_only_message_reads_as_ok_without_age():
     assert fm.input_age_of([0.01, math.nan]) == fm.NO_AGE
 
 
+@pytest.mark.slow
 def test_columns_round_trip_through_cdr_and_tolerate_contract_only_messages():
     rng = np.random.default_rng(5)
     n = 7

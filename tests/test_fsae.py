@@ -126,6 +126,7 @@ def test_export_round_trips_through_the_contract_reader(runs, tmp_path):
                                    atol=1e-12, err_msg=col)
 
 
+@pytest.mark.slow
 def test_every_exported_run_passes_the_unit_checks_and_fails_them_in_kn_and_ms(runs,
                                                                                tmp_path):
     """The contract reader's plausibility checks (force in kN, time in ms) accept every

@@ -17,6 +17,8 @@ from damper_emulator.model.compressible import simulate
 from damper_emulator.model.valve import pressure_drop_array, pressure_drop_jacobian
 from damper_emulator.params import load_config
 
+pytestmark = pytest.mark.slow
+
 CLI = [sys.executable, "-m", "damper_hil.cli"]
 PAPER_SINES = ((1, 0.05), (3, 0.05), (12, 0.005))
 

@@ -101,6 +101,7 @@ def _inputs(n_designs):
     return x, v
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("max_iterations", [None, 4])
 def test_the_lanes_step_as_the_one_design_step(sport_cfg, max_iterations):
     """``max_iterations`` 4 (the least allowed): some solves stop at the cap (the SOLVER
@@ -180,6 +181,7 @@ def test_designs_of_different_numerics_do_not_share_lanes(sport_cfg):
     assert lane_compatible(prm[:1])
 
 
+@pytest.mark.slow
 def test_all_in_lanes_against_the_single_design_path(sport_cfg):
     """Designs that all run in lanes (a block and a filled-up one: the branch ``tune``
     takes), each against ``ride_sim.quarter_car.simulate`` of its own."""

@@ -23,6 +23,8 @@ from damper_emulator.params import load_config
 from damper_emulator.realtime.core import Status
 from damper_emulator.ros.managed import TRANSITION_NAMES, VALID_TRANSITIONS
 
+pytestmark = [pytest.mark.ros, pytest.mark.can]
+
 DOMAINS = {"emulator": 150, "dyno_bridge": 151, "controller_bridge": 152}
 #: udp_multicast offsets of this file (tests/test_bridge.py uses 0..5 in the same process)
 OFFSETS = {"dyno_bridge": 6, "controller_bridge": 7}

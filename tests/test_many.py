@@ -80,6 +80,7 @@ def test_the_order_of_the_designs_does_not_matter(sport_cfg, ride):
     np.testing.assert_array_equal(a.dtl_n, b.dtl_n[::-1])
 
 
+@pytest.mark.slow
 def test_a_pothole_and_at_rest(sport_cfg, ride):
     car, _, dt, road = ride
     model = DamperModel(sport_cfg)

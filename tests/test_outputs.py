@@ -238,6 +238,7 @@ def test_names_that_are_not_utf8_are_kept_and_written_escaped(tmp_path):
 # the commands
 
 
+@pytest.mark.slow
 def test_tune_checks_out_before_the_search_and_replaces_it_whole(tmp_path, cli, monkeypatch):
     """An OUT that cannot be written is one line before any design is computed; a rerun
     leaves no design file of the earlier run that its pareto.json does not name; an

@@ -280,6 +280,7 @@ def test_fast_reader_reads_an_unclosed_bag(tmp_path):
 # replay
 
 
+@pytest.mark.slow
 def test_input_trigger_replay_reproduces_the_forces(tmp_path, sport_model):
     bag, expected = input_trigger_bag(tmp_path / "bag", sport_model, reject_at=700)
     doc = run_replay(bag, tmp_path / "out", json_path=tmp_path / "r.json")

@@ -340,6 +340,7 @@ def test_adaptive_study_document(adaptive_doc):
     assert "skyhook" in adaptive_study.adaptive_table(d)
 
 
+@pytest.mark.slow
 def test_cli_adaptive_writes_json_and_plots(tmp_path, capsys):
     out = tmp_path / "a.json"
     assert main(["ride-study", "--figure", "adaptive", "--length", "120", "--seeds", "2",

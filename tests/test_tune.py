@@ -130,6 +130,7 @@ def test_a_design_the_damper_rules_refuse_is_infeasible_not_an_error(sport_cfg):
     assert not tu.pareto_mask(ev[:, :3], ev[:, -1] > 0.5)[1]
 
 
+@pytest.mark.slow
 def test_tune_end_to_end_on_a_local_cluster(tmp_path):
     out = tmp_path / "out"
     res = _cli("tune", "--out", out, "--designs", 16, "--refine-rounds", 1,

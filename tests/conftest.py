@@ -1,15 +1,28 @@
 """Shared fixtures: the paper's 'sport' damper; one cold run of the demo; the command
-line run in this process."""
+line run in this process.  And the hypothesis profiles, chosen by ``HYPOTHESIS_PROFILE``."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 from ros_probe import cold_environment
 
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import load_config
+
+# Hypothesis profiles.  "default" (``make test``): a bounded search, so that the
+# property-based reader tests (tests/test_fuzz_*.py) add about a minute to the suite on a
+# 2-core machine; "fuzz" (``make fuzz``): a long search of the same properties.  No
+# deadline: the readers touch files, and this VM stalls its guests (the tests bound a hang
+# themselves, tests/fuzz_support.py).  Tests with settings of their own keep them.
+_PROFILE_COMMON = {"deadline": None, "print_blob": True,
+                   "suppress_health_check": [HealthCheck.too_slow]}
+settings.register_profile("default", max_examples=60, **_PROFILE_COMMON)
+settings.register_profile("fuzz", max_examples=2500, **_PROFILE_COMMON)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 
 @pytest.fixture(scope="session")

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import reprlib
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -27,7 +28,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import yaml
 
-from damper_emulator.errors import UserError
+from damper_emulator.errors import UserError, one_line
 from damper_emulator.model.valve import VALVE_FORMS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -69,6 +70,9 @@ def read_yaml(path: str | Path) -> Any:
         text = path.read_text()
     except OSError as exc:
         raise ParameterError(f"{path}: cannot read parameter file: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"{path}: not a text parameter file (byte {exc.start} is not "
+                             f"{exc.encoding})") from None
     try:
         return yaml.load(text, Loader=_FloatLoader)
     except yaml.YAMLError as exc:
@@ -76,6 +80,15 @@ def read_yaml(path: str | Path) -> Any:
         where = f" line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise ParameterError(f"{path}:{where} invalid YAML: {problem}") from None
+    except RecursionError:
+        raise ParameterError(f"{path}: invalid YAML: nested too deeply") from None
+    except Exception as exc:
+        # what PyYAML's constructors let through: the errors of int(), datetime() and
+        # their look-ups on an integer of more than 4300 digits (Python's int() limit), an
+        # impossible date or time zone, or a scalar with a tag it does not fit (!!bool x,
+        # !!timestamp x)
+        raise ParameterError(f"{path}: invalid YAML: {one_line(exc, with_type=True)}") \
+            from None
 
 
 # --------------------------------------------------------------------------------------
@@ -517,7 +530,7 @@ def build_group(cls: type[_G], data: Any, prefix: str, where: str,
     if not isinstance(data, Mapping):
         raise ParameterError(f"{where}: {prefix} must be a mapping")
     names = {f.name for f in fields(cls)}
-    unknown = sorted(set(data) - names)
+    unknown = sorted(set(data) - names, key=str)  # (YAML keys may mix types)
     if unknown:
         raise ParameterError(f"{where}: unknown parameter {prefix}.{unknown[0]}")
     values: dict[str, Any] = {}
@@ -611,6 +624,10 @@ def validate(cfg: ModelConfig) -> None:
         build_valve_tables(cfg)
     except ValveTableError as exc:
         raise ParameterError(f"{where}: {exc}") from None
+    except ArithmeticError as exc:  # a division by zero or overflow in the valve laws
+        raise ParameterError(f"{where}: the valve characteristics cannot be evaluated "
+                             f"({one_line(exc, with_type=True)}): a valve parameter is "
+                             "far outside its physical range") from None
 
 
 def _check_adaptive(d: DamperParams, where: str) -> None:
@@ -689,6 +706,13 @@ def config_yaml(cfg: ModelConfig, node: str = "/**") -> str:
 # Rule-checked parameter groups of the nodes and the ride simulation (one checker for
 # every group that is not the damper's own).
 
+#: A value as an error message shows it: its repr, cut short (a few elements of a few
+#: levels, 60 characters of a scalar).  A YAML alias bomb, a few lines of anchors that
+#: expand to millions of elements, must not be expanded into the message.
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxstring, _REPR.maxother, _REPR.maxlong = 3, 60, 60, 60
+_shown = _REPR.repr
+
 
 def check_value(value: Any, f: dataclasses.Field[Any], key: str, where: str) -> Any:
     """Coerce and check one value; raise a one-line :class:`ParameterError`."""
@@ -696,31 +720,35 @@ def check_value(value: Any, f: dataclasses.Field[Any], key: str, where: str) -> 
     kind = rule[0] if isinstance(rule, tuple) else rule
     if kind == "bool":
         if not isinstance(value, bool):
-            raise ParameterError(f"{where}: {key} must be true or false, got {value!r}")
+            raise ParameterError(f"{where}: {key} must be true or false, got {_shown(value)}")
         return value
     if kind == "text":
         if not isinstance(value, str):
-            raise ParameterError(f"{where}: {key} must be a string, got {value!r}")
+            raise ParameterError(f"{where}: {key} must be a string, got {_shown(value)}")
         return value
     if kind == "choices":
         if not isinstance(value, str):
-            raise ParameterError(f"{where}: {key} must be a string, got {value!r}")
+            raise ParameterError(f"{where}: {key} must be a string, got {_shown(value)}")
         if value not in rule[1]:
-            raise ParameterError(f"{where}: {key} = {value!r} must be one of "
+            raise ParameterError(f"{where}: {key} = {_shown(value)} must be one of "
                                  f"{', '.join(rule[1])}")
         return value
     if kind in ("band", "positive_list"):
         return check_list(value, kind, key, where, doc)
     if kind == "int_range":
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ParameterError(f"{where}: {key} must be an integer, got {value!r}")
+            raise ParameterError(f"{where}: {key} must be an integer, got {_shown(value)}")
         if not rule[1] <= value <= rule[2]:
             raise ParameterError(f"{where}: {key} = {value} must lie in "
                                  f"[{rule[1]}, {rule[2]}] ({doc})")
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(f"{where}: {key} must be a number, got {value!r}")
-    value = float(value)
+        raise ParameterError(f"{where}: {key} must be a number, got {_shown(value)}")
+    try:
+        value = float(value)
+    except OverflowError:  # an integer beyond the float range
+        raise ParameterError(f"{where}: {key} = {_shown(value)} is too large "
+                             f"({doc})") from None
     if not math.isfinite(value):
         raise ParameterError(f"{where}: {key} = {value} must be finite ({doc})")
     if kind == "positive" and not value > 0:
@@ -739,18 +767,22 @@ def check_value(value: Any, f: dataclasses.Field[Any], key: str, where: str) -> 
 def check_list(value: Any, kind: str, key: str, where: str, doc: str) -> tuple[float, ...]:
     """A list of positive numbers; for ``band`` exactly two, increasing."""
     if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__iter__"):
-        raise ParameterError(f"{where}: {key} must be a list of numbers, got {value!r}")
+        raise ParameterError(f"{where}: {key} must be a list of numbers, got {_shown(value)}")
     items = list(value)
     if kind == "band" and len(items) != 2:
         raise ParameterError(f"{where}: {key} must be two numbers [low, high] ({doc}), "
-                             f"got {value!r}")
+                             f"got {_shown(value)}")
     if not items:
         raise ParameterError(f"{where}: {key} must not be empty ({doc})")
     out = []
     for item in items:
         if isinstance(item, bool) or not isinstance(item, (int, float)):
-            raise ParameterError(f"{where}: {key} must hold numbers, got {item!r}")
-        x = float(item)
+            raise ParameterError(f"{where}: {key} must hold numbers, got {_shown(item)}")
+        try:
+            x = float(item)
+        except OverflowError:  # an integer beyond the float range
+            raise ParameterError(f"{where}: {key} holds {_shown(item)}, too large "
+                                 f"({doc})") from None
         if not (math.isfinite(x) and x > 0):
             raise ParameterError(f"{where}: {key} holds {x:g}: every value must be positive "
                                  f"and finite ({doc})")

@@ -35,6 +35,7 @@ from can_bridge.dbc import (
     check_message,
     checksum_byte,
     cycle_time_s,
+    raw_range,
 )
 
 __all__ = ["EncodedFrame", "Encoder", "Decoded", "FrameCounters", "Receiver"]
@@ -115,24 +116,9 @@ class _SignalCoding:
 
 
 def _signal_coding(signal: Any) -> _SignalCoding:
-    scale = float(signal.scale)
-    offset = float(signal.offset)
-    if signal.is_float:
-        lo, hi = -math.inf, math.inf
-    elif signal.is_signed:
-        lo, hi = -(1 << (signal.length - 1)), (1 << (signal.length - 1)) - 1
-    else:
-        lo, hi = 0, (1 << signal.length) - 1
-    # The DBC range [minimum, maximum] in raw units (a negative scale swaps the ends); a
-    # tolerance absorbs the decimal rounding of the DBC text (0.32767 / 1e-5 = 32766.99...).
-    ends = [None if v is None else (v - offset) / scale
-            for v in (signal.minimum, signal.maximum)]
-    raw_min, raw_max = ends if scale > 0 else ends[::-1]
-    if raw_min is not None:
-        lo = max(lo, raw_min if signal.is_float else math.ceil(raw_min - 1e-6))
-    if raw_max is not None:
-        hi = min(hi, raw_max if signal.is_float else math.floor(raw_max + 1e-6))
-    return _SignalCoding(signal.name, scale, offset, lo, hi, bool(signal.is_float))
+    lo, hi = raw_range(signal)
+    return _SignalCoding(signal.name, float(signal.scale), float(signal.offset), lo, hi,
+                         bool(signal.is_float))
 
 
 #: decoded signal values by name (numbers: decoded without choices)

@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 
 from can_bridge.codec import Encoder, Receiver
-from can_bridge.dbc import ForceStatus, cycle_time_s
+from can_bridge.dbc import ForceStatus, cycle_time_s, raw_range
 from can_bridge.settings import BridgeParams
 
 STATE, FORCE, COMMAND, MOTION = "DAMPER_STATE", "DAMPER_FORCE", "VALVE_COMMAND", "VEHICLE_MOTION"
@@ -63,7 +63,10 @@ class BridgeCore:
         self.force_encoder = Encoder(db, FORCE)
         self.motion_encoder = Encoder(db, MOTION)
         force = db.get_message_by_name(FORCE).get_signal_by_name("Force")
-        self._force_lo, self._force_hi = float(force.minimum), float(force.maximum)
+        # the range the encoder saturates Force to: the DBC's [min|max] on the raw grid, or
+        # the raw type's where the DBC gives none
+        lo, hi = (v * force.scale + force.offset for v in raw_range(force))
+        self._force_lo, self._force_hi = min(lo, hi), max(lo, hi)
         self.force_cycle_ns = int(cycle_time_s(db.get_message_by_name(FORCE)) * 1e9)
         self.motion_cycle_ns = int(cycle_time_s(db.get_message_by_name(MOTION)) * 1e9)
         self._last_in_ns: int | None = None      # last accepted inbound frame

@@ -9,7 +9,9 @@ messages.
 from __future__ import annotations
 
 import enum
+import math
 import os
+import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import cast
@@ -29,6 +31,7 @@ __all__ = [
     "load_database",
     "check_message",
     "checksum_byte",
+    "raw_range",
     "messages_for",
     "cycle_time_s",
     "frame_bits",
@@ -72,6 +75,44 @@ class DbcError(UserError):
     """The CAN database cannot be read or lacks what the project needs (one line)."""
 
 
+#: Payload bytes of the longest CAN frame (CAN FD).
+MAX_FRAME_BYTES = 64
+#: Longest cycle time [ms]: ``GenMsgCycleTime`` is a 16-bit attribute (INT 0 65535).
+MAX_CYCLE_TIME_MS = 65535
+#: A number as cantools' DBC parser reads one.
+_NUM = r"([-+]?\d+\.?\d*(?:[eE][-+]?\d+)?)"
+#: ``BO_ <id> <name>: <length>``
+_MESSAGE_LENGTH = re.compile(rf"\bBO_\s+{_NUM}\s+([^\s:]+)\s*:\s*{_NUM}")
+#: ``SG_ <name> [<multiplexing>] : <start bit>|<size>@``
+_SIGNAL_LAYOUT = re.compile(rf"\bSG_\s+([^\s:]+)(?:\s+[^\s:]+)?\s*:\s*{_NUM}\s*\|\s*{_NUM}\s*@")
+
+
+def _check_layout_numbers(path: Path) -> None:
+    """Refuse a message length, start bit or signal size beyond a CAN frame before cantools
+    reads the file: cantools builds lists of a message's bits and codecs in proportion to
+    them, so a start bit of 2**32 in a corrupted file takes minutes and gigabytes before it
+    is refused (2**20: minutes, quadratic in the start bit).
+
+    Raises
+    ------
+    DbcError
+        One line naming the file, the line and the number.
+    """
+    text = path.read_text(encoding="cp1252", errors="replace")  # cantools' encoding
+    for m in _MESSAGE_LENGTH.finditer(text):
+        if not 0 <= float(m.group(3)) <= MAX_FRAME_BYTES:
+            line = text.count("\n", 0, m.start()) + 1
+            raise DbcError(f"{path}: line {line}: message {m.group(2)} has a length of "
+                           f"{m.group(3)} bytes (a CAN frame has 0..{MAX_FRAME_BYTES})")
+    for m in _SIGNAL_LAYOUT.finditer(text):
+        start, size = float(m.group(2)), float(m.group(3))
+        if not (0 <= start < 8 * MAX_FRAME_BYTES and 0 < size <= 8 * MAX_FRAME_BYTES):
+            line = text.count("\n", 0, m.start()) + 1
+            raise DbcError(f"{path}: line {line}: signal {m.group(1)} at start bit "
+                           f"{m.group(2)}, {m.group(3)} bits, is outside any CAN frame "
+                           f"(at most {MAX_FRAME_BYTES} bytes)")
+
+
 def checksum_byte(signal: Signal) -> int | None:
     """Index of the payload byte that holds ``signal``, if it is a byte-aligned 8-bit signal.
 
@@ -91,8 +132,46 @@ def checksum_byte(signal: Signal) -> int | None:
     return signal.start // 8 if aligned else None
 
 
+def raw_range(signal: Signal) -> tuple[float, float]:
+    """The raw values a sender may put in ``signal``: those of its raw type within the DBC
+    range ``[minimum|maximum]`` in raw units (a negative scale swaps the ends; a tolerance
+    absorbs the decimal rounding of the DBC text, 0.32767 / 1e-5 = 32766.99...).
+
+    Parameters
+    ----------
+    signal : cantools.database.can.Signal
+        With a finite, non-zero scale (:func:`check_message` checks it).
+
+    Returns
+    -------
+    (float, float)
+        ``(lo, hi)``; ``lo > hi`` when the DBC range holds no value of the raw type.
+    """
+    scale, offset = float(signal.scale), float(signal.offset)
+    lo: float
+    hi: float
+    if signal.is_float:
+        lo, hi = -math.inf, math.inf
+    elif signal.is_signed:
+        lo, hi = -(1 << (signal.length - 1)), (1 << (signal.length - 1)) - 1
+    else:
+        lo, hi = 0, (1 << signal.length) - 1
+    ends = [None if v is None else (v - offset) / scale
+            for v in (signal.minimum, signal.maximum)]
+    raw_min, raw_max = ends if scale > 0 else ends[::-1]
+    # (an end beyond the float range, ±inf, limits nothing or everything: no rounding)
+    if raw_min is not None:
+        lo = max(lo, raw_min if signal.is_float or math.isinf(raw_min)
+                 else math.ceil(raw_min - 1e-6))
+    if raw_max is not None:
+        hi = min(hi, raw_max if signal.is_float or math.isinf(raw_max)
+                 else math.floor(raw_max + 1e-6))
+    return lo, hi
+
+
 def check_message(message: Message, data_signals: Iterable[str] = ()) -> None:
-    """Check that ``message`` carries the project's counter and checksum (and data signals).
+    """Check that ``message`` carries the project's counter and checksum (and data signals),
+    and that every signal can be encoded.
 
     Parameters
     ----------
@@ -103,7 +182,10 @@ def check_message(message: Message, data_signals: Iterable[str] = ()) -> None:
     Raises
     ------
     ValueError
-        One line naming the message and what is wrong.
+        One line naming the message and what is wrong: a signal missing, a counter or
+        checksum of the wrong shape, a signal whose scale is 0 or whose scale, offset or
+        range is not finite, or whose range ``[minimum|maximum]`` holds no value of its raw
+        type (an encoder could send nothing).
     """
     names = {s.name for s in message.signals}
     missing = [n for n in (*data_signals, COUNTER_SIGNAL, CHECKSUM_SIGNAL) if n not in names]
@@ -123,6 +205,17 @@ def check_message(message: Message, data_signals: Iterable[str] = ()) -> None:
         raise UserError(f"message {message.name}: {CHECKSUM_SIGNAL} must be a byte-aligned "
                          f"unsigned 8-bit signal (start bit {checksum.start}, "
                          f"{checksum.length} bits)")
+    for signal in message.signals:
+        coding = f"scale {signal.scale}, offset {signal.offset}, range " \
+                 f"[{signal.minimum}|{signal.maximum}]"
+        if not signal.scale or not all(v is None or math.isfinite(v) for v in (
+                signal.scale, signal.offset, signal.minimum, signal.maximum)):
+            raise UserError(f"message {message.name}: signal {signal.name} has {coding}: the "
+                            "scale must not be 0, all must be finite")
+        lo, hi = raw_range(signal)
+        if not lo <= hi:
+            raise UserError(f"message {message.name}: signal {signal.name} has {coding}, "
+                            f"which holds no value of its {signal.length}-bit raw type")
 
 
 def load_database(path: str | os.PathLike[str] | None = None, *,
@@ -144,13 +237,19 @@ def load_database(path: str | os.PathLike[str] | None = None, *,
     Raises
     ------
     DbcError
-        One line naming the file: missing file, parse error, a required message or signal
-        missing, or a counter/checksum of the wrong shape.
+        One line naming the file: missing file, parse error, a message length, start bit
+        or signal size beyond a CAN frame, a required message or signal missing, a
+        required message without a cycle time of 1..65535 ms (``GenMsgCycleTime``: the
+        bridge sends at it), or a message :func:`check_message` refuses.
     """
     path = Path(DEFAULT_DBC if path is None else path)
     required = REQUIRED_SIGNALS if required is None else required
     if not path.is_file():
         raise DbcError(f"{path}: no such CAN database file")
+    try:
+        _check_layout_numbers(path)
+    except OSError as exc:
+        raise DbcError(f"{path}: cannot read the DBC: {one_line(exc)}") from None
     try:
         # (a DBC file gives a CAN database: cantools types the result of any format)
         db = cast(Database, cantools.database.load_file(path, database_format="dbc",
@@ -166,6 +265,11 @@ def load_database(path: str | os.PathLike[str] | None = None, *,
             check_message(message, signals)
         except ValueError as exc:
             raise DbcError(f"{path}: {exc}") from None
+        ms = message.cycle_time
+        if isinstance(ms, bool) or not isinstance(ms, (int, float)) \
+                or not 0 < ms <= MAX_CYCLE_TIME_MS:
+            raise DbcError(f"{path}: message {name} has no cycle time of 1..{MAX_CYCLE_TIME_MS} "
+                           f"ms (GenMsgCycleTime: {ms})")
     return db
 
 

@@ -18,6 +18,7 @@ import gzip
 import io
 import math
 import warnings
+import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -245,7 +246,7 @@ def read_csv_table(path: str | Path, required: Sequence[str], optional: Sequence
         raise
     except UnicodeDecodeError:
         raise fail("not a text CSV file (cannot decode as UTF-8)") from None
-    except (OSError, EOFError, csv.Error) as exc:
+    except (OSError, EOFError, csv.Error, zlib.error) as exc:
         raise fail(f"cannot read {kind}: {exc}") from None
     return CsvTable(values, row, fail)
 
@@ -263,7 +264,7 @@ def _read_numeric_columns(path: Path, columns: Sequence[int]) -> np.ndarray | No
                 warnings.simplefilter("ignore")  # "input contained no data"
                 table = np.loadtxt(stream, dtype=float, delimiter=",", comments=None,
                                    usecols=tuple(columns), ndmin=2)
-    except (ValueError, OSError, EOFError, csv.Error):
+    except (ValueError, OSError, EOFError, csv.Error, zlib.error):
         return None
     if table.shape[0] == 0 or not np.isfinite(table).all():
         return None

@@ -1,0 +1,210 @@
+"""Property-based tests of the measured-data CSV reader (``damper_emulator.dyno.measured``).
+
+A measured-data file comes from a dyno, a colleague or a download, so anything may be in
+it.  Whatever its bytes, :func:`read_measured_csv` (and :func:`read_csv_table` below it)
+must return the data or raise :class:`MeasuredDataError`, the one-line user error the
+command line prints (exit 2): never another exception, never a hang.  A file it accepts
+holds what its docstring promises (at least 2 rows of finite numbers, time strictly
+increasing); an error names the file.
+
+The files: CSV-like text made of random headers (the known columns in any case, with
+blanks, twice, missing, other names), rows of random number spellings (huge, tiny, nan,
+inf, hex, underscores, Unicode digits, quotes, empty fields, short rows), blank lines, a
+BOM, CR LF or CR line ends, NUL, in UTF-8 or another encoding; random text; random bytes;
+and gzip-compressed files (recognised by their magic bytes), whole, truncated or with
+bytes changed.
+"""
+
+from __future__ import annotations
+
+import gzip
+import math
+
+import numpy as np
+import pytest
+from fuzz_support import junk_bytes, junk_text, mutated_bytes, time_limit
+from hypothesis import assume, example, given
+from hypothesis import strategies as st
+
+from damper_emulator.dyno.measured import (
+    OPTIONAL_COLUMNS,
+    REQUIRED_COLUMNS,
+    MeasuredData,
+    MeasuredDataError,
+    read_csv_table,
+    read_measured_csv,
+)
+
+GZIP_MAGIC = b"\x1f\x8b"
+
+#: Column names: the reader's own (in any case, with blanks), near misses and others.
+column_names = st.one_of(
+    st.sampled_from(REQUIRED_COLUMNS + OPTIONAL_COLUMNS),
+    st.sampled_from(("Time", " DISPLACEMENT ", "Force\t", "velocity ", "temp", "x", "",
+                     "time,force", '"time"', "\ufefftime", "name")),
+    st.text(max_size=8),
+)
+#: Other columns of a dyno file, which the reader ignores.
+other_names = st.sampled_from(("channel", "pressure", "x", "", "# comment", "Zeit", "1.5"))
+
+#: A field: a number as people and programs write it, or something that is not one.
+fields = st.one_of(
+    st.floats(-1.0, 1.0).map(lambda x: f"{x:.9g}"),
+    st.floats(-1e4, 1e4).map(lambda x: f"{x:.6g}"),
+    st.floats().map(repr),  # nan, inf, 1e+308, 5e-324, -0.0
+    st.integers(-10**30, 10**30).map(str),
+    st.sampled_from(("nan", "NaN", "-inf", "Infinity", "1e999", "-1e999", "1e-400", "0x10",
+                     "1_000", " 1 ", "", " ", '"1"', '"1,5"', "1,5", "--1", "+.5", ".",
+                     "\u0663", "\u00a01", "1e", "e1", "1.0.0", "\x00", "1\x00", "TRUE")),
+    st.text(max_size=6),
+)
+
+
+@st.composite
+def plausible_rows(draw: st.DrawFn, columns: list[str]) -> list[list[str]]:
+    """Rows a real dyno could have written for ``columns``: a sine stroke at 1 kHz with
+    the force of a damper; most files of this kind read without error."""
+    n = draw(st.integers(0, 40))
+    amp = draw(st.floats(1e-4, 0.05))
+    freq = draw(st.floats(0.5, 20.0))
+    rows = []
+    for i in range(n):
+        t = i * 1e-3
+        x = amp * math.sin(2 * math.pi * freq * t)
+        v = amp * 2 * math.pi * freq * math.cos(2 * math.pi * freq * t)
+        known = {"time": t, "displacement": x, "velocity": v, "force": 3000.0 * v + 50.0,
+                 "temperature": 40.0}
+        rows.append([f"{known.get(c.strip().lower(), 1.0):.9g}" for c in columns])
+    return rows
+
+
+@st.composite
+def csv_texts(draw: st.DrawFn) -> str:
+    """The text of a CSV-like file (see the module docstring)."""
+    if draw(st.integers(0, 3)) == 0:
+        columns = draw(st.lists(column_names, min_size=1, max_size=7))
+    else:  # the right columns, in any order and case, and others: on to the rows
+        known = [*REQUIRED_COLUMNS, *draw(st.lists(st.sampled_from(OPTIONAL_COLUMNS),
+                                                   unique=True))]
+        known = [draw(st.sampled_from((c, c.upper(), f" {c} ", c.title()))) for c in known]
+        columns = draw(st.permutations(known + draw(st.lists(other_names, max_size=2))))
+    rows = draw(plausible_rows(columns))
+    for _ in range(draw(st.sampled_from((0, 0, 1, 2, 4)))):  # spoil fields or rows
+        if rows:
+            r = draw(st.integers(0, len(rows) - 1))
+            if draw(st.booleans()):
+                c = draw(st.integers(0, max(len(rows[r]) - 1, 0)))
+                rows[r][c:c + 1] = [draw(fields)]
+            else:
+                rows[r] = draw(st.lists(fields, max_size=8))
+    if draw(st.booleans()):
+        rows += draw(st.lists(st.lists(fields, max_size=8), max_size=6))
+    lines = [",".join(columns)] + [",".join(r) for r in rows]
+    for _ in range(draw(st.integers(0, 2))):  # blank lines, or junk lines
+        lines.insert(draw(st.integers(0, len(lines))),
+                     draw(st.sampled_from(("", " ", ",,,", '"', '""', "#", "\x00"))
+                          | junk_text.map(lambda s: s[:40])))
+    end = draw(st.sampled_from(("\n", "\r\n", "\r")))
+    text = end.join(lines) + draw(st.sampled_from(("", end, end * 2)))
+    if draw(st.booleans()):
+        text = "\ufeff" + text
+    return text
+
+
+@st.composite
+def csv_files(draw: st.DrawFn) -> bytes:
+    """A CSV-like text in some encoding, or random text, or random bytes; never gzip
+    (those are :func:`gzip_files`)."""
+    kind = draw(st.sampled_from(("csv", "csv", "csv", "text", "bytes")))
+    if kind == "bytes":
+        blob = draw(junk_bytes)
+    else:
+        text = draw(csv_texts() if kind == "csv" else junk_text)
+        encoding = draw(st.sampled_from(("utf-8",) * 6 + ("utf-8-sig", "latin-1", "cp1252",
+                                                          "utf-16", "utf-32")))
+        blob = text.encode(encoding, errors="replace")
+    assume(not blob.startswith(GZIP_MAGIC))
+    return blob
+
+
+@st.composite
+def gzip_files(draw: st.DrawFn) -> bytes:
+    """A gzip-compressed CSV-like file: whole, or truncated / with bytes changed; or the
+    gzip magic bytes followed by junk."""
+    if draw(st.integers(0, 4)) == 0:
+        return GZIP_MAGIC + draw(junk_bytes)
+    blob = gzip.compress(draw(csv_files()), mtime=0)
+    if draw(st.booleans()):
+        blob = draw(mutated_bytes(blob))
+    return blob
+
+
+def check_measured(path) -> MeasuredData | None:
+    """Read ``path`` with :func:`read_measured_csv`; assert the outcome is the data as
+    promised or a :class:`MeasuredDataError` naming the file."""
+    try:
+        with time_limit():
+            data = read_measured_csv(path)
+    except MeasuredDataError as exc:
+        assert str(path) in str(exc)
+        return None
+    assert isinstance(data, MeasuredData)
+    n = len(data)
+    assert n >= 2
+    for arr in (data.time, data.displacement, data.force, data.velocity, data.temperature):
+        if arr is not None:
+            assert arr.shape == (n,)
+            assert np.isfinite(arr).all()
+    assert (np.diff(data.time) > 0).all()
+    return data
+
+
+def check_table(path) -> None:
+    """Read ``path`` with :func:`read_csv_table`, numeric (the fast path first) and with a
+    text column (field by field); assert columns of the promised length or a
+    :class:`MeasuredDataError` naming the file."""
+    text_parser = {"name": lambda text, column, row, fail: text}
+    for required, optional, parsers in ((REQUIRED_COLUMNS, OPTIONAL_COLUMNS, None),
+                                        (("time",), ("name", "force"), text_parser)):
+        try:
+            with time_limit():
+                table = read_csv_table(path, required, optional, parsers=parsers)
+        except MeasuredDataError as exc:
+            assert str(path) in str(exc)
+            continue
+        assert set(required) <= set(table.values)
+        for column, values in table.values.items():
+            assert len(values) == table.rows, column
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    return tmp_path_factory.mktemp("fuzz_measured")
+
+
+@given(blob=csv_files())
+def test_measured_csv_any_text_or_bytes(workdir, blob):
+    """Plain files: the data or MeasuredDataError."""
+    path = workdir / "data.csv"
+    path.write_bytes(blob)
+    check_measured(path)
+    check_table(path)
+
+
+#: A gzip stream whose deflate data is damaged (a byte of its first block changed): the
+#: one example the gzip test below always runs first: damaged deflate data, which raises
+#: zlib.error (not an OSError) from the gzip stream.
+DAMAGED_GZIP = bytearray(gzip.compress(b"time,displacement,force\n0,0,100\n0.001,0.001,200\n",
+                                       mtime=0))
+DAMAGED_GZIP[10] ^= 0xFF
+
+
+@example(blob=bytes(DAMAGED_GZIP))
+@given(blob=gzip_files())
+def test_measured_csv_gzip(workdir, blob):
+    """Gzip-compressed files (by magic bytes, whatever the name): the data or
+    MeasuredDataError."""
+    path = workdir / "data.csv.gz"
+    path.write_bytes(blob)
+    check_measured(path)
+    check_table(path)

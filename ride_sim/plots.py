@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from scipy import signal as sps
 
-from damper_emulator.dyno.plots import decorate, new_figure
+from damper_emulator.dyno.plots import decorate, new_figure, save
 from ride_sim.frequency_domain import transfer_functions
 from ride_sim.iso2631 import frequency_weighting, weight_signal
 from ride_sim.study import (
@@ -36,8 +36,7 @@ STYLES = {"incompressible": ":", "linear_exact": "--"}
 def _save(fig, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI)
-    return path
+    return save(fig, path, dpi=DPI)
 
 
 def _line(kind: str) -> dict[str, Any]:

@@ -290,3 +290,26 @@ def test_identify_checks_its_outputs_before_identifying(tmp_path, cli):
               "--out", tmp_path / "a_file")
     assert res.returncode == 2 and "is also an input" in res.stderr, res.stderr
     assert (tmp_path / "a_file").read_text() == "x" and not _partials(tmp_path)
+
+
+def test_a_data_file_whose_name_is_not_utf8_is_validated_and_plotted(tmp_path, cli):
+    """The name reaches titles, legends and tick labels: every plot is drawn with it
+    escaped (the font renderer refuses lone surrogates), the JSON keeps it."""
+    import json
+
+    import numpy as np
+
+    from damper_emulator.dyno.measured import write_measured_csv
+
+    t = np.arange(1500) / 1000.0
+    x = 0.02 * np.sin(2 * np.pi * 2.0 * t)
+    v = 0.02 * 2 * np.pi * 2.0 * np.cos(2 * np.pi * 2.0 * t)
+    data = tmp_path / f"sine_{LATIN1}.csv"
+    write_measured_csv(data, t, x, 8000.0 * v + 400.0, velocity=v)
+    res = cli("validate", "--params", "config/sport.yaml", data, "--report", tmp_path / "r")
+    assert res.returncode == 0, res.stderr
+    assert "sine_caf\\xe9.csv" in res.stdout
+    doc = json.loads((tmp_path / "r" / "validation.json").read_text())
+    assert list(doc["files"]) == [f"sine_{LATIN1}.csv"]
+    pngs = sorted(p.name for p in (tmp_path / "r").glob("*.png"))
+    assert pngs == [f"validate_sine_{LATIN1}.png", "validation_summary.png"]

@@ -16,6 +16,10 @@ from matplotlib import patheffects
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
+from matplotlib.text import Text
+from matplotlib.ticker import FixedFormatter, FuncFormatter
+
+from damper_emulator.errors import printable
 
 DPI = 110
 #: above this many samples loops are drawn with hair-lines
@@ -52,10 +56,40 @@ def new_figure(width: float, height: float) -> Figure:
     return fig
 
 
-def save(fig: Figure, path: str | Path) -> Path:
-    """Write ``fig`` as PNG at the project's resolution; returns the path."""
+def _printable_labels(func: Any) -> Any:
+    """A tick-label function whose labels are :func:`printable`."""
+    if getattr(func, "printable", False):
+        return func
+
+    def label(x: Any, pos: Any = None) -> str:
+        return printable(str(func(x, pos)))
+    label.printable = True  # type: ignore[attr-defined]
+    return label
+
+
+def save(fig: Figure, path: str | Path, dpi: float = DPI) -> Path:
+    """Write ``fig`` as PNG (at the project's resolution by default); returns the path.
+
+    Every text of the figure is made printable first: a name that is not UTF-8 (a file
+    or damper folder named in Latin-1, lone surrogates in Python) in a title, label or
+    tick is drawn as ``\\xNN`` (:func:`~damper_emulator.errors.printable`); the font
+    renderer refuses it otherwise.  Every plot of the project is saved here.
+    """
+    for text in fig.findobj(Text):
+        shown = text.get_text()
+        if isinstance(shown, str) and shown != printable(shown):
+            text.set_text(printable(shown))
+    for ax in fig.axes:
+        # tick labels given as text (set_xticks(ticks, labels)) are drawn later, from the
+        # axis's formatter: a FuncFormatter over the labels (a FixedFormatter before 3.8)
+        for axis in (ax.xaxis, ax.yaxis):
+            for formatter in (axis.get_major_formatter(), axis.get_minor_formatter()):
+                if isinstance(formatter, FixedFormatter):
+                    formatter.seq = [printable(str(label)) for label in formatter.seq]
+                elif isinstance(formatter, FuncFormatter):
+                    formatter.func = _printable_labels(formatter.func)
     path = Path(path)
-    fig.savefig(path, dpi=DPI)
+    fig.savefig(path, dpi=dpi)
     return path
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.dyno.plots import save
 from damper_emulator.errors import ESCAPE, printable
 from damper_emulator.outputs import Outputs
 from damper_hil.fleet.outliers import RULES, SCORED
@@ -80,7 +81,7 @@ def plot_parameters(run: FleetRun, path: Path) -> Path:
     fig.suptitle(f"Identified parameters of {len(run.rows)} dampers (dashed: the fleet's "
                  "median; red: flagged on that parameter)", fontsize=11)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -102,7 +103,7 @@ def plot_validation(run: FleetRun, path: Path) -> Path:
         ax.axhline(float(np.median(v)), color="0.5", lw=0.8, ls="--")
     ax.set_title("Validation error per damper (pooled over its sines; red: flagged by any rule)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -122,7 +123,7 @@ def plot_diagnosis(run: FleetRun, path: Path) -> Path:
     ax.set_xlabel("dampers")
     ax.set_title("Diagnosis per damper")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path, dpi=110)
     plt.close(fig)
     return path
 

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.dyno.plots import save
 from damper_emulator.params import ModelConfig, save_config
 from damper_hil.tune.runner import TuneRun
 from ride_sim import tuning as tu
@@ -182,7 +183,7 @@ def plot_front(run: TuneRun, picks: dict[str, int], front: np.ndarray, path: Pat
                  "look dominated in this view)", fontsize=10)
     ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -210,7 +211,7 @@ def plot_fourteen_speed(run: TuneRun, base: ModelConfig, picks: dict[str, int], 
     ax.set_title("14-speed curves (virtual dyno) of the chosen designs and the baseline")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -232,7 +233,7 @@ def plot_sensitivity(run: TuneRun, rho: np.ndarray, path: Path) -> Path:
     ax.set_title("Which valve constant moves which objective")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path, dpi=110)
     plt.close(fig)
     return path
 

@@ -27,6 +27,7 @@ fuzz: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/model_bench.py
+	$(BIN)/python benchmarks/message_bench.py
 	$(BIN)/python benchmarks/identify_bench.py
 	$(BIN)/python benchmarks/ride_bench.py
 	$(BIN)/python benchmarks/many_bench.py

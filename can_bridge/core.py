@@ -28,6 +28,10 @@ from can_bridge.settings import BridgeParams
 STATE, FORCE, COMMAND, MOTION = "DAMPER_STATE", "DAMPER_FORCE", "VALVE_COMMAND", "VEHICLE_MOTION"
 #: ``InputAge`` value meaning unknown or beyond the signal's range.
 INPUT_AGE_UNKNOWN_S = 0.0255
+#: A ``VEHICLE_MOTION`` frame is due this fraction of its DBC cycle after the last one:
+#: states arrive on a 1 ms grid with jitter, and a frame due at exactly one cycle would
+#: slip a state late half the time.
+MOTION_CYCLE_TOLERANCE = 0.95
 
 
 @dataclass
@@ -211,12 +215,23 @@ class BridgeCore:
                 command = self.command
         return frame, command
 
+    def motion_due(self, now_ns: int) -> bool:
+        """Whether a DBC cycle has passed since the last ``VEHICLE_MOTION`` frame."""
+        return self._last_motion_ns is None or \
+            now_ns - self._last_motion_ns >= self.motion_cycle_ns * MOTION_CYCLE_TOLERANCE
+
+    def motion_wait_ns(self, now_ns: int) -> int:
+        """How long until the next ``VEHICLE_MOTION`` frame is due [ns] (0: now)."""
+        if self._last_motion_ns is None:
+            return 0
+        due = self._last_motion_ns + int(self.motion_cycle_ns * MOTION_CYCLE_TOLERANCE)
+        return max(0, due - now_ns)
+
     def motion_frame(self, body_velocity_m_s: float, wheel_velocity_m_s: float,
                      damper_velocity_m_s: float, now_ns: int) -> bytes | None:
-        """The ``VEHICLE_MOTION`` payload when a DBC cycle has passed since the last one,
-        else None (the simulation's state arrives faster than the message's cycle)."""
-        if self._last_motion_ns is not None and \
-                now_ns - self._last_motion_ns < self.motion_cycle_ns * 0.95:
+        """The ``VEHICLE_MOTION`` payload when it is due (:meth:`motion_due`), else None
+        (the simulation's state arrives faster than the message's cycle)."""
+        if not self.motion_due(now_ns):
             return None
         self._last_motion_ns = now_ns
         self.counters.motion_out += 1

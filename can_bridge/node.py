@@ -30,18 +30,20 @@ from can_bridge.settings import (
     bridge_params_from_mapping,
     default_bridge_mapping,
 )
+from damper_emulator.bag.cdr_fast import JointStateSample
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
+    JointStateIn,
+    JointStateOut,
     NotReadyError,
     SubscriptionThread,
     control_qos,
     declare_parameters,
     executor_priority,
     publish_diagnostics,
-    set_stamp,
     wait_until_active,
 )
 from damper_emulator.ros.managed import ManagedNode
@@ -52,8 +54,8 @@ EMULATOR_BITS = 0x0F
 STAMP_TRUST_S = 1.0
 
 
-def _frame_index(msg: JointState, name: str) -> int:
-    return list(msg.name).index(name) if name in msg.name else -1
+def _frame_index(msg: JointStateSample, name: str) -> int:
+    return msg.name.index(name) if name in msg.name else -1
 
 
 class BridgeNode(ManagedNode):
@@ -103,6 +105,11 @@ class BridgeNode(ManagedNode):
         self._errors_seen = 0
         self._tx_failed = 0
         self._damper_velocity = 0.0
+        self._force_in, self._state_in, self._ride_in = (JointStateIn(), JointStateIn(),
+                                                         JointStateIn())
+        self._state_out: JointStateOut | None = None
+        #: input messages that are not JointState CDR (a publisher's bug), ignored
+        self._malformed = 0
         #: why the node is not active (after a deactivation: in /diagnostics)
         self._inactive_reason = ""
         self.get_logger().info(
@@ -121,6 +128,7 @@ class BridgeNode(ManagedNode):
         qos = control_qos(topics.PUBLISHER_DEPTH)
         if p.mode == "dyno":
             self._state_pub = self.create_lifecycle_publisher(JointState, topics.STATE, qos)
+            self._state_out = JointStateOut(self._state_pub, [p.damper_name], (1, 1, 0))
         else:
             self._valve_pub = self.create_lifecycle_publisher(Float64, topics.VALVE_COMMAND,
                                                               qos)
@@ -131,14 +139,18 @@ class BridgeNode(ManagedNode):
 
     def _activate(self) -> None:
         p = self.params
-        inputs = [(JointState, topics.FORCE, self._on_force)]
-        if p.mode == "controller":
-            inputs += [(JointState, topics.STATE, self._on_damper_state),
-                       (JointState, topics.RIDE_STATE, self._on_ride_state)]
-        # the 1 kHz inputs on a thread of their own, without the executor
+        controller = p.mode == "controller"
+        # the 1 kHz inputs on a thread of their own, without the executor, as CDR bytes;
+        # best effort: each frame carries the latest sample (topics.py).  Each force wakes
+        # the thread; the vehicle's motion is sampled at VEHICLE_MOTION's cycle.
         self._ros_in = SubscriptionThread(
-            self, inputs, control_qos(topics.CONTROL_DEPTH), "ros-in", RealtimeRequest(
-                sched_fifo=p.sched_fifo, priority=p.priority, lock_memory=False))
+            self, [(JointState, topics.FORCE, self._on_force)],
+            control_qos(topics.CONTROL_DEPTH, reliable=False), "ros-in",
+            RealtimeRequest(sched_fifo=p.sched_fifo, priority=p.priority, lock_memory=False),
+            raw=True,
+            polled=([(JointState, topics.STATE), (JointState, topics.RIDE_STATE)]
+                    if controller else ()),
+            after_wake=self._send_motion if controller else None)
         self._stop.clear()
         self._rx = threading.Thread(target=self._receive_loop, name="can-rx", daemon=True)
         self._rx.start()
@@ -253,15 +265,10 @@ class BridgeNode(ManagedNode):
     def _publish_inbound(self, out, can_stamp_s: float) -> None:
         if out[0] == "state":
             _, x, v = out
-            msg = JointState()
             now = time.time_ns()
             stamp = int(can_stamp_s * 1e9) if can_stamp_s and \
                 abs(can_stamp_s * 1e9 - now) < STAMP_TRUST_S * 1e9 else now
-            set_stamp(msg.header.stamp, stamp)
-            msg.name = [self.params.damper_name]
-            msg.position = [x]
-            msg.velocity = [v]
-            self._state_pub.publish(msg)
+            self._state_out.publish(stamp, (float(x), float(v)))
         else:
             self._valve_pub.publish(Float64(data=float(out[1])))
 
@@ -272,7 +279,11 @@ class BridgeNode(ManagedNode):
                                          is_extended_id=False)):
             self._tx_failed += 1
 
-    def _on_force(self, msg: JointState) -> None:
+    def _on_force(self, data: bytes) -> None:
+        msg = self._force_in.decode(data)
+        if isinstance(msg, str):
+            self._malformed += 1
+            return
         name = self.params.damper_name
         i = max(_frame_index(msg, name), 0)
         if len(msg.effort) <= i:
@@ -289,19 +300,37 @@ class BridgeNode(ManagedNode):
                                           time.monotonic_ns())
             self._send(self._force_id, frame)
 
-    def _on_damper_state(self, msg: JointState) -> None:
-        i = max(_frame_index(msg, self.params.damper_name), 0)
-        if len(msg.velocity) > i:
-            self._damper_velocity = float(msg.velocity[i])
-
-    def _on_ride_state(self, msg: JointState) -> None:
-        w, b = _frame_index(msg, "wheel"), _frame_index(msg, "body")
-        if w < 0 or b < 0 or len(msg.velocity) <= max(w, b):
-            return
-        frame = self.core.motion_frame(float(msg.velocity[b]), float(msg.velocity[w]),
-                                       self._damper_velocity, time.monotonic_ns())
-        if frame is not None:
-            self._send(self._motion_id, frame)
+    def _send_motion(self, now_ns: int) -> int | None:
+        """A ``VEHICLE_MOTION`` frame from the latest /ride/state and /damper/state when
+        one is due and a new ride state has come; the time until the next is due [ns]."""
+        core, ros_in = self.core, self._ros_in
+        if core is None or ros_in is None:
+            return None
+        if core.motion_due(now_ns):
+            state = ros_in.latest(topics.STATE)
+            if state is not None:
+                msg = self._state_in.decode(state)
+                if isinstance(msg, str):
+                    self._malformed += 1
+                else:
+                    i = max(_frame_index(msg, self.params.damper_name), 0)
+                    if len(msg.velocity) > i:
+                        self._damper_velocity = float(msg.velocity[i])
+            ride = ros_in.latest(topics.RIDE_STATE)
+            msg = None if ride is None else self._ride_in.decode(ride)
+            if isinstance(msg, str):
+                self._malformed += 1
+            elif msg is not None:
+                w, b = _frame_index(msg, "wheel"), _frame_index(msg, "body")
+                if w >= 0 and b >= 0 and len(msg.velocity) > max(w, b):
+                    frame = core.motion_frame(float(msg.velocity[b]), float(msg.velocity[w]),
+                                              self._damper_velocity, now_ns)
+                    if frame is not None:
+                        self._send(self._motion_id, frame)
+                        return core.motion_wait_ns(now_ns)
+            # none sent (no new ride state): look again a cycle later, or at the next force
+            return core.motion_cycle_ns
+        return core.motion_wait_ns(now_ns)
 
     # ---- diagnostics ------------------------------------------------------------------
 
@@ -315,6 +344,7 @@ class BridgeNode(ManagedNode):
             "bus_last_error": bus.last_error or "",
             "rx_error_frames": str(bus.rx_error_frames),
             "tx_failed": str(self._tx_failed),
+            "malformed_inputs": str(self._malformed),
             "frames_accepted": str(d.accepted),
             "dropped_length": str(d.length),
             "dropped_checksum": str(d.checksum),

@@ -8,7 +8,7 @@ computed from.  Index 1 is ours, so that a recording tells fault outputs from th
 [s] (:data:`NO_AGE` when there is no input), ``velocity[1]`` 0.
 
 Everything that writes or reads the extra entries goes through this module: the emulator
-node and the replay write them (:func:`fields`), the ride node reads one message
+node and the replay write them (:func:`values`, :func:`columns`), the ride node reads one message
 (:func:`status_of`), the bag readers read whole columns (:func:`status_column`,
 :func:`age_column`).  No ROS import: the layout is plain sequences and arrays.
 """
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -32,14 +31,8 @@ STATUS_SUFFIX = "/status"
 NO_AGE = -1.0
 
 
-@dataclass(frozen=True)
-class ForceFields:
-    """The four arrays of one ``/damper/force`` message."""
-
-    name: list[str]
-    position: list[float]
-    velocity: list[float]
-    effort: list[float]
+#: Lengths of ``position``, ``velocity`` and ``effort``.
+COUNTS = (2, 2, 2)
 
 
 def status_name(damper: str) -> str:
@@ -47,22 +40,27 @@ def status_name(damper: str) -> str:
     return f"{damper}{STATUS_SUFFIX}"
 
 
-def fields(damper: str, force_n: float, status: int, stroke_m: float, velocity_m_s: float,
-           input_age_s: float) -> ForceFields:
-    """The message's arrays for one output; non-finite stroke or velocity (no input) are
-    written as 0 and a non-finite age as :data:`NO_AGE`."""
+def names(damper: str) -> list[str]:
+    """The message's ``name`` for the damper named ``damper``."""
+    return [damper, status_name(damper)]
+
+
+def values(force_n: float, status: int, stroke_m: float, velocity_m_s: float,
+           input_age_s: float) -> tuple[float, ...]:
+    """``position``, ``velocity`` and ``effort`` of one output, one after the other
+    (:data:`COUNTS`); non-finite stroke or velocity (no input) are written as 0 and a
+    non-finite age as :data:`NO_AGE`."""
     x = stroke_m if math.isfinite(stroke_m) else 0.0
     v = velocity_m_s if math.isfinite(velocity_m_s) else 0.0
     age = input_age_s if math.isfinite(input_age_s) else NO_AGE
-    return ForceFields([damper, status_name(damper)], [x, age], [v, 0.0],
-                       [force_n, float(int(status))])
+    return (x, age, v, 0.0, force_n, float(int(status)))
 
 
 def columns(force_n: np.ndarray, status: np.ndarray, stroke_m: np.ndarray,
             velocity_m_s: np.ndarray, input_age_s: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(position, velocity, effort)``, shape ``(n, 2)`` each, of ``n`` messages (the
-    vectorised :func:`fields`, for writing a bag)."""
+    vectorised :func:`values`, for writing a bag)."""
     n = np.asarray(force_n).size
     return (np.column_stack([stroke_m, input_age_s]),
             np.column_stack([velocity_m_s, np.zeros(n)]),

@@ -530,7 +530,7 @@ def write_replay_bag(path: str | os.PathLike[str], data: BagData, rep: Replayed,
     path = Path(path)
     _prepare_bag_dir(path, data.path)
     rows = cdr_fast.encode_joint_states(
-        rep.stamp_ns, [params.name, force_message.status_name(params.name)],
+        rep.stamp_ns, force_message.names(params.name),
         *force_message.columns(rep.force_n, rep.status, rep.stroke_m, rep.velocity_m_s,
                                rep.input_age_s))
     forces = cdr_fast.rows_to_bytes(rows)

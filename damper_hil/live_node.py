@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 from damper_emulator import force_message
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
 from damper_emulator.ros import topics
-from damper_emulator.ros.common import control_qos, log_info, take_all
+from damper_emulator.ros.common import JointStateIn, control_qos, log_info, take_all
 from damper_emulator.ros.live import LIVE_PRIORITY, LiveServer
 from ride_sim.iso2631 import WeightingFilter
 from ride_sim.params import RideConfig
@@ -90,11 +90,13 @@ class LiveNode(Node):
         #: rate does not depend on how often this process gets the processor
         self._ride_chunk = max(1, round(1.0 / (FLUSH_RATE_HZ * ride.simulation.step_s)))
         self._io = rclpy.create_node(INPUT_NODE_NAME, context=self.context)
-        qos = control_qos(QUEUE_DEPTH)
+        # best effort, as CDR bytes (a view: what a busy machine drops is not waited for)
+        qos = control_qos(QUEUE_DEPTH, reliable=False)
         self._force_sub = self._io.create_subscription(JointState, topics.FORCE,
-                                                       lambda _m: None, qos)
+                                                       lambda _m: None, qos, raw=True)
         self._ride_sub = self._io.create_subscription(JointState, topics.RIDE_STATE,
-                                                      lambda _m: None, qos)
+                                                      lambda _m: None, qos, raw=True)
+        self._force_in, self._ride_in = JointStateIn(), JointStateIn()
         self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 10)
         self.create_timer(1.0 / FLUSH_RATE_HZ, self._flush)
         self.exit_status = 0
@@ -110,16 +112,20 @@ class LiveNode(Node):
         if self._last_flush is not None:
             self._flush_gap_max_s = max(self._flush_gap_max_s, t - self._last_flush)
         self._last_flush = t
-        for msg, _info in take_all(self._force_sub):
+        for data, _info in take_all(self._force_sub):
             self._forces += 1
-            if self._forces % self.decimation or not msg.effort:
+            if self._forces % self.decimation:
+                continue
+            msg = self._force_in.decode(data)
+            if isinstance(msg, str) or not msg.effort:
                 continue
             self.view.damper(float(msg.effort[0]), _first(msg.position), _first(msg.velocity),
                              force_message.status_of(msg.effort))
             self._sent["/live/damper"] += 1
+        ride = [self._ride_in.decode(data) for data, _i in take_all(self._ride_sub)]
         rows = [(m.position[0] - m.position[1], m.effort[1] / self.sprung_mass_kg,
-                 m.effort[0]) for m, _i in take_all(self._ride_sub)
-                if len(m.position) >= 2 and len(m.effort) >= 2]
+                 m.effort[0]) for m in ride
+                if not isinstance(m, str) and len(m.position) >= 2 and len(m.effort) >= 2]
         if not rows:
             return
         sws, accel, dtl = (np.array(c, dtype=float) for c in zip(*rows))

@@ -40,11 +40,11 @@ from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
+    JointStateIn,
+    JointStateOut,
     NotReadyError,
     control_qos,
     executor_priority,
-    set_stamp,
-    stamp_ns,
     take_all,
     wait_until_active,
 )
@@ -62,9 +62,14 @@ from ride_sim.params import (
 from ride_sim.session import RideSession
 
 NODE_NAME = "ride_sim"
+#: ``name`` of /ride/state (docs/interfaces.md)
+RIDE_STATE_NAMES = ("wheel", "body", "road")
 #: Bit of ``damper_fault_bits`` (beside the emulator's Status bits) set when a force message
 #: carried a non-finite force, which the ride ignores (the previous force stays held).
 NON_FINITE_FORCE = 1 << 16
+#: Bit of ``damper_fault_bits`` set when a force message could not be decoded as a
+#: JointState (a publisher's bug), which the ride ignores as well.
+MALFORMED_FORCE = 1 << 17
 #: the ride's parameter groups (group → dataclass)
 RIDE_SCHEMA: dict[str, type] = {"quarter_car": QuarterCarParams, "simulation": SimulationParams,
                                 "road": RoadParams, "ride": RideRunParams}
@@ -102,20 +107,27 @@ class RideNode(Node):
         self.static_force_n = static
         self.exit_status = 0
         self.damper_name = "damper"
-        qos = control_qos(topics.CONTROL_DEPTH)
         out_qos = control_qos(topics.PUBLISHER_DEPTH)
         self._state_pub = self.create_publisher(JointState, topics.STATE, out_qos)
+        self._state_out = JointStateOut(self._state_pub, [self.damper_name], (1, 1, 0))
         self._ride_pub = (self.create_publisher(JointState, topics.RIDE_STATE, out_qos)
                           if cfg.ride.publish_ride_state else None)
+        self._ride_out = (JointStateOut(self._ride_pub, RIDE_STATE_NAMES, (3, 3, 3))
+                          if self._ride_pub is not None else None)
+        self._force_in = JointStateIn()
         if cfg.ride.clock == "lockstep":
-            self.create_subscription(JointState, topics.FORCE, self._on_force, qos)
+            # every force answers one sample: reliable
+            self.create_subscription(JointState, topics.FORCE, self._on_force,
+                                     control_qos(topics.CONTROL_DEPTH), raw=True)
             self._io_node = None
         else:
             # the loop thread takes the forces itself (no executor thread holding the GIL
-            # at 1 kHz while the loop thread waits for it)
+            # at 1 kHz while the loop thread waits for it); best effort: it applies the
+            # latest force on its own clock (topics.py)
             self._io_node = rclpy.create_node(f"{NODE_NAME}_input", context=self.context)
             self._force_sub = self._io_node.create_subscription(
-                JointState, topics.FORCE, lambda _msg: None, qos)
+                JointState, topics.FORCE, lambda _msg: None,
+                control_qos(topics.CONTROL_DEPTH, reliable=False), raw=True)
         self._forces: dict[int, tuple[float, int]] = {}     # lockstep: stamp → force
         #: realtime: the latest force (received [monotonic ns], force, status, wall-clock
         #: stamp of the state it answers or -1)
@@ -140,7 +152,11 @@ class RideNode(Node):
 
     # ---- messages ---------------------------------------------------------------------
 
-    def _on_force(self, msg: JointState) -> None:
+    def _on_force(self, data: bytes) -> None:
+        msg = self._force_in.decode(data)
+        if isinstance(msg, str):
+            self.faults |= MALFORMED_FORCE
+            return
         if not msg.effort:
             return
         force = float(msg.effort[0])
@@ -149,35 +165,27 @@ class RideNode(Node):
             self.faults |= NON_FINITE_FORCE
             return
         if self.run_params.clock == "lockstep":
-            self._forces[stamp_ns(msg.header.stamp)] = (force, status)
+            self._forces[msg.stamp_ns] = (force, status)
         else:
             age = force_message.input_age_of(msg.position)
-            answered = (stamp_ns(msg.header.stamp) - int(round(age * 1e9))
+            answered = (msg.stamp_ns - int(round(age * 1e9))
                         if age >= 0.0 else -1)
             self._latest = (time.monotonic_ns(), force, status, answered)
 
     def _publish_state(self, stamp: int, x: float, v: float) -> None:
-        msg = JointState()
-        set_stamp(msg.header.stamp, stamp)
-        msg.name = [self.damper_name]
-        msg.position = [x]
-        msg.velocity = [v]
-        self._state_pub.publish(msg)
+        self._state_out.publish(stamp, (x, v))
 
     def _publish_ride(self, stamp: int) -> None:
-        if self._ride_pub is None:
+        if self._ride_out is None:
             return
         row = self.session.last()
         k = self.session.k - 1
-        msg = JointState()
-        set_stamp(msg.header.stamp, stamp)
-        msg.name = ["wheel", "body", "road"]
         u0, u1 = qc._road_pair(self.session.heights, k)   # the road over the step
-        msg.position = [row[qc.O_Z1], row[qc.O_Z2], float(u0)]
-        msg.velocity = [row[qc.O_Z1D], row[qc.O_Z2D], float(u1 - u0) / self.session.dt_s]
-        msg.effort = [row[qc.O_DTL], row[qc.O_ACC] * self.cfg.quarter_car.sprung_mass_kg,
-                      row[qc.O_F]]
-        self._ride_pub.publish(msg)
+        self._ride_out.publish(stamp, (
+            float(row[qc.O_Z1]), float(row[qc.O_Z2]), float(u0),
+            float(row[qc.O_Z1D]), float(row[qc.O_Z2D]), float(u1 - u0) / self.session.dt_s,
+            float(row[qc.O_DTL]), float(row[qc.O_ACC]) * self.cfg.quarter_car.sprung_mass_kg,
+            float(row[qc.O_F])))
 
     # ---- running ----------------------------------------------------------------------
 

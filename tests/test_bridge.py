@@ -437,6 +437,16 @@ class TestDynoBridge:
         try:
             pub = probe.node.create_publisher(JointState, topics.FORCE, control_qos(100))
             assert probe.spin_until(lambda: pub.get_subscription_count() > 0, 30)
+            # the bridge takes forces best effort: until it has matched this publisher on
+            # its side too, what is sent is dropped, so wait for a first force frame
+            primer = JointState(name=["damper"], position=[0.0], velocity=[0.0], effort=[1.0])
+
+            def primed() -> bool:
+                pub.publish(primer)
+                return any(v["Force"] == 1.0 for _, v in lone.decoded(FORCE, since))
+            since = time.monotonic_ns()
+            assert probe.spin_until(primed, 30)
+            probe.spin_for(0.05)
             t0 = time.monotonic_ns()
             for burst in range(8):                 # 20 forces, then 30 ms of silence
                 for j in range(20):

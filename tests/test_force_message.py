@@ -16,14 +16,15 @@ from damper_emulator.realtime.core import Status
 JOINT_STATE = "sensor_msgs/msg/JointState"
 
 
-def _cdr(f: fm.ForceFields, stamp_ns: int = 1) -> bytes:
-    return messages.joint_state(stamp_ns, f.name, f.position, f.velocity, f.effort)
+def _cdr(damper: str, values: tuple[float, ...], stamp_ns: int = 1) -> bytes:
+    """As the emulator node publishes it (ros.common.JointStateOut)."""
+    return cdr_fast.JointStateCodec(fm.names(damper), fm.COUNTS).encode(stamp_ns, values)
 
 
 def test_one_output_as_documented_decoded_by_rosbags():
     status = Status.TIMEOUT | Status.REJECTED
-    f = fm.fields("front_left", -812.5, int(status), 0.0123, -0.4, 0.0021)
-    msg = messages.deserialize(_cdr(f), JOINT_STATE)   # rosbags' typestore, not ours
+    values = fm.values(-812.5, int(status), 0.0123, -0.4, 0.0021)
+    msg = messages.deserialize(_cdr("front_left", values), JOINT_STATE)  # rosbags' decoder
     assert list(msg.name) == ["front_left", "front_left/status"]
     assert msg.effort[0] == -812.5 and Status(int(msg.effort[1])) == status
     assert msg.position[0] == 0.0123 and msg.position[1] == 0.0021
@@ -33,9 +34,10 @@ def test_one_output_as_documented_decoded_by_rosbags():
 
 
 def test_no_input_writes_zero_motion_and_no_age():
-    f = fm.fields("damper", 250.0, int(Status.NO_INPUT), math.nan, math.nan, math.nan)
-    assert f.position == [0.0, fm.NO_AGE] and f.velocity == [0.0, 0.0]
-    assert Status(fm.status_of(f.effort)).fault
+    msg = messages.deserialize(_cdr("damper", fm.values(
+        250.0, int(Status.NO_INPUT), math.nan, math.nan, math.nan)), JOINT_STATE)
+    assert list(msg.position) == [0.0, fm.NO_AGE] and list(msg.velocity) == [0.0, 0.0]
+    assert Status(fm.status_of(msg.effort)).fault
 
 
 def test_a_contract_only_message_reads_as_ok_without_age():
@@ -55,7 +57,7 @@ def test_columns_round_trip_through_cdr_and_tolerate_contract_only_messages():
     age = rng.uniform(0.0, 0.003, n)
     pos, velo, eff = fm.columns(force, status, stroke, vel, age)
     rows = cdr_fast.rows_to_bytes(cdr_fast.encode_joint_states(
-        np.arange(n), ["damper", fm.status_name("damper")], pos, velo, eff))
+        np.arange(n), fm.names("damper"), pos, velo, eff))
     # and one message of a publisher that fills only the contract's entry
     rows.append(messages.joint_state(99, ["damper"], [0.01], [0.2], [55.0]))
     offsets = np.cumsum([0] + [len(r) for r in rows[:-1]])

@@ -360,7 +360,7 @@ def test_every_transition_in_every_state_is_taken_or_refused(kind, tmp_path, db)
                     t_before = time.monotonic_ns()
                     n_before = len(forces)
                     if state == "active" and tap is not None:
-                        _feed_forces(probe)    # the bridge's outputs: forces, no faults
+                        _feed_forces(probe, tap, t_before)  # forces, no faults
                     assert lc.request(transition_id=getattr(
                         Transition, f"TRANSITION_{step.upper()}")), \
                         (state, step, node.log_tail())
@@ -381,9 +381,11 @@ def test_every_transition_in_every_state_is_taken_or_refused(kind, tmp_path, db)
             tap.close()
 
 
-def _feed_forces(probe: Probe) -> None:
-    """20 emulator forces on ``/damper/force`` at about 1 kHz (what a bridge in dyno mode
-    turns into DAMPER_FORCE frames)."""
+def _feed_forces(probe: Probe, tap, since_ns: int) -> None:
+    """Emulator forces on ``/damper/force`` at about 1 kHz (what a bridge in dyno mode
+    turns into DAMPER_FORCE frames): 20 after the first that the bridge turned into a
+    frame (it takes them best effort, and drops what comes before it has matched this
+    publisher on its side)."""
     from sensor_msgs.msg import JointState
 
     from damper_emulator.ros import topics
@@ -391,9 +393,18 @@ def _feed_forces(probe: Probe) -> None:
 
     pub = probe.node.create_publisher(JointState, topics.FORCE, control_qos(100))
     assert probe.spin_until(lambda: pub.get_subscription_count() > 0, 30)
+
+    def force(j: int) -> JointState:
+        return JointState(name=["damper", "damper/status"], position=[1e-3, 2e-4],
+                          velocity=[0.0, 0.0], effort=[100.0 + j, 0.0])
+
+    def forwarded() -> bool:
+        pub.publish(force(0))
+        return any(not int(v["Status"]) & ForceStatus.FORCE_TIMEOUT
+                   for _, v in tap.decoded(FORCE, since_ns))
+    assert probe.spin_until(forwarded, 30), "no force forwarded"
     for j in range(20):
-        pub.publish(JointState(name=["damper", "damper/status"], position=[1e-3, 2e-4],
-                               velocity=[0.0, 0.0], effort=[100.0 + j, 0.0]))
+        pub.publish(force(j))
         probe.spin_for(0.001, 0.001)
     probe.node.destroy_publisher(pub)
 
@@ -454,7 +465,7 @@ def test_a_stop_signal_while_active_sends_the_safe_output(kind, signum, tmp_path
         assert probe.spin_until(lambda: diags, 30), node.log_tail()
         t_before, n_before = time.monotonic_ns(), len(forces)
         if tap is not None:
-            _feed_forces(probe)
+            _feed_forces(probe, tap, t_before)
         node.proc.send_signal(signum)
         assert probe.spin_until(lambda: any(
             f"stopped by {signum.name}" in s.message for s in diags), 10), node.log_tail()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import rclpy
@@ -19,6 +19,7 @@ from rclpy.parameter import Parameter as RclpyParameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from damper_emulator.bag import BagError
+from damper_emulator.bag.cdr_fast import JointStateCodec, JointStateDecoder, JointStateSample
 from damper_emulator.errors import DamperHilError
 from damper_emulator.params import FieldSpec, ParameterError, field_specs
 from damper_emulator.realtime.rt import RealtimeRequest, ThreadInheritance, apply_realtime
@@ -37,11 +38,54 @@ def executor_priority(loop_priority: int) -> int:
     return max(1, int(loop_priority) - 1)
 
 
-def control_qos(depth: int) -> QoSProfile:
-    """Reliable, volatile, keep-last ``depth``: the project's topics."""
+def control_qos(depth: int, reliable: bool = True) -> QoSProfile:
+    """Volatile, keep-last ``depth``; reliable (every publisher of the project's topics,
+    and the subscribers that need every sample) or best effort (``reliable=False``: the
+    inputs of a loop that runs on its own clock, see :mod:`.topics`)."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE,
+                      reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                   else ReliabilityPolicy.BEST_EFFORT),
                       durability=DurabilityPolicy.VOLATILE)
+
+
+class JointStateIn:
+    """The JointStates of a raw subscription (``create_subscription(..., raw=True)``),
+    decoded by a :class:`~damper_emulator.bag.cdr_fast.JointStateDecoder`, at a fraction
+    of an rclpy message object's cost (benchmarks/message_bench.py).
+
+    :meth:`decode` gives the sample, or the one-line reason why ``data`` is not a
+    JointState (a publisher's bug: rclpy would have refused it before the callback).
+    """
+
+    def __init__(self) -> None:
+        self._decoder = JointStateDecoder()
+
+    def decode(self, data: bytes) -> JointStateSample | str:
+        try:
+            return self._decoder.decode(data)
+        except BagError as exc:
+            return str(exc)
+
+
+class JointStateOut:
+    """Publish JointStates of one layout on ``publisher`` as CDR bytes from a
+    :class:`~damper_emulator.bag.cdr_fast.JointStateCodec`.
+
+    Parameters
+    ----------
+    publisher : rclpy Publisher (or LifecyclePublisher) of ``sensor_msgs/msg/JointState``
+    names : sequence of str
+    counts : (int, int, int)
+        Lengths of ``position``, ``velocity`` and ``effort``.
+    """
+
+    def __init__(self, publisher, names: Sequence[str], counts: tuple[int, int, int]):
+        self.publisher = publisher
+        self._codec = JointStateCodec(names, counts)
+
+    def publish(self, stamp_ns: int, values: Sequence[float]) -> None:
+        """``values``: ``position``, ``velocity`` and ``effort`` one after the other."""
+        self.publisher.publish(self._codec.encode(stamp_ns, values))
 
 
 # --------------------------------------------------------------------------------------
@@ -584,17 +628,35 @@ class SubscriptionThread:
     name : str
         Thread name (also the OS thread's).
     realtime : RealtimeRequest, optional
-    raw : bool
-        Hand the handlers the serialized CDR (``bytes``) instead of messages.
+    raw : bool or collection of str
+        Hand the handlers the serialized CDR (``bytes``) instead of messages: of every
+        input, or of the topics named (the polled ones too).
+    polled : sequence of (msg_type, topic)
+        Inputs that do not wake the thread: each keeps only its latest message (depth 1,
+        best effort), which :meth:`latest` takes.  Every wake-up costs some tens of µs
+        in the middleware's wait; a value sampled on a cycle of its own need not pay it
+        at the rate it is published.
+    after_wake : callable, optional
+        ``after_wake(now_ns)`` after the handlers of each wake-up (and each wait that
+        timed out); it returns the longest the next wait may last [ns], or None.
     """
 
-    def __init__(self, node: Node, inputs, qos, name: str, realtime=None, raw: bool = False):
+    def __init__(self, node: Node, inputs, qos, name: str, realtime=None,
+                 raw: bool | Sequence[str] = False, polled: Sequence = (),
+                 after_wake: Callable[[int], int | None] | None = None):
         import threading
+
+        def is_raw(topic: str) -> bool:
+            return raw if isinstance(raw, bool) else topic in raw
 
         self._node = node
         self._io_node = rclpy.create_node(f"{node.get_name()}_input", context=node.context)
-        self._inputs = [(self._io_node.create_subscription(t, topic, _ignore, qos, raw=raw),
-                         handler) for t, topic, handler in inputs]
+        self._inputs = [(self._io_node.create_subscription(
+            t, topic, _ignore, qos, raw=is_raw(topic)), handler) for t, topic, handler in inputs]
+        self._polled = {topic: self._io_node.create_subscription(
+            t, topic, _ignore, control_qos(1, reliable=False), raw=is_raw(topic))
+            for t, topic in polled}
+        self._after_wake = after_wake
         self._realtime = realtime
         self._stop = threading.Event()
         self.failed = False
@@ -603,6 +665,14 @@ class SubscriptionThread:
 
     def start(self) -> None:
         self._thread.start()
+
+    def latest(self, topic: str):
+        """The newest message of the polled input ``topic`` that arrived since the last
+        call, else None."""
+        newest = None
+        for msg, _info in take_all(self._polled[topic]):
+            newest = msg
+        return newest
 
     @property
     def io_node(self) -> Node:
@@ -637,16 +707,22 @@ class SubscriptionThread:
             self.report = apply_realtime(self._realtime)
         context = self._node.context
         wait_set = impl.WaitSet(len(self._inputs), 0, 0, 0, 0, 0, context.handle)
+        after_wake = self._after_wake
+        timeout = INPUT_WAIT_NS
         try:
             while not self._stop.is_set() and context.ok():
                 wait_set.clear_entities()
                 for sub, _ in self._inputs:
                     with sub.handle:
                         wait_set.add_subscription(sub.handle)
-                wait_set.wait(INPUT_WAIT_NS)
+                wait_set.wait(timeout)
                 for sub, handler in self._inputs:
                     for msg, _info in take_all(sub):
                         handler(msg)
+                if after_wake is not None:
+                    longest = after_wake(time.monotonic_ns())
+                    timeout = INPUT_WAIT_NS if longest is None else \
+                        max(0, min(INPUT_WAIT_NS, longest))
         except Exception as exc:  # noqa: BLE001 - reported, then the node stops
             if not self._stop.is_set():
                 self._node.get_logger().error(f"{self._thread.name} thread stopped: {exc!r}")

@@ -38,6 +38,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from damper_emulator import force_message
+from damper_emulator.bag.cdr_fast import JointStateSample
 from damper_emulator.errors import UserError
 from damper_emulator.model import jit
 from damper_emulator.model.compressible import DamperModel
@@ -61,6 +62,8 @@ from damper_emulator.realtime.settings import (
 )
 from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
+    JointStateIn,
+    JointStateOut,
     SubscriptionThread,
     control_qos,
     declare_parameters,
@@ -68,8 +71,6 @@ from damper_emulator.ros.common import (
     parameter_overrides,
     plain_value,
     publish_diagnostics,
-    set_stamp,
-    stamp_ns,
     take_all,
     unflatten,
 )
@@ -127,7 +128,7 @@ def load_node_model(node: Node, extra: dict | None = None,
     return values, DamperModel(cfg)
 
 
-def input_sample(msg: JointState, name: str) -> tuple[float, float] | str:
+def input_sample(msg: JointState | JointStateSample, name: str) -> tuple[float, float] | str:
     """``(stroke, velocity)`` of the damper ``name`` in a JointState (the entry of that
     name, else entry 0), or why there is none."""
     i = list(msg.name).index(name) if name in msg.name else 0
@@ -169,6 +170,8 @@ class EmulatorNode(ManagedNode):
                                      if self.params.sched_fifo else 0)
         p = self.params
         self._force_pub = None
+        self._force_out: JointStateOut | None = None
+        self._state_in = JointStateIn()
         self._diag_pub = None
         self._diag_timer = None
         self._input_thread: SubscriptionThread | None = None
@@ -209,15 +212,19 @@ class EmulatorNode(ManagedNode):
         self.warm_up_s = time.monotonic() - start
         self._force_pub = self.create_lifecycle_publisher(JointState, topics.FORCE,
                                                           control_qos(topics.PUBLISHER_DEPTH))
+        self._force_out = JointStateOut(self._force_pub, force_message.names(p.name),
+                                        force_message.COUNTS)
         self._diag_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         if p.trigger == "timer":
             # The loop thread takes the input itself at each tick (no executor thread
             # competing for the GIL at the input rate): a subscription on a second node of
             # the same context that no executor spins.
             self._io_node = rclpy.create_node(f"{NODE_NAME}_input", context=self.context)
+            # best effort: the loop runs on its own clock and wants the latest sample
+            # (topics.py)
             self._state_sub = self._io_node.create_subscription(
                 JointState, topics.STATE, lambda _msg: None,
-                control_qos(topics.CONTROL_DEPTH))
+                control_qos(topics.CONTROL_DEPTH, reliable=False), raw=True)
             self._valve_sub = self._io_node.create_subscription(
                 Float64, topics.VALVE_COMMAND, lambda _msg: None,
                 control_qos(topics.CONTROL_DEPTH))
@@ -245,7 +252,8 @@ class EmulatorNode(ManagedNode):
             self._input_thread = SubscriptionThread(
                 self, [(JointState, topics.STATE, self._on_state),
                        (Float64, topics.VALVE_COMMAND, self._on_valve)],
-                control_qos(topics.CONTROL_DEPTH), "emulator-in", p.realtime_request())
+                control_qos(topics.CONTROL_DEPTH), "emulator-in", p.realtime_request(),
+                raw=[topics.STATE])
             self._input_thread.start()
         else:
             for sub in (self._state_sub, self._valve_sub):   # nothing from before 'active'
@@ -312,6 +320,7 @@ class EmulatorNode(ManagedNode):
         if self._force_pub is not None:
             self.destroy_lifecycle_publisher(self._force_pub)
             self._force_pub = None
+            self._force_out = None
         if self._diag_pub is not None:
             self.destroy_publisher(self._diag_pub)
             self._diag_pub = None
@@ -339,13 +348,17 @@ class EmulatorNode(ManagedNode):
 
     # ---- callbacks --------------------------------------------------------------------
 
-    def _on_state(self, msg: JointState, received_ns: int | None = None) -> None:
+    def _on_state(self, data: bytes, received_ns: int | None = None) -> None:
+        msg = self._state_in.decode(data)
+        if isinstance(msg, str):
+            self.core.reject_malformed(msg)
+            return
         sample = input_sample(msg, self.params.name)
         if isinstance(sample, str):
             self.core.reject_malformed(sample)
             return
         x, v = sample
-        stamp = stamp_ns(msg.header.stamp)
+        stamp = msg.stamp_ns
         if self.params.trigger == "input":
             out = self.core.evaluate(stamp, x, v)
             if out is not None:
@@ -382,13 +395,9 @@ class EmulatorNode(ManagedNode):
 
     def _publish(self, out: Output, stamp: int) -> None:
         self._last = out
-        msg = JointState()
-        set_stamp(msg.header.stamp, stamp)
-        f = force_message.fields(self.params.name, out.force_n, int(out.status), out.stroke_m,
-                                 out.velocity_m_s, out.input_age_s)
-        msg.name, msg.position, msg.velocity, msg.effort = (f.name, f.position, f.velocity,
-                                                            f.effort)
-        self._force_pub.publish(msg)
+        assert self._force_out is not None, "publishing before configure"
+        self._force_out.publish(stamp, force_message.values(
+            out.force_n, int(out.status), out.stroke_m, out.velocity_m_s, out.input_age_s))
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Accept a run-time change of the ``emulator`` group where its schema allows one

@@ -17,8 +17,14 @@ TYPES = {
     RIDE_STATE: "sensor_msgs/msg/JointState",
 }
 
-#: Depth of the control topics' subscriptions (reliable, volatile, keep-last): 0.1 s at
-#: 1 kHz; a controller that falls behind wants the latest samples, not a backlog.
+#: Depth of the control topics' subscriptions (volatile, keep-last): 0.1 s at 1 kHz; a
+#: controller that falls behind wants the latest samples, not a backlog.  A loop on its own
+#: clock (the timer-triggered emulator, the realtime ride, the bridge, the live view) takes
+#: them best effort: a reliable reader that loses a sample (its middleware thread starved
+#: on a busy machine) delivers nothing after it until the writer's next heartbeat repairs
+#: it, seconds later, where best effort goes on with the next sample.  Inputs that must see
+#: every sample (the input-triggered emulator, the lockstep ride, the recorder) stay
+#: reliable.  Publishers are always reliable, so that both kinds match.
 CONTROL_DEPTH = 100
 #: Depth of the control topics' publishers' histories: 5 s at 1 kHz.  A reliable writer
 #: drops a sample a slow reader has not acknowledged once its history is full, so this is

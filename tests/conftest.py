@@ -4,6 +4,8 @@ line run in this process.  And the hypothesis profiles, chosen by ``HYPOTHESIS_P
 import os
 import subprocess
 import sys
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -61,16 +63,57 @@ ROOT = Path(__file__).resolve().parents[1]
 COLD_DEMO_DOMAIN = 141
 
 
+@dataclass
+class DemoRun:
+    """One run of ``damper-hil demo --live``: the finished process, its ``--out`` folder,
+    the live view's port, and what a WebSocket client received from the view meanwhile
+    (``channels`` advertised, ``{topic: [payload, ...]}``; empty when the client failed,
+    ``client_error`` says why)."""
+
+    proc: subprocess.CompletedProcess
+    out: Path
+    port: int
+    channels: list = field(default_factory=list)
+    got: dict = field(default_factory=dict)
+    client_error: str = ""
+
+
 @pytest.fixture(scope="session")
-def cold_demo(tmp_path_factory):
-    """``damper-hil demo --duration 5`` as a new user runs it, nothing cached (an empty
-    ``NUMBA_CACHE_DIR``): the finished process and its ``--out`` folder.  One run serves
-    the start-up and real-time checks (test_readiness) and the bag's contents
-    (test_nodes): a demo takes 25–40 s of the suite's 15 minutes."""
+def cold_demo_run(tmp_path_factory) -> DemoRun:
+    """``damper-hil demo --duration 5 --live PORT`` as a new user runs it, nothing cached
+    (an empty ``NUMBA_CACHE_DIR``), with a live-view client listening.  One run serves the
+    start-up and real-time checks (test_readiness), the bag's contents (test_nodes) and the
+    live view (test_live): a demo takes 30-50 s of the suite's 15 minutes."""
+    import socket
+    import threading
+
+    from live_client import connect_when_up
+
     root = tmp_path_factory.mktemp("cold_demo")
     env = cold_environment(root, COLD_DEMO_DOMAIN)
     out = root / "demo"
-    proc = subprocess.run([sys.executable, "-m", "damper_hil.cli", "demo", "--duration", "5",
-                           "--out", str(out)], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=600)
-    return proc, out
+    with socket.socket() as s:                      # a free port on this machine
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    run = DemoRun(subprocess.CompletedProcess([], -1), out, port)
+
+    def listen() -> None:
+        # until the view stops with the demo
+        try:
+            run.channels, run.got = connect_when_up(port, time.monotonic() + 300, 300.0)
+        except Exception as exc:  # noqa: BLE001 - the test that needs it says why
+            run.client_error = repr(exc)
+
+    client = threading.Thread(target=listen, daemon=True)
+    client.start()
+    run.proc = subprocess.run([sys.executable, "-m", "damper_hil.cli", "demo", "--duration",
+                               "5", "--live", str(port), "--out", str(out)], cwd=ROOT,
+                              env=env, capture_output=True, text=True, timeout=600)
+    client.join(30)
+    return run
+
+
+@pytest.fixture(scope="session")
+def cold_demo(cold_demo_run):
+    """The :func:`cold_demo_run`'s finished process and ``--out`` folder."""
+    return cold_demo_run.proc, cold_demo_run.out

@@ -7,17 +7,13 @@ The layout file's panels name only channels and fields the view serves."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import math
-import os
-import struct
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
+from live_client import connect_when_up
 
 from damper_emulator.ros.live import CHANNELS
 
@@ -26,74 +22,17 @@ pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[1]
 #: away from the other tests' ROS domains
 DOMAIN = 153
-#: the Foxglove WebSocket protocol's binary opcode of a message frame
-MESSAGE_DATA = 0x01
 
 
-async def _listen(port: int, seconds: float) -> tuple[list, dict[str, list]]:
-    """Connect, subscribe to every channel, collect ``{topic: [payload, ...]}`` until the
-    server closes the connection or ``seconds`` pass."""
-    import websockets
-
-    channels: list = []
-    got: dict[str, list] = {}
-    by_sub: dict[int, str] = {}
-    async with websockets.connect(f"ws://127.0.0.1:{port}",
-                                  subprotocols=["foxglove.sdk.v1",
-                                                "foxglove.websocket.v1"]) as ws:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            try:
-                frame = await asyncio.wait_for(ws.recv(), max(0.01, end - time.monotonic()))
-            except (asyncio.TimeoutError, websockets.ConnectionClosed):
-                break   # the demo is over: the view stopped with it
-            if isinstance(frame, str):
-                doc = json.loads(frame)
-                if doc.get("op") == "advertise":
-                    channels += doc["channels"]
-                    subs = []
-                    for c in doc["channels"]:
-                        by_sub[c["id"]] = c["topic"]
-                        subs.append({"id": c["id"], "channelId": c["id"]})
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-            elif frame and frame[0] == MESSAGE_DATA:
-                sub_id, _log_time = struct.unpack_from("<IQ", frame, 1)
-                got.setdefault(by_sub[sub_id], []).append(json.loads(frame[13:]))
-    return channels, got
-
-
-def _connect_when_up(port: int, deadline: float, seconds: float):
-    while True:
-        try:
-            return asyncio.run(_listen(port, seconds))
-        except OSError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.5)
-
-
-def test_the_live_view_serves_the_running_demo(tmp_path):
+def test_the_live_view_serves_the_running_demo(cold_demo_run):
+    """The shared cold run of ``damper-hil demo --live`` (conftest.py), with a WebSocket
+    client listening from its start to its end."""
     pytest.importorskip("foxglove")
     pytest.importorskip("websockets")
-    import socket
-
-    with socket.socket() as s:                      # a free port on this machine
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    out = tmp_path / "demo"
-    env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN),
-           "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    demo = subprocess.Popen([sys.executable, "-m", "damper_hil.cli", "demo", "--duration",
-                             "6", "--live", str(port), "--out", str(out)], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        # listen until the view stops with the demo (its ride lasts 6 s after start-up)
-        channels, got = _connect_when_up(port, time.monotonic() + 180, seconds=120.0)
-        stdout, stderr = demo.communicate(timeout=300)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-    assert demo.returncode == 0, stderr[-2000:]
+    run = cold_demo_run
+    out, channels, got = run.out, run.channels, run.got
+    assert run.proc.returncode == 0, run.proc.stderr[-2000:]
+    assert not run.client_error, run.client_error
     # every channel advertised with its JSON schema
     advertised = {c["topic"]: c for c in channels}
     assert set(advertised) == set(CHANNELS)
@@ -130,7 +69,7 @@ def test_the_live_view_serves_the_running_demo(tmp_path):
     found = sum(p in recorded for p in live)
     assert found >= 0.95 * len(live), f"{found} of {len(live)} live samples in the bag"
     summary = json.loads((out / "demo.json").read_text())
-    assert summary["live_port"] == port
+    assert summary["live_port"] == run.port
 
 
 def test_the_layout_shows_what_the_view_serves():
@@ -188,7 +127,7 @@ def test_the_emulator_serves_its_own_live_view(tmp_path):
 
         feeder = threading.Thread(target=feed, daemon=True)
         feeder.start()
-        channels, got = _connect_when_up(port, time.monotonic() + 120, seconds=4.0)
+        channels, got = connect_when_up(port, time.monotonic() + 120, seconds=4.0)
     finally:
         stop.set()
         probe.close()

@@ -218,12 +218,15 @@ def test_nan_input_never_reaches_the_force(tmp_path):
             x, v = bad[k % len(bad)] if k % 2 else (0.005, 0.05)
             pub.publish(state(x, v))
             probe.executor.spin_once(timeout_sec=0.002)
-        # a JointState without position and velocity, between good samples: counted, and
-        # the outputs after it carry status bit 4 (latest input rejected)
+        # a JointState without position and velocity, and bytes that are no JointState
+        # (the emulator decodes the CDR itself), between good samples: counted, and the
+        # outputs after them carry status bit 4 (latest input rejected)
         probe.spin_for(0.1)
         empty_from = len(forces)
+        garbage = b"\x00\x01\x00\x00" + bytes(range(7))
         for k in range(200):
-            pub.publish(state(0.005, 0.05) if k % 2 else JointState())
+            pub.publish(state(0.005, 0.05) if k % 2 else garbage if k % 4 == 0
+                        else JointState())
             probe.executor.spin_once(timeout_sec=0.002)
         probe.spin_until(lambda: len(diag) >= 2, 5)
         probe.spin_for(1.2)
@@ -234,7 +237,7 @@ def test_nan_input_never_reaches_the_force(tmp_path):
     assert len(arr) > 300 and np.isfinite(arr).all()
     values = {kv.key: kv.value for kv in diag[-1].status[0].values}
     assert int(values["rejected_non_finite"]) >= 150
-    # 100 empty messages on top of the >= 80 out-of-range samples
+    # 50 empty messages and 50 undecodable ones on top of the >= 80 out-of-range samples
     assert int(values["rejected_out_of_range"]) >= 80 + 90
     assert "without position" in values["last_rejection"]
     flagged = [int(f[1]) & int(Status.REJECTED) for f in forces[empty_from:]]

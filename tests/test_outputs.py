@@ -66,8 +66,19 @@ def test_a_committed_set_is_in_place_and_marked(tmp_path):
     assert not _partials(tmp_path)
 
 
+@pytest.fixture
+def python_sigint():
+    """Python's own SIGINT handler (KeyboardInterrupt) for the test: a suite started in the
+    background of a shell without job control inherits SIGINT ignored, and Python then
+    installs no handler of its own."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize("how", ["exception", "sigint"])
-def test_a_run_that_fails_or_is_interrupted_leaves_the_previous_result_whole(tmp_path, how):
+def test_a_run_that_fails_or_is_interrupted_leaves_the_previous_result_whole(tmp_path, how,
+                                                                              python_sigint):
     report, params = _first_run(tmp_path)
     before = _tree(tmp_path)
     with pytest.raises(KeyboardInterrupt if how == "sigint" else RuntimeError):
@@ -83,7 +94,8 @@ def test_a_run_that_fails_or_is_interrupted_leaves_the_previous_result_whole(tmp
     assert not _partials(tmp_path)
 
 
-def test_a_signal_during_the_renames_waits_until_the_set_is_in_place(tmp_path, monkeypatch):
+def test_a_signal_during_the_renames_waits_until_the_set_is_in_place(tmp_path, monkeypatch,
+                                                                    python_sigint):
     """SIGINT arriving between two renames of a set: the set is completed first, then
     the interrupt is delivered."""
     report, params = _first_run(tmp_path)

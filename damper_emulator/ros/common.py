@@ -255,11 +255,6 @@ def plain_value(value: Any) -> Any:
 # messages
 
 
-def stamp_ns(stamp) -> int:
-    """``builtin_interfaces/Time`` → integer nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 def publish_diagnostics(node: Node, publisher, name: str, level, message: str,
                         hardware_id: str, values: Mapping[str, str]) -> None:
     """One ``DiagnosticStatus`` (``values`` as key/value pairs) in a ``DiagnosticArray``

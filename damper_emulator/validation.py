@@ -22,6 +22,7 @@ derivative of the displacement (:func:`estimate_velocity`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -29,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.acquisition.chain import model_record
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel, Fault, simulate
@@ -169,7 +171,9 @@ def record_velocity(data: MeasuredData) -> tuple[np.ndarray, dict[str, Any]]:
 
 def simulate_measured(model: DamperModel, data: MeasuredData, velocity: np.ndarray):
     """``model`` over the record's time and displacement at ``velocity`` (and its
-    temperature column, if any), from quasi-steady equilibrium at the first sample.
+    temperature column, if any), from quasi-steady equilibrium at the first sample; its
+    force as the rig records it when the record carries its measurement chain
+    (``data.acquisition``: :func:`damper_emulator.acquisition.model_record`).
 
     Raises
     ------
@@ -177,11 +181,15 @@ def simulate_measured(model: DamperModel, data: MeasuredData, velocity: np.ndarr
         One line naming the file: the history cannot be simulated.
     """
     try:
-        return simulate(model, data.time, data.displacement, velocity,
-                        temperature_c=data.temperature)
+        result = simulate(model, data.time, data.displacement, velocity,
+                          temperature_c=data.temperature)
     except ValueError as exc:
         where = data.path or data.name or "<data>"
         raise UserError(f"{where}: cannot simulate this history: {exc}") from None
+    rig = data.acquisition
+    if rig is None or rig.does_nothing:
+        return result
+    return dataclasses.replace(result, force_n=model_record(data.time, result.force_n, rig))
 
 
 def validate_file(model: DamperModel, data: MeasuredData) -> dict[str, Any]:

@@ -28,6 +28,7 @@ OUTPUT = REPO / "docs" / "parameters.md"
 def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
     """``(group, params file, who reads it, dataclass, loader of the defaults)``."""
     from can_bridge.settings import BridgeParams, bridge_params_from_mapping
+    from damper_emulator.acquisition.rig import DisplacementChannel, ForceChannel, load_rig
     from damper_emulator.params import DamperParams, NumericsParams, load_config
     from damper_emulator.realtime.settings import EmulatorParams
     from ride_sim.params import (
@@ -41,6 +42,8 @@ def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
 
     # each params file read once for all its groups
     model, ride = functools.cache(load_config), functools.cache(load_ride_config)
+    rig = functools.cache(lambda: load_rig(Path(__file__).resolve().parents[1] / "config"
+                                           / "rig.yaml"))
     return [
         ("damper", "config/sport.yaml", "every node and subcommand that runs the model",
          DamperParams, lambda: model().damper),
@@ -60,6 +63,13 @@ def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
          lambda: ride().ride),
         ("skyhook", "config/skyhook.yaml", "`skyhook`, `ride-study --figure adaptive`",
          SkyhookParams, load_skyhook),
+        ("rig.force", "config/rig.yaml",
+         "`identify`, `diagnose` and `validate` given `--rig` (the file is an example)",
+         ForceChannel, lambda: rig().force),
+        ("rig.displacement", "config/rig.yaml",
+         "`identify`, `diagnose` and `validate` given `--rig` (the file is an example)",
+         DisplacementChannel,
+         lambda: rig().displacement),
     ]
 
 

@@ -26,7 +26,7 @@ PACKAGES = ("damper_emulator", "ride_sim", "can_bridge", "damper_hil")
 #: the cores: modules (and sub-packages) that must stay free of ROS, plots and the app
 CORES = ("damper_emulator.errors", "damper_emulator.outputs", "damper_emulator.params",
          "damper_emulator.model", "damper_emulator.realtime", "damper_emulator.bag",
-         "damper_emulator.force_message",
+         "damper_emulator.force_message", "damper_emulator.acquisition",
          "damper_emulator.dyno.measured", "damper_emulator.dyno.measured_bag",
          "damper_emulator.dyno.limits", "damper_emulator.dyno.protocols",
          "damper_emulator.identify.quasi_static", "damper_emulator.identify.valves",

@@ -81,6 +81,7 @@ from typing import Any, TypeVar, cast
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from damper_emulator.acquisition.chain import chain_json
 from damper_emulator.diagnose.candidates import Candidate
 from damper_emulator.diagnose.candidates import candidates as make_candidates
 from damper_emulator.diagnose.joint import (
@@ -467,6 +468,8 @@ class Diagnosis:
                          "reidentified": bool(f.out.get("reidentified")),
                          "friction_factor": f.out.get("friction_factor")} for f in rnd]
                        for rnd in self.rounds],
+            "acquisition": chain_json(self.records[0].data.acquisition
+                                      if self.records else None),
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "floor_N": self.floor_n, "noise_N": self.noise_n,

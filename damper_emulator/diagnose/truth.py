@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.acquisition.chain import record_channel
+from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.measured import MeasuredData, write_measured_csv
 from damper_emulator.dyno.simulated import sine_file_name
@@ -50,6 +52,15 @@ class Protocol:
     sines: tuple[tuple[float, float], ...] = protocols.PAPER_SINES
     #: recorded cycles, sample rate and lead-in of each validation sine
     sine: protocols.Sine = protocols.Sine()
+
+    def oversampled(self, factor: int) -> Protocol:
+        """The same tests sampled ``factor`` times faster (the truth's grid under a rig's
+        analog filters: :func:`simulate_session`)."""
+        q, c, s = self.quasi_static, self.chirp, self.sine
+        return dataclasses.replace(
+            self, quasi_static=dataclasses.replace(q, rate_hz=q.rate_hz * factor),
+            chirp=dataclasses.replace(c, rate_hz=c.rate_hz * factor),
+            sine=dataclasses.replace(s, rate_hz=s.rate_hz * factor))
 
     def histories(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """``{file name: (t, x, v)}`` of every test, identification files first."""
@@ -183,10 +194,17 @@ REALISTIC_FINE = ModelForm(friction_smoothing_m_s=0.005, integrator_refinement=4
                            displacement_noise_m=5e-6)
 
 
+#: The truth under a rig's analog filters is simulated this many times faster than the
+#: files are sampled, filtered on that grid and sampled from it (the filters act on the
+#: force between the samples, as an analog filter does).
+RIG_OVERSAMPLING = 4
+
+
 def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
                      noise_std_n: float = 5.0, seed: int = 0, temperature: bool = False,
                      extra_force: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-                     | None = None, form: ModelForm = ModelForm()) -> dict[str, MeasuredData]:
+                     | None = None, form: ModelForm = ModelForm(),
+                     rig: RigParams | None = None) -> dict[str, MeasuredData]:
     """Run ``cfg`` over the protocol: ``{file name: MeasuredData}``, identification files
     first.
 
@@ -206,8 +224,18 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
         extension library.
     form : ModelForm
         Model-form differences from the emulator's model (default none).
+    rig : RigParams, optional
+        The rig's measurement chain: the truth is simulated :data:`RIG_OVERSAMPLING`
+        times faster than the files are sampled; force, displacement and velocity go
+        through their channels (:func:`damper_emulator.acquisition.record_channel`: filter,
+        skew, sampling, the noise, the converter; the velocity is not quantised, the
+        dyno derives it).  The files do not carry the chain: a user gives it (``--rig``)
+        or the diagnosis estimates it.
     """
     protocol = protocol or Protocol()
+    coarse = protocol.histories()
+    if rig is not None:
+        protocol = protocol.oversampled(RIG_OVERSAMPLING)
     if form.integrator_refinement > 1:
         cfg = dataclasses.replace(cfg, numerics=dataclasses.replace(
             cfg.numerics,
@@ -231,12 +259,21 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
             f = f + extra_force(t, x, v)
         if smooth > 0.0:  # the smooth friction in place of eq 4's switch
             f = f + f_fr * (np.tanh(v / smooth) - np.sign(v))
+        if rig is not None:  # through the rig's channels, at the files' sample times
+            tc = coarse[name][0]
+            velocity_channel = dataclasses.replace(rig.displacement, adc_bits=0)
+            f = record_channel(t, f, rig.force, tc, noise_std_n, rng)
+            x, v = (record_channel(t, x, rig.displacement, tc),
+                    record_channel(t, v, velocity_channel, tc))
+            temp = np.interp(tc, t, temp) if temp is not None else None
+            t = tc
         if is_sine:  # drop the lead-in: the record starts at t = 0
             k = int(np.searchsorted(t, 0.0))
             t, x, v, f = t[k:], x[k:], v[k:], f[k:]
             temp = temp[k:] if temp is not None else None
             sine_index += 1
-        f = f + rng.normal(0.0, noise_std_n, f.size) if noise_std_n > 0 else f
+        if rig is None and noise_std_n > 0:
+            f = f + rng.normal(0.0, noise_std_n, f.size)
         if form.displacement_noise_m > 0:
             x = x + rng.normal(0.0, form.displacement_noise_m, x.size)
         out[name] = MeasuredData(time=t, displacement=x, force=f, velocity=v,

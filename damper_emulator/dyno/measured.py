@@ -27,6 +27,7 @@ from typing import Any, TextIO
 import numpy as np
 from numpy.typing import ArrayLike
 
+from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.dyno.limits import LIMITS, MeasuredLimits
 from damper_emulator.errors import UserError
 from damper_emulator.outputs import atomic_path
@@ -93,6 +94,10 @@ class MeasuredData:
     name: str = ""
     #: the path it was read from
     path: str = ""
+    #: the rig's measurement chain the file was recorded through (``--rig``), if known:
+    #: the model's force passes through it before it is compared with :attr:`force`
+    #: (:func:`damper_emulator.acquisition.model_record`)
+    acquisition: RigParams | None = None
 
     def __len__(self) -> int:
         return int(self.time.size)

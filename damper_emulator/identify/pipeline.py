@@ -18,6 +18,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.signal import savgol_coeffs, savgol_filter
 
+from damper_emulator.acquisition.chain import delayed, relative_delay
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.identify.fitting import FitResult
 from damper_emulator.identify.quasi_static import IdentificationError, fit_quasi_static
@@ -233,6 +234,25 @@ def thin_selection(mask: np.ndarray, max_samples: int = MAX_VALVE_FIT_SAMPLES
     return thinned, stride
 
 
+def aligned(data: MeasuredData) -> MeasuredData:
+    """``data`` with its force moved earlier by its measurement chain's delay of the force
+    against the displacement (:func:`damper_emulator.acquisition.chain.relative_delay`;
+    a 2nd-order Butterworth load-cell filter at 200 Hz: 1.1 ms, 5° of phase at 12 Hz),
+    the pairs of force and motion the staged fits take; ``data`` itself without a chain."""
+    rig = data.acquisition
+    if rig is None or rig.does_nothing:
+        return data
+    tau = relative_delay(rig)
+    return dataclasses.replace(data, force=delayed(data.time, data.force, -tau))
+
+
+def aligned_tests(tests: Tests) -> Tests:
+    """:func:`aligned` of one test or of each of several."""
+    if isinstance(tests, MeasuredData):
+        return aligned(tests)
+    return [aligned(d) for d in tests]
+
+
 def chirp_simulation_rms(cfg: ModelConfig, chirp: MeasuredData) -> float:
     """r.m.s. force error [N] of the compressible model over the whole (joined) chirp."""
     res = simulate(DamperModel(cfg), chirp.time, chirp.displacement, chirp.velocity)
@@ -277,11 +297,16 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
     ``fixed`` (``{"rebound": {"smoothing_g": 1.5}, "compression": {...}}``) holds valve
     parameters at given values where the data cannot determine them.
 
+    Records that carry their rig's measurement chain (``MeasuredData.acquisition``) are
+    fitted with their force moved earlier by the chain's delay of the force against the
+    displacement (:func:`aligned`): the staged fits compare samples, not simulations.
+
     Raises
     ------
     IdentificationError
         Data that cannot support the fit, or a fitted valve that is not invertible.
     """
+    quasi_static, chirp = aligned_tests(quasi_static), aligned_tests(chirp)
     if not fit_alpha:
         return _identify_once(quasi_static, chirp, base, progress, correct_compressibility,
                               hysteresis_filter_on, start_factors, fixed, exclude,

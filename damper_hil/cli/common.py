@@ -127,3 +127,26 @@ def load_model(params: Path | None):
 
     cfg = load_config(params)
     return DamperModel(cfg), str(params if params is not None else DEFAULT_PARAMS_FILE)
+
+
+def add_rig_option(parser: argparse.ArgumentParser) -> None:
+    """``--rig RIG.yaml``: the measurement chain the data files were recorded through."""
+    parser.add_argument("--rig", metavar="RIG.yaml", type=Path, default=None,
+                        help="the rig's acquisition data sheet: each channel's analog "
+                             "filter (type, order, cut-off), converter and skew "
+                             "(docs/diagnose.md, 'The measurement chain'); the model's "
+                             "force passes through it before it is compared with the data")
+
+
+def read_data(paths: Sequence[Path], rig: Path | None) -> list[Any]:
+    """The measured-data files ``paths`` (each read and checked before any work), with
+    the rig file ``rig``'s chain attached when given."""
+    from damper_emulator.dyno.measured_bag import read_measured
+
+    chain = None
+    if rig is not None:
+        from damper_emulator.acquisition.rig import load_rig
+
+        chain = load_rig(rig)
+    data = [read_measured(p) for p in paths]
+    return [dataclasses.replace(d, acquisition=chain) for d in data] if chain else data

@@ -11,11 +11,13 @@ from damper_hil.cli.common import (
     PROG,
     CliError,
     Formatter,
+    add_rig_option,
     check_unique_names,
     json_text,
     load_model,
     parse_effects,
     positive_int,
+    read_data,
     say,
 )
 
@@ -72,6 +74,7 @@ def add_parser(sub) -> None:
     diag.add_argument("--jobs", metavar="N", type=positive_int, default=None,
                       help="fit the candidates in N processes (default: the CPU count, at "
                            "most 4)")
+    add_rig_option(diag)
     diag.set_defaults(handler=run)
 
 
@@ -82,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
     effects = parse_effects(args.effects)
     check_unique_names([*args.quasi_static, *args.chirp, *args.validate])
     # the outputs are checked now, and written as one set once the diagnosis is done
-    inputs = [args.params, *args.quasi_static, *args.chirp, *args.validate]
+    inputs = [args.params, *args.quasi_static, *args.chirp, *args.validate,
+              *([args.rig] if args.rig else [])]
     with Outputs(say=say, inputs=inputs) as outputs:
         json_at = outputs.file(args.json)
         report_at = outputs.folder(args.report) if args.report is not None else None
@@ -106,15 +110,14 @@ def _diagnose(args: argparse.Namespace, effects: list[str] | None, json_at: Path
     import os
 
     from damper_emulator.diagnose.selection import diagnose
-    from damper_emulator.dyno.measured_bag import read_measured
 
     model, params_file = load_model(args.params)
     if model.cfg.damper.extensions is not None:
         raise CliError(f"{params_file}: already holds damper.extensions "
                        f"({', '.join(model.cfg.damper.extensions.active())}); diagnose needs "
                        "the identified model without them")
-    fit = [read_measured(p) for p in [*args.quasi_static, *args.chirp]]
-    held = [read_measured(p) for p in args.validate]
+    fit = read_data([*args.quasi_static, *args.chirp], args.rig)
+    held = read_data(args.validate, args.rig)
     say(f"diagnosing {params_file}: fit on {', '.join(d.name for d in fit)}, held out "
         f"{', '.join(d.name for d in held)}")
     jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, 4)

@@ -9,7 +9,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from damper_hil.cli.common import CliError, Formatter, json_text, say
+from damper_hil.cli.common import CliError, Formatter, add_rig_option, json_text, read_data, say
 
 #: identify warns when a quasi-static file moves faster than this [m/s] (99th percentile):
 #: twice the FSAE slow run's 26 mm/s, twelve times the paper's 4 mm/s
@@ -68,6 +68,7 @@ def add_parser(sub) -> None:
                             "moves both valves' pressure drops by the difference")
     ident.add_argument("--no-compressibility-correction", action="store_true",
                        help="use the rigid-oil valve flow |v|(A_pt − A_rod) as the paper does")
+    add_rig_option(ident)
     ident.set_defaults(handler=run)
 
 
@@ -79,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(factor) and factor >= 0):
         raise CliError(f"--chirp-friction-factor {factor!r}: must be a finite number ≥ 0")
     # the outputs are checked, and written as one set once the work is done
-    with Outputs(say=say, inputs=[*args.quasi_static, *args.chirp, args.base]) as outputs:
+    with Outputs(say=say, inputs=[*args.quasi_static, *args.chirp, args.base,
+                                     *([args.rig] if args.rig else [])]) as outputs:
         params_at = outputs.file(args.out)
         json_path = args.json or args.out.with_suffix(".json")
         json_at = outputs.file(json_path)
@@ -96,14 +98,14 @@ def _identify(args: argparse.Namespace, started: float, params_at: Path,
               report_at: Path | None):
     """The identification, its parameter file written at ``params_at`` and its report in
     ``report_at``; returns the JSON document and the result."""
-    from damper_emulator.dyno.measured_bag import read_measured
+    from damper_emulator.acquisition.chain import chain_json
     from damper_emulator.identify.pipeline import identify
     from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config, save_config
 
     base = load_config(args.base)
     fixed = _fixed_valve_parameters(args.fix)
-    qs = [read_measured(p) for p in args.quasi_static]
-    chirp = [read_measured(p) for p in args.chirp]
+    qs = read_data(args.quasi_static, args.rig)
+    chirp = read_data(args.chirp, args.rig)
     print(f"identifying from {', '.join(d.name for d in qs)} "
           f"({sum(len(d) for d in qs)} samples) and {', '.join(d.name for d in chirp)} "
           f"({sum(len(d) for d in chirp)} samples) ...", file=sys.stderr, flush=True)
@@ -128,6 +130,7 @@ def _identify(args: argparse.Namespace, started: float, params_at: Path,
            "quasi_static_files": [str(p) for p in args.quasi_static],
            "chirp_files": [str(p) for p in args.chirp], "fixed": fixed,
            "compressibility_correction": not args.no_compressibility_correction,
+           "acquisition": chain_json(qs[0].acquisition),
            **result.as_dict()}
     if report_at is not None:
         from damper_emulator.identify.report import write_report

@@ -6,7 +6,16 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from damper_hil.cli.common import PROG, Formatter, check_unique_names, json_text, load_model, say
+from damper_hil.cli.common import (
+    PROG,
+    Formatter,
+    add_rig_option,
+    check_unique_names,
+    json_text,
+    load_model,
+    read_data,
+    say,
+)
 
 
 def add_parser(sub) -> None:
@@ -45,12 +54,13 @@ def add_parser(sub) -> None:
                                "validate_<name>.png (measured and simulated force-velocity "
                                "and force-displacement loops, force error vs time) and "
                                "validation_summary.png (relative r.m.s. per file)")
+    add_rig_option(validate)
     validate.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from damper_emulator import validation, validation_report
-    from damper_emulator.dyno.measured_bag import read_measured
+    from damper_emulator.acquisition.chain import chain_json
     from damper_emulator.outputs import Outputs
 
     paths: list[Path] = args.data
@@ -58,12 +68,13 @@ def run(args: argparse.Namespace) -> int:
     json_path: Path = args.json if args.json is not None else (
         (args.report if args.report is not None else Path(".")) / "validation.json")
     # the outputs are checked now, and written as one set once every file is validated
-    with Outputs(say=say, inputs=[args.params, *paths]) as outputs:
+    with Outputs(say=say, inputs=[args.params, *paths, *([args.rig] if args.rig else [])]
+                 ) as outputs:
         report: Path | None = (outputs.folder(args.report) if args.report is not None
                                else None)
         json_at = outputs.file(json_path)
         model, params_file = load_model(args.params)
-        datasets = [read_measured(p) for p in paths]  # a bad file fails before work
+        datasets = read_data(paths, args.rig)  # a bad file fails before work
         results: dict[str, Any] = {}
         n = len(datasets)
         for k, data in enumerate(datasets, 1):
@@ -73,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
         json_at.write_text(json_text({
             "params_file": params_file,
             "files": {name: validation.json_summary(r) for name, r in results.items()},
+            "acquisition": chain_json(datasets[0].acquisition if datasets else None),
         }), encoding="utf-8")
         if report is not None:
             label = f"{args.params.name}, damper '{model.cfg.damper.name}'"

@@ -156,7 +156,8 @@ def test_cli_writes_contract_json_and_report(sine_files, tmp_path, capsys):
     cap = capsys.readouterr()
     assert rc == 0, cap.err
     doc = json.loads(out_json.read_text())
-    assert set(doc) == {"params_file", "files"}
+    assert set(doc) == {"params_file", "files", "acquisition"}
+    assert doc["acquisition"] == {"source": "none", "rig": None, "force_delay_s": 0.0}
     assert set(doc["files"]) == {"sine_3hz.csv", "sine_12hz.csv"}
     for entry in doc["files"].values():
         assert isinstance(entry["rms_N"], float) and isinstance(entry["relative_rms"], float)

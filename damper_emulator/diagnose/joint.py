@@ -25,6 +25,7 @@ figures reported are always from the full model.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -33,6 +34,13 @@ from typing import Any, TypeVar
 import numpy as np
 from scipy.optimize import OptimizeResult, least_squares
 
+from damper_emulator.acquisition.chain import (
+    ESTIMATED_DELAY_BOUND_S,
+    ESTIMATED_DELAY_START_S,
+    estimated_rig,
+    model_record,
+)
+from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.diagnose.candidates import Candidate, Parameter
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
@@ -84,6 +92,33 @@ BASE_PARAMETERS: tuple[BaseParameter, ...] = (
 #: the answer was ``none``.  Only the fit uses it: the model a diagnosis reports, its
 #: statistics and the held-out scores have eq 4's one friction.
 QUASI_STATIC_FRICTION_RATIO = "quasi_static_friction_ratio"
+#: The parameter of the estimated measurement chain, when the files carry none
+#: (``--rig``): the delay [s] of the recorded force against the recorded displacement,
+#: the rig's filters and skew as the data can tell them
+#: (:func:`damper_emulator.acquisition.chain.estimated_rig`).  It is not the damper's:
+#: the diagnosis tries it as a competitor of the effects (``selection.diagnose``, the
+#: chain candidate), and once taken every later fit frees it; a fit whose
+#: ``base_values`` hold it frees it (from
+#: :data:`~damper_emulator.acquisition.chain.ESTIMATED_DELAY_START_S`).
+ACQUISITION_DELAY = "acquisition_delay_s"
+#: The coefficients of a discovered term's parts (:mod:`damper_emulator.diagnose.
+#: discovery`) in a fit's ``base_values``: this prefix and the part's index.
+TERM_PREFIX = "discovered_term_"
+#: the pseudo-parameters of ``base_values`` that are no field of the damper group
+PSEUDO_PARAMETERS = (QUASI_STATIC_FRICTION_RATIO, ACQUISITION_DELAY)
+
+
+def is_pseudo(name: str) -> bool:
+    """Whether ``name`` in a fit's ``base_values`` is no field of the damper group."""
+    return name in PSEUDO_PARAMETERS or name.startswith(TERM_PREFIX)
+
+
+#: The source of a discovered term's parts in a fit: for a model and a record, the
+#: model's force over the whole record (as :meth:`Record.simulate` gives it without an
+#: estimated chain) and the parts' columns, one per unit coefficient, before any chain
+#: (``n × k``); the fit adds ``Σ c_k column_k`` (``c_k`` the parameters ``TERM_PREFIX k``)
+#: to the force before the chain.
+TermSource = Callable[["DamperModel", "Record"], tuple[np.ndarray, np.ndarray]]
 #: The port restriction (eq 8) also ranges over the damper's own scale ``K_scale``, the
 #: restriction that alone would drop the largest pressure of the data at the largest flow
 #: (``max|F| / A_annulus`` at ``A_annulus max|v|``), from this fraction of it (negligible:
@@ -190,18 +225,50 @@ class Record:
         """Samples that count."""
         return self.data.force.size - self.start
 
-    def simulate(self, model: DamperModel, fast: bool = False) -> np.ndarray:
+    def simulate(self, model: DamperModel, fast: bool = False,
+                 rig: RigParams | None = None) -> np.ndarray:
         """The force [N] of ``model`` over the whole file (``fast``: on the fit's sub-step,
-        :func:`fit_substep`); one line naming the file when it cannot be simulated."""
+        :func:`fit_substep`) as the file's chain records it, or ``rig`` (an estimated
+        chain) where the file carries none; one line naming the file when it cannot be
+        simulated."""
         if fast:
             model = model.with_max_substep(fit_substep(model, self.velocity))
         force: np.ndarray = simulate_measured(model, self.data, self.velocity).force_n
-        return force
+        return self.recorded(force, rig)
 
-    def residual(self, model: DamperModel, fast: bool = False) -> np.ndarray:
-        """``F_sim − F_meas`` [N] of ``model`` on this file, from :attr:`start` on."""
+    def recorded(self, force: np.ndarray, rig: RigParams | None) -> np.ndarray:
+        """The model's force ``force`` (as :meth:`simulate` gives it without ``rig``)
+        through the estimated chain ``rig``, where the file carries none."""
+        if rig is None or self.data.acquisition is not None:
+            return force
+        return model_record(self.data.time, force, rig)
+
+    def through_chain(self, force: np.ndarray, rig: RigParams | None) -> np.ndarray:
+        """A force ``force`` of the damper before any chain, as the record holds it:
+        through the file's chain, or the estimated ``rig`` where it carries none."""
+        chain = self.data.acquisition if self.data.acquisition is not None else rig
+        if chain is None or chain.does_nothing:
+            return force
+        return model_record(self.data.time, force, chain)
+
+    def term_residual(self, model: DamperModel, source: TermSource,
+                      coefficients: Sequence[float], rig: RigParams | None) -> np.ndarray:
+        """``F_sim − F_meas`` [N] from :attr:`start` on of ``model`` with the discovered
+        term ``Σ c_k column_k`` of ``source`` added (through the chain)."""
+        raw, cols = source(model, self)
+        total = self.recorded(raw, rig)
+        for c, col in zip(coefficients, cols.T):
+            total = total + c * self.through_chain(col, rig)
         k = self.start
-        residual: np.ndarray = self.simulate(model, fast)[k:] - self.data.force[k:]
+        out: np.ndarray = total[k:] - self.data.force[k:]
+        return out
+
+    def residual(self, model: DamperModel, fast: bool = False,
+                 rig: RigParams | None = None) -> np.ndarray:
+        """``F_sim − F_meas`` [N] of ``model`` on this file, from :attr:`start` on
+        (``rig``: as :meth:`simulate`)."""
+        k = self.start
+        residual: np.ndarray = self.simulate(model, fast, rig)[k:] - self.data.force[k:]
         return residual
 
 
@@ -218,9 +285,10 @@ def _get(cfg: ModelConfig, path: str) -> float:
 
 
 def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
-                    effects: Sequence[str] = ()) -> list[Parameter]:
+                    effects: Sequence[str] = (), delay: bool = False) -> list[Parameter]:
     """The free parameters of the paper's model around ``cfg`` (``effects`` in the model:
-    a parameter they replace is held), as :class:`Parameter` named by path."""
+    a parameter they replace is held), as :class:`Parameter` named by path; with
+    ``delay`` and files without a chain also the estimated chain's delay."""
     d = cfg.damper
     x_lo = min(float(np.min(r.displacement)) for r in fit_data)
     f_max = max(float(np.max(np.abs(r.force))) for r in fit_data)
@@ -247,18 +315,31 @@ def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
             lo = max(lo, GAS_VOLUME_MARGIN * d.rod_area_m2 * max(-x_lo, 0.0))
             hi = max(hi, 2.0 * lo)
         out.append(Parameter(bp.path, lo, hi, min(max(value, lo), hi), True, bp.unit))
+    if delay and chain_unknown(fit_data):
+        out.append(Parameter(ACQUISITION_DELAY, 0.0, ESTIMATED_DELAY_BOUND_S,
+                             ESTIMATED_DELAY_START_S, False, "s"))
     return out
+
+
+def chain_unknown(data: Sequence[MeasuredData]) -> bool:
+    """Whether no file of ``data`` carries its measurement chain: a diagnosis then
+    estimates the force's delay (:data:`ACQUISITION_DELAY`)."""
+    return all(d.acquisition is None for d in data)
+
+
+def delay_rig(base_values: Mapping[str, float]) -> RigParams | None:
+    """The estimated chain of a fit's ``base_values`` (``None``: not estimated)."""
+    tau = base_values.get(ACQUISITION_DELAY)
+    return None if tau is None else estimated_rig(float(tau))
 
 
 def config_with(cfg: ModelConfig, base_values: Mapping[str, float]) -> ModelConfig:
     """``cfg`` with the paper's parameters ``base_values`` (by path) replaced (unchecked:
     :class:`DamperModel` validates)."""
-    import dataclasses
-
     d = cfg.damper
     # floats by damper field name (mypy cannot match the names to the fields' types)
     top: dict[str, Any] = {k: v for k, v in base_values.items()
-                           if "." not in k and k != QUASI_STATIC_FRICTION_RATIO}
+                           if "." not in k and not is_pseudo(k)}
     valves = {}
     for side in ("rebound", "compression"):
         changes = {k.split(".", 1)[1]: v for k, v in base_values.items()
@@ -317,8 +398,11 @@ class Space:
                  base_values: Mapping[str, float], cands: Sequence[Candidate],
                  values: Sequence[Mapping[str, float]], free_effects: Sequence[bool],
                  records: Sequence[Record], weights: Sequence[float],
-                 n_quasi_static: int = 1):
+                 n_quasi_static: int = 1, terms: TermSource | None = None):
         self.cfg, self.cands, self.records, self.weights = cfg, list(cands), records, weights
+        #: a discovered term's parts, added to the force (their coefficients:
+        #: ``TERM_PREFIX k`` in ``base_values``)
+        self.terms = terms
         #: the first this many records are quasi-static tests (their own friction level:
         #: :data:`QUASI_STATIC_FRICTION_RATIO`)
         self.n_quasi_static = n_quasi_static
@@ -343,6 +427,17 @@ class Space:
         self._min_bic_step = JOINT_MIN_BIC_STEP
         #: where each record's residual ends in the concatenated vector
         self._ends = np.cumsum([r.counted for r in records])[:-1]
+        #: the slot of the estimated delay, if free, and the model's forces (before the
+        #: chain) at the last point simulated, with that point's other coordinates: a
+        #: step of the delay alone is a filtering, not a simulation
+        self._delay_slot = next((k for k, (i, p) in enumerate(self.slots)
+                                 if i < 0 and p.name == ACQUISITION_DELAY), None)
+        self._raw: tuple[np.ndarray, list[np.ndarray], list[np.ndarray] | None] | None = None
+        #: the free slots that are no simulation's input: the delay and the term's
+        #: coefficients (a step of them alone filters and sums what the cache holds)
+        self._output_slots = [k for k, (i, p) in enumerate(self.slots)
+                              if i < 0 and (p.name == ACQUISITION_DELAY
+                                            or p.name.startswith(TERM_PREFIX))]
 
     def encode(self, base_values: Mapping[str, float], values: Sequence[Mapping[str, float]]
                ) -> np.ndarray:
@@ -390,12 +485,11 @@ class Space:
     def residuals(self, s: np.ndarray) -> np.ndarray:
         """The weighted residual ``w_f (F_sim − F_meas)`` of every record at ``s``,
         concatenated; ``FAILED_COST`` everywhere for parameters the model refuses."""
-        self.evaluations += 1
         self.refused = True
         try:
             residuals: np.ndarray = np.concatenate(
-                [rec.residual(m, fast=True) * w
-                 for rec, w, m in zip(self.records, self.weights, self.models(s))])
+                [(force[rec.start:] - rec.data.force[rec.start:]) * w
+                 for rec, w, force in zip(self.records, self.weights, self._forces(s))])
         except (ParameterError, ValueError):
             residuals = np.full(self.n, FAILED_COST)
         else:
@@ -407,6 +501,37 @@ class Space:
                 residuals = np.full(self.n, FAILED_COST)
         self._last = (s.copy(), residuals, self.refused)
         return residuals
+
+    def _forces(self, s: np.ndarray) -> list[np.ndarray]:
+        """The model's force at ``s`` over each record as the record holds it: with the
+        discovered term's parts added and through the estimated chain.  From the cache
+        where only the delay or the term's coefficients changed since the last
+        simulation (counted in :attr:`evaluations` otherwise)."""
+        key = s.copy()
+        key[self._output_slots] = 0.0
+        base = self.decode(s)[0]
+        rig = delay_rig(base)
+        if self._raw is not None and np.array_equal(self._raw[0], key):
+            raws, cols = self._raw[1], self._raw[2]
+        else:
+            self.evaluations += 1
+            self._raw = None
+            models = self.models(s)
+            if self.terms is None:
+                raws = [rec.simulate(m, fast=True) for rec, m in zip(self.records, models)]
+                cols = None
+            else:
+                pairs = [self.terms(m.with_max_substep(fit_substep(m, rec.velocity)), rec)
+                         for rec, m in zip(self.records, models)]
+                raws, cols = [p[0] for p in pairs], [p[1] for p in pairs]
+            self._raw = (key, raws, cols)
+        out = [rec.recorded(raw, rig) for rec, raw in zip(self.records, raws)]
+        if cols is not None:
+            coef = [base[f"{TERM_PREFIX}{k}"] for k in range(cols[0].shape[1])]
+            for j, (rec, c) in enumerate(zip(self.records, cols)):
+                for ck, col in zip(coef, c.T):
+                    out[j] = out[j] + ck * rec.through_chain(col, rig)
+        return out
 
     def jacobian(self, s: np.ndarray) -> np.ndarray:
         """Forward differences of :meth:`residuals` at ``s``, each parameter stepped by
@@ -579,8 +704,8 @@ def active_samples(records: Sequence[Record], without: DamperModel, with_: Dampe
 
 
 def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
-               masks: Sequence[np.ndarray] | None = None, friction_factor: float = 1.0
-               ) -> dict[str, float] | None:
+               masks: Sequence[np.ndarray] | None = None, friction_factor: float = 1.0,
+               rig: RigParams | None = None) -> dict[str, float] | None:
     """The paper's parameters identified again (``identify``, the staged fits) on
     ``records`` with ``cfg`` (its data sheet values), without the samples ``masks`` (where
     an effect acts; ``None``: every sample), its valve fits on at most
@@ -588,12 +713,16 @@ def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
     identification fails.  ``friction_factor``: the friction at speed (the chirp's, the
     model's) is this multiple of the quasi-static fit's, which the result's
     :data:`QUASI_STATIC_FRICTION_RATIO` then holds (``identify(chirp_friction_factor=)``).
+    ``rig``: the estimated chain (:func:`delay_rig`), which the staged fits align the
+    records by where they carry none.
     """
     from damper_emulator.identify.pipeline import identify
     from damper_emulator.identify.quasi_static import IdentificationError
 
-    qs = [r.data for r in records[:n_quasi_static]]
-    chirp = [r.data for r in records[n_quasi_static:]]
+    data = [r.data if r.data.acquisition is not None or rig is None
+            else dataclasses.replace(r.data, acquisition=rig) for r in records]
+    qs = data[:n_quasi_static]
+    chirp = data[n_quasi_static:]
     if not qs or not chirp:
         return None
     exclude = (None if masks is None else
@@ -676,7 +805,8 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
               candidate: Candidate | None, nfev: int = JOINT_NFEV,
               n_quasi_static: int = 1,
               alternative: tuple[Mapping[str, float], Mapping[str, Mapping[str, float]]]
-              | None = None) -> JointFit:
+              | None = None, terms: TermSource | None = None,
+              term_parameters: Sequence[Parameter] = ()) -> JointFit:
     """Fit ``candidate`` (``None``: nothing new) together with the effects ``accepted``
     and the paper's parameters, on ``records`` (the identification files, the first
     ``n_quasi_static`` of them quasi-static tests).
@@ -771,7 +901,8 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
             (from its own starts and the first pre-fit's values, or with ``screen``
             false from the latter only): ``(cost, base, candidate's values,
             simulations, factor)``; ``None`` if the re-identification failed."""
-            nb = reidentify(as_cfg, records, n_quasi_static, masks, factor)
+            nb = reidentify(as_cfg, records, n_quasi_static, masks, factor,
+                            delay_rig(base_values))
             if nb is None:
                 return None
             nb = {**base_values, **nb}
@@ -814,13 +945,16 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
                     friction_factor = factor
         values.append(pre_values)
     # bounds around the start (the identified values, or the re-identified ones)
-    free = base_parameters(config_with(cfg, base_values), fit_data, [c.effect for c in cands])
+    free = base_parameters(config_with(cfg, base_values), fit_data, [c.effect for c in cands],
+                           ACQUISITION_DELAY in base_values)
+    free += term_parameters
     space = Space(cfg, free, base_values, cands, values, [True] * len(cands), records,
-                  weights, n_quasi_static)
+                  weights, n_quasi_static, terms)
     sol = space.solve(space.encode(base_values, values), nfev, JOINT_MIN_BIC_STEP)
     base, vals = space.decode(sol.x)
     # the residuals the fit minimised (each quasi-static record at its own friction)
-    rho = max(lag1(rec.residual(m, fast=True)) for rec, m in zip(records, space.models(sol.x)))
+    # (lag1 is scale-free: the weighted pieces of the solution's residual vector)
+    rho = max(lag1(piece) for piece in np.split(np.asarray(sol.fun), space._ends))
     std = space.std(sol, rho)
     return JointFit(base_values=base,
                     base_std={p.name: std[(i, p.name)] for i, p in space.slots if i < 0},
@@ -829,3 +963,4 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
                          for k, c in enumerate(cands)],
                     cost=float(sol.cost), evaluations=evaluations + space.evaluations,
                     reidentified=reidentified, friction_factor=friction_factor)
+

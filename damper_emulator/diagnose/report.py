@@ -39,7 +39,8 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     from damper_emulator.dyno.plots import new_figure, save
 
     d = rec.data
-    before, after = rec.simulate(diag.base_model), rec.simulate(diag.model_after())
+    before = rec.simulate(diag.base_model)
+    after = rec.simulate(diag.model_after(), rig=diag.rig_after())
     k = rec.start
     label_after = ("+ " + " + ".join(s.candidate.effect for s in diag.steps) if diag.steps
                    else "refitted")
@@ -138,19 +139,20 @@ def _base_table(diag: Diagnosis) -> list[str]:
     """The paper's parameters: identified, after the diagnosis, ± 1σ."""
     from damper_emulator.diagnose.joint import BASE_PARAMETERS, _get
 
-    final = diag.final
-    if final is None:
+    doc = diag.base_after_json()
+    if doc is None:
         return []
     cfg = diag.base_model.cfg
     lines = ["| parameter | identified | after | ± 1σ | unit |", "|---|---|---|---|---|"]
     for bp in BASE_PARAMETERS:
-        after = final.out["base_values"].get(bp.path)
+        after = doc["values"].get(bp.path)
         if after is None:
             continue
-        sd = final.out["base_std"].get(bp.path)
-        held = " (replaced by the effect)" if sd is None else ""
+        replaced = bp.path not in doc["uncertainties"]
+        held = " (replaced by the effect)" if replaced else ""
+        sd = "–" if replaced else _fmt_sd(doc["uncertainties"][bp.path])
         lines.append(f"| {bp.path} | {_fmt(_get(cfg, bp.path))} | {_fmt(after)}{held} | "
-                     f"{'–' if sd is None else _fmt_sd(sd)} | {bp.unit} |")
+                     f"{sd} | {bp.unit} |")
     return lines
 
 
@@ -206,6 +208,7 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                   f"and {doc['thresholds']['floor_noise_factor']:g}× the noise level "
                   f"{diag.noise_n:.2f} N) or without structure, and no candidate is "
                   "significant.", ""]
+    lines += _chain_lines(doc["acquisition"]) + _discovery_lines(diag)
     lines += ["## The paper's parameters", "",
               "Identified (`identify`'s staged fits) and after the joint fit of the "
               "diagnosis (simulated over the identification files, with the effects above):",
@@ -246,6 +249,95 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
     return "\n".join(lines)
 
 
+def _chain_lines(acq: dict[str, Any]) -> list[str]:
+    """The report's section on the measurement chain (the JSON's ``acquisition``)."""
+    lines = ["## The measurement chain", ""]
+    if acq["source"] == "given":
+        f = acq["rig"]["force"]
+        lines.append(f"Given (`--rig`): the force channel's filter {f['filter']}"
+                     + (f" of order {f['order']} at {_fmt(f['cutoff_hz'])} Hz"
+                        if f["filter"] != "none" else "")
+                     + f"; the force is recorded {1e3 * acq['force_delay_s']:.3g} ms late "
+                     "against the displacement.  The model's force passes through it.")
+    elif acq["source"] == "estimated":
+        sd = acq["force_delay_std_s"]
+        lines.append(f"Estimated (no `--rig`): the force's delay against the displacement "
+                     f"{1e3 * acq['force_delay_s']:.4g} ms ± "
+                     f"{_fmt_sd(None if sd is None else 1e3 * sd)} ms (1σ), freed in every "
+                     f"fit as the rig's, never an effect: {acq['reading']}.")
+    else:
+        lines.append("None: the model's force is compared as it is.")
+    return [*lines, ""]
+
+
+def _discovery_lines(diag: Diagnosis) -> list[str]:
+    """The report's section on the discovered term."""
+    found = diag.discovered
+    if found is None:
+        return []
+    lines = ["## Term discovery", ""]
+    if not found.features:
+        return [*lines, f"Not run or nothing found: {found.reason}.", ""]
+    verdict = ("significant" if found.significant else
+               "not significant (the candidates' rules), not added")
+    lines += [f"What the library left, regressed on the dictionary of motion and model "
+              f"states (stability selection, then least squares): `{found.expression}`.",
+              "",
+              f"Variables: {', '.join(found.variables)}; family hint: "
+              f"**{found.family_hint or 'none'}**.  Held-out gain "
+              f"{100 * found.held_out_gain:+.1f} %, ΔBIC {found.delta_bic:.0f}: {verdict}.",
+              "", "| term | coefficient | ± 1σ | unit | selected in |", "|---|---|---|---|---|"]
+    for f, c, sd in zip(found.features, found.coefficients, found.std):
+        freq = found.frequency.get(f.symbol)
+        lines.append(f"| `{f.symbol}` | {_fmt(float(c))} | {_fmt_sd(float(sd))} | {f.unit} | "
+                     f"{'–' if freq is None else f'{100 * freq:.0f} %'} |")
+    lines += ["", "| held-out file | before [N] | with the term [N] |", "|---|---|---|"]
+    for name, b in found.rms_held_out_before.items():
+        lines.append(f"| {name} | {b:.2f} | {found.rms_held_out_after.get(name, b):.2f} |")
+    return [*lines, ""]
+
+
+def plot_discovered(path: Path, diag: Diagnosis) -> Path:
+    """The discovered term on each held-out file: the force the model after the library
+    lacks (measured less model) and the term, against the variable the term's largest
+    part depends on, and against each other (on the diagonal where the term explains it)."""
+    from damper_emulator.diagnose.discovery import PLOTTED
+    from damper_emulator.dyno.plots import new_figure, save
+
+    found = diag.discovered
+    assert found is not None
+    fig = new_figure(12, 4.8)
+    axes = fig.subplots(1, 2)
+    label = PLOTTED[found.main_variable][0]
+    lim = 0.0
+    for name, (term, missing, var) in found.series.items():
+        pts = axes[0].plot(var, missing, ".", ms=1.5, alpha=0.35,
+                           label=f"{name}: measured − model")
+        axes[0].plot(var, term, ".", ms=1.0, color=pts[0].get_color(), alpha=0.9)
+        axes[1].plot(term, missing, ".", ms=1.5, alpha=0.35, label=name)
+        lim = max(lim, float(np.max(np.abs(term))), float(np.max(np.abs(missing))))
+    axes[0].set_xlabel(label)
+    axes[0].set_ylabel("force [N] (dots: measured − model; dark: the term)")
+    axes[0].set_title(f"residual against {found.main_variable}", fontsize=9)
+    axes[1].plot([-lim, lim], [-lim, lim], "k--", lw=0.8, label="explained exactly")
+    axes[1].set_xlabel("the discovered term [N]")
+    axes[1].set_ylabel("measured − model [N]")
+    axes[1].set_title(f"held-out gain {100 * found.held_out_gain:+.1f} %, "
+                      f"{'significant' if found.significant else 'not significant'}",
+                      fontsize=9)
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, markerscale=6)
+    fig.suptitle(_wrapped(f"discovered: {found.expression}"), fontsize=9)
+    return save(fig, path)
+
+
+def _wrapped(text: str, width: int = 110) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width))
+
+
 def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
                  progress=None) -> list[Path]:
     """Write the report files (module docstring) into ``out_dir``; returns their paths."""
@@ -267,6 +359,10 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
                 files.append(plot_residual(path, residual_record(model, rec.data),
                                            title=f"{rec.name}: residual of the {what}"))
                 say(f"wrote {path}")
+    found = diag.discovered
+    if found is not None and found.features:
+        files.append(plot_discovered(out / "discovered.png", diag))
+        say(f"wrote {files[-1]}")
     files.append(plot_ranking(out / "ranking.png", diag))
     say(f"wrote {files[-1]}")
     if diag.chosen is not None:

@@ -81,14 +81,20 @@ from typing import Any, TypeVar, cast
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from damper_emulator.acquisition.chain import chain_json
+from damper_emulator.acquisition.chain import ESTIMATED_DELAY_START_S, chain_json, estimated_rig
+from damper_emulator.acquisition.rig import RigParams, rig_to_mapping
 from damper_emulator.diagnose.candidates import Candidate
 from damper_emulator.diagnose.candidates import candidates as make_candidates
+from damper_emulator.diagnose.discovery import Discovery, discover, refit_with_term
 from damper_emulator.diagnose.joint import (
+    ACQUISITION_DELAY,
     JOINT_NFEV,
+    TERM_PREFIX,
     Record,
     base_parameters,
     bic_term,
+    chain_unknown,
+    delay_rig,
     effective_samples,
     joint_fit,
     lag1,
@@ -134,6 +140,26 @@ def _sd(x: float | None) -> float | None:
 
 def _sds(sd: Mapping[str, float]) -> dict[str, float | None]:
     return {k: _sd(v) for k, v in sd.items()}
+
+
+def _damper(values: Mapping[str, float]) -> dict[str, float]:
+    """``values`` without the estimated chain's delay (the JSON's ``acquisition``: the
+    rig's, not the damper's) and a discovered term's coefficients (its ``discovered``)."""
+    return {k: v for k, v in values.items()
+            if k != ACQUISITION_DELAY and not k.startswith(TERM_PREFIX)}
+
+
+def estimated_reading(tau: float) -> str:
+    """What an estimated delay ``tau`` [s] of the force can be, in words."""
+    if tau > 0.0:
+        fc = math.sqrt(2.0) / (2.0 * math.pi * tau)
+        return (f"the force is recorded {1e3 * tau:.3g} ms late against the displacement: "
+                f"a 2nd-order Butterworth load-cell filter at {fc:.3g} Hz, or a skew, or "
+                "both (within the tests' band they differ by (f/f_c)^4)")
+    if tau < 0.0:
+        return (f"the force is recorded {-1e3 * tau:.3g} ms early against the "
+                "displacement: a skew, or a filter on the displacement channel")
+    return "no delay between force and displacement"
 
 
 def noise_level(r: np.ndarray) -> float:
@@ -211,6 +237,9 @@ class FitTask:
     #: the candidate's own fit of the round before (its paper's parameters, and its
     #: effects' values by name): the start of the other order (``joint_fit``)
     alternative: tuple[Mapping[str, float], Mapping[str, Mapping[str, float]]] | None = None
+    #: the chain candidate: the present model with the estimated chain's delay added
+    #: (``effect`` is ``None``)
+    chain: bool = False
 
 
 #: BLAS threads a fit task runs with (:func:`run_fit_task`).  The fits are the parallel
@@ -242,13 +271,17 @@ def _run_fit_task(task: FitTask) -> dict[str, Any]:
     cands = {c.effect: c for c in make_candidates(task.cfg, task.fit)}
     accepted = [(cands[e], v) for e, v in task.accepted]
     cand = cands[task.effect] if task.effect is not None else None
-    jf = joint_fit(task.cfg, fit, task.weights, task.base_values, accepted, cand, task.nfev,
+    base_values = dict(task.base_values)
+    if task.chain:
+        base_values.setdefault(ACQUISITION_DELAY, ESTIMATED_DELAY_START_S)
+    jf = joint_fit(task.cfg, fit, task.weights, base_values, accepted, cand, task.nfev,
                    task.n_quasi_static, task.alternative)
     order = [c for c, _ in accepted] + ([cand] if cand is not None else [])
     model = jf.model(task.cfg, order)
-    fit_res = [r.residual(model) for r in fit]
-    held_res = [r.residual(model) for r in held]
-    return {"effect": task.effect,
+    rig = delay_rig(jf.base_values)
+    fit_res = [r.residual(model, rig=rig) for r in fit]
+    held_res = [r.residual(model, rig=rig) for r in held]
+    return {"effect": task.effect, "chain": task.chain,
             "effects": [c.effect for c in order],
             "base_values": {k: float(v) for k, v in jf.base_values.items()},
             "base_std": {k: float(v) for k, v in jf.base_std.items()},
@@ -329,12 +362,25 @@ class StepFit:
         return model_of(self.cfg, self.out["base_values"],
                         list(zip(self.candidates, self.out["values"])))
 
+    @property
+    def rig(self) -> RigParams | None:
+        """The measurement chain estimated with this fit (``None``: given, or none)."""
+        return delay_rig(self.out["base_values"])
+
+    def residuals(self, records: Sequence[Record]) -> list[np.ndarray]:
+        """The residual of this fit's model through its chain on each of ``records``."""
+        model, rig = self.model(), self.rig
+        return [r.residual(model, rig=rig) for r in records]
+
     def score_against(self, ref: StepFit, floor_reached: bool) -> None:
         """Held-out gain and ΔBIC against ``ref`` (module docstring, steps 4–6)."""
         sse0 = ref.sse_held
         self.score = 1.0 - math.sqrt(self.sse_held / sse0) if sse0 > 0 else 0.0
         k = (sum(len(c.parameters) for c in self.candidates)
-             - sum(len(c.parameters) for c in ref.candidates))
+             - sum(len(c.parameters) for c in ref.candidates)
+             # the estimated chain's delay, where this fit has it and ``ref`` not
+             + (ACQUISITION_DELAY in self.out["base_values"])
+             - (ACQUISITION_DELAY in ref.out["base_values"]))
         dbic, n_eff_total = 0.0, 0.0
         for name, f in self.out["fit"].items():
             # rho: lag1, clipped to MAX_RHO
@@ -395,6 +441,8 @@ class Diagnosis:
     pair_gain: float | None = None
     base_model: DamperModel | None = None
     records: list[Record] = field(default_factory=list)
+    #: the term discovered in what the library left (:mod:`.discovery`), if it ran
+    discovered: Discovery | None = None
 
     @property
     def chosen(self) -> StepFit | None:
@@ -411,6 +459,37 @@ class Diagnosis:
         # (base_model: set by diagnose(); None only in a Diagnosis built without it)
         return (self.final.model() if self.final is not None
                 else cast(DamperModel, self.base_model))
+
+    def base_after_json(self) -> dict[str, Any] | None:
+        """The JSON's ``base_parameters_after``: the paper's parameters of the model after
+        the diagnosis (with a significant discovered term, its joint refit's) ± 1σ."""
+        found, final = self.discovered, self.final
+        if found is not None and found.significant and found.refitted:
+            values, std = found.base_values, found.base_std
+        elif final is not None:
+            values, std = final.out["base_values"], final.out["base_std"]
+        else:
+            return None
+        return {"values": _damper(values), "uncertainties": _sds(_damper(std))}
+
+    def rig_after(self) -> RigParams | None:
+        """The chain estimated with :meth:`model_after` (``None``: given, or none)."""
+        return self.final.rig if self.final is not None else None
+
+    def acquisition_json(self) -> dict[str, Any]:
+        """The JSON's ``acquisition``: the chain given, or the one estimated with the
+        model after the diagnosis (its delay ± 1σ), or none."""
+        given = self.records[0].data.acquisition if self.records else None
+        final = self.final
+        if given is not None or final is None or ACQUISITION_DELAY not in final.out[
+                "base_values"]:
+            return chain_json(given)
+        tau = float(final.out["base_values"][ACQUISITION_DELAY])
+        rig = estimated_rig(tau)
+        return {"source": "estimated", "rig": rig_to_mapping(rig)["rig"],
+                "force_delay_s": tau,
+                "force_delay_std_s": _sd(final.out["base_std"].get(ACQUISITION_DELAY)),
+                "reading": estimated_reading(tau)}
 
     def effects_json(self) -> list[dict[str, Any]]:
         out = []
@@ -431,7 +510,6 @@ class Diagnosis:
 
     def to_json(self) -> dict[str, Any]:
         chosen = self.chosen
-        final = self.final
         effects = self.effects_json()
         main = effects[0] if effects else None
         doc: dict[str, Any] = {
@@ -455,12 +533,10 @@ class Diagnosis:
                          "parameters": self.closest.extension}
                         if self.closest else None),
             "refit": ({"rms": {**self.refit.rms_fit, **self.refit.rms_held_out},
-                       "parameters": self.refit.out["base_values"],
-                       "uncertainties": _sds(self.refit.out["base_std"])}
+                       "parameters": _damper(self.refit.out["base_values"]),
+                       "uncertainties": _sds(_damper(self.refit.out["base_std"]))}
                       if self.refit else None),
-            "base_parameters_after": ({"values": final.out["base_values"],
-                                       "uncertainties": _sds(final.out["base_std"])}
-                                      if final else None),
+            "base_parameters_after": self.base_after_json(),
             "rounds": [[{"effect": f.candidate.effect if f.candidate else None,
                          "effects": f.effects,
                          "score": f.score, "delta_bic": f.delta_bic,
@@ -468,8 +544,8 @@ class Diagnosis:
                          "reidentified": bool(f.out.get("reidentified")),
                          "friction_factor": f.out.get("friction_factor")} for f in rnd]
                        for rnd in self.rounds],
-            "acquisition": chain_json(self.records[0].data.acquisition
-                                      if self.records else None),
+            "acquisition": self.acquisition_json(),
+            "discovered": self.discovered.to_json() if self.discovered is not None else None,
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "floor_N": self.floor_n, "noise_N": self.noise_n,
@@ -482,6 +558,9 @@ class Diagnosis:
             "seconds": round(self.seconds, 2)}
         return doc
 
+
+#: the chain candidate's place in a round's list of effects (:func:`diagnose`)
+CHAIN = "(the rig's delay)"
 
 #: a task of the pool and its result
 _T = TypeVar("_T")
@@ -540,7 +619,7 @@ def weigh_effects(refit: StepFit, ref_held: Sequence[np.ndarray], steps: list[St
     closest is the first step (for a pair, the pair's fit, scored against ``refit``)."""
     if not steps:
         return steps, None, 0.0, pair_gain
-    final_held = [r.residual(steps[-1].model()) for r in held]
+    final_held = steps[-1].residuals(held)
     explained = explained_fraction(ref_held, final_held)
     if (explained >= min_explained or structure_ratio(final_held) <= structure
             or pooled_rms(final_held) <= floor):
@@ -552,16 +631,51 @@ def weigh_effects(refit: StepFit, ref_held: Sequence[np.ndarray], steps: list[St
     return [], closest, explained, None
 
 
+def _discover(diag: Diagnosis, base: DamperModel, fit: Sequence[Record],
+              held: Sequence[Record], weights: Sequence[float], floor: float,
+              n_quasi_static: int, nfev: int, say: Callable[[str], None]) -> Discovery:
+    """Step 8: the term discovery on what the library left (module
+    :mod:`damper_emulator.diagnose.discovery`), from the model after the diagnosis and
+    from the identified model (whose parameters no fit has bent towards the effect: a
+    refit of the paper's model alone gave a 6 kg inertia's chirp 70 N of error on the
+    quasi-static test), the one whose term gains more on the held-out files; then the
+    term fitted jointly with the model after the diagnosis."""
+    final = diag.final
+    after_model, after_rig = diag.model_after(), diag.rig_after()
+    say("discovery: what the library left, regressed on the dictionary of motion and "
+        "model states")
+    found = discover(after_model, after_rig, fit, held, weights, floor,
+                     diag.structure_after, STRUCTURE_RATIO, MIN_SCORE, MAX_DELTA_BIC, say)
+    if not found.ran or final is None:
+        return found
+    alt = discover(base, after_rig, fit, held, weights, 0.0, math.inf, STRUCTURE_RATIO,
+                   MIN_SCORE, MAX_DELTA_BIC, say)
+    if alt.features and (not found.features or alt.held_out_gain > found.held_out_gain):
+        say("discovery: the term found on the identified model's residual is taken")
+        found = alt
+    if not found.features:
+        return found
+    accepted = list(zip(final.candidates, final.out["values"]))
+    return refit_with_term(found, diag.base_model.cfg if diag.base_model else base.cfg,
+                           final.out["base_values"], accepted, fit, held, weights,
+                           final.residuals(fit), final.residuals(held), MIN_SCORE,
+                           MAX_DELTA_BIC, n_quasi_static, nfev, say)
+
+
 def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
              held_out_data: Sequence[MeasuredData], effects: Sequence[str] | None = None,
              progress: Progress = None, jobs: int | None = None,
              executor: Executor | None = None, max_effects: int = MAX_EFFECTS,
-             nfev: int = JOINT_NFEV, n_quasi_static: int = 1) -> Diagnosis:
+             nfev: int = JOINT_NFEV, n_quasi_static: int = 1,
+             discovery: bool = True) -> Diagnosis:
     """Diagnose the residual of ``base`` (the identified model) on ``fit_data``
     (quasi-static and chirp: fitted) and ``held_out_data`` (scored only), with the
     candidates ``effects`` (default: all); module docstring.  The first ``n_quasi_static``
     files of ``fit_data`` are quasi-static tests, the others chirps (the re-identification
     of a local effect needs to know which).
+
+    ``discovery``: regress what the library leaves on the dictionary of
+    :mod:`damper_emulator.diagnose.discovery` (step 8).
 
     The fits run on ``executor`` (any :class:`concurrent.futures.Executor`, e.g. a Dask
     client's ``get_executor()``) or, without one, in ``jobs`` forked processes (default
@@ -601,6 +715,10 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     cands = make_candidates(cfg, [r.data for r in fit], effects)
     by_effect = {c.effect: c for c in cands}
     base_values = {p.name: p.start for p in base_parameters(cfg, [r.data for r in fit])}
+    estimate = chain_unknown([r.data for r in records])
+    if estimate:
+        say("no measurement chain given (--rig): the rig's delay of the force against the "
+            "displacement competes with the effects (the chain candidate)")
 
     def task(present: StepFit | None, effect: str | None,
              before: StepFit | None = None) -> FitTask:
@@ -614,8 +732,10 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
         bv = {**base_values, **bv}
         alt = (None if before is None else
                (before.out["base_values"], dict(zip(before.effects, before.out["values"]))))
+        chain = effect == CHAIN
         return FitTask(cfg, tuple(r.data for r in fit), tuple(r.data for r in held),
-                       tuple(weights), bv, acc, effect, nfev, n_quasi_static, alt)
+                       tuple(weights), bv, acc, None if chain else effect, nfev,
+                       n_quasi_static, alt, chain)
 
     def step_fit(present: StepFit | None, out: dict[str, Any]) -> StepFit:
         order = ([] if present is None else list(present.candidates))
@@ -633,15 +753,16 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             # the longest fits first (a round ends with its last fit: better several short
             # ones than one long one alone on a worker)
             order = sorted(range(len(effects_)), key=lambda i: -(
-                by_effect[e].relative_cost if (e := effects_[i]) is not None else 0))
-            tasks = [task(present, e, (before or {}).get(e) if e is not None else None)
+                by_effect[e].relative_cost if (e := effects_[i]) in by_effect else 0))
+            tasks = [task(present, e, (before or {}).get(e) if e in by_effect else None)
                      for e in (effects_[i] for i in order)]
             out: list[StepFit | None] = [None] * len(tasks)
             it = (_unordered(executor, run_fit_task, tasks) if executor is not None
                   else local.map_unordered(run_fit_task, tasks))
             for n_done, (i, res) in enumerate(it, 1):
                 out[order[i]] = step_fit(present, res)
-                e = res["effect"] or "paper's model alone"
+                e = res["effect"] or ("the rig's delay" if res["chain"]
+                                      else "present model alone")
                 say(f"{label} [{n_done}/{len(tasks)}] {e}: held-out r.m.s. "
                     + ", ".join(f"{v['rms']:.1f}" for v in res["held"].values())
                     + f" N ({res['evaluations']} simulations, {res['seconds']:.1f} s; "
@@ -682,19 +803,47 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
 
         say(f"round 1: the paper's model refitted and {len(cands)} candidates fitted with "
             f"it ({min(jobs, len(cands) + 1) if executor is None else 'executor'} "
-            "processes)")
-        first = run(None, [None, *by_effect], "round 1")
+            "processes)" + (", and the rig's delay (the chain candidate)" if estimate
+                            else ""))
+        chain_slot = [CHAIN] if estimate else []
+        first = run(None, [None, *chain_slot, *by_effect], "round 1")
         refit, fits = first[0], first[1:]
+        chain_fit = fits.pop(0) if estimate else None
         present = refit
         remaining = list(by_effect)
         while True:
-            held_res = [r.residual(present.model()) for r in held]
+            held_res = present.residuals(held)
             floor, _noise = floor_level(held, held_res)
             small = pooled_rms(held_res) <= floor
             for f in fits:
                 f.score_against(present, small)
-            rounds.append(sorted(fits, key=lambda f: (-f.significant, -f.score)))
             sig = [f for f in fits if f.significant]
+            if chain_fit is not None:
+                chain_fit.score_against(present, small)
+                say(f"round {len(rounds) + 1}: the rig's delay "
+                    f"{1e3 * chain_fit.out['base_values'][ACQUISITION_DELAY]:.3f} ms gain "
+                    f"{100 * chain_fit.score:+.1f} %, ΔBIC {chain_fit.delta_bic:.0f}"
+                    f"{' (significant)' if chain_fit.significant else ''}")
+                if chain_fit.significant and all(chain_fit.score >= f.score for f in sig):
+                    # the rig explains more than any effect: taken (not an effect), and
+                    # the round again on top of it, every fit with the delay free
+                    say(f"round {len(rounds) + 1}: the rig's delay taken: "
+                        "every later fit frees it")
+                    chain_taken = chain_fit
+                    if steps:  # the last step's model, with the delay
+                        for attr in ("score", "delta_bic", "significant"):
+                            setattr(chain_fit, attr, getattr(steps[-1], attr))
+                        chain_fit.candidates = list(steps[-1].candidates)
+                        steps[-1] = chain_fit
+                    nxt = run(chain_fit, [None, *remaining], f"round {len(rounds) + 1} "
+                              "(with the rig's delay)", {f._added.effect: f for f in fits})
+                    present, fits, chain_fit = nxt[0], nxt[1:], None
+                    if present.sse_held > chain_taken.sse_held:
+                        present = chain_taken
+                    if not steps:
+                        refit = present
+                    continue
+            rounds.append(sorted(fits, key=lambda f: (-f.significant, -f.score)))
             for f in rounds[-1][:3]:
                 say(f"round {len(rounds)}: {f._added.effect} gain {100 * f.score:+.1f} %, "
                     f"ΔBIC {f.delta_bic:.0f}{' (significant)' if f.significant else ''}")
@@ -714,7 +863,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             remaining.remove(best._added.effect)
             say(f"added {best._added.effect} ({best._added.family}): held-out gain "
                 f"{100 * best.score:.1f} %")
-            held_best = [r.residual(best.model()) for r in held]
+            held_best = best.residuals(held)
             if (len(steps) >= max_effects or not remaining
                     or pooled_rms(held_best) <= floor_level(held, held_best)[0]):
                 break
@@ -722,14 +871,31 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             # candidate must beat the present model's own further convergence, not only
             # its last fit) and every remaining candidate on top of it
             # (each candidate also from its own fit of this round: joint_fit, the other
-            # order)
-            nxt = run(best, [None, *remaining], f"round {len(rounds) + 1}",
+            # order); the chain candidate again while it has not been taken
+            with_chain = [CHAIN] if chain_fit is not None else []
+            nxt = run(best, [None, *with_chain, *remaining], f"round {len(rounds) + 1}",
                       {f._added.effect: f for f in fits})
             present, fits = nxt[0], nxt[1:]
+            if with_chain:
+                chain_fit = fits.pop(0)
             if present.sse_held > best.sse_held:
                 present = best
 
-    ref_held = [r.residual(refit.model()) for r in held]
+        if estimate and steps and ACQUISITION_DELAY not in steps[-1].out["base_values"]:
+            # the effects are in: the rig's delay on top of them, taken if significant
+            (last,) = run(steps[-1], [CHAIN], "the rig's delay on the effects")
+            last_held = steps[-1].residuals(held)
+            last.score_against(steps[-1], pooled_rms(last_held)
+                               <= floor_level(held, last_held)[0])
+            say(f"the rig's delay {1e3 * last.out['base_values'][ACQUISITION_DELAY]:.3f} "
+                f"ms on the effects: gain {100 * last.score:+.1f} %, ΔBIC "
+                f"{last.delta_bic:.0f}{' (taken)' if last.significant else ''}")
+            if last.significant:
+                for attr in ("score", "delta_bic", "significant"):
+                    setattr(last, attr, getattr(steps[-1], attr))
+                steps[-1] = last
+
+    ref_held = refit.residuals(held)
     floor, noise = floor_level(held, ref_held)
     structure_ref = structure_ratio(ref_held)
     steps, closest, explained, pair_gain = weigh_effects(refit, ref_held, steps, held, floor,
@@ -747,10 +913,21 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                      structure_after=0.0, seconds=0.0, refit=refit, steps=steps,
                      rounds=rounds, closest=closest, explained=explained, floor_n=floor,
                      noise_n=noise, base_model=base, records=records, pair_gain=pair_gain)
-    after_model = diag.model_after()
-    after = {r.name: r.residual(after_model) for r in records}
+    after_model, after_rig = diag.model_after(), diag.rig_after()
+    after = {r.name: r.residual(after_model, rig=after_rig) for r in records}
     diag.rms_after = {r.name: rms(after[r.name]) for r in records}
     diag.structure_after = structure_ratio([after[r.name] for r in held])
+    if discovery:
+        found = _discover(diag, base, fit, held, weights, floor, n_quasi_static, nfev, say)
+        diag.discovered = found
+        if found is not None and found.significant:
+            diag.rms_after = dict(found.rms_after)
+            diag.structure_after = structure_ratio(
+                [term - missing for term, missing, _ in found.series.values()])
+            if not steps:
+                family = diag.family = found.family_hint or "other"
+                diag.effect = "discovered"
+                diag.significant = True
     diag.seconds = time.perf_counter() - t_start
     say(f"diagnosis: {family}" + (f" ({', '.join(s._added.effect for s in steps)})"
                                   if steps else "") + f" in {diag.seconds:.1f} s")

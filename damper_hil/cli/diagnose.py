@@ -95,6 +95,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"diagnosis: {result.family}" + "".join(
         f"{' +' if k else ''} ({s.candidate.effect}, held-out r.m.s. -{100 * s.score:.1f} %)"
         for k, s in enumerate(result.steps)))
+    found = result.discovered
+    if found is not None and found.features:
+        print(f"discovered{'' if found.significant else ' (not significant)'}: "
+              f"{found.expression} (held-out r.m.s. {-100 * found.held_out_gain:+.1f} %, "
+              f"family hint {found.family_hint})")
     print(f"{'file':<{width}}  {'role':>8}  {'before [N]':>10}  {'after [N]':>10}")
     for r in result.records:
         print(f"{r.name:<{width}}  {'held out' if r.held_out else 'fit':>8}  "

@@ -1,0 +1,626 @@
+"""Term discovery: what a diagnosis leaves, regressed on a dictionary of physical features
+of the measured motion and of the model's own states, with sparse regression and
+stability selection; the term read as an expression with units and a family hint.
+
+Procedure (:func:`discover`), after the library's rounds (:func:`~damper_emulator.
+diagnose.selection.diagnose`):
+
+1. **Gate.**  Only where structure remains: the final model's held-out residual above the
+   floor and above :data:`~damper_emulator.diagnose.selection.STRUCTURE_RATIO` × its
+   noise level.  An effect the library found and explained leaves nothing to discover.
+2. **Dictionary** (:func:`features`): per sample of every file, each feature of
+   :data:`FEATURES` (acceleration; velocity, its powers and its smooth sign; stroke and its
+   powers; products; Gaussian position profiles times velocity; temperature and the
+   energy dissipated so far, times the model's force; first-order lags of the model's
+   force; the compression chamber's (gas) pressure and the pressure drop across the
+   piston, times the smooth sign of velocity).  Each column passes through the same
+   measurement chain as the model's force (given, or estimated): the term is a force of
+   the damper, recorded as the rest of it.
+3. **Stability selection** (Meinshausen & Bühlmann 2010) on the identification files:
+   :data:`SUBSAMPLES` random halves of the records' :data:`BLOCK_S` blocks (blocks, not
+   samples: a dyno residual is correlated over milliseconds), each regressed by
+   orthogonal matching pursuit (scikit-learn) with at most :data:`MAX_TERMS` features on
+   the standardised dictionary; a feature is *stable* when chosen in at least
+   :data:`MIN_FREQUENCY` of them.
+4. **Fit and prune.**  Least squares of the stable features on every identification
+   sample (rows weighted as the joint fits weigh the files), then backward elimination:
+   a feature whose removal raises the effective BIC by less than ``-MAX_DELTA_BIC`` goes.
+   A Gaussian profile's centre and width are then refined by bounded least squares.
+5. **Score** exactly as a candidate: the held-out gain ``1 − √(SSE_after/SSE_before)``
+   and the effective ΔBIC on the identification files against the final model; the term
+   is *significant* with a gain of at least ``MIN_SCORE`` and ``ΔBIC ≤ MAX_DELTA_BIC``.
+   The diagnosis (``selection._discover``) then fits the term *with* the model
+   (:func:`refit_with_term`: the paper's parameters, the effects, the chain's delay and
+   the term's coefficients in one joint fit) and scores that fit the same way.
+6. **Reading.**  The expression with units, the variables it depends on and the family
+   hint of its largest part (:data:`HINTS`).
+
+The term is additive on the damper's force and linear in its coefficients; the
+coefficients' σ are the least-squares ones inflated for the residual's lag-1
+autocorrelation, as the joint fits' are.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from damper_emulator.acquisition.chain import filter_samples, model_record
+from damper_emulator.acquisition.rig import ForceChannel, RigParams
+from damper_emulator.diagnose.candidates import Parameter
+from damper_emulator.diagnose.joint import (
+    JOINT_NFEV,
+    TERM_PREFIX,
+    Record,
+    TermSource,
+    bic_term,
+    delay_rig,
+    effective_samples,
+    joint_fit,
+    lag1,
+)
+from damper_emulator.model.compressible import DamperModel
+from damper_emulator.validation import simulate_measured
+
+__all__ = ["FEATURES", "Discovery", "Feature", "Motion", "discover", "features"]
+
+#: the smooth sign of velocity: ``tanh(ẋ / V_SIGN)`` [m/s] (a seal's pre-sliding range)
+V_SIGN_M_S = 0.005
+#: first-order lags of the model's force tried as features [s]
+LAGS_S = (0.002, 0.005, 0.01)
+#: Gaussian position profiles: ``(centre, width)`` as fractions of the largest |stroke|
+#: of the identification files; a coarse row and a fine one (a zone a few mm long within
+#: the chirp's stroke, a fifth of the quasi-static test's, needs the fine)
+GAUSS_GRID = (*((c, 0.2) for c in (-0.6, -0.3, 0.0, 0.3, 0.6)),
+              *((0.1 * k, 0.1) for k in range(-4, 5)))
+#: stability selection: subsamples, the length of a block [s], the fraction of the
+#: subsamples a stable feature is chosen in, the most features of a term
+SUBSAMPLES = 40
+BLOCK_S = 0.25
+MIN_FREQUENCY = 0.7
+MAX_TERMS = 3
+#: the subsamples are drawn with this seed: a diagnosis is reproducible
+SEED = 0
+
+#: the family hint of each variable a feature depends on (the largest part's wins)
+HINTS = {"acceleration": "inertia", "delay": "valve_dynamics",
+         "temperature": "thermal", "energy": "thermal", "friction": "friction",
+         "stroke·velocity": "position_dependent", "stroke": "end_stop",
+         "stroke (linear)": "gas_spring", "pressure": "valve_dynamics",
+         # a term of velocity alone: a valve characteristic the paper's law cannot follow
+         "velocity": "valve_dynamics"}
+
+
+@dataclass
+class Motion:
+    """What the features of one record are made of: the measured motion, the final
+    model's force and chamber pressures on it, and the record's reference scales."""
+
+    t: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    temperature: np.ndarray | None
+    energy: np.ndarray
+    force_model: np.ndarray
+    p_rebound: np.ndarray
+    p_compression: np.ndarray
+    #: the largest |stroke| of the identification files [m] (the Gaussians' scale)
+    x_ref: float
+    #: the mean temperature of the identification files [°C]
+    t_ref: float
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One column of the dictionary: its symbol, the unit of its coefficient, the
+    variable it names (a key of :data:`HINTS`), how it is computed, and how a coefficient
+    of it reads (``text(c)``; ``None``: ``f"{c:+.3g} {unit} · {symbol}"``)."""
+
+    symbol: str
+    unit: str
+    variable: str
+    fn: Callable[[Motion], np.ndarray]
+    #: the parameters of a profile refined after selection (centre, width) [m]
+    profile: tuple[float, float] | None = None
+
+    def text(self, c: float) -> str:
+        return f"{c:+.4g} {self.unit} · {self.symbol}"
+
+
+def _sgn(m: Motion) -> np.ndarray:
+    out: np.ndarray = np.tanh(m.v / V_SIGN_M_S)
+    return out
+
+
+def _lag(tau: float) -> Callable[[Motion], np.ndarray]:
+    ch = ForceChannel(filter="butterworth", order=1, cutoff_hz=1.0 / (2.0 * math.pi * tau))
+
+    def fn(m: Motion) -> np.ndarray:
+        out: np.ndarray = filter_samples(m.t, m.force_model, ch) - m.force_model
+        return out
+    return fn
+
+
+def gaussian(centre: float, width: float) -> Callable[[Motion], np.ndarray]:
+    """``exp(−(x − c)² / (2 w²)) · ẋ``: damping over a part of the stroke."""
+    def fn(m: Motion) -> np.ndarray:
+        out: np.ndarray = np.exp(-0.5 * ((m.x - centre) / width) ** 2) * m.v
+        return out
+    return fn
+
+
+def profile_feature(centre: float, width: float) -> Feature:
+    """The Gaussian profile feature at ``centre`` and ``width`` [m]."""
+    return Feature(f"exp(−(x − {1e3 * centre:.3g} mm)² / (2 · ({1e3 * width:.3g} mm)²)) · ẋ",
+                   "N·s/m", "stroke·velocity", gaussian(centre, width), (centre, width))
+
+
+def _features(x_ref: float) -> list[Feature]:
+    vs = f"{1e3 * V_SIGN_M_S:g} mm/s"
+    out = [
+        Feature("ẍ", "kg", "acceleration", lambda m: m.a),
+        Feature("ẋ", "N·s/m", "velocity", lambda m: m.v),
+        Feature("ẋ|ẋ|", "N·s²/m²", "velocity", lambda m: m.v * np.abs(m.v)),
+        Feature("ẋ³", "N·s³/m³", "velocity", lambda m: m.v ** 3),
+        Feature(f"tanh(ẋ / {vs})", "N", "friction", _sgn),
+        Feature("x", "N/m", "stroke (linear)", lambda m: m.x),
+        Feature("x²", "N/m²", "stroke", lambda m: m.x ** 2),
+        Feature("x³", "N/m³", "stroke", lambda m: m.x ** 3),
+        Feature("x · ẋ", "N·s/m²", "stroke·velocity", lambda m: m.x * m.v),
+        Feature("x² · ẋ", "N·s/m³", "stroke·velocity", lambda m: m.x ** 2 * m.v),
+        Feature(f"x² · tanh(ẋ / {vs})", "N/m²", "friction", lambda m: m.x ** 2 * _sgn(m)),
+        Feature(f"|x| · tanh(ẋ / {vs})", "N/m", "friction",
+                lambda m: np.abs(m.x) * _sgn(m)),
+        Feature(f"p_c · tanh(ẋ / {vs})", "m²", "friction",
+                lambda m: m.p_compression * _sgn(m)),
+        Feature(f"p_r · tanh(ẋ / {vs})", "m²", "friction",
+                lambda m: m.p_rebound * _sgn(m)),
+        Feature("(p_r − p_c)", "m²", "pressure", lambda m: m.p_rebound - m.p_compression),
+        Feature("E · F_model", "1/J", "energy", lambda m: m.energy * m.force_model),
+    ]
+    out += [profile_feature(c * x_ref, w * x_ref) for c, w in GAUSS_GRID]
+    for tau in LAGS_S:
+        out.append(Feature(f"(lag_{1e3 * tau:g}ms(F_model) − F_model)", "-", "delay",
+                           _lag(tau)))
+    return out
+
+
+def _temperature_features() -> list[Feature]:
+    return [Feature("(T − T_ref) · F_model", "1/K", "temperature",
+                    lambda m: (m.temperature - m.t_ref) * m.force_model
+                    if m.temperature is not None else np.zeros_like(m.t))]
+
+
+#: the dictionary's features for a stroke scale of 50 mm (the list :func:`features` uses
+#: is built for the files' own scale; this one is for the documentation)
+FEATURES = _features(0.05) + _temperature_features()
+
+
+def motion(model: DamperModel, rec: Record, x_ref: float, t_ref: float) -> Motion:
+    """The :class:`Motion` of ``rec`` under ``model`` (simulated once, before any
+    chain)."""
+    d = rec.data
+    res = simulate_measured(model, d if d.acquisition is None else
+                            _without_chain(d), rec.velocity)
+    v = rec.velocity
+    a = np.gradient(v, d.time)
+    power = d.force * v
+    energy = np.concatenate([[0.0], np.cumsum(0.5 * (power[1:] + power[:-1])
+                                              * np.diff(d.time))])
+    return Motion(d.time, d.displacement, v, a, d.temperature, energy, res.force_n,
+                  res.rebound_pressure_pa, res.compression_pressure_pa, x_ref, t_ref)
+
+
+def _without_chain(d: Any) -> Any:
+    import dataclasses
+
+    return dataclasses.replace(d, acquisition=None)
+
+
+def _through(rec: Record, col: np.ndarray, rig: RigParams | None) -> np.ndarray:
+    """A feature column through the record's chain (given) or ``rig`` (estimated)."""
+    chain = rec.data.acquisition if rec.data.acquisition is not None else rig
+    if chain is None or chain.does_nothing:
+        return col
+    return model_record(rec.data.time, col, chain)
+
+
+def features(model: DamperModel, records: Sequence[Record], rig: RigParams | None,
+             fit_records: Sequence[Record]
+             ) -> tuple[list[Feature], list[np.ndarray], list[Motion]]:
+    """The dictionary (its features, and per record the matrix of their columns through
+    the chain, counted samples only, and the record's :class:`Motion`) for ``model`` on
+    ``records``; the scales from ``fit_records``."""
+    x_ref = max(float(np.max(np.abs(r.data.displacement))) for r in fit_records)
+    temps = [r.data.temperature for r in fit_records if r.data.temperature is not None]
+    t_ref = float(np.mean(np.concatenate(temps))) if temps else 0.0
+    feats = _features(x_ref) + (_temperature_features() if temps else [])
+    mats, motions = [], []
+    for rec in records:
+        m = motion(model, rec, x_ref, t_ref)
+        cols = [_through(rec, f.fn(m), rig)[rec.start:] for f in feats]
+        mats.append(np.column_stack(cols))
+        motions.append(m)
+    return feats, mats, motions
+
+
+@dataclass
+class Discovery:
+    """Result of :func:`discover`; :meth:`to_json` is the diagnosis JSON's
+    ``discovered``."""
+
+    ran: bool
+    reason: str
+    features: list[Feature] = field(default_factory=list)
+    coefficients: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    std: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    frequency: dict[str, float] = field(default_factory=dict)
+    held_out_gain: float = 0.0
+    delta_bic: float = 0.0
+    significant: bool = False
+    rms_held_out_before: dict[str, float] = field(default_factory=dict)
+    rms_held_out_after: dict[str, float] = field(default_factory=dict)
+    #: r.m.s. [N] of every record (fitted and held out) with the term added
+    rms_after: dict[str, float] = field(default_factory=dict)
+    #: per held-out record: (the term's value, the force it is to explain, the main
+    #: variable's values) for the plots
+    series: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(
+        default_factory=dict)
+    #: the variable the largest part depends on, and its family hint
+    main_variable: str = ""
+    seconds: float = 0.0
+    #: whether the coefficients come from the joint refit with the model
+    #: (:func:`refit_with_term`), and that fit's paper's parameters (and the delay, the
+    #: coefficients) with their σ
+    refitted: bool = False
+    base_values: dict[str, float] = field(default_factory=dict)
+    base_std: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def expression(self) -> str:
+        return " ".join(f.text(c) for f, c in zip(self.features, self.coefficients))
+
+    @property
+    def variables(self) -> list[str]:
+        return sorted({f.variable for f in self.features})
+
+    @property
+    def family_hint(self) -> str | None:
+        return HINTS.get(self.main_variable) if self.features else None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "ran": self.ran, "reason": self.reason,
+            "expression": self.expression if self.features else None,
+            "variables": self.variables,
+            "coefficients": [{"term": f.symbol, "value": float(c),
+                              "std": float(s) if math.isfinite(s) else None,
+                              "unit": f.unit}
+                             for f, c, s in zip(self.features, self.coefficients, self.std)],
+            "selection_frequency": self.frequency,
+            "held_out_gain": self.held_out_gain, "delta_bic": self.delta_bic,
+            "significant": self.significant, "family_hint": self.family_hint,
+            "rms_held_out_before": self.rms_held_out_before,
+            "rms_held_out_after": self.rms_held_out_after,
+            "refitted_with_model": self.refitted,
+            "seconds": round(self.seconds, 2)}
+
+
+def refine_profile(feats: Sequence[Feature], j: int, chosen: Sequence[int],
+                   fit: Sequence[Record], motions: Sequence[Motion],
+                   fit_res: Sequence[np.ndarray], weights: Sequence[float],
+                   rig: RigParams | None) -> Feature:
+    """The Gaussian profile ``feats[j]`` (one of the columns ``chosen``) with its centre
+    and width fitted by bounded least squares (the other chosen columns' coefficients
+    solved at each step; the profile within the files' stroke, its width from 2 % to the
+    whole stroke)."""
+    from scipy.optimize import least_squares
+
+    f = feats[j]
+    assert f.profile is not None
+    x_ref = motions[0].x_ref
+    w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
+    y = -np.concatenate(fit_res) * w_rows
+    fixed = [np.concatenate([_through(r, o.fn(m), rig)[r.start:]
+                             for r, m in zip(fit, motions)]) * w_rows
+             for o in (feats[k] for k in chosen if k != j)]
+
+    def resid(p: np.ndarray) -> np.ndarray:
+        g = profile_feature(float(p[0]), float(p[1]))
+        col = np.concatenate([_through(r, g.fn(m), rig)[r.start:]
+                              for r, m in zip(fit, motions)]) * w_rows
+        a = np.column_stack([col, *fixed])
+        beta, *_ = np.linalg.lstsq(a, y, rcond=None)
+        out: np.ndarray = y - a @ beta
+        return out
+
+    lo = np.array([-x_ref, 0.02 * x_ref])
+    hi = np.array([x_ref, x_ref])
+    sol = least_squares(resid, np.clip(np.array(f.profile), lo, hi), bounds=(lo, hi),
+                        x_scale=np.array([0.1 * x_ref, 0.1 * x_ref]), max_nfev=40)
+    return profile_feature(float(sol.x[0]), float(sol.x[1]))
+
+
+#: the quantity each variable is plotted against: (label with unit, scale to it, field of
+#: :class:`Motion`)
+PLOTTED = {"acceleration": ("ẍ [m/s²]", 1.0, "a"), "velocity": ("ẋ [m/s]", 1.0, "v"),
+           "friction": ("ẋ [m/s]", 1.0, "v"), "delay": ("ẋ [m/s]", 1.0, "v"),
+           "pressure": ("ẋ [m/s]", 1.0, "v"), "stroke": ("x [mm]", 1e3, "x"),
+           "stroke (linear)": ("x [mm]", 1e3, "x"), "stroke·velocity": ("x [mm]", 1e3, "x"),
+           "temperature": ("T [°C]", 1.0, "temperature"),
+           "energy": ("dissipated energy [kJ]", 1e-3, "energy")}
+
+
+def variable_values(variable: str, m: Motion) -> np.ndarray:
+    """The values of ``variable`` (a key of :data:`PLOTTED`) over a record, in the plot's
+    unit."""
+    _, scale, name = PLOTTED[variable]
+    values = getattr(m, name)
+    out: np.ndarray = (np.zeros_like(m.t) if values is None else values * scale)
+    return out
+
+
+def _blocks(records: Sequence[Record]) -> list[np.ndarray]:
+    """Index arrays of :data:`BLOCK_S` blocks into the concatenated counted samples."""
+    out, offset = [], 0
+    for rec in records:
+        t = rec.data.time[rec.start:]
+        n = t.size
+        edges = np.searchsorted(t, np.arange(t[0], t[-1] + BLOCK_S, BLOCK_S))
+        edges = np.unique(np.append(edges, n))
+        out += [np.arange(offset + a, offset + b) for a, b in zip(edges[:-1], edges[1:])
+                if b > a]
+        offset += n
+    return out
+
+
+def stability(x: np.ndarray, y: np.ndarray, blocks: Sequence[np.ndarray],
+              rng: np.random.Generator) -> np.ndarray:
+    """Selection frequency of each column of ``x`` (standardised) over
+    :data:`SUBSAMPLES` halves of ``blocks``, each regressed by orthogonal matching pursuit
+    with at most :data:`MAX_TERMS` columns."""
+    from sklearn.linear_model import OrthogonalMatchingPursuit
+
+    scale = np.sqrt(np.mean(x * x, axis=0))
+    scale[scale == 0.0] = 1.0
+    xs = x / scale
+    count = np.zeros(x.shape[1])
+    k = min(MAX_TERMS, x.shape[1])
+    for _ in range(SUBSAMPLES):
+        pick = rng.choice(len(blocks), size=max(len(blocks) // 2, 1), replace=False)
+        idx = np.concatenate([blocks[i] for i in pick])
+        omp = OrthogonalMatchingPursuit(n_nonzero_coefs=k, fit_intercept=False)
+        omp.fit(xs[idx], y[idx])
+        count += omp.coef_ != 0.0
+    freq: np.ndarray = count / SUBSAMPLES
+    return freq
+
+
+def _bic(fit_res: Sequence[np.ndarray], ref_res: Sequence[np.ndarray], k: int) -> float:
+    """Effective ΔBIC of residuals ``fit_res`` against ``ref_res`` (the same records)
+    with ``k`` added parameters, as a candidate's (``StepFit.score_against``)."""
+    dbic, n_eff = 0.0, 0.0
+    for r, r0 in zip(fit_res, ref_res):
+        rho = lag1(r)
+        dbic += bic_term(r.size, rho, float(np.mean(r * r)), float(np.mean(r0 * r0)))
+        n_eff += effective_samples(r.size, rho)
+    return dbic + k * math.log(max(n_eff, 2.0))
+
+
+def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
+             held: Sequence[Record], weights: Sequence[float], floor: float,
+             structure: float, structure_limit: float, min_score: float,
+             max_delta_bic: float, progress: Callable[[str], None] | None = None
+             ) -> Discovery:
+    """Discover a term in the residual of ``model`` (with the estimated chain ``rig``) on
+    the identification records ``fit`` (weighted by ``weights``), scored on ``held``;
+    the gate's ``floor`` and ``structure`` (held-out r.m.s. over its noise level) against
+    ``structure_limit``, the significance rules ``min_score`` and ``max_delta_bic``
+    (module docstring)."""
+    import time
+
+    t0 = time.perf_counter()
+    say = progress or (lambda msg: None)
+    fit_res = [r.residual(model, rig=rig) for r in fit]
+    held_res = [r.residual(model, rig=rig) for r in held]
+    held_rms = math.sqrt(sum(float(np.dot(r, r)) for r in held_res)
+                         / max(sum(r.size for r in held_res), 1))
+    before = {r.name: float(np.sqrt(np.mean(x * x))) for r, x in zip(held, held_res)}
+    if held_rms <= floor or structure <= structure_limit:
+        return Discovery(False, f"nothing to discover: held-out r.m.s. {held_rms:.2f} N "
+                         f"(floor {floor:.2f} N), structure ratio {structure:.2f} "
+                         f"(limit {structure_limit})", rms_held_out_before=before,
+                         seconds=time.perf_counter() - t0)
+    feats, fit_mats, fit_motion = features(model, fit, rig, fit)
+    _, held_mats, held_motion = features(model, held, rig, fit)
+    w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
+    x = np.vstack(fit_mats) * w_rows[:, None]
+    y = -np.concatenate(fit_res) * w_rows  # the missing force: F_meas − F_model
+    keep = np.any(x != 0.0, axis=0)
+    freq = np.zeros(len(feats))
+    freq[keep] = stability(x[:, keep], y, _blocks(fit), np.random.default_rng(SEED))
+    chosen = [j for j in np.argsort(-freq) if freq[j] >= MIN_FREQUENCY][:MAX_TERMS]
+    frequency = {feats[j].symbol: float(freq[j]) for j in np.argsort(-freq)[:6]}
+    say("discovery: selection frequencies " + ", ".join(
+        f"{k} {v:.2f}" for k, v in frequency.items()))
+
+    def solve(cols: Sequence[int]) -> np.ndarray:
+        beta, *_ = np.linalg.lstsq(x[:, cols], y, rcond=None)
+        out: np.ndarray = beta
+        return out
+
+    def after(cols: Sequence[int], beta: np.ndarray, mats: Sequence[np.ndarray],
+              res: Sequence[np.ndarray]) -> list[np.ndarray]:
+        return [r + m[:, cols] @ beta for r, m in zip(res, mats)]
+
+    def prune(cols: list[int]) -> list[int]:
+        """Backward elimination by the effective BIC: the feature whose removal costs
+        least goes while that cost is under ``-max_delta_bic``."""
+        while cols:
+            full = _bic(after(cols, solve(cols), fit_mats, fit_res), fit_res, len(cols))
+            worst, worst_gain = None, 0.0
+            for j in cols:
+                rest = [c for c in cols if c != j]
+                b2 = solve(rest) if rest else np.zeros(0)
+                part = _bic(after(rest, b2, fit_mats, fit_res), fit_res, len(rest))
+                if part - full < -max_delta_bic and (worst is None or part - full < worst_gain):
+                    worst, worst_gain = j, part - full
+            if worst is None:
+                break
+            cols = [c for c in cols if c != worst]
+        return cols
+
+    chosen = prune(chosen)
+    if not chosen:
+        return Discovery(True, "no feature is stable", frequency=frequency,
+                         rms_held_out_before=before, seconds=time.perf_counter() - t0)
+    for j in chosen:  # a Gaussian profile's centre and width, refined
+        f = feats[j]
+        if f.profile is not None:
+            feats[j] = refine_profile(feats, j, chosen, fit, fit_motion, fit_res, weights,
+                                      rig)
+            col = [_through(r, feats[j].fn(m), rig)[r.start:] for r, m in zip(fit, fit_motion)]
+            x[:, j] = np.concatenate(col) * w_rows
+            for mat, c in zip(fit_mats, col):
+                mat[:, j] = c
+            for rec, m, mat in zip(held, held_motion, held_mats):
+                mat[:, j] = _through(rec, feats[j].fn(m), rig)[rec.start:]
+    # what the refined profile now explains, the others no longer need to
+    chosen = prune(chosen)
+    if not chosen:
+        return Discovery(True, "no feature is significant", frequency=frequency,
+                         rms_held_out_before=before, seconds=time.perf_counter() - t0)
+    beta = solve(chosen)
+    fit_after = after(chosen, beta, fit_mats, fit_res)
+    held_after = after(chosen, beta, held_mats, held_res)
+    sse0 = sum(float(np.dot(r, r)) for r in held_res)
+    sse1 = sum(float(np.dot(r, r)) for r in held_after)
+    gain = 1.0 - math.sqrt(sse1 / sse0) if sse0 > 0 else 0.0
+    dbic = _bic(fit_after, fit_res, len(chosen))
+    # σ of the coefficients: (XᵀX)⁻¹ s², inflated for an AR(1) residual
+    resid = y - x[:, chosen] @ beta
+    rho = max(lag1(r) for r in fit_after)
+    s2 = float(np.dot(resid, resid)) / max(resid.size - len(chosen), 1) \
+        * (1 + rho) / (1 - rho)
+    try:
+        cov = np.linalg.inv(x[:, chosen].T @ x[:, chosen]) * s2
+        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        std = np.full(len(chosen), math.inf)
+    parts = [float(np.sqrt(np.mean((np.vstack(held_mats)[:, j] * b) ** 2)))
+             for j, b in zip(chosen, beta)]
+    main = chosen[int(np.argmax(parts))]
+    found = Discovery(
+        True, "", [feats[j] for j in chosen], beta, std, frequency, gain, dbic,
+        bool(gain >= min_score and dbic <= max_delta_bic), before,
+        {r.name: float(np.sqrt(np.mean(a * a))) for r, a in zip(held, held_after)},
+        {r.name: float(np.sqrt(np.mean(a * a)))
+         for r, a in zip([*fit, *held], [*fit_after, *held_after])},
+        {r.name: (m[:, chosen] @ beta, -x0, variable_values(feats[main].variable, mo)[r.start:])
+         for r, m, x0, mo in zip(held, held_mats, held_res, held_motion)},
+        feats[main].variable, time.perf_counter() - t0)
+    say(f"discovery: {found.expression}: held-out gain {100 * gain:+.1f} %, ΔBIC "
+        f"{dbic:.0f}{' (significant)' if found.significant else ''}")
+    return found
+
+
+
+def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:
+    """The :data:`~damper_emulator.diagnose.joint.TermSource` of the features ``feats``
+    (their scales from the identification records ``fit``): what a joint fit adds."""
+    x_ref = max(float(np.max(np.abs(r.data.displacement))) for r in fit)
+    temps = [r.data.temperature for r in fit if r.data.temperature is not None]
+    t_ref = float(np.mean(np.concatenate(temps))) if temps else 0.0
+
+    def source(model: DamperModel, rec: Record) -> tuple[np.ndarray, np.ndarray]:
+        m = motion(model, rec, x_ref, t_ref)
+        chain = rec.data.acquisition
+        raw = (m.force_model if chain is None or chain.does_nothing
+               else model_record(rec.data.time, m.force_model, chain))
+        return raw, np.column_stack([f.fn(m) for f in feats])
+    return source
+
+
+#: a part of a term whose coefficient after the joint refit is within this many σ of 0
+#: is dropped (and the refit repeated without it)
+MIN_T_RATIO = 3.0
+
+
+def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float],
+                    accepted: Sequence[tuple[Any, Mapping[str, float]]],
+                    fit: Sequence[Record], held: Sequence[Record],
+                    weights: Sequence[float], ref_fit: Sequence[np.ndarray],
+                    ref_held: Sequence[np.ndarray], min_score: float, max_delta_bic: float,
+                    n_quasi_static: int = 1, nfev: int = JOINT_NFEV,
+                    progress: Callable[[str], None] | None = None) -> Discovery:
+    """The discovered term fitted *with* the model: the paper's parameters, the effects
+    ``accepted`` (held at their values), the estimated chain's delay and the term's
+    coefficients in one joint fit (:func:`~damper_emulator.diagnose.joint.joint_fit`)
+    from ``base_values`` and the discovery's coefficients; parts within
+    :data:`MIN_T_RATIO` σ of 0 are dropped.  Scored against the model before (residuals
+    ``ref_fit``, ``ref_held``) as a candidate is."""
+    say = progress or (lambda msg: None)
+    feats = list(found.features)
+    coef = list(found.coefficients)
+    while feats:
+        source = term_source(feats, fit)
+        params = []
+        values = dict(base_values)
+        for k, (f, c) in enumerate(zip(feats, coef)):
+            span = max(10.0 * abs(c), 1e-12)
+            params.append(Parameter(f"{TERM_PREFIX}{k}", -span, span, float(c), False,
+                                    f.unit))
+            values[f"{TERM_PREFIX}{k}"] = float(c)
+        jf = joint_fit(cfg, fit, weights, values, accepted, None, nfev, n_quasi_static,
+                       terms=source, term_parameters=params)
+        coef = [jf.base_values[f"{TERM_PREFIX}{k}"] for k in range(len(feats))]
+        std = [jf.base_std.get(f"{TERM_PREFIX}{k}", math.inf) for k in range(len(feats))]
+        weak = [k for k, (c, s) in enumerate(zip(coef, std))
+                if not abs(c) > MIN_T_RATIO * s]
+        if not weak or len(feats) == 1:
+            break
+        drop = min(weak, key=lambda k: abs(coef[k]) / std[k] if std[k] > 0 else 0.0)
+        say(f"discovery: {feats[drop].symbol} dropped after the joint refit "
+            f"({coef[drop]:.4g} ± {std[drop]:.2g} {feats[drop].unit})")
+        del feats[drop], coef[drop]
+    model = jf.model(cfg, [c for c, _ in accepted])
+    rig = delay_rig(jf.base_values)
+    fit_res = [r.term_residual(model, source, coef, rig) for r in fit]
+    held_res = [r.term_residual(model, source, coef, rig) for r in held]
+    sse0 = sum(float(np.dot(r, r)) for r in ref_held)
+    sse1 = sum(float(np.dot(r, r)) for r in held_res)
+    gain = 1.0 - math.sqrt(sse1 / sse0) if sse0 > 0 else 0.0
+    dbic = _bic(fit_res, ref_fit, len(feats))
+    parts, series = [], {}
+    for rec, r in zip(held, held_res):
+        raw, cols = source(model, rec)
+        term = sum((c * rec.through_chain(col, rig) for c, col in zip(coef, cols.T)),
+                   np.zeros_like(raw))[rec.start:]
+        series[rec.name] = (term, term - r, np.zeros_like(term))
+    for k in range(len(feats)):
+        cols_k = [source(model, rec)[1][:, k] for rec in held]
+        parts.append(float(np.sqrt(np.mean(np.concatenate(cols_k) ** 2))) * abs(coef[k]))
+    main = feats[int(np.argmax(parts))]
+    x_ref = max(float(np.max(np.abs(r.data.displacement))) for r in fit)
+    for rec, (term, missing, _) in list(series.items()):
+        m = motion(model, next(r for r in held if r.name == rec), x_ref, 0.0)
+        start = next(r for r in held if r.name == rec).start
+        series[rec] = (term, missing, variable_values(main.variable, m)[start:])
+    out = Discovery(
+        True, "", feats, np.array(coef), np.array(std), found.frequency, gain, dbic,
+        bool(gain >= min_score and dbic <= max_delta_bic),
+        {r.name: float(np.sqrt(np.mean(x * x))) for r, x in zip(held, ref_held)},
+        {r.name: float(np.sqrt(np.mean(x * x))) for r, x in zip(held, held_res)},
+        {r.name: float(np.sqrt(np.mean(x * x)))
+         for r, x in zip([*fit, *held], [*fit_res, *held_res])},
+        series, main.variable, found.seconds, refitted=True,
+        base_values={k: float(v) for k, v in jf.base_values.items()},
+        base_std={k: float(v) for k, v in jf.base_std.items()})
+    say(f"discovery, refitted with the model: {out.expression}: held-out gain "
+        f"{100 * gain:+.1f} %, ΔBIC {dbic:.0f}{' (significant)' if out.significant else ''}")
+    return out

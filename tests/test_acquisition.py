@@ -208,10 +208,13 @@ def recorded(sport_cfg, tmp_path_factory):
     import yaml
 
     from damper_emulator.diagnose.truth import Protocol, simulate_session
+    from damper_emulator.dyno.protocols import Chirp, QuasiStatic
 
     rig = RigParams(force=ForceChannel(filter="butterworth", order=2, cutoff_hz=100.0,
                                        adc_bits=16, full_scale_n=10_000.0, skew_s=1e-3))
-    proto = Protocol(sines=((12.0, 0.005),))
+    # the sine is the file used; the identification tests as short as the protocol allows
+    proto = Protocol(quasi_static=QuasiStatic(amplitude_m=0.005, cycles=1),
+                     chirp=Chirp(duration_s=1.0), sines=((12.0, 0.005),))
     data = simulate_session(sport_cfg, proto, 3.0, 5, rig=rig)["sine_12hz.csv"]
     out = tmp_path_factory.mktemp("rig")
     path = write_measured_csv(out / "sine_12hz.csv", data.time, data.displacement,

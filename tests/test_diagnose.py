@@ -73,12 +73,22 @@ CHECKED = {"lugre_friction": ("coulomb_n",), "cavitation": (),
            "bypass_groove": ("center_m", "half_length_m")}
 
 
-def _session(effects, damper="sport", seed=3, extra_force=None):
+def _session(effects, damper="sport", seed=3, extra_force=None, chain_given=True):
+    """The data sheet and the files.  The truth's files are recorded raw, and with
+    ``chain_given`` the test says so (``--rig`` of a rig without filter): the diagnosis
+    then does not estimate the rig's delay, one fit fewer per round (the tests of the
+    estimated chain are the load-cell filter's, the inertia's and the command line's)."""
+    import dataclasses
+
+    from damper_emulator.acquisition.rig import RigParams
+
     sheet = load_config(f"config/{damper}.yaml")
     truth = example_config(effects, sheet)
     data = list(simulate_session(truth, PROTOCOL, noise_std_n=NOISE_N, seed=seed,
                                  temperature=True, extra_force=extra_force,
                                  form=REALISTIC).values())
+    if chain_given:
+        data = [dataclasses.replace(d, acquisition=RigParams()) for d in data]
     return sheet, data
 
 
@@ -249,7 +259,7 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia():
     def inertia(t, x, v):
         return mass_kg * np.gradient(v, t)
 
-    sheet, data = _session(None, extra_force=inertia)
+    sheet, data = _session(None, extra_force=inertia, chain_given=False)
     # the two candidates that act on the force's phase most as a mass does (the benchmark
     # runs all nine)
     diag = _identify_and_diagnose(sheet, data, ["valve_lag", "series_compliance"])
@@ -342,16 +352,21 @@ def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
     paths = write_session(data, tmp_path / "data")
     names = list(paths)
     params = tmp_path / "identified.yaml"
+    # the files are raw, and the rig file says so (the diagnosis estimates no delay)
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("rig:\n  force:\n    filter: none\n")
     assert main(["identify", "--quasi-static", str(paths[names[0]]), "--chirp",
                  str(paths[names[1]]), "--base", "config/sport.yaml", "--out",
-                 str(params)]) == 0
+                 str(params), "--rig", str(rig)]) == 0
+    assert json.loads(params.with_suffix(".json").read_text())["acquisition"]["source"] \
+        == "given"
     out_json = tmp_path / "diag.json"
     chosen = ["valve_lag", "series_compliance"]
     rc = main(["diagnose", "--params", str(params), "--quasi-static", str(paths[names[0]]),
                "--chirp", str(paths[names[1]]), "--validate",
                *(str(paths[n]) for n in names[2:]), "--json", str(out_json),
                "--report", str(tmp_path / "report"), "--jobs", "2",
-               "--effects", ",".join(chosen)])
+               "--effects", ",".join(chosen), "--rig", str(rig)])
     assert rc == 0
     doc = json.loads(out_json.read_text())
     assert doc["family"] == "valve_dynamics" and doc["effect"] == "valve_lag"
@@ -382,9 +397,10 @@ def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
     assert load_config(report / "params_refit.yaml").damper.extensions is None
     out = capsys.readouterr()
     assert "diagnosis: valve_dynamics" in out.out
-    # progress: the refit, the rig's delay (no --rig: the chain candidate) and two effects
-    assert "round 1 [4/4]" in out.err
-    assert doc["acquisition"]["source"] == "none"  # the raw files' delay was not taken
+    # progress: the refit and two effects (the chain is given: no delay estimated)
+    assert "round 1 [3/3]" in out.err
+    assert doc["acquisition"]["source"] == "given"
+    assert doc["acquisition"]["rig"]["force"]["filter"] == "none"
 
 
 @pytest.mark.parametrize("extra, message", [

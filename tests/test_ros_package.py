@@ -30,6 +30,7 @@ ROSDEP = {"numpy": "python3-numpy", "scipy": "python3-scipy", "numba": "python3-
           "python-can": "python3-can", "cantools": "python3-cantools-pip",
           "msgpack": "python3-msgpack", "rosbags": "python3-rosbags-pip",
           "ros-jazzy-rclpy": "rclpy", "ros-jazzy-common-interfaces": "sensor_msgs",
+          "scikit-learn": "python3-sklearn",
           "dask": None, "pyarrow": None, "threadpoolctl": None}
 
 

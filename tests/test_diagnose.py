@@ -279,6 +279,8 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia():
     # the report shows the term against its variable
     text = markdown(diag)
     assert "## Term discovery" in text and "kg · ẍ" in text
+    assert "a term discovered in it is significant" in text
+    assert "Nothing to add" not in text
 
 
 def test_the_fits_run_on_any_executor_in_self_contained_tasks():

@@ -187,6 +187,11 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                              f"{p.unit} | {_fmt(p.lo)} .. {_fmt(p.hi)} |")
         lines += ["", "Model written to `params_with_effect.yaml`: the re-identified paper's "
                       "parameters and " + ", ".join(e["effect"] for e in effects) + ".", ""]
+    elif diag.effect == "discovered":
+        found = diag.discovered
+        lines += ["No library effect explains the held-out residual; a term discovered in "
+                  f"it is significant (`{found.expression if found else ''}`, section Term "
+                  f"discovery): the family `{diag.family}` is its hint.", ""]
     elif diag.family == "other" and diag.closest is not None:
         c = diag.closest
         # (two effects where they were only significant together: the pair search)

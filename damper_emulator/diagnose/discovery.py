@@ -222,12 +222,14 @@ def _without_chain(d: Any) -> Any:
     return dataclasses.replace(d, acquisition=None)
 
 
-def _through(rec: Record, col: np.ndarray, rig: RigParams | None) -> np.ndarray:
-    """A feature column through the record's chain (given) or ``rig`` (estimated)."""
-    chain = rec.data.acquisition if rec.data.acquisition is not None else rig
-    if chain is None or chain.does_nothing:
-        return col
-    return model_record(rec.data.time, col, chain)
+def scales(fit: Sequence[Record]) -> tuple[float, float, bool]:
+    """``(x_ref, t_ref, has_temperature)`` of the identification records ``fit``: the
+    largest |stroke| [m] (the Gaussian zones' scale) and the mean temperature [°C] (0
+    without a temperature column)."""
+    x_ref = max(float(np.max(np.abs(r.data.displacement))) for r in fit)
+    temps = [r.data.temperature for r in fit if r.data.temperature is not None]
+    t_ref = float(np.mean(np.concatenate(temps))) if temps else 0.0
+    return x_ref, t_ref, bool(temps)
 
 
 def features(model: DamperModel, records: Sequence[Record], rig: RigParams | None,
@@ -236,14 +238,12 @@ def features(model: DamperModel, records: Sequence[Record], rig: RigParams | Non
     """The dictionary (its features, and per record the matrix of their columns through
     the chain, counted samples only, and the record's :class:`Motion`) for ``model`` on
     ``records``; the scales from ``fit_records``."""
-    x_ref = max(float(np.max(np.abs(r.data.displacement))) for r in fit_records)
-    temps = [r.data.temperature for r in fit_records if r.data.temperature is not None]
-    t_ref = float(np.mean(np.concatenate(temps))) if temps else 0.0
-    feats = _features(x_ref) + (_temperature_features() if temps else [])
+    x_ref, t_ref, has_temperature = scales(fit_records)
+    feats = _features(x_ref) + (_temperature_features() if has_temperature else [])
     mats, motions = [], []
     for rec in records:
         m = motion(model, rec, x_ref, t_ref)
-        cols = [_through(rec, f.fn(m), rig)[rec.start:] for f in feats]
+        cols = [rec.through_chain(f.fn(m), rig)[rec.start:] for f in feats]
         mats.append(np.column_stack(cols))
         motions.append(m)
     return feats, mats, motions
@@ -326,13 +326,13 @@ def refine_profile(feats: Sequence[Feature], j: int, chosen: Sequence[int],
     x_ref = motions[0].x_ref
     w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
     y = -np.concatenate(fit_res) * w_rows
-    fixed = [np.concatenate([_through(r, o.fn(m), rig)[r.start:]
+    fixed = [np.concatenate([r.through_chain(o.fn(m), rig)[r.start:]
                              for r, m in zip(fit, motions)]) * w_rows
              for o in (feats[k] for k in chosen if k != j)]
 
     def resid(p: np.ndarray) -> np.ndarray:
         g = profile_feature(float(p[0]), float(p[1]))
-        col = np.concatenate([_through(r, g.fn(m), rig)[r.start:]
+        col = np.concatenate([r.through_chain(g.fn(m), rig)[r.start:]
                               for r, m in zip(fit, motions)]) * w_rows
         a = np.column_stack([col, *fixed])
         beta, *_ = np.linalg.lstsq(a, y, rcond=None)
@@ -484,12 +484,12 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
         if f.profile is not None:
             feats[j] = refine_profile(feats, j, chosen, fit, fit_motion, fit_res, weights,
                                       rig)
-            col = [_through(r, feats[j].fn(m), rig)[r.start:] for r, m in zip(fit, fit_motion)]
+            col = [r.through_chain(feats[j].fn(m), rig)[r.start:] for r, m in zip(fit, fit_motion)]
             x[:, j] = np.concatenate(col) * w_rows
             for mat, c in zip(fit_mats, col):
                 mat[:, j] = c
             for rec, m, mat in zip(held, held_motion, held_mats):
-                mat[:, j] = _through(rec, feats[j].fn(m), rig)[rec.start:]
+                mat[:, j] = rec.through_chain(feats[j].fn(m), rig)[rec.start:]
     # what the refined profile now explains, the others no longer need to
     chosen = prune(chosen)
     if not chosen:
@@ -533,9 +533,7 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
 def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:
     """The :data:`~damper_emulator.diagnose.joint.TermSource` of the features ``feats``
     (their scales from the identification records ``fit``): what a joint fit adds."""
-    x_ref = max(float(np.max(np.abs(r.data.displacement))) for r in fit)
-    temps = [r.data.temperature for r in fit if r.data.temperature is not None]
-    t_ref = float(np.mean(np.concatenate(temps))) if temps else 0.0
+    x_ref, t_ref, _ = scales(fit)
 
     def source(model: DamperModel, rec: Record) -> tuple[np.ndarray, np.ndarray]:
         m = motion(model, rec, x_ref, t_ref)
@@ -591,26 +589,29 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
     model = jf.model(cfg, [c for c, _ in accepted])
     rig = delay_rig(jf.base_values)
     fit_res = [r.term_residual(model, source, coef, rig) for r in fit]
-    held_res = [r.term_residual(model, source, coef, rig) for r in held]
+    # each held-out record simulated once: its residual, the term, the parts, the plot
+    x_ref, t_ref, _ = scales(fit)
+    held_res, terms, cols_all, motions = [], [], [], []
+    for rec in held:
+        m = motion(model, rec, x_ref, t_ref)
+        cols = np.column_stack([f.fn(m) for f in feats])
+        term = rec.through_chain(cols @ np.asarray(coef), rig)[rec.start:]
+        # the chain is linear: the model's force and the term through it together
+        held_res.append(rec.through_chain(m.force_model, rig)[rec.start:] + term
+                        - rec.data.force[rec.start:])
+        terms.append(term)
+        cols_all.append(cols)
+        motions.append(m)
     sse0 = sum(float(np.dot(r, r)) for r in ref_held)
     sse1 = sum(float(np.dot(r, r)) for r in held_res)
     gain = 1.0 - math.sqrt(sse1 / sse0) if sse0 > 0 else 0.0
     dbic = _bic(fit_res, ref_fit, len(feats))
-    parts, series = [], {}
-    for rec, r in zip(held, held_res):
-        raw, cols = source(model, rec)
-        term = sum((c * rec.through_chain(col, rig) for c, col in zip(coef, cols.T)),
-                   np.zeros_like(raw))[rec.start:]
-        series[rec.name] = (term, term - r, np.zeros_like(term))
-    for k in range(len(feats)):
-        cols_k = [source(model, rec)[1][:, k] for rec in held]
-        parts.append(float(np.sqrt(np.mean(np.concatenate(cols_k) ** 2))) * abs(coef[k]))
+    stacked = np.vstack(cols_all)
+    parts = [float(np.sqrt(np.mean(stacked[:, k] ** 2))) * abs(coef[k])
+             for k in range(len(feats))]
     main = feats[int(np.argmax(parts))]
-    x_ref = max(float(np.max(np.abs(r.data.displacement))) for r in fit)
-    for rec, (term, missing, _) in list(series.items()):
-        m = motion(model, next(r for r in held if r.name == rec), x_ref, 0.0)
-        start = next(r for r in held if r.name == rec).start
-        series[rec] = (term, missing, variable_values(main.variable, m)[start:])
+    series = {rec.name: (term, term - r, variable_values(main.variable, m)[rec.start:])
+              for rec, term, r, m in zip(held, terms, held_res, motions)}
     out = Discovery(
         True, "", feats, np.array(coef), np.array(std), found.frequency, gain, dbic,
         bool(gain >= min_score and dbic <= max_delta_bic),

@@ -427,11 +427,8 @@ class Space:
         self._min_bic_step = JOINT_MIN_BIC_STEP
         #: where each record's residual ends in the concatenated vector
         self._ends = np.cumsum([r.counted for r in records])[:-1]
-        #: the slot of the estimated delay, if free, and the model's forces (before the
-        #: chain) at the last point simulated, with that point's other coordinates: a
-        #: step of the delay alone is a filtering, not a simulation
-        self._delay_slot = next((k for k, (i, p) in enumerate(self.slots)
-                                 if i < 0 and p.name == ACQUISITION_DELAY), None)
+        #: the model's forces (before the chain) and the discovered term's columns at the
+        #: last point simulated, with that point's other coordinates
         self._raw: tuple[np.ndarray, list[np.ndarray], list[np.ndarray] | None] | None = None
         #: the free slots that are no simulation's input: the delay and the term's
         #: coefficients (a step of them alone filters and sums what the cache holds)

@@ -110,7 +110,8 @@ def _required(kind: Any, doc: str) -> Any:
 def rule(kind: Any, doc: str, default: Any = dataclasses.MISSING, *,
          runtime: bool = False) -> Any:
     """A dataclass field checked by :func:`check_value`: ``rule`` is ``"positive"``,
-    ``"non-negative"``, ``"bool"``, ``"text"``, ``("range", lo, hi)`` (lo exclusive),
+    ``"non-negative"``, ``"finite"`` (any number), ``"bool"``, ``"text"``,
+    ``("range", lo, hi)`` (lo exclusive),
     ``("closed", lo, hi)``,
     ``("int_range", lo, hi)``, ``("choices", names)``, ``"band"`` or ``"positive_list"``;
     ``doc`` says what the value is, with its unit in brackets (``[m]``; ``[-]``
@@ -256,6 +257,51 @@ class GasHeatTransferParams:
     thermal_time_constant_s: float = rule("positive", "gas thermal time constant τ_g [s]")
 
 
+def _term(doc: str) -> Any:
+    """A coefficient of the discovered term: any finite number, 0 (the feature unused) by
+    default."""
+    return rule("finite", doc, 0.0)
+
+
+@dataclass(frozen=True)
+class DiscoveredTermParams:
+    """A term found by ``diagnose``'s discovery in what the library of effects left
+    (:mod:`damper_emulator.model.discovered` has the features): coefficients times features
+    of the motion and of the model's states, added to the force; with ``s = tanh(ẋ/v_s)``
+    and ``F`` the model's force without the term."""
+
+    acceleration_kg: float = _term("coefficient of ẍ (an inertia) [kg]")
+    velocity_n_s_m: float = _term("coefficient of ẋ [N·s/m]")
+    velocity_squared_n_s2_m2: float = _term("coefficient of ẋ|ẋ| [N·s²/m²]")
+    velocity_cubed_n_s3_m3: float = _term("coefficient of ẋ³ [N·s³/m³]")
+    smooth_sign_n: float = _term("coefficient of s = tanh(ẋ/v_s) [N]")
+    stroke_n_m: float = _term("coefficient of x [N/m]")
+    stroke_squared_n_m2: float = _term("coefficient of x² [N/m²]")
+    stroke_cubed_n_m3: float = _term("coefficient of x³ [N/m³]")
+    stroke_velocity_n_s_m2: float = _term("coefficient of x·ẋ [N·s/m²]")
+    stroke_squared_velocity_n_s_m3: float = _term("coefficient of x²·ẋ [N·s/m³]")
+    stroke_squared_sign_n_m2: float = _term("coefficient of x²·s [N/m²]")
+    abs_stroke_sign_n_m: float = _term("coefficient of |x|·s [N/m]")
+    compression_pressure_sign_m2: float = _term(
+        "coefficient of p_c·s, the gas pressure times the sign (a seal loaded by it) [m²]")
+    rebound_pressure_sign_m2: float = _term("coefficient of p_r·s [m²]")
+    pressure_drop_m2: float = _term("coefficient of p_r − p_c [m²]")
+    energy_force_per_j: float = _term(
+        "coefficient of E·F, E the energy dissipated since the start [1/J]")
+    temperature_force_per_k: float = _term(
+        "coefficient of (T − T_ref)·F, T the measured temperature [1/K]")
+    profile_n_s_m: float = _term(
+        "coefficient of exp(−(x − c)²/(2 w²))·ẋ, damping over a zone of the stroke [N·s/m]")
+    lag_coefficient: float = _term("coefficient of y − F, y the force lagged by τ [-]")
+    smooth_sign_velocity_m_s: float = rule("positive", "velocity scale v_s of the smooth "
+                                                       "sign [m/s]", 0.005)
+    reference_temperature_c: float = rule(("closed", -60.0, 250.0),
+                                          "reference temperature T_ref [°C]", 25.0)
+    profile_center_m: float = rule(("closed", -1.0, 1.0), "centre c of the zone [m]", 0.0)
+    profile_width_m: float = rule("non-negative", "width w of the zone [m] (0: none)", 0.0)
+    lag_time_constant_s: float = rule("positive", "time constant τ of the lag [s]", 0.005)
+
+
 @dataclass(frozen=True)
 class ExtensionParams:
     """``damper.extensions``: the model extensions in use (each absent = off)."""
@@ -270,6 +316,7 @@ class ExtensionParams:
     air_entrainment: AirEntrainmentParams | None = rule("extension", "air_entrainment", None)
     bypass_groove: BypassGrooveParams | None = rule("extension", "position_dependent", None)
     gas_heat_transfer: GasHeatTransferParams | None = rule("extension", "gas_spring", None)
+    discovered_term: DiscoveredTermParams | None = rule("extension", "discovered", None)
 
     def active(self) -> list[str]:
         """Names of the extensions in use."""
@@ -287,6 +334,7 @@ EXTENSION_TYPES: dict[str, type] = {
     "air_entrainment": AirEntrainmentParams,
     "bypass_groove": BypassGrooveParams,
     "gas_heat_transfer": GasHeatTransferParams,
+    "discovered_term": DiscoveredTermParams,
 }
 #: family (CONTRACT ``diagnose`` JSON) of each extension
 EXTENSION_FAMILIES: dict[str, str] = {f.name: f.metadata["doc"]
@@ -460,6 +508,8 @@ def field_spec(f: dataclasses.Field[Any], key: str) -> FieldSpec:
         return FieldSpec(type="double", constraint="> 0", lo=0.0, lo_open=True, **common)
     if kind == "non-negative":
         return FieldSpec(type="double", constraint=">= 0", lo=0.0, **common)
+    if kind == "finite":
+        return FieldSpec(type="double", constraint="finite", **common)
     if kind == "range":
         return FieldSpec(type="double", constraint=f"in ({kind_rule[1]:g}, {kind_rule[2]:g}]",
                          lo=kind_rule[1], hi=kind_rule[2], lo_open=True, **common)

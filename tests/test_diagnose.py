@@ -268,9 +268,18 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia():
     found = doc["discovered"]
     assert diag.family == "inertia" and diag.effect == "discovered" and diag.significant, (
         doc["rounds"], found)
-    assert not diag.steps and diag.model_after().cfg.damper.extensions is None
+    assert not diag.steps
     terms = {c["term"]: c for c in found["coefficients"]}
     assert terms["ẍ"]["value"] == pytest.approx(mass_kg, rel=0.1)
+    # the term is in the model, as an extension the compiled step runs (the emulator's,
+    # the ride's, replay's): run so, it leaves the held-out residual the discovery scored
+    ext = diag.model_after().cfg.damper.extensions
+    assert ext.active() == ["discovered_term"]
+    assert ext.discovered_term.acceleration_kg == pytest.approx(terms["ẍ"]["value"])
+    for rec in (r for r in diag.records if r.held_out):
+        res = rec.residual(diag.model_after(), rig=diag.rig_after())
+        assert np.sqrt(np.mean(res ** 2)) == pytest.approx(
+            found["rms_held_out_after"][rec.name], rel=1e-3)
     assert terms["ẍ"]["unit"] == "kg" and found["family_hint"] == "inertia"
     assert max(found["rms_held_out_after"].values()) < 2 * NOISE_N
     assert found["held_out_gain"] >= MIN_SCORE and found["significant"]

@@ -19,7 +19,12 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, example_config, with_extension
+from damper_emulator.diagnose.truth import (
+    EXAMPLE_EFFECTS,
+    example_config,
+    example_params,
+    with_extension,
+)
 from damper_emulator.dyno.protocols import chirp, quasi_static, sine
 from damper_emulator.model import compressible as cm
 from damper_emulator.model.compressible import (
@@ -133,8 +138,8 @@ def test_no_extensions_is_the_papers_model_bit_for_bit(sport_cfg, sport_model, p
            DamperModel(with_extension(sport_cfg, None)),
            # every extension switched on and off again leaves nothing behind
            sport_model.with_extensions(ExtensionParams(**{
-               name: EXTENSION_TYPES[name](**ex["params"])
-               for name, ex in EXAMPLE_EFFECTS.items()})).with_extensions(None)]
+               name: EXTENSION_TYPES[name](**example_params(name))
+               for name in EXTENSION_TYPES})).with_extensions(None)]
     for m in off:
         r = simulate(m, t, x, v)
         assert np.array_equal(r.force_n, ref.force_n)
@@ -893,7 +898,7 @@ def _mapping_with(cfg, name, params):
 
 @pytest.mark.parametrize("name", sorted(EXTENSION_TYPES))
 def test_extension_loads_from_a_mapping_and_round_trips(sport_cfg, tmp_path, name):
-    params = EXAMPLE_EFFECTS[name]["params"]
+    params = example_params(name)
     cfg = config_from_mapping(_mapping_with(sport_cfg, name, params))
     group = getattr(cfg.damper.extensions, name)
     assert group == EXTENSION_TYPES[name](**params)

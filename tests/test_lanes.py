@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, with_extensions
+from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, example_params, with_extensions
 from damper_emulator.model import compressible as comp
 from damper_emulator.model import lanes
 from damper_emulator.model.compressible import DamperModel, DamperStepper, step
@@ -166,7 +166,7 @@ def test_the_lanes_step_as_the_one_design_step(sport_cfg, max_iterations):
 
 @pytest.mark.parametrize("name", list(EXTENSION_TYPES))
 def test_which_designs_the_lanes_take(sport_cfg, name):
-    with_one = DamperModel(with_extensions(sport_cfg, {name: EXAMPLE_EFFECTS[name]["params"]}))
+    with_one = DamperModel(with_extensions(sport_cfg, {name: example_params(name)}))
     # end stops act in the force alone (eq 4's sum), which the lanes evaluate with the
     # one-design formula; every other extension acts inside the sub-steps
     assert bool(lane_eligible(with_one.prm)[0]) is (name == "end_stops")

@@ -42,6 +42,7 @@ autocorrelation, as the joint fits' are.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -49,8 +50,8 @@ from typing import Any
 
 import numpy as np
 
-from damper_emulator.acquisition.chain import filter_samples, model_record
-from damper_emulator.acquisition.rig import ForceChannel, RigParams
+from damper_emulator.acquisition.chain import model_record
+from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.diagnose.candidates import Parameter
 from damper_emulator.diagnose.joint import (
     JOINT_NFEV,
@@ -64,6 +65,33 @@ from damper_emulator.diagnose.joint import (
     lag1,
 )
 from damper_emulator.model.compressible import DamperModel
+from damper_emulator.model.discovered import (
+    N_TERMS,
+    TERM_ABS_STROKE_SIGN,
+    TERM_ACCELERATION,
+    TERM_ENERGY,
+    TERM_FIELDS,
+    TERM_LAG,
+    TERM_P_COM_SIGN,
+    TERM_P_DROP,
+    TERM_P_REB_SIGN,
+    TERM_PROFILE,
+    TERM_SIGN,
+    TERM_STROKE,
+    TERM_STROKE_CUBE,
+    TERM_STROKE_SQ,
+    TERM_STROKE_SQ_SIGN,
+    TERM_STROKE_SQ_VEL,
+    TERM_STROKE_VEL,
+    TERM_TEMPERATURE,
+    TERM_VELOCITY,
+    TERM_VELOCITY_CUBE,
+    TERM_VELOCITY_SQ,
+    feature_history,
+    lag_history,
+    profile_history,
+)
+from damper_emulator.params import DiscoveredTermParams, ExtensionParams
 from damper_emulator.validation import simulate_measured
 
 __all__ = ["FEATURES", "Discovery", "Feature", "Motion", "discover", "features"]
@@ -90,7 +118,8 @@ SEED = 0
 HINTS = {"acceleration": "inertia", "delay": "valve_dynamics",
          "temperature": "thermal", "energy": "thermal", "friction": "friction",
          "stroke·velocity": "position_dependent", "stroke": "end_stop",
-         "stroke (linear)": "gas_spring", "pressure": "valve_dynamics",
+         "stroke (linear)": "gas_spring", "stroke (even)": "gas_spring",
+         "pressure": "valve_dynamics",
          # a term of velocity alone: a valve characteristic the paper's law cannot follow
          "velocity": "valve_dynamics"}
 
@@ -98,102 +127,99 @@ HINTS = {"acceleration": "inertia", "delay": "valve_dynamics",
 @dataclass
 class Motion:
     """What the features of one record are made of: the measured motion, the final
-    model's force and chamber pressures on it, and the record's reference scales."""
+    model's force and chamber pressures on it, the features the compiled step evaluates
+    (:func:`damper_emulator.model.discovered.feature_history`, ``(n, N_TERMS)``), and the
+    record's reference scales."""
 
     t: np.ndarray
     x: np.ndarray
     v: np.ndarray
-    a: np.ndarray
     temperature: np.ndarray | None
-    energy: np.ndarray
     force_model: np.ndarray
-    p_rebound: np.ndarray
-    p_compression: np.ndarray
+    terms: np.ndarray
     #: the largest |stroke| of the identification files [m] (the Gaussians' scale)
     x_ref: float
     #: the mean temperature of the identification files [°C]
     t_ref: float
 
+    @property
+    def a(self) -> np.ndarray:
+        """The acceleration [m/s²] as the step evaluates it."""
+        out: np.ndarray = self.terms[:, TERM_ACCELERATION]
+        return out
+
+    @property
+    def energy(self) -> np.ndarray:
+        """The energy the model dissipated since the record's start [J]."""
+        out: np.ndarray = self.terms[:, TERM_ENERGY] / np.where(
+            self.force_model == 0.0, np.nan, self.force_model)
+        return out
+
 
 @dataclass(frozen=True)
 class Feature:
     """One column of the dictionary: its symbol, the unit of its coefficient, the
-    variable it names (a key of :data:`HINTS`), how it is computed, and how a coefficient
-    of it reads (``text(c)``; ``None``: ``f"{c:+.3g} {unit} · {symbol}"``)."""
+    variable it names (a key of :data:`HINTS`), its index in the compiled features
+    (:mod:`damper_emulator.model.discovered`), and for a zone its centre and width [m],
+    for a lag its time constant [s]."""
 
     symbol: str
     unit: str
     variable: str
-    fn: Callable[[Motion], np.ndarray]
+    index: int
     #: the parameters of a profile refined after selection (centre, width) [m]
     profile: tuple[float, float] | None = None
+    lag_s: float | None = None
 
     def text(self, c: float) -> str:
         return f"{c:+.4g} {self.unit} · {self.symbol}"
 
-
-def _sgn(m: Motion) -> np.ndarray:
-    out: np.ndarray = np.tanh(m.v / V_SIGN_M_S)
-    return out
-
-
-def _lag(tau: float) -> Callable[[Motion], np.ndarray]:
-    ch = ForceChannel(filter="butterworth", order=1, cutoff_hz=1.0 / (2.0 * math.pi * tau))
-
-    def fn(m: Motion) -> np.ndarray:
-        out: np.ndarray = filter_samples(m.t, m.force_model, ch) - m.force_model
+    def fn(self, m: Motion) -> np.ndarray:
+        """The feature's values over the record ``m``."""
+        out = np.empty_like(m.t)
+        if self.profile is not None:
+            profile_history(m.x, m.v, self.profile[0], self.profile[1], out)
+        elif self.lag_s is not None:
+            lag_history(m.t, m.force_model, self.lag_s, out)
+        else:
+            out[:] = m.terms[:, self.index]
         return out
-    return fn
-
-
-def gaussian(centre: float, width: float) -> Callable[[Motion], np.ndarray]:
-    """``exp(−(x − c)² / (2 w²)) · ẋ``: damping over a part of the stroke."""
-    def fn(m: Motion) -> np.ndarray:
-        out: np.ndarray = np.exp(-0.5 * ((m.x - centre) / width) ** 2) * m.v
-        return out
-    return fn
 
 
 def profile_feature(centre: float, width: float) -> Feature:
     """The Gaussian profile feature at ``centre`` and ``width`` [m]."""
     return Feature(f"exp(−(x − {1e3 * centre:.3g} mm)² / (2 · ({1e3 * width:.3g} mm)²)) · ẋ",
-                   "N·s/m", "stroke·velocity", gaussian(centre, width), (centre, width))
+                   "N·s/m", "stroke·velocity", TERM_PROFILE, (centre, width))
 
 
 def _features(x_ref: float) -> list[Feature]:
     vs = f"{1e3 * V_SIGN_M_S:g} mm/s"
     out = [
-        Feature("ẍ", "kg", "acceleration", lambda m: m.a),
-        Feature("ẋ", "N·s/m", "velocity", lambda m: m.v),
-        Feature("ẋ|ẋ|", "N·s²/m²", "velocity", lambda m: m.v * np.abs(m.v)),
-        Feature("ẋ³", "N·s³/m³", "velocity", lambda m: m.v ** 3),
-        Feature(f"tanh(ẋ / {vs})", "N", "friction", _sgn),
-        Feature("x", "N/m", "stroke (linear)", lambda m: m.x),
-        Feature("x²", "N/m²", "stroke", lambda m: m.x ** 2),
-        Feature("x³", "N/m³", "stroke", lambda m: m.x ** 3),
-        Feature("x · ẋ", "N·s/m²", "stroke·velocity", lambda m: m.x * m.v),
-        Feature("x² · ẋ", "N·s/m³", "stroke·velocity", lambda m: m.x ** 2 * m.v),
-        Feature(f"x² · tanh(ẋ / {vs})", "N/m²", "friction", lambda m: m.x ** 2 * _sgn(m)),
-        Feature(f"|x| · tanh(ẋ / {vs})", "N/m", "friction",
-                lambda m: np.abs(m.x) * _sgn(m)),
-        Feature(f"p_c · tanh(ẋ / {vs})", "m²", "friction",
-                lambda m: m.p_compression * _sgn(m)),
-        Feature(f"p_r · tanh(ẋ / {vs})", "m²", "friction",
-                lambda m: m.p_rebound * _sgn(m)),
-        Feature("(p_r − p_c)", "m²", "pressure", lambda m: m.p_rebound - m.p_compression),
-        Feature("E · F_model", "1/J", "energy", lambda m: m.energy * m.force_model),
+        Feature("ẍ", "kg", "acceleration", TERM_ACCELERATION),
+        Feature("ẋ", "N·s/m", "velocity", TERM_VELOCITY),
+        Feature("ẋ|ẋ|", "N·s²/m²", "velocity", TERM_VELOCITY_SQ),
+        Feature("ẋ³", "N·s³/m³", "velocity", TERM_VELOCITY_CUBE),
+        Feature(f"tanh(ẋ / {vs})", "N", "friction", TERM_SIGN),
+        Feature("x", "N/m", "stroke (linear)", TERM_STROKE),
+        Feature("x²", "N/m²", "stroke (even)", TERM_STROKE_SQ),
+        Feature("x³", "N/m³", "stroke", TERM_STROKE_CUBE),
+        Feature("x · ẋ", "N·s/m²", "stroke·velocity", TERM_STROKE_VEL),
+        Feature("x² · ẋ", "N·s/m³", "stroke·velocity", TERM_STROKE_SQ_VEL),
+        Feature(f"x² · tanh(ẋ / {vs})", "N/m²", "friction", TERM_STROKE_SQ_SIGN),
+        Feature(f"|x| · tanh(ẋ / {vs})", "N/m", "friction", TERM_ABS_STROKE_SIGN),
+        Feature(f"p_c · tanh(ẋ / {vs})", "m²", "friction", TERM_P_COM_SIGN),
+        Feature(f"p_r · tanh(ẋ / {vs})", "m²", "friction", TERM_P_REB_SIGN),
+        Feature("(p_r − p_c)", "m²", "pressure", TERM_P_DROP),
+        Feature("E · F_model", "1/J", "energy", TERM_ENERGY),
     ]
     out += [profile_feature(c * x_ref, w * x_ref) for c, w in GAUSS_GRID]
-    for tau in LAGS_S:
-        out.append(Feature(f"(lag_{1e3 * tau:g}ms(F_model) − F_model)", "-", "delay",
-                           _lag(tau)))
+    out += [Feature(f"(lag_{1e3 * tau:g}ms(F_model) − F_model)", "-", "delay", TERM_LAG,
+                    lag_s=tau) for tau in LAGS_S]
     return out
 
 
 def _temperature_features() -> list[Feature]:
-    return [Feature("(T − T_ref) · F_model", "1/K", "temperature",
-                    lambda m: (m.temperature - m.t_ref) * m.force_model
-                    if m.temperature is not None else np.zeros_like(m.t))]
+    return [Feature("(T − T_ref) · F_model", "1/K", "temperature", TERM_TEMPERATURE)]
 
 
 #: the dictionary's features for a stroke scale of 50 mm (the list :func:`features` uses
@@ -203,22 +229,21 @@ FEATURES = _features(0.05) + _temperature_features()
 
 def motion(model: DamperModel, rec: Record, x_ref: float, t_ref: float) -> Motion:
     """The :class:`Motion` of ``rec`` under ``model`` (simulated once, before any
-    chain)."""
+    chain; ``model`` without a discovered term)."""
     d = rec.data
     res = simulate_measured(model, d if d.acquisition is None else
                             _without_chain(d), rec.velocity)
     v = rec.velocity
-    a = np.gradient(v, d.time)
-    power = d.force * v
-    energy = np.concatenate([[0.0], np.cumsum(0.5 * (power[1:] + power[:-1])
-                                              * np.diff(d.time))])
-    return Motion(d.time, d.displacement, v, a, d.temperature, energy, res.force_n,
-                  res.rebound_pressure_pa, res.compression_pressure_pa, x_ref, t_ref)
+    temp = d.temperature if d.temperature is not None else np.full(d.time.size, math.nan)
+    terms = np.empty((d.time.size, N_TERMS))
+    feature_history(d.time, d.displacement, v, np.asarray(temp, dtype=float), res.force_n,
+                    res.rebound_pressure_pa, res.compression_pressure_pa, V_SIGN_M_S, t_ref,
+                    0.0, 0.0, LAGS_S[0], terms)
+    return Motion(d.time, d.displacement, v, d.temperature, res.force_n, terms, x_ref,
+                  t_ref)
 
 
 def _without_chain(d: Any) -> Any:
-    import dataclasses
-
     return dataclasses.replace(d, acquisition=None)
 
 
@@ -247,6 +272,21 @@ def features(model: DamperModel, records: Sequence[Record], rig: RigParams | Non
         mats.append(np.column_stack(cols))
         motions.append(m)
     return feats, mats, motions
+
+
+def term_params(feats: Sequence[Feature], coefficients: Sequence[float], t_ref: float
+                ) -> DiscoveredTermParams:
+    """The ``damper.extensions.discovered_term`` group of the term ``Σ cₖ fₖ`` (at most one
+    zone and one lag among ``feats``)."""
+    values: dict[str, float] = {}
+    for f, c in zip(feats, coefficients):
+        values[TERM_FIELDS[f.index]] = values.get(TERM_FIELDS[f.index], 0.0) + float(c)
+        if f.profile is not None:
+            values["profile_center_m"], values["profile_width_m"] = f.profile
+        if f.lag_s is not None:
+            values["lag_time_constant_s"] = f.lag_s
+    return DiscoveredTermParams(smooth_sign_velocity_m_s=V_SIGN_M_S,
+                                reference_temperature_c=t_ref, **values)
 
 
 @dataclass
@@ -280,6 +320,15 @@ class Discovery:
     refitted: bool = False
     base_values: dict[str, float] = field(default_factory=dict)
     base_std: dict[str, float] = field(default_factory=dict)
+    #: the reference temperature of the term's temperature feature [°C]
+    t_ref: float = 0.0
+    #: after the joint refit: the model with the term as its ``discovered_term``
+    #: extension (what ``params_with_effect.yaml`` holds)
+    model: DamperModel | None = None
+
+    def extension(self) -> DiscoveredTermParams:
+        """The term as the ``damper.extensions.discovered_term`` group."""
+        return term_params(self.features, self.coefficients, self.t_ref)
 
     @property
     def expression(self) -> str:
@@ -351,7 +400,8 @@ def refine_profile(feats: Sequence[Feature], j: int, chosen: Sequence[int],
 PLOTTED = {"acceleration": ("ẍ [m/s²]", 1.0, "a"), "velocity": ("ẋ [m/s]", 1.0, "v"),
            "friction": ("ẋ [m/s]", 1.0, "v"), "delay": ("ẋ [m/s]", 1.0, "v"),
            "pressure": ("ẋ [m/s]", 1.0, "v"), "stroke": ("x [mm]", 1e3, "x"),
-           "stroke (linear)": ("x [mm]", 1e3, "x"), "stroke·velocity": ("x [mm]", 1e3, "x"),
+           "stroke (linear)": ("x [mm]", 1e3, "x"), "stroke (even)": ("x [mm]", 1e3, "x"),
+           "stroke·velocity": ("x [mm]", 1e3, "x"),
            "temperature": ("T [°C]", 1.0, "temperature"),
            "energy": ("dissipated energy [kJ]", 1e-3, "energy")}
 
@@ -401,6 +451,16 @@ def stability(x: np.ndarray, y: np.ndarray, blocks: Sequence[np.ndarray],
     return freq
 
 
+def _one_of_each(order: Sequence[int], feats: Sequence[Feature]) -> list[int]:
+    """``order`` without the features whose coefficient an earlier one already holds
+    (the model's term has one of each, and one zone, one lag)."""
+    out: list[int] = []
+    for j in order:
+        if all(feats[k].index != feats[j].index for k in out):
+            out.append(j)
+    return out
+
+
 def _bic(fit_res: Sequence[np.ndarray], ref_res: Sequence[np.ndarray], k: int) -> float:
     """Effective ΔBIC of residuals ``fit_res`` against ``ref_res`` (the same records)
     with ``k`` added parameters, as a candidate's (``StepFit.score_against``)."""
@@ -444,7 +504,8 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
     keep = np.any(x != 0.0, axis=0)
     freq = np.zeros(len(feats))
     freq[keep] = stability(x[:, keep], y, _blocks(fit), np.random.default_rng(SEED))
-    chosen = [j for j in np.argsort(-freq) if freq[j] >= MIN_FREQUENCY][:MAX_TERMS]
+    chosen = _one_of_each([j for j in np.argsort(-freq) if freq[j] >= MIN_FREQUENCY],
+                          feats)[:MAX_TERMS]
     frequency = {feats[j].symbol: float(freq[j]) for j in np.argsort(-freq)[:6]}
     say("discovery: selection frequencies " + ", ".join(
         f"{k} {v:.2f}" for k, v in frequency.items()))
@@ -523,7 +584,7 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
          for r, a in zip([*fit, *held], [*fit_after, *held_after])},
         {r.name: (m[:, chosen] @ beta, -x0, variable_values(feats[main].variable, mo)[r.start:])
          for r, m, x0, mo in zip(held, held_mats, held_res, held_motion)},
-        feats[main].variable, time.perf_counter() - t0)
+        feats[main].variable, time.perf_counter() - t0, t_ref=scales(fit)[1])
     say(f"discovery: {found.expression}: held-out gain {100 * gain:+.1f} %, ΔBIC "
         f"{dbic:.0f}{' (significant)' if found.significant else ''}")
     return found
@@ -621,7 +682,10 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
          for r, x in zip([*fit, *held], [*fit_res, *held_res])},
         series, main.variable, found.seconds, refitted=True,
         base_values={k: float(v) for k, v in jf.base_values.items()},
-        base_std={k: float(v) for k, v in jf.base_std.items()})
+        base_std={k: float(v) for k, v in jf.base_std.items()}, t_ref=t_ref)
+    ext = model.cfg.damper.extensions or ExtensionParams()
+    out.model = model.with_extensions(dataclasses.replace(ext,
+                                                          discovered_term=out.extension()))
     say(f"discovery, refitted with the model: {out.expression}: held-out gain "
         f"{100 * gain:+.1f} %, ΔBIC {dbic:.0f}{' (significant)' if out.significant else ''}")
     return out

@@ -11,7 +11,8 @@
   held-out file: the residual analysis of :mod:`damper_emulator.diagnose.residual`;
 * ``ranking.png``: every candidate's held-out r.m.s. reduction and ΔBIC;
 * ``params_with_effect.yaml``: the re-identified parameters plus the effects found, a params
-  file every command and the emulator load (only when an effect was added);
+  file every command and the emulator load (only when an effect was added, or a
+  discovered term is significant: then as ``damper.extensions.discovered_term``);
 * ``params_refit.yaml``: the paper's model alone, re-identified jointly.
 
 matplotlib is imported only here.
@@ -191,7 +192,10 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
         found = diag.discovered
         lines += ["No library effect explains the held-out residual; a term discovered in "
                   f"it is significant (`{found.expression if found else ''}`, section Term "
-                  f"discovery): the family `{diag.family}` is its hint.", ""]
+                  f"discovery): the family `{diag.family}` is its hint.", "",
+                  "Model written to `params_with_effect.yaml`: the paper's parameters and "
+                  "the term refitted together, the term as the extension "
+                  "`discovered_term`, which the emulator, the ride and replay run.", ""]
     elif diag.family == "other" and diag.closest is not None:
         c = diag.closest
         # (two effects where they were only significant together: the pair search)
@@ -355,12 +359,15 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
             files.append(plot_overlay(out / f"overlay_{report_stem(rec.name)}.png", diag, rec))
             say(f"wrote {files[-1]}")
             models = [("before", diag.base_model)]
-            if diag.chosen is not None:
+            found = diag.discovered
+            term = found is not None and found.significant and found.model is not None
+            if diag.chosen is not None or term:
                 models.append(("after", diag.model_after()))
             for when, model in models:
                 path = out / f"residual_{when}_{report_stem(rec.name)}.png"
                 what = ("identified model" if when == "before" else "model with "
-                        + " + ".join(st.candidate.effect for st in diag.steps))
+                        + " + ".join([st.candidate.effect for st in diag.steps]
+                                     + (["the discovered term"] if term else [])))
                 files.append(plot_residual(path, residual_record(model, rec.data),
                                            title=f"{rec.name}: residual of the {what}"))
                 say(f"wrote {path}")
@@ -370,7 +377,8 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
         say(f"wrote {files[-1]}")
     files.append(plot_ranking(out / "ranking.png", diag))
     say(f"wrote {files[-1]}")
-    if diag.chosen is not None:
+    if diag.chosen is not None or (found is not None and found.significant
+                                   and found.model is not None):
         path = out / "params_with_effect.yaml"
         save_config(diag.model_after().cfg, path)
         files.append(path)

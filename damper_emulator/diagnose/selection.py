@@ -455,7 +455,11 @@ class Diagnosis:
         return self.steps[-1] if self.steps else self.refit
 
     def model_after(self) -> DamperModel:
-        """The model after the diagnosis (the identified model when nothing was fitted)."""
+        """The model after the diagnosis (the identified model when nothing was fitted;
+        with a significant discovered term, its joint refit's model holding the term)."""
+        found = self.discovered
+        if found is not None and found.significant and found.model is not None:
+            return found.model
         # (base_model: set by diagnose(); None only in a Diagnosis built without it)
         return (self.final.model() if self.final is not None
                 else cast(DamperModel, self.base_model))
@@ -474,6 +478,9 @@ class Diagnosis:
 
     def rig_after(self) -> RigParams | None:
         """The chain estimated with :meth:`model_after` (``None``: given, or none)."""
+        found = self.discovered
+        if found is not None and found.significant and found.model is not None:
+            return delay_rig(found.base_values)
         return self.final.rig if self.final is not None else None
 
     def acquisition_json(self) -> dict[str, Any]:

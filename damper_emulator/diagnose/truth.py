@@ -114,6 +114,18 @@ EXAMPLE_EFFECTS: dict[str, dict[str, Any]] = {
 }
 
 
+#: A discovered term (``damper.extensions.discovered_term``) for the tests of the
+#: extension schema and of the step: a 6 kg mass and damping over a 10 mm zone.
+EXAMPLE_TERM: dict[str, float] = {"acceleration_kg": 6.0, "profile_n_s_m": 800.0,
+                                  "profile_center_m": 0.01, "profile_width_m": 0.005}
+
+
+def example_params(name: str) -> Mapping[str, Any]:
+    """The example parameters of the extension ``name``: a library effect's
+    (:data:`EXAMPLE_EFFECTS`) or the discovered term's (:data:`EXAMPLE_TERM`)."""
+    return EXAMPLE_TERM if name == "discovered_term" else EXAMPLE_EFFECTS[name]["params"]
+
+
 def with_extension(cfg: ModelConfig, name: str | None, params: Mapping[str, Any] | None = None,
                    base_changes: Mapping[str, Any] | None = None) -> ModelConfig:
     """``cfg`` with one extension (``None``: none) set to ``params`` and the damper's base

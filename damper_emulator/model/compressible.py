@@ -46,6 +46,13 @@ from damper_emulator.model.adaptive import (
     bypass_flow,
     solenoid_lag,
 )
+from damper_emulator.model.discovered import (
+    N_TERMS,
+    TERM_FIELDS,
+    acceleration,
+    features,
+    lag_update,
+)
 from damper_emulator.model.extensions import (
     AIR_PRESSURE_FLOOR,
     P_ATM,
@@ -125,7 +132,9 @@ _VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
 # LuGre friction (``P_LG_S0`` σ0), viscosity–temperature (``P_TH_BETA`` β), cavitation
 # (``P_CAV_ON``), valve lag (``P_VL_TAU``), series compliance (``P_MOUNT_K``), end stops
 # (``P_ES_K``), air entrainment (``P_AIR_EPS``), bypass groove (``P_GR_AREA``) and gas heat
-# transfer (``P_GT_TAU``).
+# transfer (``P_GT_TAU``); last the discovered term (``P_DT_ON``, then its coefficients
+# ``P_DT_COEF + k`` in the order of :mod:`damper_emulator.model.discovered`, its smooth-sign
+# velocity, reference temperature, zone centre and width and lag time constant).
 (P_A_ANNULUS, P_A_PISTON, P_A_ROD, P_MAX_EXT, P_ALPHA, P_FRICTION, P_GAS, V_GAS, P_GAMMA,
  P_SCALE_R, P_STEP_R, P_SCALE_C, P_STEP_C, P_X_MIN, P_X_MAX, P_SUBSTEP, P_TOL, P_MAXIT,
  P_ZLIM_R, P_ZLIM_C, P_SETTLE, P_V_MAX, P_BP_LAMINAR, P_BP_TURBULENT, P_BP_AREA_COMFORT,
@@ -139,17 +148,23 @@ _VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
  P_AIR_EPS,
  P_GR_AREA, P_GR_X, P_GR_HALF, P_GR_LAMINAR, P_GR_TURBULENT,
  P_GT_TAU,
- P_SIZE) = range(50)
+ P_DT_ON, P_DT_VSIGN, P_DT_TREF, P_DT_CENTRE, P_DT_WIDTH, P_DT_TAU,
+ P_DT_COEF) = range(56)
+P_SIZE = P_DT_COEF + N_TERMS
 
 # Layout of the state vector; ``S_CMD`` is the commanded valve command (0 comfort .. 1
 # sport), ``S_CMD_EFF`` the effective one (after the solenoid lag); then the extensions'
 # states: the measured temperature [°C] (an input; NaN: none, the reference temperature),
 # the heat model's temperature rise [K], the LuGre bristle deflection [m], the cavity volume
 # [m³], the lagged piston-valve flow [m³/s], the series-spring (= damper) force [N], the
-# gas temperature ratio T/T_wall and the spring force one sub-step earlier [N] (for BDF2).
+# gas temperature ratio T/T_wall and the spring force one sub-step earlier [N] (for BDF2);
+# the discovered term's: the velocity two samples back [m/s] and the step before the last
+# [s] (the acceleration), the energy dissipated so far [J], the lagged force and the force
+# without the term [N]; then its features at the last sample (scratch).
 (S_P_REB, S_Z, S_X, S_V, S_FORCE, S_P_COM, S_P_PREV, S_H_PREV, S_CMD, S_CMD_EFF,
  S_TEMP_IN, S_HEAT_DT, S_BRISTLE, S_V_CAV, S_Q_VALVE, S_MOUNT_F, S_GAS_THETA, S_MOUNT_PREV,
- S_Z_PREV, S_SIZE) = range(20)
+ S_Z_PREV, S_V2, S_H2, S_DT_ENERGY, S_DT_LAG, S_DT_FORCE, S_DT_ROW) = range(25)
+S_SIZE = S_DT_ROW + N_TERMS
 
 
 @kernel
@@ -460,6 +475,38 @@ def _force(prm: _Vec, p_reb: float, p_com: float, friction: float, x: float) -> 
 
 
 @kernel
+def _discovered(prm: _Vec, state: _Vec, x: float, v: float, dt: float, force: float
+                ) -> float:
+    """The discovered term's force [N] at the sample (``x``, ``v``) ``dt`` after the last
+    (``dt = 0``: a settled start, no acceleration), the model's force being ``force``
+    without it; its states (acceleration history, energy, lag) advanced
+    (:mod:`damper_emulator.model.discovered`).  Call before ``state[S_V]`` and
+    ``state[S_P_REB]``/``state[S_P_COM]``'s successors are stored: it reads the last
+    velocity from ``state[S_V]`` and takes the pressures from ``state``."""
+    if dt > 0.0:
+        a = acceleration(v, state[S_V], state[S_V2], dt, state[S_H2])
+        state[S_V2] = state[S_V]
+        state[S_H2] = dt
+        state[S_DT_ENERGY] += force * v * dt
+        state[S_DT_LAG] = lag_update(state[S_DT_LAG], state[S_DT_FORCE], force, dt,
+                                     prm[P_DT_TAU])
+    else:
+        a = 0.0
+        state[S_V2] = v
+        state[S_H2] = 0.0
+        state[S_DT_LAG] = force
+    state[S_DT_FORCE] = force
+    row = state[S_DT_ROW:S_DT_ROW + N_TERMS]
+    features(row, x, v, a, state[S_TEMP_IN], state[S_DT_ENERGY], state[S_P_REB],
+             state[S_P_COM], force, state[S_DT_LAG], prm[P_DT_VSIGN], prm[P_DT_TREF],
+             prm[P_DT_CENTRE], prm[P_DT_WIDTH])
+    total = 0.0
+    for k in range(N_TERMS):
+        total += prm[P_DT_COEF + k] * row[k]
+    return total
+
+
+@kernel
 def _viscosity_factor(prm: _Vec, state: _Vec) -> float:
     """Valve-drop factor of the viscosity–temperature extension (1 when off)."""
     if prm[P_TH_BETA] <= 0.0:
@@ -573,6 +620,8 @@ def init_state(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: 
     state[S_MOUNT_PREV] = force
     state[S_GAS_THETA] = 1.0
     state[S_Z_PREV] = z
+    if prm[P_DT_ON] > 0.0:
+        state[S_FORCE] = force + _discovered(prm, state, x, v, 0.0, force)
 
 
 @kernel
@@ -719,10 +768,12 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
         state[S_HEAT_DT] = heat_rise(state[S_HEAT_DT], power, dt, prm[P_TH_CAP],
                                      prm[P_TH_TAU])
     state[S_P_REB] = p
+    state[S_P_COM] = p_com
+    if prm[P_DT_ON] > 0.0:
+        force += _discovered(prm, state, x, v, dt, force)
     state[S_Z] = z
     state[S_X] = x
     state[S_V] = v
-    state[S_P_COM] = p_com
     state[S_FORCE] = force
     state[S_Q_VALVE] = q_lag
     state[S_MOUNT_F] = mount_f
@@ -812,6 +863,14 @@ def _pack_extensions(prm: np.ndarray, d: DamperParams) -> None:
             g.discharge_coefficient)
     if e.gas_heat_transfer is not None:
         prm[P_GT_TAU] = e.gas_heat_transfer.thermal_time_constant_s
+    if e.discovered_term is not None:
+        t = e.discovered_term
+        prm[P_DT_ON] = 1.0
+        prm[P_DT_VSIGN], prm[P_DT_TREF] = t.smooth_sign_velocity_m_s, t.reference_temperature_c
+        prm[P_DT_CENTRE], prm[P_DT_WIDTH] = t.profile_center_m, t.profile_width_m
+        prm[P_DT_TAU] = t.lag_time_constant_s
+        for k, name in enumerate(TERM_FIELDS):
+            prm[P_DT_COEF + k] = getattr(t, name)
 
 
 def new_state() -> np.ndarray:
@@ -976,8 +1035,9 @@ class DamperStepper:
 
     def reset(self, stroke_m: float = 0.0, velocity_m_s: float = 0.0) -> None:
         """Return to quasi-steady equilibrium at the given stroke and velocity, the solenoid
-        settled at the commanded valve command."""
+        settled at the commanded valve command (a discovered term's energy from 0)."""
         self.state[S_CMD_EFF] = self.state[S_CMD]
+        self.state[S_DT_ENERGY] = 0.0
         init_state(self._prm, self._coef_r, self._coef_c, self.state, float(stroke_m),
                    float(velocity_m_s))
 

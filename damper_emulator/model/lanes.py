@@ -57,6 +57,7 @@ from damper_emulator.model.compressible import (
     P_BP_LAMINAR,
     P_BP_TURBULENT,
     P_CAV_ON,
+    P_DT_ON,
     P_ES_K,
     P_ES_XC,
     P_ES_XR,
@@ -148,7 +149,7 @@ LANE_BUFFER = L_SIZE * LANES
 #: Packed parameters of the model extensions the lanes leave to the one-design step (each
 #: off at 0).
 _EXTENSIONS = (P_LG_S0, P_TH_BETA, P_CAV_ON, P_VL_TAU, P_MOUNT_K, P_AIR_EPS, P_GR_AREA,
-               P_GT_TAU)
+               P_GT_TAU, P_DT_ON)
 
 
 def lane_eligible(prm: np.ndarray) -> np.ndarray:

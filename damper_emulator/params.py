@@ -280,6 +280,8 @@ class DiscoveredTermParams:
     stroke_cubed_n_m3: float = _term("coefficient of x³ [N/m³]")
     stroke_velocity_n_s_m2: float = _term("coefficient of x·ẋ [N·s/m²]")
     stroke_squared_velocity_n_s_m3: float = _term("coefficient of x²·ẋ [N·s/m³]")
+    stroke_sign_n_m: float = _term("coefficient of x·s, a friction changing over the "
+                                   "stroke [N/m]")
     stroke_squared_sign_n_m2: float = _term("coefficient of x²·s [N/m²]")
     abs_stroke_sign_n_m: float = _term("coefficient of |x|·s [N/m]")
     compression_pressure_sign_m2: float = _term(

@@ -44,7 +44,8 @@ def test_after_warm_up_nothing_compiles():
         import dataclasses, math
         from damper_emulator.model import jit
         from damper_emulator.model.compressible import DamperModel
-        from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, example_config
+        from damper_emulator.diagnose.truth import (EXAMPLE_EFFECTS, EXAMPLE_TERM,
+                                                    example_config, with_extension)
         from damper_emulator.realtime.core import EmulatorCore
         from damper_emulator.realtime.settings import emulator_params_from_mapping
         from ride_sim.params import load_ride_config
@@ -52,6 +53,8 @@ def test_after_warm_up_nothing_compiles():
 
         base = DamperModel()
         models = [base] + [DamperModel(example_config(n)) for n in EXAMPLE_EFFECTS]
+        models.append(DamperModel(with_extension(base.cfg, "discovered_term",
+                                                 EXAMPLE_TERM)))
         params = emulator_params_from_mapping({})
         cores = [EmulatorCore(m, params) for m in models]
         rc = load_ride_config()

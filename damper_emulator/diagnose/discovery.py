@@ -79,6 +79,7 @@ from damper_emulator.model.discovered import (
     TERM_SIGN,
     TERM_STROKE,
     TERM_STROKE_CUBE,
+    TERM_STROKE_SIGN,
     TERM_STROKE_SQ,
     TERM_STROKE_SQ_SIGN,
     TERM_STROKE_SQ_VEL,
@@ -111,6 +112,10 @@ SUBSAMPLES = 40
 BLOCK_S = 0.25
 MIN_FREQUENCY = 0.7
 MAX_TERMS = 3
+#: the features of a damping polynomial in the stroke (x·ẋ, x²·ẋ), which the local
+#: dictionary leaves to the zones: fitted on a chirp's short stroke, a polynomial grows
+#: without bound on a longer one, a zone does not
+POLYNOMIAL_DAMPING = (TERM_STROKE_VEL, TERM_STROKE_SQ_VEL)
 #: the subsamples are drawn with this seed: a diagnosis is reproducible
 SEED = 0
 
@@ -205,6 +210,7 @@ def _features(x_ref: float) -> list[Feature]:
         Feature("x³", "N/m³", "stroke", TERM_STROKE_CUBE),
         Feature("x · ẋ", "N·s/m²", "stroke·velocity", TERM_STROKE_VEL),
         Feature("x² · ẋ", "N·s/m³", "stroke·velocity", TERM_STROKE_SQ_VEL),
+        Feature(f"x · tanh(ẋ / {vs})", "N/m", "friction", TERM_STROKE_SIGN),
         Feature(f"x² · tanh(ẋ / {vs})", "N/m²", "friction", TERM_STROKE_SQ_SIGN),
         Feature(f"|x| · tanh(ẋ / {vs})", "N/m", "friction", TERM_ABS_STROKE_SIGN),
         Feature(f"p_c · tanh(ẋ / {vs})", "m²", "friction", TERM_P_COM_SIGN),
@@ -475,13 +481,15 @@ def _bic(fit_res: Sequence[np.ndarray], ref_res: Sequence[np.ndarray], k: int) -
 def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
              held: Sequence[Record], weights: Sequence[float], floor: float,
              structure: float, structure_limit: float, min_score: float,
-             max_delta_bic: float, progress: Callable[[str], None] | None = None
-             ) -> Discovery:
+             max_delta_bic: float, progress: Callable[[str], None] | None = None,
+             local: bool = False) -> Discovery:
     """Discover a term in the residual of ``model`` (with the estimated chain ``rig``) on
     the identification records ``fit`` (weighted by ``weights``), scored on ``held``;
     the gate's ``floor`` and ``structure`` (held-out r.m.s. over its noise level) against
     ``structure_limit``, the significance rules ``min_score`` and ``max_delta_bic``
-    (module docstring)."""
+    (module docstring).  ``local``: the dictionary without :data:`POLYNOMIAL_DAMPING` (a
+    damping that changes over the stroke as the zones only: bounded where the files did
+    not go)."""
     import time
 
     t0 = time.perf_counter()
@@ -498,6 +506,11 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
                          seconds=time.perf_counter() - t0)
     feats, fit_mats, fit_motion = features(model, fit, rig, fit)
     _, held_mats, held_motion = features(model, held, rig, fit)
+    if local:
+        keep_cols = [j for j, f in enumerate(feats) if f.index not in POLYNOMIAL_DAMPING]
+        feats = [feats[j] for j in keep_cols]
+        fit_mats = [m[:, keep_cols] for m in fit_mats]
+        held_mats = [m[:, keep_cols] for m in held_mats]
     w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
     x = np.vstack(fit_mats) * w_rows[:, None]
     y = -np.concatenate(fit_res) * w_rows  # the missing force: F_meas − F_model

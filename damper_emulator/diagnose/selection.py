@@ -645,8 +645,10 @@ def _discover(diag: Diagnosis, base: DamperModel, fit: Sequence[Record],
     :mod:`damper_emulator.diagnose.discovery`), from the model after the diagnosis and
     from the identified model (whose parameters no fit has bent towards the effect: a
     refit of the paper's model alone gave a 6 kg inertia's chirp 70 N of error on the
-    quasi-static test), the one whose term gains more on the held-out files; then the
-    term fitted jointly with the model after the diagnosis."""
+    quasi-static test), and from the latter with the local dictionary too (the zones for
+    the damping polynomials), the one whose term gains more on the held-out files, as the
+    candidates compete; then the term fitted jointly with the model after the
+    diagnosis."""
     final = diag.final
     after_model, after_rig = diag.model_after(), diag.rig_after()
     say("discovery: what the library left, regressed on the dictionary of motion and "
@@ -655,11 +657,14 @@ def _discover(diag: Diagnosis, base: DamperModel, fit: Sequence[Record],
                      diag.structure_after, STRUCTURE_RATIO, MIN_SCORE, MAX_DELTA_BIC, say)
     if not found.ran or final is None:
         return found
-    alt = discover(base, after_rig, fit, held, weights, 0.0, math.inf, STRUCTURE_RATIO,
-                   MIN_SCORE, MAX_DELTA_BIC, say)
-    if alt.features and (not found.features or alt.held_out_gain > found.held_out_gain):
-        say("discovery: the term found on the identified model's residual is taken")
-        found = alt
+    for local in (False, True):
+        alt = discover(base, after_rig, fit, held, weights, 0.0, math.inf, STRUCTURE_RATIO,
+                       MIN_SCORE, MAX_DELTA_BIC, say, local=local)
+        if alt.features and (not found.features or alt.held_out_gain > found.held_out_gain):
+            say("discovery: the term found on the identified model's residual"
+                + (" with the zones for the damping polynomials" if local else "")
+                + " is taken")
+            found = alt
     if not found.features:
         return found
     accepted = list(zip(final.candidates, final.out["values"]))

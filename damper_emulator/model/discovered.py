@@ -7,29 +7,23 @@ dictionary, :mod:`damper_emulator.diagnose.discovery`) are, per sample, with the
 ``x``, the velocity ``ẋ``, the smooth sign ``s = tanh(ẋ / v_s)``, the chamber pressures
 ``p_r``, ``p_c`` and the model's force ``F`` *without* the term:
 
-======================  ===========================================  ====================
-index                   feature                                      coefficient unit
-======================  ===========================================  ====================
-``TERM_ACCELERATION``   ``ẍ`` (:func:`acceleration`)                 kg
-``TERM_VELOCITY``       ``ẋ``                                        N·s/m
-``TERM_VELOCITY_SQ``    ``ẋ |ẋ|``                                    N·s²/m²
-``TERM_VELOCITY_CUBE``  ``ẋ³``                                       N·s³/m³
-``TERM_SIGN``           ``s``                                        N
-``TERM_STROKE``         ``x``                                        N/m
-``TERM_STROKE_SQ``      ``x²``                                       N/m²
-``TERM_STROKE_CUBE``    ``x³``                                       N/m³
-``TERM_STROKE_VEL``     ``x ẋ``                                      N·s/m²
-``TERM_STROKE_SQ_VEL``  ``x² ẋ``                                     N·s/m³
-``TERM_STROKE_SQ_SIGN`` ``x² s``                                     N/m²
-``TERM_ABS_STROKE_SIGN````|x| s``                                    N/m
-``TERM_P_COM_SIGN``     ``p_c s``                                    m²
-``TERM_P_REB_SIGN``     ``p_r s``                                    m²
-``TERM_P_DROP``         ``p_r − p_c``                                m²
-``TERM_ENERGY``         ``E F``, ``E`` the energy dissipated so far  1/J
-``TERM_TEMPERATURE``    ``(T − T_ref) F`` (``T`` measured; none: 0)  1/K
-``TERM_PROFILE``        ``exp(−(x − c)² / (2 w²)) ẋ``                N·s/m
-``TERM_LAG``            ``y − F``, ``τ ẏ = F − y``                   -
-======================  ===========================================  ====================
+- ``TERM_ACCELERATION``: ``ẍ`` (:func:`acceleration`) [kg];
+- ``TERM_VELOCITY``, ``TERM_VELOCITY_SQ``, ``TERM_VELOCITY_CUBE``: ``ẋ``, ``ẋ |ẋ|``,
+  ``ẋ³`` [N·s/m, N·s²/m², N·s³/m³];
+- ``TERM_SIGN``: ``s`` [N];
+- ``TERM_STROKE``, ``TERM_STROKE_SQ``, ``TERM_STROKE_CUBE``: ``x``, ``x²``, ``x³``
+  [N/m, N/m², N/m³];
+- ``TERM_STROKE_VEL``, ``TERM_STROKE_SQ_VEL``: ``x ẋ``, ``x² ẋ`` [N·s/m², N·s/m³];
+- ``TERM_STROKE_SIGN``, ``TERM_STROKE_SQ_SIGN``, ``TERM_ABS_STROKE_SIGN``: ``x s``,
+  ``x² s``, ``|x| s`` [N/m, N/m², N/m];
+- ``TERM_P_COM_SIGN``, ``TERM_P_REB_SIGN``, ``TERM_P_DROP``: ``p_c s``, ``p_r s``,
+  ``p_r − p_c`` [m²];
+- ``TERM_ENERGY``: ``E F``, ``E`` the energy dissipated so far [1/J];
+- ``TERM_TEMPERATURE``: ``(T − T_ref) F``, ``T`` measured (none: 0) [1/K];
+- ``TERM_PROFILE``: ``exp(−(x − c)² / (2 w²)) ẋ`` [N·s/m];
+- ``TERM_LAG``: ``y − F``, ``τ ẏ = F − y`` [-].
+
+(the coefficient's unit in brackets).
 
 The term is added to the damper's force at the rod; it does not feed back into the
 chamber pressures (the discovery fits it as an additive force).  The acceleration is the
@@ -50,8 +44,9 @@ from damper_emulator.model.jit import kernel
 
 (TERM_ACCELERATION, TERM_VELOCITY, TERM_VELOCITY_SQ, TERM_VELOCITY_CUBE, TERM_SIGN,
  TERM_STROKE, TERM_STROKE_SQ, TERM_STROKE_CUBE, TERM_STROKE_VEL, TERM_STROKE_SQ_VEL,
- TERM_STROKE_SQ_SIGN, TERM_ABS_STROKE_SIGN, TERM_P_COM_SIGN, TERM_P_REB_SIGN, TERM_P_DROP,
- TERM_ENERGY, TERM_TEMPERATURE, TERM_PROFILE, TERM_LAG, N_TERMS) = range(20)
+ TERM_STROKE_SIGN, TERM_STROKE_SQ_SIGN, TERM_ABS_STROKE_SIGN, TERM_P_COM_SIGN,
+ TERM_P_REB_SIGN, TERM_P_DROP, TERM_ENERGY, TERM_TEMPERATURE, TERM_PROFILE, TERM_LAG,
+ N_TERMS) = range(21)
 
 #: The coefficient's field of ``damper.extensions.discovered_term``
 #: (:class:`damper_emulator.params.DiscoveredTermParams`) of each feature, by index.
@@ -59,7 +54,8 @@ TERM_FIELDS = (
     "acceleration_kg", "velocity_n_s_m", "velocity_squared_n_s2_m2",
     "velocity_cubed_n_s3_m3", "smooth_sign_n", "stroke_n_m", "stroke_squared_n_m2",
     "stroke_cubed_n_m3", "stroke_velocity_n_s_m2", "stroke_squared_velocity_n_s_m3",
-    "stroke_squared_sign_n_m2", "abs_stroke_sign_n_m", "compression_pressure_sign_m2",
+    "stroke_sign_n_m", "stroke_squared_sign_n_m2", "abs_stroke_sign_n_m",
+    "compression_pressure_sign_m2",
     "rebound_pressure_sign_m2", "pressure_drop_m2", "energy_force_per_j",
     "temperature_force_per_k", "profile_n_s_m", "lag_coefficient")
 
@@ -114,6 +110,7 @@ def features(out: _Vec, x: float, v: float, a: float, temperature: float, energy
     out[TERM_STROKE_CUBE] = x * x * x
     out[TERM_STROKE_VEL] = x * v
     out[TERM_STROKE_SQ_VEL] = x * x * v
+    out[TERM_STROKE_SIGN] = x * s
     out[TERM_STROKE_SQ_SIGN] = x * x * s
     out[TERM_ABS_STROKE_SIGN] = abs(x) * s
     out[TERM_P_COM_SIGN] = p_com * s

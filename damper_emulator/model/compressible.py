@@ -46,13 +46,7 @@ from damper_emulator.model.adaptive import (
     bypass_flow,
     solenoid_lag,
 )
-from damper_emulator.model.discovered import (
-    N_TERMS,
-    TERM_FIELDS,
-    acceleration,
-    features,
-    lag_update,
-)
+from damper_emulator.model.discovered import N_TERMS, TERM_FIELDS, advance, features
 from damper_emulator.model.extensions import (
     AIR_PRESSURE_FLOOR,
     P_ATM,
@@ -480,21 +474,14 @@ def _discovered(prm: _Vec, state: _Vec, x: float, v: float, dt: float, force: fl
     """The discovered term's force [N] at the sample (``x``, ``v``) ``dt`` after the last
     (``dt = 0``: a settled start, no acceleration), the model's force being ``force``
     without it; its states (acceleration history, energy, lag) advanced
-    (:mod:`damper_emulator.model.discovered`).  Call before ``state[S_V]`` and
-    ``state[S_P_REB]``/``state[S_P_COM]``'s successors are stored: it reads the last
-    velocity from ``state[S_V]`` and takes the pressures from ``state``."""
-    if dt > 0.0:
-        a = acceleration(v, state[S_V], state[S_V2], dt, state[S_H2])
-        state[S_V2] = state[S_V]
-        state[S_H2] = dt
-        state[S_DT_ENERGY] += force * v * dt
-        state[S_DT_LAG] = lag_update(state[S_DT_LAG], state[S_DT_FORCE], force, dt,
-                                     prm[P_DT_TAU])
-    else:
-        a = 0.0
-        state[S_V2] = v
-        state[S_H2] = 0.0
-        state[S_DT_LAG] = force
+    (:func:`damper_emulator.model.discovered.advance`).  Call with the sample's pressures
+    in ``state`` and the last sample's velocity still in ``state[S_V]`` (a settled start:
+    ``v`` already)."""
+    a, energy, lag = advance(v, state[S_V], state[S_V2], dt, state[S_H2],
+                             state[S_DT_ENERGY], state[S_DT_LAG], state[S_DT_FORCE], force,
+                             prm[P_DT_TAU])
+    state[S_DT_ENERGY], state[S_DT_LAG] = energy, lag
+    state[S_V2], state[S_H2] = state[S_V], dt
     state[S_DT_FORCE] = force
     row = state[S_DT_ROW:S_DT_ROW + N_TERMS]
     features(row, x, v, a, state[S_TEMP_IN], state[S_DT_ENERGY], state[S_P_REB],

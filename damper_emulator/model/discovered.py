@@ -86,6 +86,21 @@ def lag_update(y: float, f_old: float, f_new: float, h: float, tau: float) -> fl
 
 
 @kernel
+def advance(v: float, v1: float, v2: float, h1: float, h2: float, energy: float,
+            lag: float, f_old: float, force: float, tau: float
+            ) -> tuple[float, float, float]:
+    """The states of the term at a sample ``h1`` [s] after the last, ``(ẍ, E, y)``: the
+    acceleration (:func:`acceleration`, from the velocities ``v``, ``v1``, ``v2`` and the
+    steps ``h1``, ``h2``), the energy ``E`` grown by ``F ẋ h1`` and the lag ``y``
+    advanced from ``f_old`` to the force ``F`` (:func:`lag_update`); ``h1 = 0``, a
+    settled start: ``(0, E, F)``."""
+    if h1 <= 0.0:
+        return 0.0, energy, force
+    return (acceleration(v, v1, v2, h1, h2), energy + force * v * h1,
+            lag_update(lag, f_old, force, h1, tau))
+
+
+@kernel
 def profile(x: float, v: float, centre: float, width: float) -> float:
     """``exp(−(x − c)² / (2 w²)) ẋ``: damping over a part of the stroke."""
     r = (x - centre) / width
@@ -132,18 +147,12 @@ def feature_history(t: _Vec, x: _Vec, v: _Vec, temperature: _Vec, force: _Vec,
     evaluates them sample by sample (the acceleration, the energy and the lag integrated
     the same way, from rest at the first sample)."""
     energy = 0.0
-    lag = force[0]
+    lag = 0.0
     for i in range(t.size):
-        if i == 0:
-            a = 0.0
-        else:
-            h1 = t[i] - t[i - 1]
-            if i >= 2:
-                a = acceleration(v[i], v[i - 1], v[i - 2], h1, t[i - 1] - t[i - 2])
-            else:
-                a = acceleration(v[i], v[i - 1], 0.0, h1, 0.0)
-            energy += force[i] * v[i] * h1
-            lag = lag_update(lag, force[i - 1], force[i], h1, tau)
+        # the first sample is a settled start (no step before it), the second has one
+        j1, j2 = max(i - 1, 0), max(i - 2, 0)
+        a, energy, lag = advance(v[i], v[j1], v[j2], t[i] - t[j1], t[j1] - t[j2], energy,
+                                 lag, force[j1], force[i], tau)
         features(out[i], x[i], v[i], a, temperature[i], energy, p_reb[i], p_com[i],
                  force[i], lag, v_sign, t_ref, centre, width)
 

@@ -50,7 +50,6 @@ from typing import Any
 
 import numpy as np
 
-from damper_emulator.acquisition.chain import model_record
 from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.diagnose.candidates import Parameter
 from damper_emulator.diagnose.joint import (
@@ -58,9 +57,8 @@ from damper_emulator.diagnose.joint import (
     TERM_PREFIX,
     Record,
     TermSource,
-    bic_term,
     delay_rig,
-    effective_samples,
+    delta_bic,
     joint_fit,
     lag1,
 )
@@ -366,30 +364,24 @@ class Discovery:
             "seconds": round(self.seconds, 2)}
 
 
-def refine_profile(feats: Sequence[Feature], j: int, chosen: Sequence[int],
+def refine_profile(f: Feature, others: np.ndarray, y: np.ndarray, w_rows: np.ndarray,
                    fit: Sequence[Record], motions: Sequence[Motion],
-                   fit_res: Sequence[np.ndarray], weights: Sequence[float],
                    rig: RigParams | None) -> Feature:
-    """The Gaussian profile ``feats[j]`` (one of the columns ``chosen``) with its centre
-    and width fitted by bounded least squares (the other chosen columns' coefficients
-    solved at each step; the profile within the files' stroke, its width from 2 % to the
-    whole stroke)."""
+    """The Gaussian profile ``f`` with its centre and width fitted by bounded least
+    squares to ``y``, the missing force over the counted samples of ``fit`` weighted by
+    ``w_rows``, together with the weighted columns ``others`` (their coefficients solved
+    at each step; the profile within the files' stroke, its width from 2 % to the whole
+    stroke)."""
     from scipy.optimize import least_squares
 
-    f = feats[j]
     assert f.profile is not None
     x_ref = motions[0].x_ref
-    w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
-    y = -np.concatenate(fit_res) * w_rows
-    fixed = [np.concatenate([r.through_chain(o.fn(m), rig)[r.start:]
-                             for r, m in zip(fit, motions)]) * w_rows
-             for o in (feats[k] for k in chosen if k != j)]
 
     def resid(p: np.ndarray) -> np.ndarray:
         g = profile_feature(float(p[0]), float(p[1]))
         col = np.concatenate([r.through_chain(g.fn(m), rig)[r.start:]
                               for r, m in zip(fit, motions)]) * w_rows
-        a = np.column_stack([col, *fixed])
+        a = np.column_stack([col, others])
         beta, *_ = np.linalg.lstsq(a, y, rcond=None)
         out: np.ndarray = y - a @ beta
         return out
@@ -470,26 +462,24 @@ def _one_of_each(order: Sequence[int], feats: Sequence[Feature]) -> list[int]:
 def _bic(fit_res: Sequence[np.ndarray], ref_res: Sequence[np.ndarray], k: int) -> float:
     """Effective ΔBIC of residuals ``fit_res`` against ``ref_res`` (the same records)
     with ``k`` added parameters, as a candidate's (``StepFit.score_against``)."""
-    dbic, n_eff = 0.0, 0.0
-    for r, r0 in zip(fit_res, ref_res):
-        rho = lag1(r)
-        dbic += bic_term(r.size, rho, float(np.mean(r * r)), float(np.mean(r0 * r0)))
-        n_eff += effective_samples(r.size, rho)
-    return dbic + k * math.log(max(n_eff, 2.0))
+    return delta_bic(((r.size, lag1(r), float(np.mean(r * r)), float(np.mean(r0 * r0)))
+                      for r, r0 in zip(fit_res, ref_res)), k)
 
 
 def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
              held: Sequence[Record], weights: Sequence[float], floor: float,
              structure: float, structure_limit: float, min_score: float,
              max_delta_bic: float, progress: Callable[[str], None] | None = None,
-             local: bool = False) -> Discovery:
+             dictionaries: Sequence[bool] = (False,)) -> Discovery:
     """Discover a term in the residual of ``model`` (with the estimated chain ``rig``) on
     the identification records ``fit`` (weighted by ``weights``), scored on ``held``;
     the gate's ``floor`` and ``structure`` (held-out r.m.s. over its noise level) against
     ``structure_limit``, the significance rules ``min_score`` and ``max_delta_bic``
-    (module docstring).  ``local``: the dictionary without :data:`POLYNOMIAL_DAMPING` (a
-    damping that changes over the stroke as the zones only: bounded where the files did
-    not go)."""
+    (module docstring).  ``dictionaries``: the dictionaries regressed on, each ``local``
+    or not (local: without :data:`POLYNOMIAL_DAMPING`, a damping that changes over the
+    stroke as the zones only, bounded where the files did not go), from one computation
+    of the features; the term of the largest held-out gain is returned (of equal gains the
+    first)."""
     import time
 
     t0 = time.perf_counter()
@@ -504,103 +494,121 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
                          f"(floor {floor:.2f} N), structure ratio {structure:.2f} "
                          f"(limit {structure_limit})", rms_held_out_before=before,
                          seconds=time.perf_counter() - t0)
-    feats, fit_mats, fit_motion = features(model, fit, rig, fit)
-    _, held_mats, held_motion = features(model, held, rig, fit)
-    if local:
-        keep_cols = [j for j, f in enumerate(feats) if f.index not in POLYNOMIAL_DAMPING]
-        feats = [feats[j] for j in keep_cols]
-        fit_mats = [m[:, keep_cols] for m in fit_mats]
-        held_mats = [m[:, keep_cols] for m in held_mats]
-    w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
-    x = np.vstack(fit_mats) * w_rows[:, None]
-    y = -np.concatenate(fit_res) * w_rows  # the missing force: F_meas − F_model
-    keep = np.any(x != 0.0, axis=0)
-    freq = np.zeros(len(feats))
-    freq[keep] = stability(x[:, keep], y, _blocks(fit), np.random.default_rng(SEED))
-    chosen = _one_of_each([j for j in np.argsort(-freq) if freq[j] >= MIN_FREQUENCY],
-                          feats)[:MAX_TERMS]
-    frequency = {feats[j].symbol: float(freq[j]) for j in np.argsort(-freq)[:6]}
-    say("discovery: selection frequencies " + ", ".join(
-        f"{k} {v:.2f}" for k, v in frequency.items()))
+    all_feats, all_fit, fit_motion = features(model, fit, rig, fit)
+    _, all_held, held_motion = features(model, held, rig, fit)
 
-    def solve(cols: Sequence[int]) -> np.ndarray:
-        beta, *_ = np.linalg.lstsq(x[:, cols], y, rcond=None)
-        out: np.ndarray = beta
-        return out
+    def regress(feats: list[Feature], fit_mats: list[np.ndarray],
+                held_mats: list[np.ndarray]) -> Discovery:
+        """Steps 3–6 on the dictionary ``feats`` (its columns ``fit_mats``,
+        ``held_mats``, which the refined zone's replace)."""
+        w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
+        x = np.vstack(fit_mats) * w_rows[:, None]
+        y = -np.concatenate(fit_res) * w_rows  # the missing force: F_meas − F_model
+        keep = np.any(x != 0.0, axis=0)
+        freq = np.zeros(len(feats))
+        freq[keep] = stability(x[:, keep], y, _blocks(fit), np.random.default_rng(SEED))
+        chosen = _one_of_each([j for j in np.argsort(-freq) if freq[j] >= MIN_FREQUENCY],
+                              feats)[:MAX_TERMS]
+        frequency = {feats[j].symbol: float(freq[j]) for j in np.argsort(-freq)[:6]}
+        say("discovery: selection frequencies " + ", ".join(
+            f"{k} {v:.2f}" for k, v in frequency.items()))
 
-    def after(cols: Sequence[int], beta: np.ndarray, mats: Sequence[np.ndarray],
-              res: Sequence[np.ndarray]) -> list[np.ndarray]:
-        return [r + m[:, cols] @ beta for r, m in zip(res, mats)]
+        def solve(cols: Sequence[int]) -> np.ndarray:
+            beta, *_ = np.linalg.lstsq(x[:, cols], y, rcond=None)
+            out: np.ndarray = beta
+            return out
 
-    def prune(cols: list[int]) -> list[int]:
-        """Backward elimination by the effective BIC: the feature whose removal costs
-        least goes while that cost is under ``-max_delta_bic``."""
-        while cols:
-            full = _bic(after(cols, solve(cols), fit_mats, fit_res), fit_res, len(cols))
-            worst, worst_gain = None, 0.0
-            for j in cols:
-                rest = [c for c in cols if c != j]
-                b2 = solve(rest) if rest else np.zeros(0)
-                part = _bic(after(rest, b2, fit_mats, fit_res), fit_res, len(rest))
-                if part - full < -max_delta_bic and (worst is None or part - full < worst_gain):
-                    worst, worst_gain = j, part - full
-            if worst is None:
-                break
-            cols = [c for c in cols if c != worst]
-        return cols
+        def after(cols: Sequence[int], beta: np.ndarray, mats: Sequence[np.ndarray],
+                  res: Sequence[np.ndarray]) -> list[np.ndarray]:
+            return [r + m[:, cols] @ beta for r, m in zip(res, mats)]
 
-    chosen = prune(chosen)
-    if not chosen:
-        return Discovery(True, "no feature is stable", frequency=frequency,
-                         rms_held_out_before=before, seconds=time.perf_counter() - t0)
-    for j in chosen:  # a Gaussian profile's centre and width, refined
-        f = feats[j]
-        if f.profile is not None:
-            feats[j] = refine_profile(feats, j, chosen, fit, fit_motion, fit_res, weights,
-                                      rig)
-            col = [r.through_chain(feats[j].fn(m), rig)[r.start:] for r, m in zip(fit, fit_motion)]
-            x[:, j] = np.concatenate(col) * w_rows
-            for mat, c in zip(fit_mats, col):
-                mat[:, j] = c
-            for rec, m, mat in zip(held, held_motion, held_mats):
-                mat[:, j] = rec.through_chain(feats[j].fn(m), rig)[rec.start:]
-    # what the refined profile now explains, the others no longer need to
-    chosen = prune(chosen)
-    if not chosen:
-        return Discovery(True, "no feature is significant", frequency=frequency,
-                         rms_held_out_before=before, seconds=time.perf_counter() - t0)
-    beta = solve(chosen)
-    fit_after = after(chosen, beta, fit_mats, fit_res)
-    held_after = after(chosen, beta, held_mats, held_res)
-    sse0 = sum(float(np.dot(r, r)) for r in held_res)
-    sse1 = sum(float(np.dot(r, r)) for r in held_after)
-    gain = 1.0 - math.sqrt(sse1 / sse0) if sse0 > 0 else 0.0
-    dbic = _bic(fit_after, fit_res, len(chosen))
-    # σ of the coefficients: (XᵀX)⁻¹ s², inflated for an AR(1) residual
-    resid = y - x[:, chosen] @ beta
-    rho = max(lag1(r) for r in fit_after)
-    s2 = float(np.dot(resid, resid)) / max(resid.size - len(chosen), 1) \
-        * (1 + rho) / (1 - rho)
-    try:
-        cov = np.linalg.inv(x[:, chosen].T @ x[:, chosen]) * s2
-        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    except np.linalg.LinAlgError:
-        std = np.full(len(chosen), math.inf)
-    parts = [float(np.sqrt(np.mean((np.vstack(held_mats)[:, j] * b) ** 2)))
-             for j, b in zip(chosen, beta)]
-    main = chosen[int(np.argmax(parts))]
-    found = Discovery(
-        True, "", [feats[j] for j in chosen], beta, std, frequency, gain, dbic,
-        bool(gain >= min_score and dbic <= max_delta_bic), before,
-        {r.name: float(np.sqrt(np.mean(a * a))) for r, a in zip(held, held_after)},
-        {r.name: float(np.sqrt(np.mean(a * a)))
-         for r, a in zip([*fit, *held], [*fit_after, *held_after])},
-        {r.name: (m[:, chosen] @ beta, -x0, variable_values(feats[main].variable, mo)[r.start:])
-         for r, m, x0, mo in zip(held, held_mats, held_res, held_motion)},
-        feats[main].variable, time.perf_counter() - t0, t_ref=scales(fit)[1])
-    say(f"discovery: {found.expression}: held-out gain {100 * gain:+.1f} %, ΔBIC "
-        f"{dbic:.0f}{' (significant)' if found.significant else ''}")
-    return found
+        def prune(cols: list[int]) -> list[int]:
+            """Backward elimination by the effective BIC: the feature whose removal costs
+            least goes while that cost is under ``-max_delta_bic``."""
+            while cols:
+                full = _bic(after(cols, solve(cols), fit_mats, fit_res), fit_res, len(cols))
+                worst, worst_gain = None, 0.0
+                for j in cols:
+                    rest = [c for c in cols if c != j]
+                    b2 = solve(rest) if rest else np.zeros(0)
+                    part = _bic(after(rest, b2, fit_mats, fit_res), fit_res, len(rest))
+                    if part - full < -max_delta_bic and (worst is None or part - full < worst_gain):
+                        worst, worst_gain = j, part - full
+                if worst is None:
+                    break
+                cols = [c for c in cols if c != worst]
+            return cols
+
+        chosen = prune(chosen)
+        if not chosen:
+            return Discovery(True, "no feature is stable", frequency=frequency,
+                             rms_held_out_before=before, seconds=time.perf_counter() - t0)
+        for j in chosen:  # a Gaussian profile's centre and width, refined
+            f = feats[j]
+            if f.profile is not None:
+                feats[j] = refine_profile(f, x[:, [k for k in chosen if k != j]], y, w_rows,
+                                          fit, fit_motion, rig)
+                col = [r.through_chain(feats[j].fn(m), rig)[r.start:]
+                       for r, m in zip(fit, fit_motion)]
+                x[:, j] = np.concatenate(col) * w_rows
+                for mat, c in zip(fit_mats, col):
+                    mat[:, j] = c
+                for rec, m, mat in zip(held, held_motion, held_mats):
+                    mat[:, j] = rec.through_chain(feats[j].fn(m), rig)[rec.start:]
+        # what the refined profile now explains, the others no longer need to
+        chosen = prune(chosen)
+        if not chosen:
+            return Discovery(True, "no feature is significant", frequency=frequency,
+                             rms_held_out_before=before, seconds=time.perf_counter() - t0)
+        beta = solve(chosen)
+        fit_after = after(chosen, beta, fit_mats, fit_res)
+        held_after = after(chosen, beta, held_mats, held_res)
+        sse0 = sum(float(np.dot(r, r)) for r in held_res)
+        sse1 = sum(float(np.dot(r, r)) for r in held_after)
+        gain = 1.0 - math.sqrt(sse1 / sse0) if sse0 > 0 else 0.0
+        dbic = _bic(fit_after, fit_res, len(chosen))
+        # σ of the coefficients: (XᵀX)⁻¹ s², inflated for an AR(1) residual
+        resid = y - x[:, chosen] @ beta
+        rho = max(lag1(r) for r in fit_after)
+        s2 = float(np.dot(resid, resid)) / max(resid.size - len(chosen), 1) \
+            * (1 + rho) / (1 - rho)
+        try:
+            cov = np.linalg.inv(x[:, chosen].T @ x[:, chosen]) * s2
+            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        except np.linalg.LinAlgError:
+            std = np.full(len(chosen), math.inf)
+        parts = [float(np.sqrt(np.mean((np.vstack(held_mats)[:, j] * b) ** 2)))
+                 for j, b in zip(chosen, beta)]
+        main = chosen[int(np.argmax(parts))]
+        found = Discovery(
+            True, "", [feats[j] for j in chosen], beta, std, frequency, gain, dbic,
+            bool(gain >= min_score and dbic <= max_delta_bic), before,
+            {r.name: float(np.sqrt(np.mean(a * a))) for r, a in zip(held, held_after)},
+            {r.name: float(np.sqrt(np.mean(a * a)))
+             for r, a in zip([*fit, *held], [*fit_after, *held_after])},
+            {r.name: (m[:, chosen] @ beta, -x0, variable_values(feats[main].variable, mo)[r.start:])
+             for r, m, x0, mo in zip(held, held_mats, held_res, held_motion)},
+            feats[main].variable, time.perf_counter() - t0, t_ref=scales(fit)[1])
+        say(f"discovery: {found.expression}: held-out gain {100 * gain:+.1f} %, ΔBIC "
+            f"{dbic:.0f}{' (significant)' if found.significant else ''}")
+        return found
+
+    best: Discovery | None = None
+    for local in dictionaries:
+        cols = [j for j, f in enumerate(all_feats)
+                if not (local and f.index in POLYNOMIAL_DAMPING)]
+        # (copies: the refined zone replaces its column)
+        one = regress([all_feats[j] for j in cols], [m[:, cols] for m in all_fit],
+                      [m[:, cols] for m in all_held])
+        if best is None or (one.features and (
+                not best.features or one.held_out_gain > best.held_out_gain)):
+            if best is not None:
+                say("discovery: the term of the dictionary "
+                    + ("with the zones for the damping polynomials" if local else "in full")
+                    + " is taken")
+            best = one
+    assert best is not None  # at least one dictionary
+    return best
 
 
 
@@ -611,10 +619,9 @@ def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:
 
     def source(model: DamperModel, rec: Record) -> tuple[np.ndarray, np.ndarray]:
         m = motion(model, rec, x_ref, t_ref)
-        chain = rec.data.acquisition
-        raw = (m.force_model if chain is None or chain.does_nothing
-               else model_record(rec.data.time, m.force_model, chain))
-        return raw, np.column_stack([f.fn(m) for f in feats])
+        # (the file's own chain only: the estimated one is the fit's to apply)
+        return (rec.through_chain(m.force_model, None),
+                np.column_stack([f.fn(m) for f in feats]))
     return source
 
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -251,14 +251,22 @@ class Record:
             return force
         return model_record(self.data.time, force, chain)
 
+    def with_term(self, raw: np.ndarray, cols: np.ndarray, coefficients: Sequence[float],
+                  rig: RigParams | None) -> np.ndarray:
+        """The model's force ``raw`` (as :meth:`simulate` gives it without ``rig``) with a
+        discovered term's parts ``cols`` (before any chain, ``n × k``) times
+        ``coefficients`` added, as the record holds it (the chain is linear: the term
+        passes through it once)."""
+        out: np.ndarray = (self.recorded(raw, rig)
+                           + self.through_chain(cols @ np.asarray(coefficients, dtype=float),
+                                                rig))
+        return out
+
     def term_residual(self, model: DamperModel, source: TermSource,
                       coefficients: Sequence[float], rig: RigParams | None) -> np.ndarray:
         """``F_sim − F_meas`` [N] from :attr:`start` on of ``model`` with the discovered
         term ``Σ c_k column_k`` of ``source`` added (through the chain)."""
-        raw, cols = source(model, self)
-        total = self.recorded(raw, rig)
-        for c, col in zip(coefficients, cols.T):
-            total = total + c * self.through_chain(col, rig)
+        total = self.with_term(*source(model, self), coefficients, rig)
         k = self.start
         out: np.ndarray = total[k:] - self.data.force[k:]
         return out
@@ -522,13 +530,11 @@ class Space:
                          for rec, m in zip(self.records, models)]
                 raws, cols = [p[0] for p in pairs], [p[1] for p in pairs]
             self._raw = (key, raws, cols)
-        out = [rec.recorded(raw, rig) for rec, raw in zip(self.records, raws)]
-        if cols is not None:
-            coef = [base[f"{TERM_PREFIX}{k}"] for k in range(cols[0].shape[1])]
-            for j, (rec, c) in enumerate(zip(self.records, cols)):
-                for ck, col in zip(coef, c.T):
-                    out[j] = out[j] + ck * rec.through_chain(col, rig)
-        return out
+        if cols is None:
+            return [rec.recorded(raw, rig) for rec, raw in zip(self.records, raws)]
+        coef = [base[f"{TERM_PREFIX}{k}"] for k in range(cols[0].shape[1])]
+        return [rec.with_term(raw, c, coef, rig)
+                for rec, raw, c in zip(self.records, raws, cols)]
 
     def jacobian(self, s: np.ndarray) -> np.ndarray:
         """Forward differences of :meth:`residuals` at ``s``, each parameter stepped by
@@ -665,6 +671,17 @@ def bic_term(n: int, rho: float, ms_after: float, ms_before: float) -> float:
     (:func:`effective_samples`); negative when the residual got smaller."""
     return effective_samples(n, rho) * math.log(max(ms_after, 1e-300)
                                                 / max(ms_before, 1e-300))
+
+
+def delta_bic(files: Iterable[tuple[int, float, float, float]], k: int) -> float:
+    """The effective ΔBIC of a fit with ``k`` more parameters than the one it is compared
+    with, per file ``(n, rho, ms_after, ms_before)``: the sum of :func:`bic_term` plus
+    ``k ln(Σ n_eff)`` (:func:`effective_samples`; at least ``ln 2``)."""
+    dbic, n_eff = 0.0, 0.0
+    for n, rho, ms_after, ms_before in files:
+        dbic += bic_term(n, rho, ms_after, ms_before)
+        n_eff += effective_samples(n, rho)
+    return dbic + k * math.log(max(n_eff, 2.0))
 
 
 def bic_gain(before: Sequence[np.ndarray], after: Sequence[np.ndarray]) -> float:

@@ -359,8 +359,7 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
             files.append(plot_overlay(out / f"overlay_{report_stem(rec.name)}.png", diag, rec))
             say(f"wrote {files[-1]}")
             models = [("before", diag.base_model)]
-            found = diag.discovered
-            term = found is not None and found.significant and found.model is not None
+            term = diag.term is not None
             if diag.chosen is not None or term:
                 models.append(("after", diag.model_after()))
             for when, model in models:
@@ -377,8 +376,7 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
         say(f"wrote {files[-1]}")
     files.append(plot_ranking(out / "ranking.png", diag))
     say(f"wrote {files[-1]}")
-    if diag.chosen is not None or (found is not None and found.significant
-                                   and found.model is not None):
+    if diag.chosen is not None or diag.term is not None:
         path = out / "params_with_effect.yaml"
         save_config(diag.model_after().cfg, path)
         files.append(path)

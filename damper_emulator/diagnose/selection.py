@@ -92,10 +92,9 @@ from damper_emulator.diagnose.joint import (
     TERM_PREFIX,
     Record,
     base_parameters,
-    bic_term,
     chain_unknown,
     delay_rig,
-    effective_samples,
+    delta_bic,
     joint_fit,
     lag1,
     make_record,
@@ -152,7 +151,7 @@ def _damper(values: Mapping[str, float]) -> dict[str, float]:
 def estimated_reading(tau: float) -> str:
     """What an estimated delay ``tau`` [s] of the force can be, in words."""
     if tau > 0.0:
-        fc = math.sqrt(2.0) / (2.0 * math.pi * tau)
+        fc = estimated_rig(tau).force.cutoff_hz
         return (f"the force is recorded {1e3 * tau:.3g} ms late against the displacement: "
                 f"a 2nd-order Butterworth load-cell filter at {fc:.3g} Hz, or a skew, or "
                 "both (within the tests' band they differ by (f/f_c)^4)")
@@ -372,6 +371,15 @@ class StepFit:
         model, rig = self.model(), self.rig
         return [r.residual(model, rig=rig) for r in records]
 
+    def replaces(self, step: StepFit) -> StepFit:
+        """This fit (``step``'s model with the rig's delay freed) in the place of
+        ``step``: its effects, and its score (the delay is the rig's, not a gain of an
+        effect)."""
+        for attr in ("score", "delta_bic", "significant"):
+            setattr(self, attr, getattr(step, attr))
+        self.candidates = list(step.candidates)
+        return self
+
     def score_against(self, ref: StepFit, floor_reached: bool) -> None:
         """Held-out gain and ΔBIC against ``ref`` (module docstring, steps 4–6)."""
         sse0 = ref.sse_held
@@ -381,12 +389,9 @@ class StepFit:
              # the estimated chain's delay, where this fit has it and ``ref`` not
              + (ACQUISITION_DELAY in self.out["base_values"])
              - (ACQUISITION_DELAY in ref.out["base_values"]))
-        dbic, n_eff_total = 0.0, 0.0
-        for name, f in self.out["fit"].items():
-            # rho: lag1, clipped to MAX_RHO
-            dbic += bic_term(f["n"], f["rho"], f["mse"], ref.out["fit"][name]["mse"])
-            n_eff_total += effective_samples(f["n"], f["rho"])
-        self.delta_bic = dbic + k * math.log(max(n_eff_total, 2.0))
+        # (rho: lag1, clipped to MAX_RHO)
+        self.delta_bic = delta_bic(((f["n"], f["rho"], f["mse"], ref.out["fit"][name]["mse"])
+                                    for name, f in self.out["fit"].items()), k)
         self.significant = bool(not floor_reached and self.score >= MIN_SCORE
                                 and self.delta_bic <= MAX_DELTA_BIC)
 
@@ -454,12 +459,20 @@ class Diagnosis:
         """The model after the diagnosis: the last effect's fit, or the refit."""
         return self.steps[-1] if self.steps else self.refit
 
+    @property
+    def term(self) -> Discovery | None:
+        """The discovered term in the model after the diagnosis: significant, and refitted
+        with the model (``None`` otherwise)."""
+        found = self.discovered
+        return (found if found is not None and found.significant and found.model is not None
+                else None)
+
     def model_after(self) -> DamperModel:
         """The model after the diagnosis (the identified model when nothing was fitted;
         with a significant discovered term, its joint refit's model holding the term)."""
-        found = self.discovered
-        if found is not None and found.significant and found.model is not None:
-            return found.model
+        term = self.term
+        if term is not None and term.model is not None:  # (always, with a term)
+            return term.model
         # (base_model: set by diagnose(); None only in a Diagnosis built without it)
         return (self.final.model() if self.final is not None
                 else cast(DamperModel, self.base_model))
@@ -467,8 +480,8 @@ class Diagnosis:
     def base_after_json(self) -> dict[str, Any] | None:
         """The JSON's ``base_parameters_after``: the paper's parameters of the model after
         the diagnosis (with a significant discovered term, its joint refit's) ± 1σ."""
-        found, final = self.discovered, self.final
-        if found is not None and found.significant and found.refitted:
+        found, final = self.term, self.final
+        if found is not None:
             values, std = found.base_values, found.base_std
         elif final is not None:
             values, std = final.out["base_values"], final.out["base_std"]
@@ -478,9 +491,8 @@ class Diagnosis:
 
     def rig_after(self) -> RigParams | None:
         """The chain estimated with :meth:`model_after` (``None``: given, or none)."""
-        found = self.discovered
-        if found is not None and found.significant and found.model is not None:
-            return delay_rig(found.base_values)
+        if self.term is not None:
+            return delay_rig(self.term.base_values)
         return self.final.rig if self.final is not None else None
 
     def acquisition_json(self) -> dict[str, Any]:
@@ -657,14 +669,11 @@ def _discover(diag: Diagnosis, base: DamperModel, fit: Sequence[Record],
                      diag.structure_after, STRUCTURE_RATIO, MIN_SCORE, MAX_DELTA_BIC, say)
     if not found.ran or final is None:
         return found
-    for local in (False, True):
-        alt = discover(base, after_rig, fit, held, weights, 0.0, math.inf, STRUCTURE_RATIO,
-                       MIN_SCORE, MAX_DELTA_BIC, say, local=local)
-        if alt.features and (not found.features or alt.held_out_gain > found.held_out_gain):
-            say("discovery: the term found on the identified model's residual"
-                + (" with the zones for the damping polynomials" if local else "")
-                + " is taken")
-            found = alt
+    alt = discover(base, after_rig, fit, held, weights, 0.0, math.inf, STRUCTURE_RATIO,
+                   MIN_SCORE, MAX_DELTA_BIC, say, dictionaries=(False, True))
+    if alt.features and (not found.features or alt.held_out_gain > found.held_out_gain):
+        say("discovery: the term found on the identified model's residual is taken")
+        found = alt
     if not found.features:
         return found
     accepted = list(zip(final.candidates, final.out["values"]))
@@ -843,10 +852,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                         "every later fit frees it")
                     chain_taken = chain_fit
                     if steps:  # the last step's model, with the delay
-                        for attr in ("score", "delta_bic", "significant"):
-                            setattr(chain_fit, attr, getattr(steps[-1], attr))
-                        chain_fit.candidates = list(steps[-1].candidates)
-                        steps[-1] = chain_fit
+                        steps[-1] = chain_fit.replaces(steps[-1])
                     nxt = run(chain_fit, [None, *remaining], f"round {len(rounds) + 1} "
                               "(with the rig's delay)", {f._added.effect: f for f in fits})
                     present, fits, chain_fit = nxt[0], nxt[1:], None
@@ -903,9 +909,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                 f"ms on the effects: gain {100 * last.score:+.1f} %, ΔBIC "
                 f"{last.delta_bic:.0f}{' (taken)' if last.significant else ''}")
             if last.significant:
-                for attr in ("score", "delta_bic", "significant"):
-                    setattr(last, attr, getattr(steps[-1], attr))
-                steps[-1] = last
+                steps[-1] = last.replaces(steps[-1])
 
     ref_held = refit.residuals(held)
     floor, noise = floor_level(held, ref_held)

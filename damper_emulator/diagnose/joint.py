@@ -457,7 +457,8 @@ class Space:
         base = dict(self.base_values)
         values = [dict(v) for v in self.values]
         for k, (i, p) in enumerate(self.slots):
-            v = p.from_internal(self.lo[k] + self.width[k] * s[k])
+            # (a plain float: a params file written from the values must hold numbers)
+            v = float(p.from_internal(self.lo[k] + self.width[k] * s[k]))
             if i < 0:
                 base[p.name] = v
             else:

@@ -20,7 +20,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from damper_emulator.diagnose.report import markdown
+from damper_emulator.diagnose.report import markdown, write_report
 from damper_emulator.diagnose.selection import (
     FLOOR_FORCE_FRACTION,
     MIN_SCORE,
@@ -247,7 +247,7 @@ def test_a_load_cell_filter_is_the_rigs_not_an_effect():
     assert "acquisition_delay_s" not in doc["base_parameters_after"]["values"]
 
 
-def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia():
+def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia(tmp_path):
     """A 6 kg mass between load cell and damper (``F + m ẍ``): no extension has an
     inertial force, and the library leaves structure (the answer was ``other``).  The
     discovery regresses what is left on its dictionary, reads the mass from the
@@ -290,6 +290,12 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia():
     assert "## Term discovery" in text and "kg · ẍ" in text
     assert "a term discovered in it is significant" in text
     assert "Nothing to add" not in text
+    # the report's params file holds the term, and every command loads it back
+    files = write_report(diag, tmp_path)
+    assert tmp_path / "params_with_effect.yaml" in files
+    loaded = load_config(tmp_path / "params_with_effect.yaml")
+    assert loaded.damper.extensions.discovered_term == ext.discovered_term
+    assert (tmp_path / "discovered.png").stat().st_size > 0
 
 
 def test_the_fits_run_on_any_executor_in_self_contained_tasks():

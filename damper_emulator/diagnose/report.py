@@ -35,6 +35,13 @@ from damper_emulator.validation import report_stem
 RANKING_FLOOR_PCT = -50.0
 
 
+def _added(diag: Diagnosis) -> list[str]:
+    """What the model after the diagnosis adds to the paper's: the effects, and a
+    discovered term in the model."""
+    return ([s.candidate.effect for s in diag.steps]
+            + (["the discovered term"] if diag.term is not None else []))
+
+
 def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     """Measured force, identified model and model with the chosen effect on one file."""
     from damper_emulator.dyno.plots import new_figure, save
@@ -43,8 +50,7 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     before = rec.simulate(diag.base_model)
     after = rec.simulate(diag.model_after(), rig=diag.rig_after())
     k = rec.start
-    label_after = ("+ " + " + ".join(s.candidate.effect for s in diag.steps) if diag.steps
-                   else "refitted")
+    label_after = "+ " + " + ".join(_added(diag)) if _added(diag) else "refitted"
     fig = new_figure(13.0, 8.0)
     axes = fig.subplots(2, 2)
     for ax, xs, xlabel in ((axes[0, 0], d.displacement * 1e3, "displacement [mm]"),
@@ -359,14 +365,12 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
             files.append(plot_overlay(out / f"overlay_{report_stem(rec.name)}.png", diag, rec))
             say(f"wrote {files[-1]}")
             models = [("before", diag.base_model)]
-            term = diag.term is not None
-            if diag.chosen is not None or term:
+            if diag.chosen is not None or diag.term is not None:
                 models.append(("after", diag.model_after()))
             for when, model in models:
                 path = out / f"residual_{when}_{report_stem(rec.name)}.png"
                 what = ("identified model" if when == "before" else "model with "
-                        + " + ".join([st.candidate.effect for st in diag.steps]
-                                     + (["the discovered term"] if term else [])))
+                        + " + ".join(_added(diag)))
                 files.append(plot_residual(path, residual_record(model, rec.data),
                                            title=f"{rec.name}: residual of the {what}"))
                 say(f"wrote {path}")

@@ -529,8 +529,7 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
     assert run["relative_rms_vs_offline_quantised"] < 0.02, run  # (a stall: above)
     # No frame may arrive corrupt.  A datagram the kernel drops while a process of the
     # loop is stalled (its socket buffer full) is lost on udp_multicast as on a real bus
-    # under an overrun (11 frames once in a clean-clone run on this 2-core VM under load):
-    # at most the frames the measured stall spans.
+    # under an overrun: at most the frames the measured stall spans.
     dropped = run["frames_dropped"]
     assert (dropped["length"], dropped["checksum"], dropped["counter"]) == (0, 0, 0), run
     assert dropped["lost"] <= stalled, run

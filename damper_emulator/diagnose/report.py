@@ -364,14 +364,14 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
         if rec.held_out:
             files.append(plot_overlay(out / f"overlay_{report_stem(rec.name)}.png", diag, rec))
             say(f"wrote {files[-1]}")
-            models = [("before", diag.base_model)]
+            models = [("before", diag.base_model, None)]
             if diag.chosen is not None or diag.term is not None:
-                models.append(("after", diag.model_after()))
-            for when, model in models:
+                models.append(("after", diag.model_after(), diag.rig_after()))
+            for when, model, rig in models:
                 path = out / f"residual_{when}_{report_stem(rec.name)}.png"
                 what = ("identified model" if when == "before" else "model with "
                         + " + ".join(_added(diag)))
-                files.append(plot_residual(path, residual_record(model, rec.data),
+                files.append(plot_residual(path, residual_record(model, rec.data, rig),
                                            title=f"{rec.name}: residual of the {what}"))
                 say(f"wrote {path}")
     found = diag.discovered

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.acquisition import RigParams, model_record
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.validation import UNIFORM_DT_TOLERANCE, simulate_record
@@ -144,13 +145,16 @@ def dissipated_energy(displacement_m, force_n) -> np.ndarray:
     return e
 
 
-def residual_record(model: DamperModel, data: MeasuredData) -> ResidualRecord:
+def residual_record(model: DamperModel, data: MeasuredData,
+                    rig: RigParams | None = None) -> ResidualRecord:
     """Run ``model`` over the measured record ``data`` and keep the per-sample channels.
 
     The simulation is :func:`~damper_emulator.validation.validate_file`'s: the file's
     time and displacement, its velocity column or, when absent, the Savitzky–Golay
     derivative :func:`~damper_emulator.validation.estimate_velocity`; it starts in
-    quasi-steady equilibrium at the first sample.
+    quasi-steady equilibrium at the first sample. The model's force is recorded through
+    the file's measurement chain or, where the file carries none, through ``rig`` (a
+    chain estimated by ``diagnose``).
 
     Raises
     ------
@@ -162,6 +166,8 @@ def residual_record(model: DamperModel, data: MeasuredData) -> ResidualRecord:
     f_meas = np.asarray(data.force, dtype=float)
     v, info, res = simulate_record(model, data)
     f_model = res.force_n
+    if rig is not None and data.acquisition is None:
+        f_model = model_record(t, f_model, rig)
     a, how_a = acceleration_of(t, v)
     info.update(how_a)
     temp = (np.asarray(data.temperature, dtype=float) if data.temperature is not None

@@ -721,6 +721,31 @@ def load_config(path: str | Path | None = None) -> ModelConfig:
     return config_from_mapping(read_yaml(path), str(path))
 
 
+def with_extensions(cfg: ModelConfig, extensions: Mapping[str, Mapping[str, Any]],
+                    base_changes: Mapping[str, Any] | None = None) -> ModelConfig:
+    """``cfg`` with the extensions ``{name: parameters}`` (only those) and the damper's
+    base parameters changed by ``base_changes``; validated.
+
+    Raises
+    ------
+    ParameterError
+        An unknown extension, or a value outside its rule.
+    """
+    damper = cfg.damper
+    if base_changes:
+        damper = dataclasses.replace(damper, **base_changes)
+    for name in extensions:
+        if name not in EXTENSION_TYPES:
+            raise ParameterError(f"unknown extension {name!r} (one of "
+                                 f"{', '.join(EXTENSION_TYPES)})")
+    groups = {name: EXTENSION_TYPES[name](**params) for name, params in extensions.items()}
+    damper = dataclasses.replace(damper, extensions=ExtensionParams(**groups) if groups
+                                 else None)
+    out = dataclasses.replace(cfg, damper=damper)
+    validate(out)
+    return out
+
+
 def config_to_mapping(cfg: ModelConfig, node: str = "/**") -> dict[str, Any]:
     """The params-file mapping of a configuration (inverse of :func:`config_from_mapping`)."""
     damper = dataclasses.asdict(cfg.damper)

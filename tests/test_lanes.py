@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, example_params, with_extensions
+from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, example_params
 from damper_emulator.model import compressible as comp
 from damper_emulator.model import lanes
 from damper_emulator.model.compressible import DamperModel, DamperStepper, step
@@ -32,7 +32,7 @@ from damper_emulator.model.lanes import (
     store_lanes,
 )
 from damper_emulator.model.valve_table import C_EXP, C_EXPM1, MAX_STEP, TABLE_COLUMNS
-from damper_emulator.params import EXTENSION_TYPES
+from damper_emulator.params import EXTENSION_TYPES, with_extensions
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.many import MIN_BLOCK, _lane_designs, _stack_tables, simulate_many
 from ride_sim.params import load_ride_config

@@ -11,9 +11,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from damper_emulator.diagnose.truth import with_extensions
 from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel
+from damper_emulator.params import with_extensions
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.many import simulate_many
 from ride_sim.params import load_ride_config

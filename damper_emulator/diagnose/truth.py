@@ -28,15 +28,8 @@ from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.measured import MeasuredData, write_measured_csv
 from damper_emulator.dyno.simulated import sine_file_name
-from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel, simulate
-from damper_emulator.params import (
-    EXTENSION_TYPES,
-    ExtensionParams,
-    ModelConfig,
-    load_config,
-    validate,
-)
+from damper_emulator.params import ModelConfig, load_config, with_extensions
 
 
 @dataclass(frozen=True)
@@ -132,25 +125,6 @@ def with_extension(cfg: ModelConfig, name: str | None, params: Mapping[str, Any]
     parameters changed by ``base_changes``; validated."""
     return with_extensions(cfg, {name: params or {}} if name is not None else {},
                            base_changes)
-
-
-def with_extensions(cfg: ModelConfig, extensions: Mapping[str, Mapping[str, Any]],
-                    base_changes: Mapping[str, Any] | None = None) -> ModelConfig:
-    """``cfg`` with the extensions ``{name: parameters}`` (only those) and the damper's
-    base parameters changed by ``base_changes``; validated."""
-    damper = cfg.damper
-    if base_changes:
-        damper = dataclasses.replace(damper, **base_changes)
-    for name in extensions:
-        if name not in EXTENSION_TYPES:
-            raise UserError(f"unknown extension {name!r} (one of "
-                             f"{', '.join(EXTENSION_TYPES)})")
-    groups = {name: EXTENSION_TYPES[name](**params) for name, params in extensions.items()}
-    damper = dataclasses.replace(damper, extensions=ExtensionParams(**groups) if groups
-                                 else None)
-    out = dataclasses.replace(cfg, damper=damper)
-    validate(out)
-    return out
 
 
 def example_config(name: str | None | Sequence[str], base: ModelConfig | None = None

@@ -172,7 +172,7 @@ def _protocol_tables() -> list[str]:
 def _scatter_table() -> list[str]:
     """The unit-to-unit scatter of ``damper-hil fleet-example``, from its schema."""
     from damper_hil.cli.fleet_example import scatter_option
-    from damper_hil.fleet.example import Scatter
+    from damper_hil.fleet.scatter import Scatter
 
     return _options_table("## `damper-hil fleet-example` scatter", Scatter,
                           lambda key: scatter_option(key))
@@ -181,7 +181,7 @@ def _scatter_table() -> list[str]:
 def _tune_tables() -> list[str]:
     """The settings and bounds of ``damper-hil tune``, from their schemas."""
     from damper_hil.cli.tune import OPTIONS, option_of
-    from ride_sim.tuning import TuneBounds, TuneSettings
+    from ride_sim.params import TuneBounds, TuneSettings
 
     lines = _options_table("## `damper-hil tune` settings", TuneSettings,
                            lambda key: (option_of(key) if key in (*OPTIONS, "bypass")

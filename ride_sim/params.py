@@ -9,7 +9,9 @@ The file (default ``config/quarter_car.yaml``) has the layout of ``config/sport.
         road: {roughness: ..., ...}          # optional: the ride studies' roads
 
 ``road`` (:class:`RoadParams`) defines the random road and the pothole of the ride studies
-(:mod:`ride_sim.study`, ``docs/ride_study.md``); every key has a default.
+(:mod:`ride_sim.study`, ``docs/ride_study.md``); every key has a default.  The virtual
+damper tuning's settings and design bounds (:class:`TuneSettings`, :class:`TuneBounds`;
+:mod:`ride_sim.tuning`) are schemas here too.
 
 (or the bare mapping inside ``ros__parameters``).  The quarter car is the two-mass model of
 Simms & Crolla eq 38 (``docs/model.md`` §5); its values are the paper's front corner
@@ -217,3 +219,79 @@ def load_ride_config(path: str | Path | None = None) -> RideConfig:
 def load_quarter_car(path: str | Path | None = None) -> QuarterCarParams:
     """The :class:`QuarterCarParams` of a params file (default ``config/quarter_car.yaml``)."""
     return load_ride_config(path).quarter_car
+
+
+# --------------------------------------------------------------------------------------
+# virtual damper tuning (ride_sim.tuning, docs/tune.md)
+
+#: the valve constants tuned per direction (ValveParams fields)
+VALVE_KEYS = ("preload_pa", "k_spring", "k_leak", "k_port")
+#: the adaptive bypass diameters tuned with ``bypass`` (AdaptiveParams fields)
+BYPASS_KEYS = ("comfort_bypass_diameter_m", "normal_bypass_diameter_m")
+
+
+def _factor_band(what: str) -> Any:
+    return _rule("band", f"factor range of {what} [-]", (0.5, 2.0))
+
+
+@dataclass(frozen=True)
+class TuneBounds:
+    """Bounds of the design variables: ``[low, high]`` factors of the base damper's value
+    (sampled log-uniformly)."""
+
+    rebound_preload_pa: tuple[float, float] = _factor_band("the rebound blow-off preload")
+    rebound_k_spring: tuple[float, float] = _factor_band("the rebound blow-off spring rate")
+    rebound_k_leak: tuple[float, float] = _factor_band("the rebound leak restriction")
+    rebound_k_port: tuple[float, float] = _factor_band("the rebound port restriction")
+    compression_preload_pa: tuple[float, float] = _factor_band(
+        "the compression blow-off preload")
+    compression_k_spring: tuple[float, float] = _factor_band(
+        "the compression blow-off spring rate")
+    compression_k_leak: tuple[float, float] = _factor_band("the compression leak restriction")
+    compression_k_port: tuple[float, float] = _factor_band("the compression port restriction")
+    comfort_bypass_diameter_m: tuple[float, float] = _factor_band(
+        "the comfort bypass diameter (with bypass: true)")
+    normal_bypass_diameter_m: tuple[float, float] = _factor_band(
+        "the normal bypass diameter (with bypass: true)")
+
+
+@dataclass(frozen=True)
+class TuneSettings:
+    """What ``tune`` evaluates and how it searches."""
+
+    designs: int = _rule(("int_range", 2, 1_000_000), "space-filling designs (Sobol)", 256)
+    refine_rounds: int = _rule(("int_range", 0, 100),
+                              "refinement rounds around the Pareto front", 2)
+    refine_designs: int = _rule(("int_range", 1, 1_000_000),
+                               "designs per refinement round", 64)
+    refine_step: float = _rule(("range", 0.0, 1.0),
+                              "first refinement's step, a fraction of each variable's log "
+                              "range (halved every round) [-]", 0.1)
+    road_classes: str = _rule("text", "ISO 8608 classes of the random roads, "
+                                     "comma-separated", "A,B,C")
+    speed_m_s: float = _rule("positive", "speed on the random roads [m/s]", 20.0)
+    length_m: float = _rule("positive", "evaluated length of each random road [m]", 500.0)
+    band_cycles_per_m: tuple[float, float] = _rule(
+        "band", "synthesised spatial band of the random roads [cycles/m]", (0.01, 0.8))
+    lead_in_s: float = _rule("non-negative", "road driven before the evaluated length, "
+                                            "discarded [s]", 3.0)
+    seed: int = _rule(("int_range", 0, 2**31 - 1), "seed of the roads and the design", 0)
+    pothole: bool = _rule("bool", "also drive the ride studies' pothole (constraint only)",
+                         True)
+    bump_travel_m: float = _rule("positive", "suspension travel in bump from static, at the "
+                                            "wheel [m]", 0.08)
+    rebound_travel_m: float = _rule("positive", "suspension travel in rebound from static, "
+                                               "at the wheel [m]", 0.08)
+    bypass: bool = _rule("bool", "also tune the adaptive bypass diameters (the base damper "
+                                "needs a damper.adaptive group)", False)
+    chunk: int = _rule(("int_range", 1, 10_000),
+                      "designs per task (a multiple of the damper step's 16 SIMD lanes)", 32)
+
+    def variables(self) -> tuple[str, ...]:
+        """The design variables (:class:`TuneBounds` field names) in use."""
+        valves = tuple(f"{side}_{k}" for side in ("rebound", "compression")
+                       for k in VALVE_KEYS)
+        return valves + (BYPASS_KEYS if self.bypass else ())
+
+    def classes(self) -> tuple[str, ...]:
+        return tuple(c.strip().upper() for c in self.road_classes.split(",") if c.strip())

@@ -56,7 +56,6 @@ from typing import Any, Literal, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.ndimage import uniform_filter1d
 
 from damper_emulator.errors import UserError
 
@@ -810,6 +809,10 @@ def envelope(profile: RoadProfile, tyre_radius_m: float,
         contact = _positive(contact_length_m, "contact_length_m")
         window = 2 * int(round(contact / (2.0 * spacing))) + 1
         if window > 1:
+            # imported here: scipy.ndimage adds about 0.2 s to every command-line start,
+            # and this module is imported by each (the ride's parameter schema)
+            from scipy.ndimage import uniform_filter1d
+
             out = uniform_filter1d(out, size=window, mode="nearest")
         name += f" contact {contact:g} m"
     return RoadProfile(profile.distance_m, out, name)

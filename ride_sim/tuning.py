@@ -4,12 +4,12 @@ quarter car, their Pareto front and what moves it (docs/tune.md).
 **Design space.**  Per valve direction, the blow-off preload ``Δp0`` and spring rate
 ``K_spring`` (eq 10), the leak ``K_leak`` (eq 9) and the port restriction ``K_port``
 (eq 8), and optionally the adaptive damper's two bypass diameters: each as a factor of the
-base damper's value between the bounds of :class:`TuneBounds` (log-uniform: a valve
-constant is as likely halved as doubled).  A design is a point of the unit hypercube
-(:func:`design_config` maps it to a damper).
+base damper's value between the bounds of :class:`~ride_sim.params.TuneBounds`
+(log-uniform: a valve constant is as likely halved as doubled).  A design is a point of
+the unit hypercube (:func:`design_config` maps it to a damper).
 
 **Objectives** (all minimised; :func:`evaluate`): over the random roads of
-:class:`TuneSettings` (ISO 8608 classes at a speed), the mean of
+:class:`~ride_sim.params.TuneSettings` (ISO 8608 classes at a speed), the mean of
 
 * ``accel_w_rms``: ISO 2631-1 Wk-weighted body acceleration r.m.s. [m/s²] (comfort);
 * ``dtl_rms``: dynamic tyre load r.m.s. [N] (road holding);
@@ -45,89 +45,17 @@ from damper_emulator.params import (
     build_group,
     check_value,
     node_parameters,
-    rule,
     validate,
 )
 from ride_sim import road as rd
 from ride_sim.many import simulate_many
-from ride_sim.params import QuarterCarParams, RoadParams
+from ride_sim.params import BYPASS_KEYS, QuarterCarParams, RoadParams, TuneBounds, TuneSettings
 from ride_sim.study import history_metrics, pothole_input, random_road_input, start_state
 
-#: the valve constants tuned per direction (ValveParams fields)
-VALVE_KEYS = ("preload_pa", "k_spring", "k_leak", "k_port")
-#: the adaptive bypass diameters tuned with ``bypass`` (AdaptiveParams fields)
-BYPASS_KEYS = ("comfort_bypass_diameter_m", "normal_bypass_diameter_m")
 #: the objectives, in order, with their units (all minimised)
 OBJECTIVES = (("accel_w_rms", "m/s²", "comfort: Wk-weighted body acceleration r.m.s."),
               ("dtl_rms", "N", "road holding: dynamic tyre load r.m.s."),
               ("sws_rms", "m", "packaging: suspension working space r.m.s."))
-
-
-def _factor_band(what: str) -> Any:
-    return rule("band", f"factor range of {what} [-]", (0.5, 2.0))
-
-
-@dataclass(frozen=True)
-class TuneBounds:
-    """Bounds of the design variables: ``[low, high]`` factors of the base damper's value
-    (sampled log-uniformly)."""
-
-    rebound_preload_pa: tuple[float, float] = _factor_band("the rebound blow-off preload")
-    rebound_k_spring: tuple[float, float] = _factor_band("the rebound blow-off spring rate")
-    rebound_k_leak: tuple[float, float] = _factor_band("the rebound leak restriction")
-    rebound_k_port: tuple[float, float] = _factor_band("the rebound port restriction")
-    compression_preload_pa: tuple[float, float] = _factor_band(
-        "the compression blow-off preload")
-    compression_k_spring: tuple[float, float] = _factor_band(
-        "the compression blow-off spring rate")
-    compression_k_leak: tuple[float, float] = _factor_band("the compression leak restriction")
-    compression_k_port: tuple[float, float] = _factor_band("the compression port restriction")
-    comfort_bypass_diameter_m: tuple[float, float] = _factor_band(
-        "the comfort bypass diameter (with bypass: true)")
-    normal_bypass_diameter_m: tuple[float, float] = _factor_band(
-        "the normal bypass diameter (with bypass: true)")
-
-
-@dataclass(frozen=True)
-class TuneSettings:
-    """What ``tune`` evaluates and how it searches."""
-
-    designs: int = rule(("int_range", 2, 1_000_000), "space-filling designs (Sobol)", 256)
-    refine_rounds: int = rule(("int_range", 0, 100),
-                              "refinement rounds around the Pareto front", 2)
-    refine_designs: int = rule(("int_range", 1, 1_000_000),
-                               "designs per refinement round", 64)
-    refine_step: float = rule(("range", 0.0, 1.0),
-                              "first refinement's step, a fraction of each variable's log "
-                              "range (halved every round) [-]", 0.1)
-    road_classes: str = rule("text", "ISO 8608 classes of the random roads, "
-                                     "comma-separated", "A,B,C")
-    speed_m_s: float = rule("positive", "speed on the random roads [m/s]", 20.0)
-    length_m: float = rule("positive", "evaluated length of each random road [m]", 500.0)
-    band_cycles_per_m: tuple[float, float] = rule(
-        "band", "synthesised spatial band of the random roads [cycles/m]", (0.01, 0.8))
-    lead_in_s: float = rule("non-negative", "road driven before the evaluated length, "
-                                            "discarded [s]", 3.0)
-    seed: int = rule(("int_range", 0, 2**31 - 1), "seed of the roads and the design", 0)
-    pothole: bool = rule("bool", "also drive the ride studies' pothole (constraint only)",
-                         True)
-    bump_travel_m: float = rule("positive", "suspension travel in bump from static, at the "
-                                            "wheel [m]", 0.08)
-    rebound_travel_m: float = rule("positive", "suspension travel in rebound from static, "
-                                               "at the wheel [m]", 0.08)
-    bypass: bool = rule("bool", "also tune the adaptive bypass diameters (the base damper "
-                                "needs a damper.adaptive group)", False)
-    chunk: int = rule(("int_range", 1, 10_000),
-                      "designs per task (a multiple of the damper step's 16 SIMD lanes)", 32)
-
-    def variables(self) -> tuple[str, ...]:
-        """The design variables (:class:`TuneBounds` field names) in use."""
-        valves = tuple(f"{side}_{k}" for side in ("rebound", "compression")
-                       for k in VALVE_KEYS)
-        return valves + (BYPASS_KEYS if self.bypass else ())
-
-    def classes(self) -> tuple[str, ...]:
-        return tuple(c.strip().upper() for c in self.road_classes.split(",") if c.strip())
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,9 @@ from damper_emulator.diagnose.truth import REALISTIC
 from damper_emulator.dyno.protocols import QuasiStatic
 from damper_emulator.params import load_config
 from damper_hil.engine import EngineError, command_cluster, open_engine
-from damper_hil.fleet.example import DEFECTS, write_example
+from damper_hil.fleet.example import write_example
 from damper_hil.fleet.runner import RESULT_FILE, run_fleet
+from damper_hil.fleet.scatter import DEFECTS
 
 pytestmark = pytest.mark.slow
 

@@ -169,3 +169,24 @@ def test_the_graph_is_real():
     assert "damper_emulator.model.compressible" in GRAPH["damper_emulator.replay"]
     assert "rclpy" in EXTERNAL["damper_emulator.ros.emulator"]
     assert any(d.startswith("ride_sim") for d in GRAPH["damper_hil.hil_demo"])
+
+
+#: what the command line's start (its parser, every subcommand's options and help) must
+#: not import: each subcommand imports its own work when it runs, so that a user error, a
+#: ``--help`` and every node's start do not pay for the diagnosis, Dask, plots or ROS
+START_FORBIDDEN = ("damper_emulator.diagnose", "damper_emulator.identify", "scipy.signal",
+                   "scipy.ndimage", "scipy.optimize", "dask", "distributed", "matplotlib",
+                   "rclpy")
+
+
+def test_the_command_line_starts_without_the_heavy_modules():
+    import subprocess
+    import sys
+
+    code = ("import sys, damper_hil.cli as c; c.build_parser(); "
+            "print('\\n'.join(sorted(sys.modules)))")
+    loaded = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
+                            text=True).stdout.split()
+    assert "damper_hil.cli.fleet_example" in loaded  # the walk sees the subcommands
+    bad = [m for m in loaded if any(m == f or m.startswith(f + ".") for f in START_FORBIDDEN)]
+    assert not bad, bad

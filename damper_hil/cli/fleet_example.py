@@ -25,7 +25,7 @@ def scatter_option(name: str) -> str:
 def add_parser(sub) -> None:
     from dataclasses import fields
 
-    from damper_hil.fleet.example import DEFECTS, Scatter
+    from damper_hil.fleet.scatter import DEFECTS, Scatter
 
     ex = sub.add_parser(
         "fleet-example", formatter_class=Formatter,
@@ -62,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import fields
 
     from damper_emulator.params import load_config
-    from damper_hil.fleet.example import Scatter, write_example
+    from damper_hil.fleet.example import write_example
+    from damper_hil.fleet.scatter import Scatter
 
     if args.out.exists() and (not args.out.is_dir() or any(args.out.iterdir())):
         raise CliError(f"{args.out}: exists and is not an empty folder")

@@ -23,7 +23,7 @@ def option_of(name: str) -> str:
 
 
 def add_parser(sub) -> None:
-    from ride_sim.tuning import TuneSettings
+    from ride_sim.params import TuneSettings
 
     tune = sub.add_parser(
         "tune", formatter_class=Formatter,

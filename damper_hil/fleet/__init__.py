@@ -5,5 +5,5 @@ tasks (issue 17; docs/fleet.md).
 computation, run on a worker), :mod:`.table` the one-row-per-damper results,
 :mod:`.outliers` the rules that flag a damper, :mod:`.summary` the report,
 :mod:`.runner` the run itself (resume, progress, writing), :mod:`.example` a virtual
-production batch to try it on.
+production batch to try it on (:mod:`.scatter` its units' scatter and defects).
 """

@@ -4,7 +4,8 @@ held out.  The truth differs in model form from the emulator's model (smooth fri
 4× finer integrator, displacement noise; ``truth.REALISTIC``) and carries effects the
 identification never heard of: they must come back by family, with the held-out residual
 brought down to the floor; data without one as ``none`` (on two dampers); an effect
-outside the library as ``other``; two effects together as both.
+outside the library (a mass) by the term discovery, as ``inertia``; two effects together
+as both.
 
 The suite uses a shorter protocol and, for the single effects, the true candidate among
 two that are easily confused with it (the full protocol with all nine candidates:
@@ -219,13 +220,20 @@ def test_two_effects_the_identification_files_confound_are_found_as_a_pair():
     assert closest.score == pytest.approx(diag.pair_gain)
 
 
-def test_a_load_cell_filter_is_the_rigs_not_an_effect():
+def test_a_load_cell_filter_is_the_rigs_not_an_effect(tmp_path):
     """A clean damper recorded through a 2nd-order Butterworth load-cell filter at 150 Hz
     and a 12-bit converter, no chain given: the filter delays the force by
     √2/(2π·150 Hz) = 1.50 ms, which the identified model cannot follow.  The diagnosis
     takes the rig's delay (the chain candidate), finds it within 10 % of that closed form,
-    names no effect, and leaves the held-out residual at the floor."""
+    names no effect, and leaves the held-out residual at the floor.  The report saves the
+    estimated chain as a rig file: ``validate`` with it and the refitted model compares
+    the held-out files as the diagnosis scored them."""
+    import dataclasses
+
+    from damper_emulator.acquisition import dc_group_delay, load_rig
     from damper_emulator.acquisition.rig import ForceChannel, RigParams
+    from damper_emulator.diagnose.joint import START_SKIP_S
+    from damper_emulator.validation import validate_file
 
     rig = RigParams(force=ForceChannel(filter="butterworth", order=2, cutoff_hz=150.0,
                                        adc_bits=12, full_scale_n=10_000.0))
@@ -245,6 +253,16 @@ def test_a_load_cell_filter_is_the_rigs_not_an_effect():
     assert after <= max(diag.floor_n, 2.0 * NOISE_N) and after < 0.25 * before
     # the delay is the rig's: not among the damper's parameters
     assert "acquisition_delay_s" not in doc["base_parameters_after"]["values"]
+    write_report(diag, tmp_path)
+    saved = load_rig(tmp_path / "rig_estimated.yaml")
+    assert dc_group_delay(saved.force) == pytest.approx(acq["force_delay_s"], rel=1e-9)
+    model = DamperModel(load_config(tmp_path / "params_refit.yaml"))
+    for d in data[2:]:
+        series = validate_file(model, dataclasses.replace(d, acquisition=saved))["series"]
+        k = series["time"] >= series["time"][0] + START_SKIP_S
+        err = (series["force_simulated"] - series["force_measured"])[k]
+        assert math.sqrt(np.mean(err ** 2)) == pytest.approx(diag.rms_after[d.name],
+                                                             rel=1e-6), d.name
 
 
 def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia(tmp_path):

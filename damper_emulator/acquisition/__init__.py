@@ -19,8 +19,9 @@ from damper_emulator.acquisition.rig import (
     load_rig,
     rig_from_mapping,
     rig_to_mapping,
+    save_rig,
 )
 
 __all__ = ["AcquisitionError", "DisplacementChannel", "ForceChannel", "RigParams",
            "dc_group_delay", "load_rig", "model_record", "record_channel",
-           "rig_from_mapping", "rig_to_mapping"]
+           "rig_from_mapping", "rig_to_mapping", "save_rig"]

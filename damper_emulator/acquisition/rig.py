@@ -27,6 +27,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, TypeVar
 
+import yaml
+
 from damper_emulator.params import (
     ParameterError,
     build_group,
@@ -166,6 +168,13 @@ def rig_to_mapping(rig: RigParams) -> dict[str, Any]:
     return {"rig": {name: {f.name: getattr(getattr(rig, name), f.name)
                            for f in fields(getattr(rig, name))}
                     for name in CHANNELS}}
+
+
+def save_rig(rig: RigParams, path: str | Path, comment: str = "") -> None:
+    """Write ``rig`` as a rig file (:func:`load_rig` reads it back), under ``comment``
+    (``#`` lines)."""
+    head = "".join(f"# {line}\n" if line else "#\n" for line in comment.splitlines())
+    Path(path).write_text(head + yaml.safe_dump(rig_to_mapping(rig), sort_keys=False))
 
 
 def with_channel(rig: RigParams, name: str, **changes: Any) -> RigParams:

@@ -13,7 +13,11 @@
 * ``params_with_effect.yaml``: the re-identified parameters plus the effects found, a params
   file every command and the emulator load (only when an effect was added, or a
   discovered term is significant: then as ``damper.extensions.discovered_term``);
-* ``params_refit.yaml``: the paper's model alone, re-identified jointly.
+* ``params_refit.yaml``: the paper's model alone, re-identified jointly;
+* ``rig_estimated.yaml`` where the chain was estimated (no ``--rig``) and its delay taken:
+  the chain the model after the diagnosis was scored through, a rig file for
+  ``validate --rig`` (with ``params_with_effect.yaml``, or ``params_refit.yaml`` when
+  nothing was added).
 
 matplotlib is imported only here.
 """
@@ -26,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.acquisition import save_rig
 from damper_emulator.diagnose.residual import plot_residual, residual_record
 from damper_emulator.diagnose.selection import Diagnosis, Record
 from damper_emulator.params import save_config
@@ -279,7 +284,8 @@ def _chain_lines(acq: dict[str, Any]) -> list[str]:
         lines.append(f"Estimated (no `--rig`): the force's delay against the displacement "
                      f"{1e3 * acq['force_delay_s']:.4g} ms ± "
                      f"{_fmt_sd(None if sd is None else 1e3 * sd)} ms (1σ), freed in every "
-                     f"fit as the rig's, never an effect: {acq['reading']}.")
+                     f"fit as the rig's, never an effect: {acq['reading']}.  "
+                     "`rig_estimated.yaml` holds it, for `validate --rig`.")
     else:
         lines.append("None: the model's force is compared as it is.")
     return [*lines, ""]
@@ -388,6 +394,17 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
     if diag.refit is not None:
         path = out / "params_refit.yaml"
         save_config(diag.refit.model().cfg, path)
+        files.append(path)
+        say(f"wrote {path}")
+    rig = diag.rig_after()
+    if rig is not None:
+        path = out / "rig_estimated.yaml"
+        params = ("params_with_effect" if diag.chosen is not None or diag.term is not None
+                  else "params_refit")
+        save_rig(rig, path, _wrapped(
+            "The measurement chain damper-hil diagnose estimated (no --rig): "
+            f"{diag.acquisition_json()['reading']}.", 88)
+            + f"\nUse: damper-hil validate --params {params}.yaml --rig {path.name} FILE ...")
         files.append(path)
         say(f"wrote {path}")
     md = out / "report.md"

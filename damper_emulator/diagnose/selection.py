@@ -497,17 +497,18 @@ class Diagnosis:
 
     def acquisition_json(self) -> dict[str, Any]:
         """The JSON's ``acquisition``: the chain given, or the one estimated with the
-        model after the diagnosis (its delay ± 1σ), or none."""
+        model after the diagnosis (:meth:`rig_after`: its delay ± 1σ), or none."""
         given = self.records[0].data.acquisition if self.records else None
-        final = self.final
-        if given is not None or final is None or ACQUISITION_DELAY not in final.out[
-                "base_values"]:
+        term, final = self.term, self.final
+        values, std = ((term.base_values, term.base_std) if term is not None
+                       else (final.out["base_values"], final.out["base_std"])
+                       if final is not None else ({}, {}))
+        if given is not None or ACQUISITION_DELAY not in values:
             return chain_json(given)
-        tau = float(final.out["base_values"][ACQUISITION_DELAY])
+        tau = float(values[ACQUISITION_DELAY])
         rig = estimated_rig(tau)
         return {"source": "estimated", "rig": rig_to_mapping(rig)["rig"],
-                "force_delay_s": tau,
-                "force_delay_std_s": _sd(final.out["base_std"].get(ACQUISITION_DELAY)),
+                "force_delay_s": tau, "force_delay_std_s": _sd(std.get(ACQUISITION_DELAY)),
                 "reading": estimated_reading(tau)}
 
     def effects_json(self) -> list[dict[str, Any]]:

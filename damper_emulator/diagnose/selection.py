@@ -833,6 +833,12 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
         chain_fit = fits.pop(0) if estimate else None
         present = refit
         remaining = list(by_effect)
+
+        def within_floor(f: StepFit) -> bool:
+            """``f``'s held-out residual is within the floor."""
+            res = f.residuals(held)
+            return pooled_rms(res) <= floor_level(held, res)[0]
+
         while True:
             held_res = present.residuals(held)
             floor, _noise = floor_level(held, held_res)
@@ -854,6 +860,19 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                     chain_taken = chain_fit
                     if steps:  # the last step's model, with the delay
                         steps[-1] = chain_fit.replaces(steps[-1])
+                    if within_floor(chain_taken):
+                        # nothing left to explain, no round again: this round's fits,
+                        # scored against the model with the delay, are the record (none
+                        # can be significant)
+                        for f in fits:
+                            f.score_against(chain_taken, True)
+                        rounds.append(sorted(fits, key=lambda f: -f.score))
+                        say(f"round {len(rounds)}: with the rig's delay the held-out "
+                            "r.m.s. is within the floor: nothing more to explain")
+                        present = chain_taken  # (steps[-1], where there are steps)
+                        if not steps:
+                            refit = present
+                        break
                     nxt = run(chain_fit, [None, *remaining], f"round {len(rounds) + 1} "
                               "(with the rig's delay)", {f._added.effect: f for f in fits})
                     present, fits, chain_fit = nxt[0], nxt[1:], None
@@ -882,9 +901,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             remaining.remove(best._added.effect)
             say(f"added {best._added.effect} ({best._added.family}): held-out gain "
                 f"{100 * best.score:.1f} %")
-            held_best = best.residuals(held)
-            if (len(steps) >= max_effects or not remaining
-                    or pooled_rms(held_best) <= floor_level(held, held_best)[0]):
+            if len(steps) >= max_effects or not remaining or within_floor(best):
                 break
             # the next round: the present model refitted once more (the reference: a
             # candidate must beat the present model's own further convergence, not only
@@ -903,9 +920,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
         if estimate and steps and ACQUISITION_DELAY not in steps[-1].out["base_values"]:
             # the effects are in: the rig's delay on top of them, taken if significant
             (last,) = run(steps[-1], [CHAIN], "the rig's delay on the effects")
-            last_held = steps[-1].residuals(held)
-            last.score_against(steps[-1], pooled_rms(last_held)
-                               <= floor_level(held, last_held)[0])
+            last.score_against(steps[-1], within_floor(steps[-1]))
             say(f"the rig's delay {1e3 * last.out['base_values'][ACQUISITION_DELAY]:.3f} "
                 f"ms on the effects: gain {100 * last.score:+.1f} %, ΔBIC "
                 f"{last.delta_bic:.0f}{' (taken)' if last.significant else ''}")

@@ -638,7 +638,7 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
                     n_quasi_static: int = 1, nfev: int = JOINT_NFEV,
                     progress: Callable[[str], None] | None = None) -> Discovery:
     """The discovered term fitted *with* the model: the paper's parameters, the effects
-    ``accepted`` (held at their values), the estimated chain's delay and the term's
+    ``accepted`` (freed from their values), the estimated chain's delay and the term's
     coefficients in one joint fit (:func:`~damper_emulator.diagnose.joint.joint_fit`)
     from ``base_values`` and the discovery's coefficients; parts within
     :data:`MIN_T_RATIO` σ of 0 are dropped.  Scored against the model before (residuals

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.acquisition.chain import model_record
+from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import DamperModel, Fault, simulate
@@ -145,12 +146,13 @@ def rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(a)))) if a.size else 0.0
 
 
-def simulate_record(model: DamperModel, data: MeasuredData):
+def simulate_record(model: DamperModel, data: MeasuredData, rig: RigParams | None = None):
     """``(velocity, how, result)``: ``model`` run over the measured record's time and
     displacement with its velocity column or, when absent, :func:`estimate_velocity`
     (``how`` says which), from quasi-steady equilibrium at the first sample; the record's
     temperature column, when it has one, is the measured temperature of the
-    viscosity–temperature extension.
+    viscosity–temperature extension.  The force as :func:`recorded_force` (``rig``: an
+    estimated chain, where the record carries none).
 
     Raises
     ------
@@ -158,7 +160,7 @@ def simulate_record(model: DamperModel, data: MeasuredData):
         One line naming the file: the history cannot be simulated.
     """
     v, how = record_velocity(data)
-    return v, how, simulate_measured(model, data, v)
+    return v, how, simulate_measured(model, data, v, rig)
 
 
 def record_velocity(data: MeasuredData) -> tuple[np.ndarray, dict[str, Any]]:
@@ -169,11 +171,25 @@ def record_velocity(data: MeasuredData) -> tuple[np.ndarray, dict[str, Any]]:
     return estimate_velocity(data.time, data.displacement)
 
 
-def simulate_measured(model: DamperModel, data: MeasuredData, velocity: np.ndarray):
+def recorded_force(data: MeasuredData, force: np.ndarray,
+                   rig: RigParams | None = None) -> np.ndarray:
+    """``force``, a force of the damper at the record's sample times before any chain, as
+    the record holds it: through the record's own measurement chain (``data.acquisition``)
+    or, where it carries none, the estimated chain ``rig``
+    (:func:`damper_emulator.acquisition.model_record`)."""
+    chain = data.acquisition if data.acquisition is not None else rig
+    if chain is None or chain.does_nothing:
+        return force
+    out: np.ndarray = model_record(data.time, force, chain)
+    return out
+
+
+def simulate_measured(model: DamperModel, data: MeasuredData, velocity: np.ndarray,
+                      rig: RigParams | None = None):
     """``model`` over the record's time and displacement at ``velocity`` (and its
     temperature column, if any), from quasi-steady equilibrium at the first sample; its
-    force as the rig records it when the record carries its measurement chain
-    (``data.acquisition``: :func:`damper_emulator.acquisition.model_record`).
+    force as the record holds it (:func:`recorded_force`: the record's measurement chain,
+    or ``rig`` where it carries none).
 
     Raises
     ------
@@ -186,10 +202,7 @@ def simulate_measured(model: DamperModel, data: MeasuredData, velocity: np.ndarr
     except ValueError as exc:
         where = data.path or data.name or "<data>"
         raise UserError(f"{where}: cannot simulate this history: {exc}") from None
-    rig = data.acquisition
-    if rig is None or rig.does_nothing:
-        return result
-    return dataclasses.replace(result, force_n=model_record(data.time, result.force_n, rig))
+    return dataclasses.replace(result, force_n=recorded_force(data, result.force_n, rig))
 
 
 def validate_file(model: DamperModel, data: MeasuredData) -> dict[str, Any]:

@@ -46,7 +46,7 @@ from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.model.valve import FLOW_EXPONENT
 from damper_emulator.params import EXTENSION_TYPES, ExtensionParams, ModelConfig, ParameterError
-from damper_emulator.validation import record_velocity, simulate_measured
+from damper_emulator.validation import record_velocity, recorded_force, simulate_measured
 
 
 @dataclass(frozen=True)
@@ -233,8 +233,8 @@ class Record:
         simulated."""
         if fast:
             model = model.with_max_substep(fit_substep(model, self.velocity))
-        force: np.ndarray = simulate_measured(model, self.data, self.velocity).force_n
-        return self.recorded(force, rig)
+        force: np.ndarray = simulate_measured(model, self.data, self.velocity, rig).force_n
+        return force
 
     def recorded(self, force: np.ndarray, rig: RigParams | None) -> np.ndarray:
         """The model's force ``force`` (as :meth:`simulate` gives it without ``rig``)
@@ -246,10 +246,7 @@ class Record:
     def through_chain(self, force: np.ndarray, rig: RigParams | None) -> np.ndarray:
         """A force ``force`` of the damper before any chain, as the record holds it:
         through the file's chain, or the estimated ``rig`` where it carries none."""
-        chain = self.data.acquisition if self.data.acquisition is not None else rig
-        if chain is None or chain.does_nothing:
-            return force
-        return model_record(self.data.time, force, chain)
+        return recorded_force(self.data, force, rig)
 
     def with_term(self, raw: np.ndarray, cols: np.ndarray, coefficients: Sequence[float],
                   rig: RigParams | None) -> np.ndarray:

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from damper_emulator.acquisition import RigParams, model_record
+from damper_emulator.acquisition import RigParams
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.validation import UNIFORM_DT_TOLERANCE, simulate_record
@@ -164,10 +164,8 @@ def residual_record(model: DamperModel, data: MeasuredData,
     t = np.asarray(data.time, dtype=float)
     x = np.asarray(data.displacement, dtype=float)
     f_meas = np.asarray(data.force, dtype=float)
-    v, info, res = simulate_record(model, data)
+    v, info, res = simulate_record(model, data, rig)
     f_model = res.force_n
-    if rig is not None and data.acquisition is None:
-        f_model = model_record(t, f_model, rig)
     a, how_a = acceleration_of(t, v)
     info.update(how_a)
     temp = (np.asarray(data.temperature, dtype=float) if data.temperature is not None

@@ -809,8 +809,8 @@ def envelope(profile: RoadProfile, tyre_radius_m: float,
         contact = _positive(contact_length_m, "contact_length_m")
         window = 2 * int(round(contact / (2.0 * spacing))) + 1
         if window > 1:
-            # imported here: scipy.ndimage adds about 0.2 s to every command-line start,
-            # and this module is imported by each (the ride's parameter schema)
+            # imported here: scipy.ndimage is slow to import, and every command-line start
+            # imports this module (the ride's parameter schema) without needing it
             from scipy.ndimage import uniform_filter1d
 
             out = uniform_filter1d(out, size=window, mode="nearest")

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import ast
 import importlib
+import subprocess
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -180,9 +182,6 @@ START_FORBIDDEN = ("damper_emulator.diagnose", "damper_emulator.identify", "scip
 
 
 def test_the_command_line_starts_without_the_heavy_modules():
-    import subprocess
-    import sys
-
     code = ("import sys, damper_hil.cli as c; c.build_parser(); "
             "print('\\n'.join(sorted(sys.modules)))")
     loaded = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,

@@ -366,12 +366,14 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
     out.mkdir(parents=True, exist_ok=True)
     say = progress or (lambda msg: None)
     files = []
+    # the model after holds an effect or a term: params_with_effect.yaml, the plots after
+    with_effect = diag.chosen is not None or diag.term is not None
     for rec in diag.records:
         if rec.held_out:
             files.append(plot_overlay(out / f"overlay_{report_stem(rec.name)}.png", diag, rec))
             say(f"wrote {files[-1]}")
             models = [("before", diag.base_model, None)]
-            if diag.chosen is not None or diag.term is not None:
+            if with_effect:
                 models.append(("after", diag.model_after(), diag.rig_after()))
             for when, model, rig in models:
                 path = out / f"residual_{when}_{report_stem(rec.name)}.png"
@@ -386,7 +388,7 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
         say(f"wrote {files[-1]}")
     files.append(plot_ranking(out / "ranking.png", diag))
     say(f"wrote {files[-1]}")
-    if diag.chosen is not None or diag.term is not None:
+    if with_effect:
         path = out / "params_with_effect.yaml"
         save_config(diag.model_after().cfg, path)
         files.append(path)
@@ -399,8 +401,7 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
     rig = diag.rig_after()
     if rig is not None:
         path = out / "rig_estimated.yaml"
-        params = ("params_with_effect" if diag.chosen is not None or diag.term is not None
-                  else "params_refit")
+        params = "params_with_effect" if with_effect else "params_refit"
         save_rig(rig, path, _wrapped(
             "The measurement chain damper-hil diagnose estimated (no --rig): "
             f"{diag.acquisition_json()['reading']}.", 88)

@@ -48,6 +48,12 @@ Procedure (:func:`diagnose`):
    held-out structured power (:func:`explained_fraction`) while structure above the floor
    remains: then ``other``, the first as the closest family, nothing added.
 
+**The rig's delay** (no chain given: ``docs/diagnose.md``, "The measurement chain")
+competes in every round as the chain candidate: taken when it gains at least as much as
+every significant effect; taken with a runner-up where an effect gains more but leaves
+structure and the runner-up with the delay gains significantly more than it; else tried
+once more on top of the effects added.
+
 **The floor** ("small in engineering terms") is the larger of :data:`FLOOR_FORCE_FRACTION`
 of the held-out force r.m.s. and :data:`FLOOR_NOISE_FACTOR` × the held-out noise level.
 1 % of the force is the accuracy of a dyno's force channel (load cells and their
@@ -125,6 +131,11 @@ FLOOR_FORCE_FRACTION = 0.01
 FLOOR_NOISE_FACTOR = 2.0
 #: forward selection adds at most this many effects
 MAX_EFFECTS = 2
+#: where the rig's delay is significant but an effect gains more without reaching the
+#: floor, this many of the runners-up are fitted again with the delay free
+CHAIN_RUNNERS = 2
+#: a delay fitted with a runner-up counts when it is this many σ from zero
+MIN_T_RATIO = 3.0
 #: a file's noise level in the fit's weights is at least this fraction of its force
 #: r.m.s. (data without noise would otherwise get an infinite weight)
 MIN_NOISE_FRACTION = 1e-3
@@ -839,6 +850,52 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             res = f.residuals(held)
             return pooled_rms(res) <= floor_level(held, res)[0]
 
+        def runners_with_delay(present: StepFit, small: bool,
+                               sig: list[StepFit]) -> StepFit | None:
+            """The runners-up with the rig's delay: the rig's delay is significant,
+            an effect (the leader) gains more but leaves structure.  The rig may hold
+            another effect and a delay (a recorded cavity: the delay alone cannot follow
+            the cavity, the cavity alone not the delay, and free air half follows each and
+            leads).  The next ``CHAIN_RUNNERS`` significant effects are fitted again with
+            the delay free, from ``present`` with the delay at its neutral start (the
+            chain candidate's own delay is biased by the effect it stood in for).  One is
+            returned (the largest gain) where the delay is significant on top of that
+            effect alone and beyond ``MIN_T_RATIO`` σ of zero, and the two together gain
+            significantly more than the leader: the leader is not fitted with the delay,
+            as a delay also follows part of an effect of the same shape (free air, a
+            compliance), and is tried again on top of the leader in the next round."""
+            ranked = sorted(sig, key=lambda f: -f.score)
+            leader, runners = ranked[0], ranked[1:1 + CHAIN_RUNNERS]
+            if not runners:
+                return None
+            start = StepFit(cfg, list(present.candidates), {
+                **present.out, "base_values": {**present.out["base_values"],
+                                               ACQUISITION_DELAY: ESTIMATED_DELAY_START_S}})
+            label = f"round {len(rounds) + 1} (the runners-up with the rig's delay)"
+            both = run(start, [f._added.effect for f in runners], label,
+                       {f._added.effect: f for f in runners})
+            taken: StepFit | None = None
+            for b, alone in zip(both, runners):
+                b.score_against(alone, within_floor(alone))
+                on_top = b.significant
+                b.score_against(leader, within_floor(leader))
+                over_leader = b.significant
+                b.score_against(present, small)
+                tau = b.out["base_values"][ACQUISITION_DELAY]
+                sd = b.out["base_std"].get(ACQUISITION_DELAY, math.inf)
+                say(f"{label}: {alone._added.effect} with the delay {1e3 * tau:.3f} ± "
+                    f"{1e3 * sd:.3g} ms: gain {100 * b.score:+.1f} %; the delay "
+                    f"{'' if on_top else 'not '}significant on top of it; "
+                    f"{'' if over_leader else 'not '}significantly over "
+                    f"{leader._added.effect}")
+                if (on_top and over_leader and b.significant and tau > MIN_T_RATIO * sd
+                        and (taken is None or b.score > taken.score)):
+                    taken = b
+            if taken is not None:
+                say(f"{label}: the rig's delay taken with {taken._added.effect}: every "
+                    "later fit frees it")
+            return taken
+
         while True:
             held_res = present.residuals(held)
             floor, _noise = floor_level(held, held_res)
@@ -881,6 +938,12 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                     if not steps:
                         refit = present
                     continue
+                if sig and not within_floor(max(sig, key=lambda f: f.score)):
+                    with_delay = runners_with_delay(present, small, sig)
+                    if with_delay is not None:
+                        fits = [f for f in fits if f._added.effect
+                                != with_delay._added.effect] + [with_delay]
+                        sig, chain_fit = [with_delay], None
             rounds.append(sorted(fits, key=lambda f: (-f.significant, -f.score)))
             for f in rounds[-1][:3]:
                 say(f"round {len(rounds)}: {f._added.effect} gain {100 * f.score:+.1f} %, "

@@ -26,7 +26,7 @@ from damper_emulator.diagnose.truth import REALISTIC, Protocol, simulate_session
 from damper_emulator.dyno import protocols
 from damper_emulator.outputs import write_text
 from damper_emulator.params import ModelConfig, save_config
-from damper_hil.fleet.scatter import DEFECTS, Scatter, damper_with, unit_config
+from damper_hil.fleet.scatter import DEFECTS, Scatter, unit_config
 
 #: the force noise of the example's dyno [N] (the diagnosis benchmark's)
 NOISE_N = 4.0
@@ -57,7 +57,7 @@ def write_example(out: Path, nominal: ModelConfig, count: int, seed: int = 0,
         folder = out / uid
         write_session(simulate_session(cfg, protocol, NOISE_N, seed=seed * 100_003 + k,
                                        form=REALISTIC), folder)
-        save_config(damper_with(nominal, extensions=None), folder / "base.yaml")
+        save_config(nominal.replace_damper(extensions=None), folder / "base.yaml")
         d = cfg.damper
         units[uid] = {"defect": defect,
                       "gas_pressure_static_pa": d.gas_pressure_static_pa,

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -35,17 +34,12 @@ class Scatter:
 #: (name, the change).  A leaking gas chamber, a tight seal, a valve whose shims react
 #: late (a lag, found by ``--diagnose``).
 DEFECTS: dict[int, tuple[str, Callable[[ModelConfig], ModelConfig]]] = {
-    3: ("low_gas_charge", lambda c: damper_with(c, gas_pressure_static_pa=0.6
-                                                * c.damper.gas_pressure_static_pa)),
-    5: ("high_friction", lambda c: damper_with(c, friction_force_n=2.5
-                                               * c.damper.friction_force_n)),
+    3: ("low_gas_charge", lambda c: c.replace_damper(
+        gas_pressure_static_pa=0.6 * c.damper.gas_pressure_static_pa)),
+    5: ("high_friction", lambda c: c.replace_damper(
+        friction_force_n=2.5 * c.damper.friction_force_n)),
     8: ("valve_lag", lambda c: with_extensions(c, {"valve_lag": {"time_constant_s": 4e-3}})),
 }
-
-
-def damper_with(cfg: ModelConfig, **changes: Any) -> ModelConfig:
-    """``cfg`` with its damper's fields ``changes`` replaced (unchecked)."""
-    return dataclasses.replace(cfg, damper=dataclasses.replace(cfg.damper, **changes))
 
 
 def unit_config(nominal: ModelConfig, scatter: Scatter, rng: np.random.Generator
@@ -61,7 +55,7 @@ def unit_config(nominal: ModelConfig, scatter: Scatter, rng: np.random.Generator
         getattr(d, side), **{k: draw(getattr(getattr(d, side), k), scatter.valve)
                              for k in ("k_leak", "k_port", "k_spring", "preload_pa")})
         for side in ("rebound", "compression")}
-    return damper_with(nominal, gas_pressure_static_pa=draw(d.gas_pressure_static_pa,
-                                                            scatter.gas_pressure),
-                       gas_volume_static_m3=draw(d.gas_volume_static_m3, scatter.gas_volume),
-                       friction_force_n=draw(d.friction_force_n, scatter.friction), **valves)
+    return nominal.replace_damper(
+        gas_pressure_static_pa=draw(d.gas_pressure_static_pa, scatter.gas_pressure),
+        gas_volume_static_m3=draw(d.gas_volume_static_m3, scatter.gas_volume),
+        friction_force_n=draw(d.friction_force_n, scatter.friction), **valves)

@@ -945,7 +945,8 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
                     if not steps:
                         refit = present
                     continue
-                if sig and not within_floor(max(sig, key=lambda f: f.score)):
+                if (chain_fit.significant and sig
+                        and not within_floor(max(sig, key=lambda f: f.score))):
                     with_delay = runners_with_delay(present, small, sig)
                     if with_delay is not None:
                         fits = [f for f in fits if f._added.effect

@@ -759,3 +759,23 @@ def test_identify_takes_the_friction_at_speed_as_a_multiple_of_the_quasi_static_
     for bad in (math.nan, -1.0):
         with pytest.raises(IdentificationError, match="friction factor"):
             identify(data[0], data[1], sheet, chirp_friction_factor=bad)
+
+
+def test_the_delay_taken_on_a_step_keeps_the_steps_effect(sport_cfg):
+    """A step's model with the rig's delay freed (``StepFit.replaces``, when the chain
+    candidate wins the round after an effect) is still that effect's step: the report
+    and the answer read the family from it."""
+    from damper_emulator.diagnose.candidates import Candidate, Parameter
+    from damper_emulator.diagnose.selection import StepFit
+
+    lag = Candidate("valve_lag", (Parameter("time_constant_s", 1e-4, 0.05, 1e-3, unit="s"),),
+                    lambda v: dict(v))
+    step = StepFit(sport_cfg, [lag], {"effect": "valve_lag", "effects": ["valve_lag"]},
+                   score=0.5, delta_bic=-100.0, significant=True)
+    chain = StepFit(sport_cfg, [lag], {"effect": None, "chain": True,
+                                       "effects": ["valve_lag"]})
+    assert chain.candidate is None
+    taken = chain.replaces(step)
+    assert taken.candidate is lag and taken.candidate.family == "valve_dynamics"
+    assert (taken.score, taken.delta_bic, taken.significant) == (0.5, -100.0, True)
+    assert taken.out["chain"]

@@ -396,6 +396,8 @@ class StepFit:
         for attr in ("score", "delta_bic", "significant"):
             setattr(self, attr, getattr(step, attr))
         self.candidates = list(step.candidates)
+        # the step's added effect stays its: the chain fit itself added none
+        self.out = {**self.out, "effect": step.out["effect"]}
         return self
 
     def score_against(self, ref: StepFit, floor_reached: bool) -> None:

@@ -21,7 +21,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from damper_emulator.diagnose.report import markdown, write_report
+from damper_emulator.diagnose.report import markdown, named_from, write_report
 from damper_emulator.diagnose.selection import (
     FLOOR_FORCE_FRACTION,
     MIN_SCORE,
@@ -379,6 +379,15 @@ def test_noise_level_and_structure_ratio_follow_their_definitions():
                                                               rel=0.03)
 
 
+def test_a_report_links_its_parameters_only_where_they_move_with_it(tmp_path):
+    folder = tmp_path / "a" / "report"
+    assert named_from(str(folder / "p.yaml"), folder) == "[p.yaml](p.yaml)"
+    assert named_from(str(tmp_path / "a" / "p.yaml"), folder) == "[p.yaml](../p.yaml)"
+    far = tmp_path / "b" / "p.yaml"           # elsewhere: the path as the user gave it
+    assert named_from(str(far), folder) == f"`{far}`"
+    assert named_from("", folder) == ""
+
+
 def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
         tmp_path, capsys):
     effect = "valve_lag"
@@ -421,7 +430,12 @@ def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
     for n in names[2:]:
         assert (report / f"overlay_{n[:-4]}.png").stat().st_size > 10_000
     assert (report / "ranking.png").stat().st_size > 10_000
-    assert "valve_lag" in (report / "report.md").read_text()
+    text = (report / "report.md").read_text()
+    assert "valve_lag" in text
+    # the parameters beside the report folder: named relative to it, as a link that
+    # resolves from the report
+    assert "Identified parameters: [identified.yaml](../identified.yaml)." in text
+    assert (report / "../identified.yaml").resolve() == params.resolve()
     extended = load_config(report / "params_with_effect.yaml")
     assert extended.damper.extensions.active() == ["valve_lag"]
     assert extended.damper.extensions.valve_lag.time_constant_s == pytest.approx(

@@ -16,7 +16,8 @@ Two cases, each through the ordinary command line:
   fitted on the first two stretches and scored on the third (the hottest).
 
 Writes ``docs/measured/fsae_diagnose/<setting>/`` (the diagnose report: report.md, overlay
-plots, ranking) and ``docs/measured/fsae_diagnose/summary.json``.  The vendor files are
+plots, ranking), the identified parameters beside it (``params_<setting>.yaml``) and
+``docs/measured/fsae_diagnose/summary.json``.  The vendor files are
 exported to a temporary directory and deleted afterwards: nothing from them is written into
 the repository except derived figures and figures of merit.
 
@@ -68,7 +69,9 @@ def case(work: Path, setting: str, ident: list[Path], fit: list[Path], held: lis
          temps: dict[str, list[float]]) -> dict:
     """identify on ``ident`` (quasi-static, chirp), diagnose fitted on ``fit`` and scored on
     ``held``."""
-    params = work / f"params_{setting}.yaml"
+    # beside the report folder, which names it relative to itself (diagnose replaces the
+    # report folder whole, and refuses one that holds an input)
+    params = OUT / f"params_{setting}.yaml"
     started = time.perf_counter()
     run_cli(["identify", "--quasi-static", str(ident[0]), "--chirp", str(ident[1]),
              "--base", str(BASE), *IDENTIFY_OPTIONS, "--out", str(params),

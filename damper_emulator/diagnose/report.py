@@ -25,6 +25,7 @@ matplotlib is imported only here.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -169,13 +170,14 @@ def _base_table(diag: Diagnosis) -> list[str]:
 
 
 def markdown(diag: Diagnosis, params_file: str = "") -> str:
-    """The report's text."""
+    """The report's text; ``params_file``: the identified parameters as the report names
+    them (:func:`named_from`)."""
     doc = diag.to_json()
     effects = doc["effects"]
     title = diag.family + (f" ({', '.join(e['effect'] for e in effects)})" if effects else "")
     lines = [f"# Diagnosis: {title}", ""]
     if params_file:
-        lines += [f"Identified parameters: `{params_file}`.", ""]
+        lines += [f"Identified parameters: {params_file}.", ""]
     if effects:
         lines += ["Effects added by forward selection, each fitted together with the paper's "
                   "parameters and the effects before it; the gain is on the held-out files, "
@@ -359,6 +361,18 @@ def _wrapped(text: str, width: int = 110) -> str:
     return "\n".join(textwrap.wrap(text, width))
 
 
+def named_from(path: str, folder: Path) -> str:
+    """``path`` as a report in ``folder`` names it: a markdown link relative to ``folder``
+    where the file lies beside the folder or below it (the report and its parameters move
+    together), else the path as given."""
+    if not path:
+        return ""
+    rel = Path(os.path.relpath(Path(path).resolve(), folder.resolve()))
+    if rel.parts[:1] == ("..",) and ".." in rel.parts[1:]:
+        return f"`{path}`"
+    return f"[{rel.name}]({rel.as_posix()})"
+
+
 def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
                  progress=None) -> list[Path]:
     """Write the report files (module docstring) into ``out_dir``; returns their paths."""
@@ -409,7 +423,7 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
         files.append(path)
         say(f"wrote {path}")
     md = out / "report.md"
-    text = markdown(diag, params_file)
+    text = markdown(diag, named_from(params_file, out))
     text += "\n## Figures\n\n" + "\n".join(f"![{p.name}]({p.name})" for p in files
                                            if p.suffix == ".png") + "\n"
     md.write_text(text)

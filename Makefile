@@ -17,10 +17,14 @@ $(STAMP): $(BIN)/python pyproject.toml
 demo: $(STAMP)
 	$(BIN)/damper-hil demo --out demo_out
 
+# the tests in two parts: the cores in one process per core (pytest-xdist, each module
+# on one worker, its fixtures built once), then the ROS and CAN tests alone: their
+# real-time, DDS and bus checks need the machine to themselves
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q --durations=10 -n 2 --dist loadscope -m "not ros and not can"
+	$(BIN)/python -m pytest -q --durations=10 -m "ros or can"
 
 fuzz: $(STAMP)
 	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest -q --durations=15 tests/test_fuzz_*.py

@@ -23,8 +23,8 @@ the window and the sending never pauses).  Reported per case:
   jumps): the bridge's DAMPER_STATE receiver (its ``/diagnostics``) and this dyno's
   DAMPER_FORCE receiver;
 * the emulator's input timeouts and the sender's period p99;
-* bus load of the DBC's periodic messages (:func:`can_bridge.dbc.bus_load`, worst-case bit
-  stuffing) at 500 kbit/s and 1 Mbit/s, and the load of the frames actually seen.
+* bus load of the emulator's periodic messages in the DBC (:func:`can_bridge.dbc.bus_load`,
+  worst-case bit stuffing) at 500 kbit/s and 1 Mbit/s, and the load of the frames actually seen.
 
 Cases: ``timer`` (default: ``emulator.trigger: timer`` at 1 kHz, the HIL set-up) and ``input``
 (``emulator.trigger: input``: one force per sample, the loopback dyno's set-up).
@@ -56,7 +56,7 @@ import can  # noqa: E402
 from can_bridge.bus import BusConfig, ResilientBus  # noqa: E402
 from can_bridge.codec import Encoder, Receiver  # noqa: E402
 from can_bridge.core import FORCE, STATE  # noqa: E402
-from can_bridge.dbc import ForceStatus, bus_load, frame_bits, load_database  # noqa: E402
+from can_bridge.dbc import REQUIRED_SIGNALS, ForceStatus, bus_load, frame_bits, load_database  # noqa: E402
 from damper_emulator.realtime.loop import PeriodicLoop  # noqa: E402
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime  # noqa: E402
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment  # noqa: E402
@@ -390,7 +390,7 @@ def main() -> None:
                   file=sys.stderr, flush=True)
             rows.append(measure(case, args.duration, Path(tmp), args.bridge_executor_fifo))
     load_after = os.getloadavg()
-    loads = {b: {"all": bus_load(db, b),
+    loads = {b: {"all": bus_load(db, b, REQUIRED_SIGNALS),
                  "dyno": bus_load(db, b, ["DAMPER_STATE", "DAMPER_FORCE"])} for b in BITRATES}
 
     print(f"\nCAN round trip DAMPER_STATE → bridge → emulator → bridge → DAMPER_FORCE, "
@@ -428,7 +428,7 @@ def main() -> None:
               f"without a force (longest run {r['longest_run_without_force']}); "
               f"{r['frames_per_s']:.0f} frames/s seen on the bus ({loads_seen}, worst-case "
               "stuffing)")
-    print("\n| bit rate | bus load, all periodic messages of the DBC | DAMPER_STATE + "
+    print("\n| bit rate | bus load, the emulator's periodic messages | DAMPER_STATE + "
           "DAMPER_FORCE only |")
     print("|---|---|---|")
     for b in BITRATES:

@@ -21,8 +21,10 @@ from can_bridge.codec import Decoded, EncodedFrame, Encoder, FrameCounters, Rece
 from can_bridge.crc import crc8_sae_j1850
 from can_bridge.dbc import (
                             DEFAULT_DBC,
+                            HYBRID_SIGNALS,
                             REQUIRED_SIGNALS,
                             DbcError,
+                            DynoStatus,
                             ForceStatus,
                             bus_load,
                             cycle_time_s,
@@ -37,10 +39,12 @@ __all__ = [
     "DEFAULT_DBC",
     "DbcError",
     "Decoded",
+    "DynoStatus",
     "EncodedFrame",
     "Encoder",
     "ForceStatus",
     "FrameCounters",
+    "HYBRID_SIGNALS",
     "REQUIRED_SIGNALS",
     "Receiver",
     "ResilientBus",

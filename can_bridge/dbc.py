@@ -1,9 +1,9 @@
 """The project's CAN database (``config/damper.dbc``): loading, checks and bus load.
 
 The database is read with :mod:`cantools`; this module adds the project's requirements
-(the messages the bridge needs, each with an alive ``Counter`` and a byte-aligned 8-bit
-``Checksum``), the messages' cycle times and the worst-case bus load of the periodic
-messages.
+(the messages the bridge needs, and those of a physical damper in the loop, each with an
+alive ``Counter`` and a byte-aligned 8-bit ``Checksum``), the messages' cycle times and
+the worst-case bus load of the periodic messages.
 """
 
 from __future__ import annotations
@@ -24,9 +24,11 @@ from damper_emulator.errors import UserError, one_line
 __all__ = [
     "DEFAULT_DBC",
     "REQUIRED_SIGNALS",
+    "HYBRID_SIGNALS",
     "COUNTER_SIGNAL",
     "CHECKSUM_SIGNAL",
     "ForceStatus",
+    "DynoStatus",
     "DbcError",
     "load_database",
     "check_message",
@@ -52,6 +54,15 @@ REQUIRED_SIGNALS: Mapping[str, tuple[str, ...]] = {
     "VEHICLE_MOTION": ("BodyVelocity", "WheelVelocity", "DamperVelocity"),
 }
 
+#: Messages of a physical damper in the loop (``damper-hil hybrid``, node ``HYBRID``,
+#: and the dyno) and their data signals; ``load_database(required=HYBRID_SIGNALS)``.
+#: The database's two uses never share a bus.
+HYBRID_SIGNALS: Mapping[str, tuple[str, ...]] = {
+    "DYNO_COMMAND": ("StrokeDemand", "VelocityDemand", "Enable"),
+    "DYNO_FEEDBACK": ("StrokeMeasured", "Force", "Status"),
+    "DYNO_AUX": ("Temperature",),
+}
+
 
 class ForceStatus(enum.IntFlag):
     """Bits of ``DAMPER_FORCE.Status`` (see the signal's comment in the DBC).
@@ -69,6 +80,15 @@ class ForceStatus(enum.IntFlag):
     FORCE_TIMEOUT = 32      # bridge: no /damper/force within the timeout
     CAN_RX_ERRORS = 64      # bridge: CAN receive errors since the last DAMPER_FORCE frame
     FORCE_SATURATED = 128   # bridge: Force saturated to the signal range
+
+
+class DynoStatus(enum.IntFlag):
+    """Bits of ``DYNO_FEEDBACK.Status`` (see the signal's comment in the DBC)."""
+
+    OK = 0
+    ENABLED = 1   # following the demand
+    AT_LIMIT = 2  # at one of the dyno's own stroke, velocity or force limits
+    FAULT = 4     # the dyno reports a fault
 
 
 class DbcError(UserError):

@@ -7,7 +7,10 @@ import pytest
 
 from can_bridge import (
     DEFAULT_DBC,
+    HYBRID_SIGNALS,
+    REQUIRED_SIGNALS,
     DbcError,
+    DynoStatus,
     Encoder,
     FrameCounters,
     Receiver,
@@ -30,6 +33,14 @@ MESSAGES = {  # name: (frame id, cycle [s], {signal: (unit, min, max, step)})
     "VEHICLE_MOTION": (0x120, 0.005, {"BodyVelocity": ("m/s", -3.2768, 3.2767, 1e-4),
                                       "WheelVelocity": ("m/s", -6.5536, 6.5534, 2e-4),
                                       "DamperVelocity": ("m/s", -6.5536, 6.5534, 2e-4)}),
+    # a physical damper in the loop: stroke within 10 um, force within 0.5 N
+    "DYNO_COMMAND": (0x140, 0.001, {"StrokeDemand": ("m", -0.32768, 0.32767, 1e-5),
+                                    "VelocityDemand": ("m/s", -6.5536, 6.5534, 2e-4),
+                                    "Enable": (None, 0, 1, 1)}),
+    "DYNO_FEEDBACK": (0x141, 0.001, {"StrokeMeasured": ("m", -0.32768, 0.32767, 1e-5),
+                                     "Force": ("N", -16384, 16383.5, 0.5),
+                                     "Status": (None, 0, 255, 1)}),
+    "DYNO_AUX": (0x148, 0.1, {"Temperature": ("degC", -327.68, 327.67, 0.01)}),
 }
 
 
@@ -70,7 +81,7 @@ def test_crc_matches_bitwise_reference():
 def test_dbc_read_by_cantools_directly():
     db = cantools.database.load_file(DEFAULT_DBC, strict=True)
     assert {m.name for m in db.messages} >= set(MESSAGES)
-    assert {n.name for n in db.nodes} == {"DYNO", "EMULATOR", "CONTROLLER"}
+    assert {n.name for n in db.nodes} == {"DYNO", "EMULATOR", "CONTROLLER", "HYBRID"}
 
 
 def test_dbc_layout_units_ranges_cycle_times(db):
@@ -94,6 +105,17 @@ def test_dbc_layout_units_ranges_cycle_times(db):
     assert db.get_message_by_name("DAMPER_FORCE").receivers == {"DYNO", "CONTROLLER"}
     assert messages_for(db, receiver="EMULATOR") == ["DAMPER_STATE", "VALVE_COMMAND"]
     assert messages_for(db, sender="EMULATOR") == ["DAMPER_FORCE", "VEHICLE_MOTION"]
+    assert messages_for(db, sender="HYBRID") == ["DYNO_COMMAND"]
+    assert messages_for(db, receiver="HYBRID") == ["DYNO_FEEDBACK", "DYNO_AUX"]
+    assert set(HYBRID_SIGNALS) == set(messages_for(db, sender="HYBRID")
+                                      + messages_for(db, receiver="HYBRID"))
+    # the damper in the loop's messages as its command loads them
+    hybrid = load_database(required=HYBRID_SIGNALS)
+    for name, signals in HYBRID_SIGNALS.items():
+        assert set(signals) == set(MESSAGES[name][2])
+        assert hybrid.get_message_by_name(name).frame_id == MESSAGES[name][0]
+    # DYNO_FEEDBACK.Status: the contract's bits
+    assert (DynoStatus.ENABLED, DynoStatus.AT_LIMIT, DynoStatus.FAULT) == (1, 2, 4)
     text = DEFAULT_DBC.read_text()
     assert "CRC-8/SAE-J1850" in text and "alive counter" in text
 
@@ -141,9 +163,16 @@ def test_frame_bits_and_bus_load(db):
     # by hand: two 1 ms and two 5 ms messages of 135 bits
     bits_per_s = 135 / 0.001 * 2 + 135 / 0.005 * 2
     assert bits_per_s == pytest.approx(324_000)
-    assert bus_load(db, 500_000) == pytest.approx(0.648)
-    assert bus_load(db, 1_000_000) == pytest.approx(0.324)
+    assert bus_load(db, 500_000, REQUIRED_SIGNALS) == pytest.approx(0.648)
+    assert bus_load(db, 1_000_000, REQUIRED_SIGNALS) == pytest.approx(0.324)
     assert bus_load(db, 500_000, ["DAMPER_STATE"]) == pytest.approx(0.27)
+    # the damper in the loop: two 1 ms messages and one of 100 ms
+    assert bus_load(db, 1_000_000, HYBRID_SIGNALS) == pytest.approx(
+        (135 / 0.001 * 2 + 135 / 0.1) / 1e6)
+    # the database's comment states both (its two uses never share a bus)
+    text = DEFAULT_DBC.read_text()
+    assert "324 kbit/s, 64.8 % at 500 kbit/s, 32.4 % at 1 Mbit/s" in text
+    assert "271.35 kbit/s, 54.3 % at 500 kbit/s, 27.1 % at 1 Mbit/s" in text
 
 
 # -- codec -------------------------------------------------------------------------------
@@ -170,7 +199,8 @@ def test_round_trip_every_message(db):
             for sig, (_u, _lo, _hi, step) in signals.items():
                 assert got[sig] == pytest.approx(values[sig], abs=step / 2 * 1.0001)
         assert rx.counters(name).accepted == 50
-    assert rx.total.accepted == 200 and rx.total.dropped == 0 and rx.total.lost == 0
+    assert rx.total.accepted == 50 * len(MESSAGES)
+    assert rx.total.dropped == 0 and rx.total.lost == 0
 
 
 def test_counter_advances_mod_16(db):

@@ -366,10 +366,13 @@ class TestDynoBridge:
         # other identifiers never pass the bus filter: no count that could only read 0
         assert "unknown_ids" not in values
         assert values["bus_state"] == "up" and status.level != status.OK
-        # the next DAMPER_FORCE after a dropped frame carries CAN_RX_ERRORS
-        flagged = [v for _, v in tap.decoded(FORCE, t_bad)
-                   if int(v["Status"]) & ForceStatus.CAN_RX_ERRORS]
-        assert flagged
+        # the next DAMPER_FORCE after a dropped frame carries CAN_RX_ERRORS (waited for: the
+        # diagnostics above can reach the probe before the tap's thread has read that frame)
+        def flagged() -> list:
+            return [v for _, v in tap.decoded(FORCE, t_bad)
+                    if int(v["Status"]) & ForceStatus.CAN_RX_ERRORS]
+        assert tap.wait_for(lambda: bool(flagged()), 10), \
+            f"{len(tap.of(FORCE, t_bad))} DAMPER_FORCE frames since the bad ones, none flagged"
 
     def test_silence_sets_the_timeout_bits(self, dyno_rig):
         """When the dyno falls silent, the bridge flags DAMPER_STATE's absence (bit 16) and

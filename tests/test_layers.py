@@ -36,7 +36,7 @@ CORES = ("damper_emulator.errors", "damper_emulator.outputs", "damper_emulator.p
          "damper_emulator.diagnose.candidates", "damper_emulator.diagnose.selection",
          "ride_sim.quarter_car", "ride_sim.road", "ride_sim.iso2631", "ride_sim.params",
          "ride_sim.frequency_domain", "ride_sim.metrics", "ride_sim.dampers",
-         "ride_sim.many", "ride_sim.tuning", "ride_sim.loop_delay",
+         "ride_sim.many", "ride_sim.tuning", "ride_sim.loop_delay", "ride_sim.hybrid",
          "can_bridge.codec", "can_bridge.bus", "can_bridge.crc", "can_bridge.dbc")
 #: what a core may not reach
 FORBIDDEN = ("rclpy", "matplotlib", "damper_hil", "damper_emulator.ros", "ride_sim.node",

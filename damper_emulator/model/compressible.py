@@ -1047,6 +1047,12 @@ class DamperStepper:
         self.state[S_TEMP_IN] = t
 
     @property
+    def temperature_rise_k(self) -> float:
+        """The oil's temperature rise of the viscosity–temperature extension's heat model
+        [K] (0 without it, or without a heat capacity)."""
+        return float(self.state[S_HEAT_DT])
+
+    @property
     def valve_command(self) -> float:
         """The commanded valve command (0 comfort .. 1 sport)."""
         return float(self.state[S_CMD])
@@ -1066,6 +1072,15 @@ class DamperStepper:
         return step(self._prm, self._coef_r, self._coef_c, self.state, stroke_m, velocity_m_s,
                     dt_s)
 
+    def copy(self) -> DamperStepper:
+        """An independent stepper of the same model in the same state (a scratch copy: a
+        predictor steps it ahead without touching this one)."""
+        twin = object.__new__(DamperStepper)
+        twin.model, twin._prm = self.model, self._prm
+        twin._coef_r, twin._coef_c = self._coef_r, self._coef_c
+        twin.state = self.state.copy()
+        return twin
+
     def warm_up(self) -> None:
         """Load or compile every kernel :meth:`step`, :meth:`reset` and the valve command
         can reach, and run each branch once: the real-time caller's start-up cost, paid
@@ -1079,10 +1094,7 @@ class DamperStepper:
         input, ``dt <= 0``, a stroke beyond the travel, a velocity beyond the table).  This
         stepper's own state is not touched.
         """
-        scratch = object.__new__(DamperStepper)
-        scratch.model, scratch._prm = self.model, self._prm
-        scratch._coef_r, scratch._coef_c = self._coef_r, self._coef_c
-        scratch.state = self.state.copy()
+        scratch = self.copy()
         lo, hi = self.model.stroke_limits_m
         dt = self.model.cfg.numerics.max_substep_s
         v_fast = 2.0 * self.model.cfg.numerics.valve_table_max_velocity_m_s

@@ -1,0 +1,207 @@
+"""Model-based compensation of the transfer system: what to demand now so that the rig's
+measured stroke follows the car's damper stroke.
+
+The rig answers a demand after a pure delay ``d`` and through its servo
+(:mod:`ride_sim.hybrid.transfer`).  To make the measured stroke equal the car's stroke at
+every cycle, the demand sent at ``t_k`` is the servo's inverse applied to the car's stroke
+``d`` ahead (plus half a cycle: the demand is held over the rig's cycle)::
+
+    u_k = ( x̂ + (2ζ/ω) v̂ + â/ω² ) / g,    (x̂, v̂, â) = damper stroke, velocity and
+                                             acceleration predicted at t_k + d + T/2
+
+**The prediction is the car's own model, not an extrapolation.**  The quarter car is advanced
+exactly (:class:`~ride_sim.quarter_car.QuarterCar`) over the horizon on the known road, with
+the damper force of the twin model (the damper's model, stepped on the car's motion from the
+state it has on the car's stroke) plus a band-limited correction by the measured force::
+
+    F̂(t + h) = F_model(t + h) + LP_fc[ F_measured(t) − F_model(t) ]
+
+Extrapolating the stroke from its own derivatives (the naive compensator) amplifies what
+lies beyond the servo's bandwidth and lets the measured force reach the demand directly:
+with a steep damper this closes a loop on the rig that limit-cycles.  Here the measured
+force reaches the demand only through the car's inertia over the horizon and through the
+correction's low-pass ``fc`` (``force_correction_hz``): :func:`force_path_gain` is the gain
+of that loop, and the small-gain margin the report shows.
+
+``mode: none`` demands the car's stroke as it is (uncompensated), for comparison.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from damper_emulator.model.compressible import DamperModel, DamperStepper
+from ride_sim.hybrid.actuator import frequency_response
+from ride_sim.hybrid.params import CompensatorParams
+from ride_sim.hybrid.transfer import TransferEstimate
+from ride_sim.params import QuarterCarParams
+from ride_sim.quarter_car import QuarterCar, continuous_model
+
+#: Fractional prediction steps are rounded to this many per cycle (their exact
+#: discretisations are cached).
+FRACTION_STEPS = 20
+
+
+def effective_mass_kg(car: QuarterCarParams) -> float:
+    """The mass the damper force accelerates at the damper's own stroke,
+    ``MR² / (1/M_w + 1/M_b)`` [kg]: a force ``F`` changes the damper's stroke acceleration
+    by ``−F / m``."""
+    return car.motion_ratio ** 2 / (1.0 / car.unsprung_mass_kg + 1.0 / car.sprung_mass_kg)
+
+
+class Compensator:
+    """The demand of each cycle (see the module docstring).
+
+    Parameters
+    ----------
+    params : CompensatorParams
+    car : QuarterCarParams
+    dt_s : float
+        The host's cycle [s].
+    static_force_n : float
+        The force at rest at the static position (the host's tare).
+    model : DamperModel
+        The twin: the prediction's damper.
+    heights : ndarray
+        The road of the ride, one height per cycle (known ahead).
+    """
+
+    def __init__(self, params: CompensatorParams, car: QuarterCarParams, dt_s: float,
+                 static_force_n: float, model: DamperModel, heights: np.ndarray) -> None:
+        self.params = params
+        self.car = car
+        self.dt_s = float(dt_s)
+        self.static_force_n = float(static_force_n)
+        self._heights = np.asarray(heights, dtype=float)
+        self._scratch = QuarterCar(car, dt_s, static_force_n)
+        self._fraction_cars: dict[int, QuarterCar] = {}
+        a, b = continuous_model(car)
+        self._a, self._b = a, b
+        self._mr = car.motion_ratio
+        self.on_target = DamperStepper(model)
+        self._model_force = self.on_target.force_n
+        self._correction = 0.0
+        self._alpha = 1.0 - math.exp(-2.0 * math.pi * params.force_correction_hz * dt_s)
+
+    def reset(self, stroke_m: float, velocity_m_s: float) -> None:
+        """The twin at quasi-steady equilibrium at the car's damper motion."""
+        self.on_target.reset(stroke_m, velocity_m_s)
+        self._model_force = self.on_target.force_n
+        self._correction = 0.0
+
+    def _fraction_car(self, steps: int) -> QuarterCar:
+        car = self._fraction_cars.get(steps)
+        if car is None:
+            car = QuarterCar(self.car, steps * self.dt_s / FRACTION_STEPS, self.static_force_n)
+            self._fraction_cars[steps] = car
+        return car
+
+    def _road(self, k: float) -> float:
+        h = self._heights
+        if k >= h.size - 1:
+            return float(h[-1])
+        i = int(k)
+        return float(h[i] + (k - i) * (h[i + 1] - h[i]))
+
+    def observe(self, stroke_m: float, velocity_m_s: float, force_measured_n: float) -> None:
+        """Step the twin on the car's damper motion at this sample and update the
+        measured-force correction with the force measured now."""
+        self._model_force, _ = self.on_target.step(stroke_m, velocity_m_s, self.dt_s)
+        self._correction += self._alpha * (force_measured_n - self._model_force
+                                           - self._correction)
+
+    def demand(self, state: np.ndarray, k: int, estimate: TransferEstimate,
+               delay_s: float, gain: float) -> tuple[float, float]:
+        """The stroke demand [m] and its velocity [m/s] for the car in ``state`` at
+        sample ``k`` (the next sample's state, after the force of sample ``k − 1``), with
+        the rig's delay ``delay_s`` and gain ``gain`` as followed now."""
+        mr = self._mr
+        if self.params.mode == "none":
+            return (-(state[0] - state[2]) / mr, -(state[1] - state[3]) / mr)
+        horizon = max(0.0, delay_s + 0.5 * self.dt_s - self.dt_s)
+        whole = int(horizon / self.dt_s)
+        fraction = int(round((horizon - whole * self.dt_s) / self.dt_s * FRACTION_STEPS))
+        if fraction == FRACTION_STEPS:
+            whole, fraction = whole + 1, 0
+        car = self._scratch
+        car.reset(state)
+        twin = self.on_target.copy()
+        for j in range(whole):
+            x, v = car.damper_motion()
+            force = twin.step(x, v, self.dt_s)[0] + self._correction
+            car.advance(force, self._road(k + j), self._road(k + j + 1))
+        x, v = car.damper_motion()
+        force = twin.step(x, v, self.dt_s)[0] + self._correction
+        road0 = self._road(k + whole)
+        s = car.state
+        if fraction:
+            step = self._fraction_car(fraction)
+            road1 = self._road(k + whole + fraction / FRACTION_STEPS)
+            step.reset(s)
+            step.advance(force, road0, road1)
+            s = step.state
+            x, v = step.damper_motion()
+            road0 = road1
+        rate = (self._road(k + whole + fraction / FRACTION_STEPS + 1) - road0) / self.dt_s
+        wheel_force = (force - self.static_force_n) / mr
+        sdot = self._a @ s + self._b @ np.array((wheel_force, road0, rate))
+        a = -(sdot[1] - sdot[3]) / mr
+        w = 2.0 * math.pi * estimate.bandwidth_hz
+        u = (x + 2.0 * estimate.damping / w * v + a / (w * w)) / gain
+        return u, v
+
+
+def force_path_gain(params: CompensatorParams, estimate: TransferEstimate,
+                    car: QuarterCarParams, damping_slope_ns_m: float, dt_s: float,
+                    f_hz: np.ndarray | None = None) -> tuple[float, float]:
+    """Peak gain of the loop the measured force closes through the compensator and the
+    rig, and its frequency: ``(|L|max, f)``.
+
+    A force measured now reaches the demand through the correction's low-pass and the car
+    over the horizon ``h``: at most ``(h²/2 + (2ζ/ω) h + 1/ω²) / (m g)`` metres per newton
+    (:func:`effective_mass_kg` ``m``); the rig turns the demand into stroke (``G(jω)``, the
+    identified transfer) and the damper into force (``c jω``, ``c`` its steepest slope)::
+
+        L(jω) = c jω G(jω) LP(jω) (h²/2 + (2ζ/ω_s) h + 1/ω_s²) / (m g)
+
+    ``|L| < 1`` at every frequency: the loop cannot sustain an oscillation (small-gain
+    theorem).  Uncompensated (``mode: none``) the demand does not see the force at all
+    (0); that loop's stability is the car's with the rig's lag in it.
+    """
+    if params.mode == "none":
+        return 0.0, math.nan
+    f = np.geomspace(0.1, 0.5 / dt_s, 400) if f_hz is None else np.asarray(f_hz, float)
+    horizon = estimate.delay_s + 0.5 * dt_s
+    w_s = 2.0 * math.pi * estimate.bandwidth_hz
+    reach = (horizon ** 2 / 2.0 + 2.0 * estimate.damping / w_s * horizon + 1.0 / w_s ** 2) \
+        / (effective_mass_kg(car) * estimate.gain)
+    lp = 1.0 / (1.0 + 1j * f / params.force_correction_hz)
+    loop = damping_slope_ns_m * 2j * np.pi * f * frequency_response(estimate.actuator(), f) \
+        * lp * reach
+    i = int(np.argmax(np.abs(loop)))
+    return float(np.abs(loop[i])), float(f[i])
+
+
+#: Velocities over which :func:`steepest_slope` looks for the damper's steepest slope [m/s].
+SLOPE_VELOCITIES_M_S = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
+
+
+def steepest_slope(model: DamperModel) -> float:
+    """The damper's steepest force–velocity slope ``dF/dv`` [N s/m] over
+    :data:`SLOPE_VELOCITIES_M_S` both ways, from its quasi-steady force at rest at the static
+    position (secants between neighbouring velocities, from 0): the ``c`` of
+    :func:`force_path_gain`."""
+    def force(v: float) -> float:
+        return DamperStepper(model, 0.0, v).force_n
+
+    steepest = 0.0
+    for sign in (1.0, -1.0):
+        previous_v, previous_f = 0.0, force(0.0)
+        for v in SLOPE_VELOCITIES_M_S:
+            f = force(sign * v)
+            steepest = max(steepest, abs(f - previous_f) / v if previous_v == 0.0
+                           else abs(f - previous_f) / (v - previous_v))
+            previous_v, previous_f = v, f
+    return steepest

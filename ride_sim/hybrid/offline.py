@@ -1,0 +1,58 @@
+"""The host and the virtual rig coupled in one process, without a bus or a wall clock.
+
+The same two cores as a run over CAN (:class:`~ride_sim.hybrid.host.HybridHost`,
+:class:`~ride_sim.hybrid.rig.VirtualRig`), on a simulated timeline: the rig's cycle ``j``
+measures at ``j T``; its feedback reaches the host ``feedback_latency_s`` later, the host
+answers at once (it runs once per feedback), and the command reaches the rig
+``command_latency_s`` after that.  Deterministic: the design check of the compensator, the
+tests of the loop's logic, and the benchmark's offline column.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ride_sim.hybrid.host import HybridHost
+from ride_sim.hybrid.rig import VirtualRig
+
+#: Frame times on a 500 kbit/s bus, about one 8-byte frame each way [s].
+FEEDBACK_LATENCY_S = 0.25e-3
+COMMAND_LATENCY_S = 0.25e-3
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """What goes wrong during an offline run (times on the rig's clock from its start)."""
+
+    #: from this time on, the rig's transport delay is ``new_delay_s``
+    delay_change_at_s: float | None = None
+    new_delay_s: float = 0.0
+    #: from this time on, no feedback reaches the host
+    feedback_cut_at_s: float | None = None
+    #: every n-th feedback frame is lost (a corrupted frame the host drops); 0: none
+    drop_every: int = 0
+
+
+def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0,
+                disturbance: Disturbance = Disturbance(),
+                feedback_latency_s: float = FEEDBACK_LATENCY_S,
+                command_latency_s: float = COMMAND_LATENCY_S) -> HybridHost:
+    """Run ``host`` against ``rig`` until the host has finished (or ``max_time_s``).
+
+    Returns the host, its record filled.
+    """
+    period = rig.period_s
+    j = 0
+    while not host.finished and j * period < max_time_s:
+        t = j * period
+        d = disturbance
+        if d.delay_change_at_s is not None and t >= d.delay_change_at_s:
+            rig.set_delay(d.new_delay_s)
+        feedback = rig.step(t)
+        lost = (d.drop_every and (j + 1) % d.drop_every == 0) or (
+            d.feedback_cut_at_s is not None and t >= d.feedback_cut_at_s)
+        t_host = t + feedback_latency_s
+        command = host.cycle(t_host, None if lost else feedback, int(round(t_host * 1e9)))
+        rig.command(t_host + command_latency_s, command.stroke_m, command.enable)
+        j += 1
+    return host

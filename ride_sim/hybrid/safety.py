@@ -1,0 +1,150 @@
+"""The safety layer of a damper in the loop: what the host never lets the rig do.
+
+:class:`SafetyLayer` sits between the host's loop and the bus; it needs neither:
+
+* **limits** (:class:`~ride_sim.hybrid.params.SafetyParams`): every demand is clamped
+  into ``±stroke_limit_m`` and moves at most ``velocity_limit_m_s`` per second
+  (:meth:`SafetyLayer.clamp`), whatever the car or the compensator ask; a measured stroke,
+  velocity or force beyond its limit stops the run;
+* **watchdog**: the run stops, and ``Enable`` is cleared, when the last valid
+  ``DYNO_FEEDBACK`` is ``watchdog_s`` old (the frame that clears it goes out before then);
+  a frame with a CRC, counter or length error never reaches :meth:`SafetyLayer.feedback`
+  and so does not count as valid;
+* **instability**: per window of ``window_s``, the tracking error's r.m.s. over the
+  reference stroke's (the all-numerical run's over the trailing ``reference_window_s``, at
+  least half its r.m.s. over the ride so far, plus ``error_floor_m``); when it has grown
+  by ``growth_ratio`` or more in each of ``growth_windows`` consecutive windows and
+  exceeds ``error_ratio``, the loop is going unstable and the run stops before it reaches
+  a limit.  A stable loop that merely
+  tracks badly keeps the ratio bounded (an uncompensated rig lags by ``τ``: its error is
+  about ``τ`` times the stroke velocity); an unstable one grows it without bound as the
+  rig pumps energy into the car and the specimen.
+
+A stop is final: :attr:`SafetyLayer.reason` holds its one-line reason, :attr:`enable` is
+False from then on and the demand holds where it was.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from ride_sim.hybrid.params import SafetyParams
+
+
+class SafetyLayer:
+    """Limits, watchdog and instability detector (see the module docstring).
+
+    Parameters
+    ----------
+    params : SafetyParams
+    dt_s : float
+        The host's cycle [s].
+    """
+
+    def __init__(self, params: SafetyParams, dt_s: float) -> None:
+        self.params = params
+        self.dt_s = float(dt_s)
+        self.reason: str | None = None
+        self.stopped_at_s: float | None = None
+        self.last_valid_s: float | None = None
+        self.clamped = 0
+        self._strokes: deque[tuple[float, float]] = deque()
+        self.velocity_m_s = 0.0
+        self._window = max(1, int(round(params.window_s / dt_s)))
+        self._sum_e = self._sum_r = 0.0
+        self._count = 0
+        self._reference_sums: deque[float] = deque(
+            maxlen=max(1, int(round(params.reference_window_s / params.window_s))))
+        self._total_r = 0.0
+        self._windows = 0
+        self._last_ratio = math.nan
+        self._growing = 0
+        self.error_ratios: list[float] = []
+
+    @property
+    def enable(self) -> bool:
+        """Whether the rig may follow the demand (False after any stop)."""
+        return self.reason is None
+
+    def stop(self, t_s: float, reason: str) -> None:
+        """Stop the run now (the first reason is kept)."""
+        if self.reason is None:
+            self.reason = reason
+            self.stopped_at_s = float(t_s)
+
+    def clamp(self, demand_m: float, previous_m: float) -> float:
+        """``demand_m`` within the stroke limits, at most the velocity limit's step from
+        ``previous_m``; a NaN demand (a bug upstream) holds ``previous_m``."""
+        p = self.params
+        value = demand_m if math.isfinite(demand_m) else previous_m
+        step = p.velocity_limit_m_s * self.dt_s
+        value = min(max(value, previous_m - step), previous_m + step)
+        value = min(max(value, -p.stroke_limit_m), p.stroke_limit_m)
+        if value != demand_m:
+            self.clamped += 1
+        return value
+
+    def feedback(self, t_s: float, stroke_m: float, force_n: float) -> None:
+        """A valid ``DYNO_FEEDBACK`` received at ``t_s``: feed the watchdog, check the
+        measured stroke, velocity and force."""
+        p = self.params
+        self.last_valid_s = float(t_s)
+        strokes = self._strokes
+        strokes.append((float(t_s), float(stroke_m)))
+        while len(strokes) > 2 and t_s - strokes[1][0] >= p.velocity_span_s:
+            strokes.popleft()
+        t0, x0 = strokes[0]
+        if t_s - t0 >= 0.5 * p.velocity_span_s:
+            self.velocity_m_s = (stroke_m - x0) / (t_s - t0)
+        if not (math.isfinite(stroke_m) and math.isfinite(force_n)):
+            self.stop(t_s, "the dyno reported a non-finite stroke or force")
+        elif abs(stroke_m) > p.stroke_limit_m:
+            self.stop(t_s, f"measured stroke {stroke_m * 1e3:+.1f} mm beyond the limit "
+                           f"±{p.stroke_limit_m * 1e3:g} mm")
+        elif abs(self.velocity_m_s) > p.velocity_limit_m_s:
+            self.stop(t_s, f"measured velocity {self.velocity_m_s:+.2f} m/s beyond the "
+                           f"limit ±{p.velocity_limit_m_s:g} m/s")
+        elif abs(force_n) > p.force_limit_n:
+            self.stop(t_s, f"measured force {force_n:+.0f} N beyond the limit "
+                           f"±{p.force_limit_n:g} N")
+
+    def watchdog(self, t_s: float) -> None:
+        """Stop when the last valid feedback is older than ``watchdog_s`` less one cycle
+        (the command that clears ``Enable`` then goes out within ``watchdog_s``)."""
+        if self.last_valid_s is None:
+            return
+        age = t_s - self.last_valid_s
+        if age > self.params.watchdog_s - self.dt_s:
+            self.stop(t_s, f"no valid DYNO_FEEDBACK for {age * 1e3:.0f} ms (watchdog "
+                           f"{self.params.watchdog_s * 1e3:g} ms)")
+
+    def tracking(self, t_s: float, error_m: float, reference_m: float) -> None:
+        """One cycle of the ride: the tracking error (measured − target stroke) and the
+        reference run's stroke at this sample."""
+        self._sum_e += error_m * error_m
+        self._sum_r += reference_m * reference_m
+        self._count += 1
+        if self._count < self._window:
+            return
+        p = self.params
+        sums = self._reference_sums
+        sums.append(self._sum_r)
+        self._total_r += self._sum_r
+        self._windows += 1
+        # the trailing r.m.s., and no less than half the ride's so far: the road ramping
+        # out to a standstill does not make the car's settling an instability
+        reference = max(math.sqrt(sum(sums) / (len(sums) * self._count)),
+                        0.5 * math.sqrt(self._total_r / (self._windows * self._count)))
+        ratio = math.sqrt(self._sum_e / self._count) / (reference + p.error_floor_m)
+        self._sum_e = self._sum_r = 0.0
+        self._count = 0
+        self.error_ratios.append(ratio)
+        growing = math.isfinite(self._last_ratio) and ratio >= p.growth_ratio \
+            * self._last_ratio
+        self._growing = self._growing + 1 if growing else 0
+        self._last_ratio = ratio
+        if self._growing >= p.growth_windows and ratio > p.error_ratio:
+            self.stop(t_s, f"the loop is going unstable: the tracking error grew "
+                           f"{self._growing} windows in a row to {ratio:.2g} times the "
+                           "reference stroke")

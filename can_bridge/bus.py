@@ -502,3 +502,20 @@ class ResilientBus:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+#: A frame timestamp further than this from the present is not a receive time [s].
+STAMP_TOLERANCE_S = 1.0
+
+
+def receive_time(msg: can.Message, realtime_offset_s: float) -> float:
+    """When ``msg`` arrived, on ``time.monotonic``'s clock [s].
+
+    socketcan and udp_multicast stamp a frame in the kernel as it arrives (wall-clock
+    time): a process that stalled learns when its frames really came.  ``realtime_offset_s``
+    is ``time.time() − time.monotonic()`` (taken once); a frame without such a stamp (or
+    with one further than :data:`STAMP_TOLERANCE_S` from now) arrived now.
+    """
+    now = time.monotonic()
+    stamp = float(msg.timestamp or 0.0) - realtime_offset_s
+    return stamp if abs(stamp - now) < STAMP_TOLERANCE_S and stamp <= now else now

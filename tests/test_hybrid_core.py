@@ -248,11 +248,15 @@ def test_adaptation_follows_a_doubled_delay(model):
                    disturbance=Disturbance(delay_change_at_s=6.0, new_delay_s=0.008))
     assert host.phase == "done"
     # the ride starts after connect, settle, identification and fit: find the change
-    change = int(np.argmax(host.delay_estimate_s > 0.0065))
+    # the ride starts 3.5 s into the run (settle, identification): the delay changes 2.5 s
+    # into the ride, after the tracker's first updates (1 s of data each)
+    before = float(np.median(host.delay_estimate_s[1200:2400]))
+    change = int(np.argmax(host.delay_estimate_s > before + 0.002))
     assert change > 0
     after = slice(change + 1500, change + 2000)       # within 2 s of the change
     assert _nrms(host, after) < 0.05
-    assert host.tracker.delay_s == pytest.approx(0.009, abs=0.3e-3)
+    # the tracker has found the 4 ms more
+    assert host.tracker.delay_s - before == pytest.approx(0.004, abs=0.3e-3)
 
 
 def test_feedback_cut_clears_enable_within_the_watchdog(model):

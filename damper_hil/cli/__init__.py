@@ -24,6 +24,7 @@ from damper_hil.cli import (
     emulate,
     fleet,
     fleet_example,
+    hybrid,
     identify,
     live,
     record,
@@ -33,12 +34,14 @@ from damper_hil.cli import (
     skyhook,
     tune,
     validate,
+    virtual_rig,
 )
 from damper_hil.cli.common import PROG
 
 #: the subcommands, in the order ``--help`` lists them
 SUBCOMMANDS = (dyno, demo, dyno_demo, emulate, ride, record, bridge, skyhook, replay,
-               validate, identify, diagnose, ride_study, fleet, fleet_example, tune, live)
+               validate, identify, diagnose, ride_study, fleet, fleet_example, tune, live,
+               hybrid, virtual_rig)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -91,30 +91,43 @@ class Servo:
 class DelayLine:
     """Demands by arrival time; :meth:`at` gives the one in effect a delay later.
 
+    A demand carries its rate (``VelocityDemand``): the demand in effect moves on at that
+    rate from when it became due until the next one is due (a first-order hold), for at
+    most ``horizon_s``; a rate of 0 holds it.
+
     Parameters
     ----------
     delay_s : float
         The transport delay τ [s]; settable (:attr:`delay_s`) while running.
     initial : float
         The demand in effect before any arrived.
+    horizon_s : float
+        The longest a demand moves on at its rate [s].
     """
 
-    def __init__(self, delay_s: float, initial: float = 0.0) -> None:
+    def __init__(self, delay_s: float, initial: float = 0.0, horizon_s: float = 0.05) -> None:
         self.delay_s = float(delay_s)
+        self.horizon_s = float(horizon_s)
         self._times: deque[float] = deque()
-        self._values: deque[float] = deque()
-        self._current = float(initial)
+        self._values: deque[tuple[float, float]] = deque()
+        self._current = (float(initial), 0.0)
+        self._due = -math.inf
 
-    def push(self, t_s: float, demand: float) -> None:
-        """A demand that arrived at ``t_s`` (times must not decrease)."""
+    def push(self, t_s: float, demand: float, rate: float = 0.0) -> None:
+        """A demand [m] and its rate [m/s] that arrived at ``t_s`` (times must not
+        decrease)."""
         self._times.append(float(t_s))
-        self._values.append(float(demand))
+        self._values.append((float(demand), float(rate)))
 
     def at(self, t_s: float) -> float:
-        """The demand in effect at ``t_s``: the latest that arrived by ``t_s − τ``."""
+        """The demand in effect at ``t_s``: the latest that arrived by ``t_s − τ``, moved
+        on at its rate since it became due."""
         due = t_s - self.delay_s
         times = self._times
         while times and times[0] <= due:
-            times.popleft()
+            self._due = times.popleft() + self.delay_s
             self._current = self._values.popleft()
-        return self._current
+        value, rate = self._current
+        if rate == 0.0:
+            return value
+        return value + rate * min(t_s - self._due, self.horizon_s)

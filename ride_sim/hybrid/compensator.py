@@ -114,7 +114,7 @@ class Compensator:
 
     def demand(self, state: np.ndarray, k: int, estimate: TransferEstimate,
                delay_s: float, gain: float) -> tuple[float, float]:
-        """The stroke demand [m] and its velocity [m/s] for the car in ``state`` at
+        """The stroke demand [m] and its rate [m/s] for the car in ``state`` at
         sample ``k`` (the next sample's state, after the force of sample ``k − 1``), with
         the rig's delay ``delay_s`` and gain ``gain`` as followed now."""
         mr = self._mr
@@ -150,7 +150,9 @@ class Compensator:
         a = -(sdot[1] - sdot[3]) / mr
         w = 2.0 * math.pi * estimate.bandwidth_hz
         u = (x + 2.0 * estimate.damping / w * v + a / (w * w)) / gain
-        return u, v
+        # the demand's rate, for the rig to move on between commands (the jerk's term
+        # left out)
+        return u, (v + 2.0 * estimate.damping / w * a) / gain
 
 
 def force_path_gain(params: CompensatorParams, estimate: TransferEstimate,

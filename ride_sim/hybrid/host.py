@@ -188,13 +188,45 @@ class HybridHost:
         self.t_ns = np.zeros(n, dtype=np.int64)
         self.delay_estimate_s = np.full(n, np.nan)
         self._prev_measured = (math.nan, math.nan)
+        self._pending: tuple[float, float] | None = None
         self.k = 0
+
+    def warm_up(self) -> None:
+        """Load or compile what the loop runs (the damper's and the car's kernels, the
+        compensator's prediction, the identification's fit) before its clock starts: a
+        compile inside the loop would stall it past the watchdog."""
+        stepper = DamperStepper(self.twin_model)
+        stepper.warm_up()
+        static = stepper.force_n
+        RideSession.on_road(self.car, self.road.heights, 0, self.dt_s, static).warm_up()
+        comp = Compensator(self.compensator_params, self.car, self.dt_s, static,
+                           self.twin_model, self.road.heights)
+        comp.reset(0.0, 0.0)
+        comp.observe(0.0, 0.0, static)
+        estimate = TransferEstimate(0.0055, 40.0, 0.7, 1.0)
+        comp.demand(np.zeros(4), 0, estimate, estimate.delay_s, 1.0)
+        tracker = TransferTracker(estimate, self.dt_s)
+        tracker.push(0.0, 0.0)
+        u = self._excitation
+        identify(u, np.concatenate([np.zeros(5), u[:-5]]), self.dt_s,
+                 self.compensator_params.max_delay_s)
 
     # -- state -------------------------------------------------------------------------
     @property
     def reason(self) -> str | None:
         """Why the run stopped (one line), or None."""
         return self.safety.reason if self.safety.reason is not None else self.failure
+
+    @property
+    def demand_m(self) -> float:
+        """The latest stroke demand [m] (what a final command holds)."""
+        return self._demand
+
+    def stamp(self, t_ns: int) -> None:
+        """The time [ns, the host's monotonic clock] the latest cycle's command was sent:
+        the ride sample's ``t_monotonic_ns``."""
+        if self.session is not None and self.k > 0 and self.t_ns[self.k - 1] == 0:
+            self.t_ns[self.k - 1] = t_ns
 
     @property
     def finished(self) -> bool:
@@ -212,17 +244,23 @@ class HybridHost:
         return min(max(target_m, self._demand - step), self._demand + step)
 
     # -- the cycle ---------------------------------------------------------------------
+    def measure(self, t_s: float, feedback: Feedback) -> None:
+        """A valid feedback received at ``t_s`` whose cycle has already run (it came
+        late): the newest measurement for the next cycle; the safety layer checks it."""
+        self._measured, self._force = feedback.stroke_m, feedback.force_n
+        self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n)
+
     def cycle(self, t_s: float, feedback: Feedback | None, t_ns: int = 0) -> Command:
         """One cycle at ``t_s`` [s, the host's monotonic clock] with the newest valid
         feedback since the last cycle (None: none arrived); ``t_ns`` is recorded as the
         ride sample's send time.  Returns the command to send now."""
         safety = self.safety
+        self.after_send()
         if self._start_s is None:
             self._start_s = t_s
             self._phase_start_s = t_s
         if feedback is not None:
-            self._measured, self._force = feedback.stroke_m, feedback.force_n
-            safety.feedback(t_s, feedback.stroke_m, feedback.force_n)
+            self.measure(t_s, feedback)
         safety.watchdog(t_s)
         if self.phase == "connect":
             if feedback is None:
@@ -243,8 +281,15 @@ class HybridHost:
         if self.phase == "ride" and self.tracker is not None and self.k > 0:
             self.record[1, self.k - 1] = self._demand
             if self.compensator_params.adapt:
-                self.tracker.push(self._demand, self._measured)
+                self._pending = (self._demand, self._measured)
         return Command(self._demand, velocity, True)
+
+    def after_send(self) -> None:
+        """The cycle's work that can wait until its command is out: the tracker's update
+        of the rig's delay and gain (the next cycle does it first if this is not called)."""
+        if self._pending is not None and self.tracker is not None:
+            self.tracker.push(*self._pending)
+        self._pending = None
 
     def _settle(self, t_s: float, feedback: Feedback | None, t_ns: int) -> tuple[float, float]:
         if self._demand != 0.0:

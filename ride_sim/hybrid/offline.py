@@ -53,6 +53,8 @@ def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0
             d.feedback_cut_at_s is not None and t >= d.feedback_cut_at_s)
         t_host = t + feedback_latency_s
         command = host.cycle(t_host, None if lost else feedback, int(round(t_host * 1e9)))
-        rig.command(t_host + command_latency_s, command.stroke_m, command.enable)
+        rig.command(t_host + command_latency_s, command.stroke_m, command.enable,
+                    command.velocity_m_s)
+        host.after_send()
         j += 1
     return host

@@ -9,10 +9,11 @@ one-line :class:`~damper_emulator.params.ParameterError`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from damper_emulator.params import build_group
+from damper_emulator.params import ParameterError, build_group, node_parameters, read_yaml
 from damper_emulator.params import check_value as _check
 from damper_emulator.params import rule as _rule
 
@@ -160,3 +161,43 @@ class CompensatorParams:
                                                                "identification [m]", 1e-3)
     identify_band_hz: tuple[float, float] = _rule("band", "band of the identification "
                                                           "signal [Hz]", (0.5, 30.0))
+
+
+@dataclass(frozen=True)
+class HybridConfig:
+    """Every group of a damper-in-the-loop parameter file (``config/hybrid.yaml``)."""
+
+    hybrid: HybridRunParams = field(default_factory=HybridRunParams)
+    actuator: ActuatorParams = field(default_factory=ActuatorParams)
+    rig: RigParams = field(default_factory=RigParams)
+    safety: SafetyParams = field(default_factory=SafetyParams)
+    compensator: CompensatorParams = field(default_factory=CompensatorParams)
+
+
+#: the groups of :class:`HybridConfig`, by key
+GROUPS: dict[str, type] = {"hybrid": HybridRunParams, "actuator": ActuatorParams,
+                           "rig": RigParams, "safety": SafetyParams,
+                           "compensator": CompensatorParams}
+#: the default parameter file
+DEFAULT_HYBRID_FILE = Path(__file__).resolve().parents[2] / "config" / "hybrid.yaml"
+
+
+def load_hybrid_config(path: str | Path | None = None) -> HybridConfig:
+    """The groups of a ROS 2 params file (or a bare mapping of them); a group or key it
+    lacks takes its default.
+
+    Raises
+    ------
+    ParameterError
+        One line: an unknown group or key, or a value outside its rule.
+    """
+    path = Path(path) if path is not None else DEFAULT_HYBRID_FILE
+    where = str(path)
+    doc = read_yaml(path)
+    params = node_parameters(doc, where, group="hybrid")
+    unknown = sorted(set(params) - set(GROUPS), key=str)
+    if unknown:
+        raise ParameterError(f"{where}: unknown parameter group {unknown[0]!r} (one of "
+                             f"{', '.join(GROUPS)})")
+    return HybridConfig(**{key: build(cls, params.get(key), key, where)
+                           for key, cls in GROUPS.items()})

@@ -4,7 +4,9 @@
 (:mod:`can_bridge.virtual_rig`), and what the offline loop (:mod:`ride_sim.hybrid.offline`)
 couples to the host directly:
 
-* a valid ``DYNO_COMMAND`` goes to :meth:`VirtualRig.command` with its arrival time;
+* a valid ``DYNO_COMMAND`` goes to :meth:`VirtualRig.command` with its arrival time (its
+  ``VelocityDemand`` moves the demand on between commands, as a dyno controller
+  interpolates its set point);
 * every cycle :meth:`VirtualRig.step` moves the actuator (:mod:`ride_sim.hybrid.actuator`:
   the demand in effect a transport delay after it arrived, through the servo), steps the
   specimen damper (the compressible model with any extension,
@@ -64,7 +66,7 @@ class VirtualRig:
         self.rig = rig
         self.period_s = 1.0 / rig.rate_hz
         self.servo = Servo(actuator)
-        self.delay = DelayLine(actuator.delay_s)
+        self.delay = DelayLine(actuator.delay_s, horizon_s=rig.hold_after_s)
         self.specimen = DamperStepper(model)
         thermal = model.cfg.damper.extensions.viscosity_temperature \
             if model.cfg.damper.extensions is not None else None
@@ -80,12 +82,15 @@ class VirtualRig:
         """Change the transport delay from now on (e.g. a slower bus mid-run)."""
         self.delay.delay_s = float(delay_s)
 
-    def command(self, t_s: float, stroke_m: float, enable: bool) -> None:
-        """A valid ``DYNO_COMMAND`` arrived at ``t_s`` [s, the rig's clock]."""
+    def command(self, t_s: float, stroke_m: float, enable: bool,
+                velocity_m_s: float = 0.0) -> None:
+        """A valid ``DYNO_COMMAND`` arrived at ``t_s`` [s, the rig's clock]: the demand
+        follows ``stroke_m`` and moves on at ``velocity_m_s`` until the next one is due
+        (for at most ``hold_after_s``)."""
         self._last_command_s = float(t_s)
         self._enable = bool(enable)
         if enable:
-            self.delay.push(t_s, stroke_m)
+            self.delay.push(t_s, stroke_m, velocity_m_s)
 
     def step(self, t_s: float) -> Feedback:
         """The control cycle at ``t_s`` [s]: measure the specimen at the actuator's
@@ -97,7 +102,7 @@ class VirtualRig:
         self.force_n = float(force)
         follow = self._enable and (t_s - self._last_command_s) <= rig.hold_after_s
         if not follow and self.following:        # hold from here; forget pending demands
-            self.delay = DelayLine(self.delay.delay_s, x)
+            self.delay = DelayLine(self.delay.delay_s, x, self.rig.hold_after_s)
         self.following = follow
         demand = self.delay.at(t_s) if follow else self.delay.at(-math.inf)
         status = STATUS_ENABLED if follow else 0

@@ -49,7 +49,8 @@ class SafetyLayer:
         self.stopped_at_s: float | None = None
         self.last_valid_s: float | None = None
         self.clamped = 0
-        self._strokes: deque[tuple[float, float]] = deque()
+        self._strokes: deque[float] = deque()
+        self._span = max(1, int(round(params.velocity_span_s / dt_s)))
         self.velocity_m_s = 0.0
         self._window = max(1, int(round(params.window_s / dt_s)))
         self._sum_e = self._sum_r = 0.0
@@ -87,16 +88,17 @@ class SafetyLayer:
 
     def feedback(self, t_s: float, stroke_m: float, force_n: float) -> None:
         """A valid ``DYNO_FEEDBACK`` received at ``t_s``: feed the watchdog, check the
-        measured stroke, velocity and force."""
+        measured stroke, velocity and force (the velocity over ``velocity_span_s`` of
+        feedback frames, one per cycle ``dt_s``)."""
         p = self.params
         self.last_valid_s = float(t_s)
+        # the velocity over the last velocity_span_s of feedback, one frame per cycle: the
+        # frames' arrival times jitter (a host that stalled reads several at once)
         strokes = self._strokes
-        strokes.append((float(t_s), float(stroke_m)))
-        while len(strokes) > 2 and t_s - strokes[1][0] >= p.velocity_span_s:
+        strokes.append(float(stroke_m))
+        if len(strokes) > self._span:
             strokes.popleft()
-        t0, x0 = strokes[0]
-        if t_s - t0 >= 0.5 * p.velocity_span_s:
-            self.velocity_m_s = (stroke_m - x0) / (t_s - t0)
+            self.velocity_m_s = (strokes[-1] - strokes[0]) / ((len(strokes) - 1) * self.dt_s)
         if not (math.isfinite(stroke_m) and math.isfinite(force_n)):
             self.stop(t_s, "the dyno reported a non-finite stroke or force")
         elif abs(stroke_m) > p.stroke_limit_m:

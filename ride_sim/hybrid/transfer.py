@@ -37,6 +37,8 @@ START_BANDWIDTHS_HZ = (10.0, 25.0, 60.0)
 BANDWIDTH_BOUNDS_HZ = (1.0, 400.0)
 DAMPING_BOUNDS = (0.05, 5.0)
 GAIN_BOUNDS = (0.2, 5.0)
+#: The largest relative change of the gain per update of the tracker.
+GAIN_STEP = 0.01
 
 
 @dataclass(frozen=True)
@@ -190,11 +192,16 @@ class TransferTracker:
         motion, e.g. on a smooth road or while the rig holds).
     min_motion_m : float
         Nor when the window's measured stroke moves less than this (r.m.s.) [m].
+    max_step_s : float
+        The delay moves at most this far per update [s], the gain at most
+        :data:`GAIN_STEP` of itself: a window that a stall of the host or the bus has
+        disturbed moves them a little, not to its own answer.
     """
 
     def __init__(self, estimate: TransferEstimate, dt_s: float, window_s: float = 1.0,
                  period_s: float = 0.1, max_delay_s: float = 0.05,
-                 min_correlation: float = 0.95, min_motion_m: float = 2e-4) -> None:
+                 min_correlation: float = 0.95, min_motion_m: float = 5e-4,
+                 max_step_s: float = 5e-4) -> None:
         self.estimate = estimate
         self.dt_s = float(dt_s)
         self.delay_s = estimate.delay_s
@@ -204,6 +211,7 @@ class TransferTracker:
         self._max_lag = max(1, int(math.ceil(max_delay_s / dt_s)))
         self._min_corr = float(min_correlation)
         self._min_motion = float(min_motion_m)
+        self._max_step = float(max_step_s)
         size = self._window + self._max_lag + 2
         self._y = np.zeros(size)
         self._x = np.zeros(size)
@@ -243,16 +251,19 @@ class TransferTracker:
         xw = x[-w:] - x[-w:].mean()
         if float(np.sqrt(np.mean(xw * xw))) < self._min_motion:
             return False
-        # y delayed by L samples, over the window: y[size − w − L : size − L]
+        # y delayed by L samples over the window is y[size − w − L : size − L]: all the lags
+        # at once, as rows of a strided view
         size = y.size
-        best, best_lag = -math.inf, 0
-        for lag in range(self._max_lag + 1):
-            seg = y[size - w - lag: size - lag]
-            seg = seg - seg.mean()
-            den = math.sqrt(float(np.dot(seg, seg)) * float(np.dot(xw, xw)))
-            c = float(np.dot(seg, xw)) / den if den > 0 else -math.inf
-            if c > best:
-                best, best_lag = c, lag
+        lags = self._max_lag + 1
+        rows = np.lib.stride_tricks.sliding_window_view(y[size - w - self._max_lag:], w)
+        rows = rows[::-1][:lags]                       # row L: y delayed by L
+        centred = rows - rows.mean(axis=1, keepdims=True)
+        num = centred @ xw
+        den = np.sqrt(np.einsum("ij,ij->i", centred, centred) * float(xw @ xw))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            corr = np.where(den > 0, num / den, -np.inf)
+        best_lag = int(np.argmax(corr))
+        best = float(corr[best_lag])
         self.correlation = best
         if best < self._min_corr:
             return False
@@ -267,7 +278,9 @@ class TransferTracker:
         shift = -gs / g            # y(k − L − δ) ≈ y(k − L) − δ ẏ: δ = −gs / g samples
         if abs(shift) > 1.0:
             shift = math.copysign(1.0, shift)
-        self.delay_s = max(0.0, (lag + shift) * self.dt_s)
-        self.gain = float(g)
+        delay = max(0.0, (lag + shift) * self.dt_s)
+        self.delay_s += min(max(delay - self.delay_s, -self._max_step), self._max_step)
+        step = GAIN_STEP * self.gain
+        self.gain += min(max(float(g) - self.gain, -step), step)
         self.updates += 1
         return True

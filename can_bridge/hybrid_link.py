@@ -1,0 +1,187 @@
+"""The host of a physical damper in the loop on the CAN bus (``damper-hil hybrid``).
+
+:func:`run_hybrid_link` drives a :class:`~ride_sim.hybrid.host.HybridHost` from a dyno's
+frames: the host runs one cycle per valid ``DYNO_FEEDBACK`` as soon as it arrives and
+sends the ``DYNO_COMMAND`` at once (the dyno's clock paces the loop: the command goes out
+a computation after the feedback it used).  The car advances one step per cycle of the
+rig, counted by the feedback's alive counter: a cycle whose feedback does not come (lost or
+invalid) runs ``MISSED_FEEDBACK_PERIODS`` periods after the last one on the last
+measurement (the watchdog keeps counting), and the next feedback runs the cycles its
+counter says are still owed.  ``DYNO_AUX`` updates the oil
+temperature.  Frames with a wrong length, checksum or counter are dropped and counted by
+the :class:`~can_bridge.codec.Receiver` and never reach the host: they are not valid
+feedback.
+
+When the host has finished, or ``stop`` is set (``stopped`` by the user: the host's
+safety layer records the reason), a few commands with ``Enable`` clear go out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import gc
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+
+from can_bridge.bus import BusConfig, ResilientBus, receive_time
+from can_bridge.codec import Encoder, Receiver
+from damper_emulator.realtime.rt import RealtimeReport, RealtimeRequest, apply_realtime
+from ride_sim.hybrid.host import HybridHost
+from ride_sim.hybrid.rig import Feedback
+
+COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"
+#: A cycle whose feedback has not come this many periods after the last runs without it.
+MISSED_FEEDBACK_PERIODS = 1.5
+#: Python's GIL switch interval while the loop runs [s].
+GIL_SWITCH_INTERVAL_S = 1e-4
+#: Commands with Enable clear sent at the end.
+FINAL_COMMANDS = 5
+
+
+@dataclass
+class LinkStats:
+    """What the host's link did."""
+
+    feedback: int = 0                # valid DYNO_FEEDBACK frames
+    aux: int = 0                     # valid DYNO_AUX frames
+    dropped: int = 0                 # invalid frames (length, checksum, counter)
+    dropped_checksum: int = 0
+    lost: int = 0                    # frames missing (counter jumps)
+    cycles_without_feedback: int = 0
+    commands_sent: int = 0
+    send_failures: int = 0
+    saturated_commands: int = 0      # a value outside its DBC range, sent saturated
+    temperature_c: float = math.nan  # the latest DYNO_AUX
+    dyno_status_bits: int = 0        # OR of every DYNO_FEEDBACK Status
+    realtime: str = ""
+    #: feedback arrival → its command sent [µs], one per cycle run on a feedback
+    response_us: list[float] = field(default_factory=list, repr=False)
+    #: when each of those feedback frames arrived [ns, monotonic]
+    response_at_ns: list[int] = field(default_factory=list, repr=False)
+
+    def summary(self) -> dict[str, object]:
+        r = np.asarray(self.response_us)
+        d = {k: v for k, v in dataclasses.asdict(self).items()
+             if k not in ("response_us", "response_at_ns")}
+        d["response_p50_us"] = float(np.percentile(r, 50)) if r.size else math.nan
+        d["response_p99_us"] = float(np.percentile(r, 99)) if r.size else math.nan
+        d["response_max_us"] = float(r.max()) if r.size else math.nan
+        return d
+
+
+def run_hybrid_link(bus_cfg: BusConfig, db, host: HybridHost, stop: threading.Event, *,
+                    realtime: RealtimeRequest | None = None,
+                    progress: Callable[[str], None] | None = None) -> LinkStats:
+    """Run ``host`` against the dyno on ``bus_cfg`` until it has finished or ``stop`` is
+    set; returns the link's statistics."""
+    receiver = Receiver(db, [FEEDBACK, AUX])
+    encoder = Encoder(db, COMMAND)
+    stats = LinkStats()
+    report: RealtimeReport | None = apply_realtime(realtime) if realtime is not None \
+        else None
+    if report is not None:
+        stats.realtime = report.summary()
+    period = host.dt_s
+    bus_cfg = dataclasses.replace(bus_cfg, receive_ids=receiver.frame_ids)
+    phase = host.phase
+
+    def send(command_stroke: float, velocity: float, enable: bool) -> None:
+        data, saturated = encoder.encode(StrokeDemand=command_stroke,
+                                         VelocityDemand=velocity, Enable=int(enable))
+        if saturated:
+            stats.saturated_commands += 1
+        if bus.send(can.Message(arbitration_id=encoder.frame_id, data=data,
+                                is_extended_id=False)):
+            stats.commands_sent += 1
+        else:
+            stats.send_failures += 1
+
+    switch = sys.getswitchinterval()
+    # a loop waiting for the GIL waits at most this long for a Python thread that holds it
+    # (the recorder, the fit; the default 5 ms is five cycles)
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    gc.collect()
+    gc.freeze()          # the start-up's objects: out of the collector's way
+    def cycle(now: float, feedback: Feedback | None, arrival_ns: int | None) -> None:
+        nonlocal phase
+        command = host.cycle(now, feedback)
+        send(*command)
+        sent_ns = time.monotonic_ns()
+        host.stamp(sent_ns)
+        if arrival_ns is not None:
+            stats.response_us.append((sent_ns - arrival_ns) / 1e3)
+            stats.response_at_ns.append(arrival_ns)
+        host.after_send()
+        if progress is not None and host.phase != phase:
+            phase = host.phase
+            progress(phase)
+
+    try:
+        with ResilientBus(bus_cfg) as bus:
+            last_cycle = time.monotonic()
+            offset = time.time() - time.monotonic()
+            last_counter: int | None = None
+            ran_without = 0         # cycles run on a timeout since the last feedback
+            while not host.finished:
+                if stop.is_set():
+                    host.safety.stop(time.monotonic(), "stopped by the user")
+                    break
+                timeout = last_cycle + MISSED_FEEDBACK_PERIODS * period - time.monotonic()
+                msg = bus.recv(max(0.0, timeout))
+                # when it arrived (the kernel's stamp): the response time counts a stall
+                arrival = time.monotonic() if msg is None else receive_time(msg, offset)
+                arrival_ns = int(arrival * 1e9)
+                if msg is None:
+                    if arrival < last_cycle + MISSED_FEEDBACK_PERIODS * period:
+                        continue
+                    # no feedback this cycle: run it on the last measurement (the watchdog
+                    # counts on)
+                    stats.cycles_without_feedback += 1
+                    ran_without += 1
+                    cycle(arrival, None, None)
+                    last_cycle = arrival - (MISSED_FEEDBACK_PERIODS - 1.0) * period
+                    continue
+                got = receiver.accept(msg.arbitration_id, bytes(msg.data), msg.is_extended_id)
+                if got is None:
+                    continue
+                if got.name == AUX:
+                    stats.aux += 1
+                    stats.temperature_c = float(got.values["Temperature"])
+                    continue
+                v = got.values
+                status = int(v["Status"])
+                stats.dyno_status_bits |= status
+                stats.feedback += 1
+                feedback = Feedback(float(v["StrokeMeasured"]), float(v["Force"]), status,
+                                    stats.temperature_c)
+                counter = int(v["Counter"])
+                # the rig's cycles since the last feedback, by its alive counter: the car
+                # advances one step per rig cycle whatever the bus lost or delayed
+                elapsed = 1 if last_counter is None else (counter - last_counter) % 16 or 16
+                last_counter = counter
+                owed = elapsed - ran_without
+                ran_without = 0
+                if owed <= 0:                   # its cycle already ran on the timeout
+                    host.measure(arrival, feedback)
+                else:
+                    cycle(arrival, feedback, arrival_ns)
+                    for _ in range(owed - 1):   # lost frames: their cycles, on this one's
+                        cycle(arrival, None, None)
+                last_cycle = arrival
+            for _ in range(FINAL_COMMANDS):
+                send(host.demand_m, 0.0, False)
+    finally:
+        sys.setswitchinterval(switch)
+        gc.unfreeze()
+        if report is not None:
+            report.release()
+    d = receiver.drops
+    stats.dropped, stats.dropped_checksum, stats.lost = d.dropped, d.checksum, d.lost
+    return stats

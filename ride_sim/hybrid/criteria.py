@@ -1,0 +1,100 @@
+"""How well a damper-in-the-loop run followed its simulation, and what it found.
+
+:func:`tracking` gives the real-time hybrid simulation community's tracking criteria of
+the measured stroke against the car's (the target): the normalised r.m.s. error, the peak
+error and the residual delay (the lag that best aligns them, below a sample by a parabola
+through the cross-correlation's peak).  :func:`summary` assembles ``hybrid.json``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ride_sim.hybrid.compensator import force_path_gain, steepest_slope
+from ride_sim.hybrid.host import RIDE_KEYS, HybridHost
+
+#: Lags searched for the residual delay, ± [samples].
+MAX_LAG_SAMPLES = 50
+
+
+def residual_delay_s(target: np.ndarray, measured: np.ndarray, dt_s: float) -> float:
+    """The delay [s] of ``measured`` behind ``target`` (negative: ahead) that maximises
+    their cross-correlation, refined below a sample by the parabola through the peak and
+    its neighbours."""
+    a = np.asarray(target, float) - np.mean(target)
+    b = np.asarray(measured, float) - np.mean(measured)
+    n = a.size
+    m = min(MAX_LAG_SAMPLES, n // 4)
+    lags = np.arange(-m, m + 1)
+    c = np.array([np.dot(b[max(0, lag): n + min(0, lag)], a[max(0, -lag): n - max(0, lag)])
+                  for lag in lags])
+    i = int(np.argmax(c))
+    shift = 0.0
+    if 0 < i < c.size - 1:
+        den = c[i - 1] - 2.0 * c[i] + c[i + 1]
+        if den < 0:
+            shift = 0.5 * (c[i - 1] - c[i + 1]) / den
+    return float((lags[i] + shift) * dt_s)
+
+
+def tracking(target: np.ndarray, measured: np.ndarray, dt_s: float) -> dict[str, float]:
+    """``nrms`` (r.m.s. of measured − target over the target's r.m.s.), ``peak_error_m``,
+    ``delay_ms`` (:func:`residual_delay_s`)."""
+    target = np.asarray(target, float)
+    error = np.asarray(measured, float) - target
+    scale = float(np.sqrt(np.mean(target ** 2)))
+    return {"nrms": float(np.sqrt(np.mean(error ** 2))) / scale if scale > 0 else math.nan,
+            "peak_error_m": float(np.max(np.abs(error))) if error.size else math.nan,
+            "delay_ms": residual_delay_s(target, measured, dt_s) * 1e3}
+
+
+def summary(host: HybridHost) -> dict[str, Any]:
+    """The run's ``hybrid.json`` (without the link's and the files' parts): status,
+    reason, tracking, ride and reference metrics, twin, transfer system, stability."""
+    completed = host.phase == "done"
+    doc: dict[str, Any] = {"status": "completed" if completed else "stopped",
+                           "reason": host.reason or "", "phase_at_end": host.phase}
+    k = host.k
+    sl = host.road.evaluated
+    rec = host.record
+    ridden = slice(sl.start, min(sl.stop, k))
+    if ridden.stop - ridden.start > 10:
+        doc["tracking"] = tracking(rec[0, ridden], rec[2, ridden], host.dt_s)
+        doc["tracking"]["samples"] = ridden.stop - ridden.start
+    else:
+        doc["tracking"] = None
+    if host.tracker is not None:
+        doc["tracking_delay_estimate_ms"] = host.tracker.delay_s * 1e3
+        doc["tracking_gain_estimate"] = host.tracker.gain
+        doc["tracking_updates"] = host.tracker.updates
+    ride = host.ride_metrics()
+    doc["ride"] = {key: ride[key] for key in RIDE_KEYS} if ride is not None else None
+    doc["reference"] = {key: host.reference_metrics[key] for key in RIDE_KEYS}
+    doc["ride_vs_reference"] = ({key: ride[key] / host.reference_metrics[key] - 1.0
+                                 for key in RIDE_KEYS} if ride is not None else None)
+    residual = rec[3, :k] - rec[4, :k]
+    ok = np.isfinite(residual)
+    doc["twin"] = {"residual_rms_n": float(np.sqrt(np.mean(residual[ok] ** 2)))
+                   if ok.any() else math.nan,
+                   "residual_rms_first_n": _rms(residual[ridden][: 2000]),
+                   "residual_rms_last_n": _rms(residual[ridden][-2000:])}
+    doc["static_force_n"] = host.static_force_n
+    if host.transfer is not None:
+        slope = steepest_slope(host.twin_model)
+        gain, at_hz = force_path_gain(host.compensator_params, host.transfer, host.car, slope,
+                                      host.dt_s)
+        doc["transfer"] = host.transfer.to_dict()
+        doc["stability"] = {"force_path_gain": gain, "at_hz": at_hz,
+                            "damper_slope_ns_m": slope,
+                            "small_gain_margin": (1.0 / gain if gain > 0 else math.inf)}
+    doc["safety"] = {"clamped_demands": host.safety.clamped,
+                     "error_ratio_max": max(host.safety.error_ratios, default=math.nan)}
+    return doc
+
+
+def _rms(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x ** 2))) if x.size else math.nan

@@ -21,6 +21,7 @@ delay that changes mid-run, corrupted feedback frames, feedback that stops.
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import threading
 import time
@@ -42,7 +43,8 @@ AUX_PERIOD_S = 0.1
 
 @dataclass(frozen=True)
 class RigFaults:
-    """Faults the virtual rig injects (times from its first cycle) [s]."""
+    """Faults the virtual rig injects (times from the first valid DYNO_COMMAND: from when
+    a host took the rig) [s]."""
 
     #: from this time on the transport delay is ``delay_change_to_s``
     delay_change_at_s: float | None = None
@@ -96,6 +98,7 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
         with ResilientBus(bus_cfg) as bus:
             t0 = time.monotonic()
             deadline = t0
+            first_command: float | None = None
             j = 0
             offset = time.time() - time.monotonic()
             while not stop.is_set():
@@ -105,6 +108,8 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                                           msg.is_extended_id)
                     if got is not None:
                         stats.commands += 1
+                        if first_command is None:
+                            first_command = time.monotonic() - t0
                         v = got.values
                         rig.command(receive_time(msg, offset) - t0, float(v["StrokeDemand"]),
                                     bool(v["Enable"]), float(v["VelocityDemand"]))
@@ -112,8 +117,9 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                 if time.monotonic() < deadline:
                     continue
                 t = deadline - t0
+                taken = math.inf if first_command is None else t - first_command
                 if (faults.delay_change_at_s is not None and not changed
-                        and t >= faults.delay_change_at_s):
+                        and taken >= faults.delay_change_at_s):
                     rig.set_delay(faults.delay_change_to_s)
                     changed = True
                     if log:
@@ -122,7 +128,7 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                 stats.cycles += 1
                 if rig.following:
                     stats.following_cycles += 1
-                if faults.feedback_stop_at_s is None or t < faults.feedback_stop_at_s:
+                if faults.feedback_stop_at_s is None or not taken >= faults.feedback_stop_at_s:
                     data, _ = feedback_enc.encode(StrokeMeasured=fb.stroke_m,
                                                   Force=fb.force_n, Status=fb.status)
                     if faults.corrupt_every and stats.feedback_sent % faults.corrupt_every \

@@ -77,13 +77,15 @@ def add_parser(sub) -> None:
                      help="write the rig's statistics here at the end")
     f = rig.add_argument_group("fault injection (to test a host's safety layer)")
     f.add_argument("--delay-change-at", metavar="S", type=non_negative_float, default=None,
-                   help="from S seconds after the start the delay is --delay-change-to-ms")
+                   help="S seconds after the first valid command the delay becomes "
+                        "--delay-change-to-ms")
     f.add_argument("--delay-change-to-ms", metavar="MS", type=non_negative_float,
                    default=None, help="the changed transport delay [ms]")
     f.add_argument("--corrupt-every", metavar="N", type=non_negative_int, default=0,
                    help="every N-th DYNO_FEEDBACK goes out with a wrong checksum")
     f.add_argument("--feedback-stop-at", metavar="S", type=non_negative_float, default=None,
-                   help="from S seconds after the start no DYNO_FEEDBACK goes out")
+                   help="from S seconds after the first valid command no DYNO_FEEDBACK "
+                        "goes out")
     rig.set_defaults(handler=run)
 
 

@@ -6,8 +6,8 @@
   into ``±stroke_limit_m`` and moves at most ``velocity_limit_m_s`` per second
   (:meth:`SafetyLayer.clamp`), whatever the car or the compensator ask; a measured stroke,
   velocity or force beyond its limit stops the run;
-* **watchdog**: the run stops, and ``Enable`` is cleared, when the last valid
-  ``DYNO_FEEDBACK`` is ``watchdog_s`` old (the frame that clears it goes out before then);
+* **watchdog**: the run stops, and ``Enable`` is cleared, before the last valid
+  ``DYNO_FEEDBACK`` is ``watchdog_s`` old (at :data:`WATCHDOG_TRIP` of it);
   a frame with a CRC, counter or length error never reaches :meth:`SafetyLayer.feedback`
   and so does not count as valid;
 * **instability**: per window of ``window_s``, the tracking error's r.m.s. over the
@@ -30,6 +30,10 @@ import math
 from collections import deque
 
 from ride_sim.hybrid.params import SafetyParams
+
+#: The watchdog trips at this fraction of ``watchdog_s``: the rest is the margin for a
+#: late cycle (without feedback the host cycles every period, give or take its jitter).
+WATCHDOG_TRIP = 0.8
 
 
 class SafetyLayer:
@@ -112,12 +116,13 @@ class SafetyLayer:
                            f"±{p.force_limit_n:g} N")
 
     def watchdog(self, t_s: float) -> None:
-        """Stop when the last valid feedback is older than ``watchdog_s`` less one cycle
-        (the command that clears ``Enable`` then goes out within ``watchdog_s``)."""
+        """Stop when the last valid feedback is :data:`WATCHDOG_TRIP` of ``watchdog_s``
+        old: the command that clears ``Enable`` goes out within ``watchdog_s`` even when
+        the host's cycle comes late."""
         if self.last_valid_s is None:
             return
         age = t_s - self.last_valid_s
-        if age > self.params.watchdog_s - self.dt_s:
+        if age >= WATCHDOG_TRIP * self.params.watchdog_s:
             self.stop(t_s, f"no valid DYNO_FEEDBACK for {age * 1e3:.0f} ms (watchdog "
                            f"{self.params.watchdog_s * 1e3:g} ms)")
 

@@ -1,0 +1,251 @@
+"""A damper in the loop over a real python-can bus: ``damper-hil virtual-rig`` and
+``damper-hil hybrid`` as processes on a ``udp_multicast`` group of their own (``socketcan``
+on ``vcan0`` where the kernel has it), a tap of the test's on the same bus, the bag read
+back by rosbags.
+
+The rides are short (the tests' budget); the 20 s ride of the targets is the benchmark's
+(benchmarks/hybrid_bench.py).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from can_bridge.bus import BusConfig, ResilientBus, receive_time, socketcan_problem
+from can_bridge.codec import Receiver
+from can_bridge.dbc import HYBRID_SIGNALS, load_database
+from ride_sim.hybrid.params import SafetyParams
+from ride_sim.hybrid.recorder import CSV_COLUMNS
+
+pytestmark = pytest.mark.can
+
+CLI = [sys.executable, "-m", "damper_hil.cli"]
+#: a short run: the identification and the ride shortened, the rest the defaults
+SHORT = """/**:
+  ros__parameters:
+    hybrid: {ramp_s: 0.5, settle_s: 0.3, connect_timeout_s: 3.0}
+    compensator: {identify_s: 1.5}
+"""
+OFFSETS = {"ride": 0, "cut": 1, "unstable": 2, "nodyno": 3}
+
+
+def udp_channel(offset: int) -> str:
+    """An interface-local group and a UDP port private to this process and ``offset``
+    (python-can binds the port on every address: the port separates concurrent set-ups;
+    17000..21999 is clear of the DDS ports of the ROS domains the tests use)."""
+    pid = os.getpid()
+    return f"[ff11::d6:{offset:x}:{pid & 0xFFFF:x}]:{17000 + (pid % 500) * 10 + offset}"
+
+
+class Tap:
+    """Every frame on the bus with its kernel receive time [s, monotonic]."""
+
+    def __init__(self, cfg: BusConfig):
+        self.bus = ResilientBus(cfg)
+        assert self.bus.ensure_open(), self.bus.last_error
+        self.frames: list[tuple[float, int, bytes]] = []
+        self._offset = time.time() - time.monotonic()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            msg = self.bus.recv(0.05)
+            if msg is not None:
+                self.frames.append((receive_time(msg, self._offset), msg.arbitration_id,
+                                    bytes(msg.data)))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.bus.close()
+
+
+def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False):
+    """``virtual-rig`` in the background, then ``hybrid`` to its end; returns the hybrid
+    process, its output folder, the rig's statistics and the tap (or None)."""
+    config = tmp / "short.yaml"
+    config.write_text(SHORT)
+    bus_args = ["--can-interface", bus.interface, "--can-channel", bus.channel]
+    rig_json = tmp / "rig.json"
+    rig = subprocess.Popen([*CLI, "virtual-rig", *bus_args, "--config", str(config),
+                            "--json", str(rig_json), *rig_args],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    listener = Tap(bus) if tap else None
+    out = tmp / "out"
+    try:
+        proc = subprocess.run([*CLI, "hybrid", "--out", str(out), "--config", str(config),
+                               *bus_args, *hybrid_args],
+                              capture_output=True, text=True, timeout=300)
+    finally:
+        rig.send_signal(2)
+        try:
+            rig.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            rig.kill()
+            rig.communicate()
+        if listener is not None:
+            listener.close()
+    rig_stats = json.loads(rig_json.read_text()) if rig_json.exists() else {}
+    return proc, out, rig_stats, listener
+
+
+@pytest.fixture(scope="module")
+def bus_db():
+    return load_database(required=HYBRID_SIGNALS)
+
+
+@pytest.fixture(scope="module")
+def ride(tmp_path_factory):
+    """A compensated 3 s ride, every 100th feedback frame corrupted on the way."""
+    bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["ride"]))
+    return run_pair(tmp_path_factory.mktemp("ride"), bus, ["--corrupt-every", "100"],
+                    ["--duration", "3"])
+
+
+def test_compensated_ride_completes_and_tracks(ride):
+    proc, out, rig, _ = ride
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((out / "hybrid.json").read_text())
+    assert doc["status"] == "completed" and doc["reason"] == ""
+    assert doc["tracking"]["nrms"] < 0.03
+    assert abs(doc["tracking"]["delay_ms"]) < 0.5
+    for key, ratio in doc["ride_vs_reference"].items():
+        assert abs(ratio) < 0.03, key
+    assert doc["stability"]["force_path_gain"] < 1.0
+    assert doc["twin"]["residual_rms_n"] < 100.0      # the twin is the specimen, + noise
+    # the rig's identified transfer system: its 4 ms, rounded up to whole cycles, plus the
+    # feedback's way back
+    assert 4.0 < doc["transfer"]["delay_ms"] < 7.0
+    assert doc["transfer"]["bandwidth_hz"] == pytest.approx(40.0, rel=0.1)
+    assert doc["link"]["response_p50_us"] < 1000.0
+
+
+def test_corrupted_frames_are_counted_and_the_ride_goes_on(ride):
+    proc, out, rig, _ = ride
+    doc = json.loads((out / "hybrid.json").read_text())
+    link = doc["link"]
+    assert rig["corrupted"] > 50
+    # the host dropped each corrupted feedback frame it received (the rig ran longer): one
+    # in a hundred, and lost none besides
+    received = link["feedback"] + link["dropped_checksum"]
+    assert abs(link["dropped_checksum"] - received / 100) <= 2
+    assert link["dropped"] == link["dropped_checksum"] > 30
+    assert doc["status"] == "completed"
+
+
+def test_csv_and_bag_hold_the_ride(ride):
+    proc, out, _, _ = ride
+    with open(out / "hybrid.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    data = np.array(rows[1:], dtype=float)
+    doc = json.loads((out / "hybrid.json").read_text())
+    assert data.shape[0] >= 3000
+    assert np.all(np.diff(data[:, 0]) > 0)               # send times increase
+    assert np.all(np.isin(data[:, 7], (0, 1)))
+    assert np.nanmax(np.abs(data[:, 3])) <= SafetyParams().stroke_limit_m
+    # an independent reader: rosbags
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([out / "bag"]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        force = [reader.deserialize(raw, c.msgtype).effort[0]
+                 for c, _, raw in reader.messages(
+                     [c for c in reader.connections if c.topic == "/damper/force"])]
+        diags = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(
+            [c for c in reader.connections if c.topic == "/diagnostics"])]
+    assert counts["/damper/force"] == counts["/damper/state"] == counts["/hybrid/loop"] \
+        == data.shape[0]
+    assert np.allclose(force, data[:, 5], atol=1e-6, rtol=1e-9)
+    keys = {kv.key for kv in diags[-1].status[0].values}
+    assert {"twin_residual_rms_n", "tracking_nrms", "delay_ms"} <= keys
+    assert abs(doc["tracking"]["samples"] - 3000) <= 1       # the evaluated 3 s
+    for png in ("hybrid_tracking.png", "hybrid_force.png", "hybrid_transfer.png"):
+        assert (out / png).stat().st_size > 10_000
+    assert "Tracking" in (out / "report.md").read_text()
+
+
+def test_feedback_cut_clears_enable_within_50_ms_and_exits_3(tmp_path, bus_db):
+    bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["cut"]))
+    proc, out, _, tap = run_pair(tmp_path, bus, ["--feedback-stop-at", "3.0"],
+                                 ["--duration", "3"], tap=True)
+    assert proc.returncode == 3, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("damper-hil: stopped: no valid DYNO_FEEDBACK"), last
+    doc = json.loads((out / "hybrid.json").read_text())
+    assert doc["status"] == "stopped" and "DYNO_FEEDBACK" in doc["reason"]
+    fb_id = bus_db.get_message_by_name("DYNO_FEEDBACK").frame_id
+    cmd_id = bus_db.get_message_by_name("DYNO_COMMAND").frame_id
+    rx = Receiver(bus_db, ["DYNO_COMMAND"])
+    last_feedback = max(t for t, i, _ in tap.frames if i == fb_id)
+    cleared = [t for t, i, d in tap.frames
+               if i == cmd_id and t > last_feedback and not rx.decode_values(i, d)["Enable"]]
+    assert cleared, "no command with Enable clear after the feedback stopped"
+    assert cleared[0] - last_feedback <= 0.050
+    # and every command after it keeps Enable clear
+    later = [rx.decode_values(i, d)["Enable"] for t, i, d in tap.frames
+             if i == cmd_id and t >= cleared[0]]
+    assert not any(later)
+
+
+def test_unstable_setting_is_stopped_before_any_limit(tmp_path):
+    bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["unstable"]))
+    proc, out, _, _ = run_pair(tmp_path, bus, ["--delay-ms", "30"],
+                               ["--duration", "3", "--compensation", "none"])
+    assert proc.returncode == 3, proc.stderr
+    doc = json.loads((out / "hybrid.json").read_text())
+    assert "unstable" in doc["reason"]
+    data = np.genfromtxt(out / "hybrid.csv", delimiter=",", skip_header=1)
+    limits = SafetyParams()
+    assert np.nanmax(np.abs(data[:, 4])) < limits.stroke_limit_m
+    assert np.nanmax(np.abs(data[:, 5])) < limits.force_limit_n
+    assert np.nanmax(np.abs(data[:, 3])) <= limits.stroke_limit_m
+
+
+def test_no_dyno_is_one_line_and_exit_2(tmp_path):
+    config = tmp_path / "short.yaml"
+    config.write_text(SHORT)
+    proc = subprocess.run([*CLI, "hybrid", "--out", str(tmp_path / "out"), "--config",
+                           str(config), "--can-interface", "udp_multicast",
+                           "--can-channel", udp_channel(OFFSETS["nodyno"]),
+                           "--duration", "2"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("damper-hil: error: no DYNO_FEEDBACK within 3 s"), last
+    assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--duration", "-1"], "--duration"),
+    (["--road-class", "Z"], "--road-class"),
+    (["--can-interface", "nope"], "not a python-can interface"),
+])
+def test_bad_options_are_one_line_and_exit_2(cli, tmp_path, args, says):
+    r = cli("hybrid", "--out", tmp_path / "out", "--can-interface", "udp_multicast",
+            "--can-channel", "[ff11::d6:ff]:17999", *args)
+    assert r.returncode == 2
+    assert says in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.skipif(socketcan_problem("vcan0") is not None,
+                    reason=str(socketcan_problem("vcan0")))
+def test_the_ride_over_socketcan(tmp_path):
+    bus = BusConfig(interface="socketcan", channel="vcan0")
+    proc, out, _, _ = run_pair(tmp_path, bus, [], ["--duration", "2"])
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((out / "hybrid.json").read_text())
+    assert doc["tracking"]["nrms"] < 0.03
+    assert math.isfinite(doc["twin"]["residual_rms_n"])

@@ -31,6 +31,8 @@ def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
     from damper_emulator.acquisition.rig import DisplacementChannel, ForceChannel, load_rig
     from damper_emulator.params import DamperParams, NumericsParams, load_config
     from damper_emulator.realtime.settings import EmulatorParams
+    from ride_sim.hybrid.params import GROUPS as HYBRID_GROUPS
+    from ride_sim.hybrid.params import load_hybrid_config
     from ride_sim.params import (
         QuarterCarParams,
         RideRunParams,
@@ -42,6 +44,7 @@ def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
 
     # each params file read once for all its groups
     model, ride = functools.cache(load_config), functools.cache(load_ride_config)
+    hybrid = functools.cache(load_hybrid_config)
     rig = functools.cache(lambda: load_rig(Path(__file__).resolve().parents[1] / "config"
                                            / "rig.yaml"))
     return [
@@ -70,7 +73,9 @@ def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
          "`identify`, `diagnose` and `validate` given `--rig` (the file is an example)",
          DisplacementChannel,
          lambda: rig().displacement),
-    ]
+    ] + [(key, "config/hybrid.yaml", "`hybrid`" if key not in ("actuator", "virtual_rig") else
+          "`virtual-rig`", cls, functools.partial(lambda k: getattr(hybrid(), k), key))
+         for key, cls in HYBRID_GROUPS.items()]
 
 
 def _value(obj: Any, key: str) -> Any:

@@ -72,6 +72,12 @@ def add_parser(sub) -> None:
     hy.add_argument("--json", metavar="FILE", type=Path, default=None,
                     help="also write hybrid.json's content to FILE")
     hy.add_argument("--no-bag", action="store_true", help="do not record the bag")
+    hy.add_argument("--priority", metavar="P", type=int, choices=range(1, 100), default=70,
+                    help="SCHED_FIFO priority of the loop thread when permitted (default: 70)")
+    hy.add_argument("--cpu", metavar="N", type=int, default=-1,
+                    help="pin the loop thread to CPU N (default: -1, leave the affinity "
+                         "alone; with the dyno on another CPU the response time's tail "
+                         "shortens)")
     hy.set_defaults(handler=run)
 
 
@@ -99,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from damper_hil.cli.common import load_model
     from damper_hil.hybrid_report import write_report
     from ride_sim.hybrid.criteria import summary
-    from ride_sim.hybrid.host import HybridHost
+    from ride_sim.hybrid.host import HybridHost, export_measured
     from ride_sim.hybrid.params import load_hybrid_config
     from ride_sim.hybrid.recorder import HybridRecorder
     from ride_sim.params import load_quarter_car
@@ -141,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         with HybridRecorder(out, host, bag=not args.no_bag) as recorder:
             stats = run_hybrid_link(bus, db, host, stop,
-                                    realtime=RealtimeRequest(priority=70),
+                                    realtime=RealtimeRequest(priority=args.priority, cpu=args.cpu),
                                     progress=progress)
         if recorder.error is not None:
             raise recorder.error
@@ -160,6 +166,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, doc)
     say_wrote(out / "hybrid.csv")
+    measured = export_measured(host, out / "ride_measured.csv")
+    if measured is not None:
+        say_wrote(measured)
     if not args.no_bag:
         say_wrote(out / "bag")
     if host.transfer is not None or host.k > 0:

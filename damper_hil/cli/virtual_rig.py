@@ -54,7 +54,7 @@ def add_parser(sub) -> None:
                     "It follows DYNO_COMMAND while Enable is set and commands keep coming,\n"
                     "and sends DYNO_FEEDBACK every cycle and DYNO_AUX (oil temperature)\n"
                     "every 100 ms, until SIGINT/SIGTERM or --duration.  Settings beyond the\n"
-                    "options: the actuator and rig groups of --config (docs/hybrid.md).",
+                    "options: the actuator and virtual_rig groups of --config (docs/hybrid.md).",
         epilog="examples:\n"
                f"  {PROG} virtual-rig --can-interface udp_multicast "
                "--can-channel '[ff11::d5:1]:43210'\n"
@@ -62,7 +62,7 @@ def add_parser(sub) -> None:
     rig.add_argument("--params", metavar="PARAMS.yaml", type=Path, default=None,
                      help="the specimen's parameter file (default: config/sport.yaml)")
     rig.add_argument("--config", metavar="FILE", type=Path, default=None,
-                     help="hybrid parameter file, groups actuator and rig (default: "
+                     help="hybrid parameter file, groups actuator and virtual_rig (default: "
                           "config/hybrid.yaml)")
     rig.add_argument("--delay-ms", metavar="MS", type=non_negative_float, default=None,
                      help="transport delay of the demand [ms] (default: the config's, 4)")
@@ -86,6 +86,12 @@ def add_parser(sub) -> None:
     f.add_argument("--feedback-stop-at", metavar="S", type=non_negative_float, default=None,
                    help="from S seconds after the first valid command no DYNO_FEEDBACK "
                         "goes out")
+    rig.add_argument("--priority", metavar="P", type=int, choices=range(1, 100), default=75,
+                    help="SCHED_FIFO priority of the loop thread when permitted (default: 75)")
+    rig.add_argument("--cpu", metavar="N", type=int, default=-1,
+                    help="pin the loop thread to CPU N (default: -1, leave the affinity "
+                         "alone; with the dyno on another CPU the response time's tail "
+                         "shortens)")
     rig.set_defaults(handler=run)
 
 
@@ -117,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         delay_change_at_s=args.delay_change_at,
         delay_change_to_s=(args.delay_change_to_ms or 0.0) * 1e-3,
         corrupt_every=args.corrupt_every, feedback_stop_at_s=args.feedback_stop_at)
-    rig = VirtualRig(model, actuator, config.rig)
+    rig = VirtualRig(model, actuator, config.virtual_rig)
     rig.specimen.warm_up()
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -134,9 +140,9 @@ def run(args: argparse.Namespace) -> int:
     with_ext = f" with {', '.join(extensions.active())}" if extensions is not None else ""
     log(f"on {bus.interface} {bus.channel}: {model.cfg.damper.name} specimen{with_ext}"
         f"; delay {actuator.delay_s * 1e3:g} ms, servo {actuator.bandwidth_hz:g} Hz "
-        f"damping {actuator.damping:g}; {config.rig.rate_hz:g} Hz")
+        f"damping {actuator.damping:g}; {config.virtual_rig.rate_hz:g} Hz")
     stats = run_virtual_rig(bus, db, rig, stop, faults=faults,
-                            realtime=RealtimeRequest(priority=75), log=log)
+                            realtime=RealtimeRequest(priority=args.priority, cpu=args.cpu), log=log)
     say(f"[virtual-rig] stopped: {stats.cycles} cycles, {stats.commands} valid commands, "
         f"{stats.dropped} dropped, {stats.feedback_sent} feedback frames sent")
     if args.json:

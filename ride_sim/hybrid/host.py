@@ -38,10 +38,12 @@ import math
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from damper_emulator.dyno.measured import write_measured_csv
 from damper_emulator.model.compressible import DamperModel, DamperStepper
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.hybrid.compensator import Compensator
@@ -187,6 +189,9 @@ class HybridHost:
         self.record = np.full((len(RECORD_COLUMNS), n), np.nan)
         self.t_ns = np.zeros(n, dtype=np.int64)
         self.delay_estimate_s = np.full(n, np.nan)
+        #: the dyno's latest oil temperature (DYNO_AUX) at each ride sample [°C]
+        self.temperature_c = np.full(n, np.nan)
+        self._temperature = math.nan
         self._prev_measured = (math.nan, math.nan)
         self._pending: tuple[float, float] | None = None
         self.k = 0
@@ -248,6 +253,7 @@ class HybridHost:
         """A valid feedback received at ``t_s`` whose cycle has already run (it came
         late): the newest measurement for the next cycle; the safety layer checks it."""
         self._measured, self._force = feedback.stroke_m, feedback.force_n
+        self._temperature = feedback.temperature_c
         self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n)
 
     def cycle(self, t_s: float, feedback: Feedback | None, t_ns: int = 0) -> Command:
@@ -382,6 +388,7 @@ class HybridHost:
         rec[5, k] = 1.0
         self.t_ns[k] = t_ns
         self.delay_estimate_s[k] = self.tracker.delay_s
+        self.temperature_c[k] = self._temperature
         # the twin one sample behind, at the central difference of the measured stroke
         x1, x2 = self._prev_measured
         if k >= 1 and math.isfinite(x2):
@@ -411,3 +418,18 @@ class HybridHost:
             return None
         sl = self.road.evaluated
         return metrics(self.ride_result(), sl.start, sl.stop)
+
+
+def export_measured(host: HybridHost, path: Path) -> Path | None:
+    """The ride as a measured-data CSV (docs/interfaces.md §2): ``time``, ``displacement``
+    (the measured stroke), ``velocity`` (its central difference), ``force`` (measured) and,
+    when the dyno reported it, ``temperature``: held-out data for ``validate`` and
+    ``diagnose``.  None when no ride sample was recorded."""
+    k = host.k
+    if k < 3:
+        return None
+    x = host.record[2, :k]
+    t = np.arange(k) * host.dt_s
+    temperature = host.temperature_c[:k]
+    return write_measured_csv(path, t, x, host.record[3, :k], np.gradient(x, host.dt_s),
+                              temperature if np.isfinite(temperature).all() else None)

@@ -1,7 +1,7 @@
 """Parameter schemas of the damper-in-the-loop rig (one per group, :func:`rule` fields).
 
 ``actuator`` (:class:`ActuatorParams`): the dyno's transfer system from the stroke demand
-to the stroke it achieves; ``rig`` (:class:`RigParams`): what the virtual dyno adds
+to the stroke it achieves; ``virtual_rig`` (:class:`RigParams`): what the virtual dyno adds
 (sensor noise, its own travel); ``safety`` (:class:`SafetyParams`): what the host never
 lets the rig do.  Every value is checked on loading (:func:`build`); a bad one is a
 one-line :class:`~damper_emulator.params.ParameterError`.
@@ -169,14 +169,14 @@ class HybridConfig:
 
     hybrid: HybridRunParams = field(default_factory=HybridRunParams)
     actuator: ActuatorParams = field(default_factory=ActuatorParams)
-    rig: RigParams = field(default_factory=RigParams)
+    virtual_rig: RigParams = field(default_factory=RigParams)
     safety: SafetyParams = field(default_factory=SafetyParams)
     compensator: CompensatorParams = field(default_factory=CompensatorParams)
 
 
 #: the groups of :class:`HybridConfig`, by key
 GROUPS: dict[str, type] = {"hybrid": HybridRunParams, "actuator": ActuatorParams,
-                           "rig": RigParams, "safety": SafetyParams,
+                           "virtual_rig": RigParams, "safety": SafetyParams,
                            "compensator": CompensatorParams}
 #: the default parameter file
 DEFAULT_HYBRID_FILE = Path(__file__).resolve().parents[2] / "config" / "hybrid.yaml"

@@ -1,19 +1,20 @@
-"""The host of a physical damper in the loop on the CAN bus (``damper-hil hybrid``).
+"""The host of a physical damper on the CAN bus (``damper-hil hybrid``, ``dyno`` on a rig).
 
-:func:`run_hybrid_link` drives a :class:`~ride_sim.hybrid.host.HybridHost` from a dyno's
-frames: the host runs one cycle per valid ``DYNO_FEEDBACK`` as soon as it arrives and
-sends the ``DYNO_COMMAND`` at once (the dyno's clock paces the loop: the command goes out
-a computation after the feedback it used).  The car advances one step per cycle of the
-rig, counted by the feedback's alive counter: a cycle whose feedback does not come (lost or
-invalid) runs ``MISSED_FEEDBACK_PERIODS`` periods after the last one on the last
-measurement (the watchdog keeps counting), and the next feedback runs the cycles its
-counter says are still owed.  ``DYNO_AUX`` updates the oil
-temperature.  Frames with a wrong length, checksum or counter are dropped and counted by
-the :class:`~can_bridge.codec.Receiver` and never reach the host: they are not valid
-feedback.
+:func:`run_hybrid_link` drives a :class:`~ride_sim.hybrid.rig_host.RigHost` (the ride's
+:class:`~ride_sim.hybrid.host.HybridHost` or a protocol's
+:class:`~ride_sim.hybrid.protocol_host.ProtocolHost`) from a dyno's frames: the host runs
+one cycle per valid ``DYNO_FEEDBACK`` as soon as it arrives and sends the ``DYNO_COMMAND``
+at once (the dyno's clock paces the loop: the command goes out a computation after the
+feedback it used). The run advances one step per cycle of the rig, counted by the feedback's
+alive counter: a cycle whose feedback does not come (lost or invalid) runs
+``MISSED_FEEDBACK_PERIODS`` periods after the last one on the last measurement (the watchdog
+keeps counting), and the next feedback runs the cycles its counter says are still owed.
+``DYNO_AUX`` updates the oil temperature. Frames with a wrong length, checksum or counter
+are dropped and counted by the :class:`~can_bridge.codec.Receiver` and never reach the host:
+they are not valid feedback.
 
-When the host has finished, or ``stop`` is set (``stopped`` by the user: the host's
-safety layer records the reason), a few commands with ``Enable`` clear go out.
+When the host has finished, or ``stop`` is set (``stopped`` by the user: the host's safety
+layer records the reason), a few commands with ``Enable`` clear go out.
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ import numpy as np
 from can_bridge.bus import BusConfig, ResilientBus, receive_time
 from can_bridge.codec import Encoder, Receiver
 from damper_emulator.realtime.rt import RealtimeReport, RealtimeRequest, apply_realtime
-from ride_sim.hybrid.host import HybridHost
 from ride_sim.hybrid.rig import Feedback
+from ride_sim.hybrid.rig_host import RigHost
 
 COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"
 #: A cycle whose feedback has not come this many periods after the last runs without it.
@@ -76,7 +77,7 @@ class LinkStats:
         return d
 
 
-def run_hybrid_link(bus_cfg: BusConfig, db, host: HybridHost, stop: threading.Event, *,
+def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event, *,
                     realtime: RealtimeRequest | None = None,
                     progress: Callable[[str], None] | None = None) -> LinkStats:
     """Run ``host`` against the dyno on ``bus_cfg`` until it has finished or ``stop`` is

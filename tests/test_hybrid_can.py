@@ -25,6 +25,7 @@ import pytest
 from can_bridge.bus import BusConfig, ResilientBus, receive_time, socketcan_problem
 from can_bridge.codec import Receiver
 from can_bridge.dbc import HYBRID_SIGNALS, load_database
+from damper_emulator.model.compressible import DamperModel
 from ride_sim.hybrid.params import SafetyParams
 from ride_sim.hybrid.recorder import CSV_COLUMNS
 
@@ -37,7 +38,7 @@ SHORT = """/**:
     hybrid: {ramp_s: 0.5, settle_s: 0.3, connect_timeout_s: 3.0}
     compensator: {identify_s: 1.5}
 """
-OFFSETS = {"ride": 0, "cut": 1, "unstable": 2, "nodyno": 3}
+OFFSETS = {"ride": 0, "cut": 1, "unstable": 2, "nodyno": 3, "dyno": 4}
 
 
 def udp_channel(offset: int) -> str:
@@ -73,6 +74,23 @@ class Tap:
         self.bus.close()
 
 
+def start_rig(args) -> subprocess.Popen:
+    """``virtual-rig ARGS``, returned once it runs its loop (its start-up line: with an
+    empty numba cache it compiles the specimen first)."""
+    rig = subprocess.Popen([*CLI, "virtual-rig", *args], stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, text=True)
+    assert rig.stderr is not None
+    lines = []
+    for line in rig.stderr:                     # ends when the process does
+        lines.append(line)
+        if line.startswith("[virtual-rig] on "):
+            break
+    else:
+        raise AssertionError(f"virtual-rig did not start: {''.join(lines)}")
+    threading.Thread(target=rig.stderr.read, daemon=True).start()   # keep the pipe drained
+    return rig
+
+
 def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False):
     """``virtual-rig`` in the background, then ``hybrid`` to its end; returns the hybrid
     process, its output folder, the rig's statistics and the tap (or None)."""
@@ -80,9 +98,7 @@ def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False):
     config.write_text(SHORT)
     bus_args = ["--can-interface", bus.interface, "--can-channel", bus.channel]
     rig_json = tmp / "rig.json"
-    rig = subprocess.Popen([*CLI, "virtual-rig", *bus_args, "--config", str(config),
-                            "--json", str(rig_json), *rig_args],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rig = start_rig([*bus_args, "--config", str(config), "--json", str(rig_json), *rig_args])
     listener = Tap(bus) if tap else None
     out = tmp / "out"
     try:
@@ -92,10 +108,10 @@ def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False):
     finally:
         rig.send_signal(2)
         try:
-            rig.communicate(timeout=20)
+            rig.wait(timeout=20)
         except subprocess.TimeoutExpired:
             rig.kill()
-            rig.communicate()
+            rig.wait()
         if listener is not None:
             listener.close()
     rig_stats = json.loads(rig_json.read_text()) if rig_json.exists() else {}
@@ -249,3 +265,37 @@ def test_the_ride_over_socketcan(tmp_path):
     doc = json.loads((out / "hybrid.json").read_text())
     assert doc["tracking"]["nrms"] < 0.03
     assert math.isfinite(doc["twin"]["residual_rms_n"])
+
+
+def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
+    """``damper-hil dyno`` on the virtual rig: the sine's CSV records what the rig measured,
+    which is the specimen's force on the protocol (the offline model's, to the rig's noise
+    and tracking)."""
+    from damper_emulator.dyno.measured import read_measured_csv
+    from damper_emulator.dyno.runner import run_sine
+
+    ch = udp_channel(OFFSETS["dyno"])
+    bus_args = ["--can-interface", "udp_multicast", "--can-channel", ch]
+    config = tmp_path / "short.yaml"
+    config.write_text(SHORT)
+    rig = start_rig([*bus_args, "--config", str(config)])
+    try:
+        proc = subprocess.run([*CLI, "dyno", "--protocol", "sine", "--frequency", "2",
+                               "--amplitude", "0.02", "--cycles", "2", "--out",
+                               str(tmp_path / "rig"), "--rig-config", str(config), *bus_args],
+                              capture_output=True, text=True, timeout=300)
+    finally:
+        rig.send_signal(2)
+        rig.wait(timeout=20)
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((tmp_path / "rig" / "dyno.json").read_text())
+    run = doc["rig"]["runs"][0]
+    assert run["phase_at_end"] == "done" and run["tracking_nrms"] < 0.03
+    measured = read_measured_csv(tmp_path / "rig" / "sine_2hz.csv")
+    run_sine(DamperModel(), tmp_path / "model", 2.0, 0.02, cycles=2)
+    model = read_measured_csv(tmp_path / "model" / "sine_2hz.csv")
+    assert measured.time.size == model.time.size
+    # the displacement is the rig's measurement, not the demand: close to it, not equal
+    assert 0 < np.max(np.abs(measured.displacement - model.displacement)) < 1e-3
+    rel = np.sqrt(np.mean((measured.force - model.force) ** 2) / np.mean(model.force ** 2))
+    assert rel < 0.05

@@ -30,6 +30,7 @@ from damper_emulator.dyno.simulated import (
     check_travel,
     fault_names,
     fourteen_speed_table,
+    measured_motion,
     simulate_sine,
     sine_file_name,
 )
@@ -143,6 +144,7 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path,
     t, x, v = protocols.quasi_static(velocity, amplitude, cycles, rate)
     check_travel(model, x, f"quasi-static amplitude {amplitude:g} m")
     res = (engine or simulate)(model, t, x, v)
+    x, v = measured_motion(res, t, x, v)
     f = add_noise(res.force_n, noise_std, rng)
     csv_path = _write(out, "quasi_static.csv", progress, t, x, v, f)
     png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
@@ -173,6 +175,7 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_
     t, x, v = protocols.chirp(f_start, f_end, duration, v_start, v_end, rate)
     check_travel(model, x, "chirp displacement")
     res = (engine or simulate)(model, t, x, v)
+    x, v = measured_motion(res, t, x, v)
     f = add_noise(res.force_n, noise_std, rng)
     csv_path = _write(out, "chirp.csv", progress, t, x, v, f)
     png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),

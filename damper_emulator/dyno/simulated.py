@@ -20,7 +20,21 @@ from damper_emulator.model.compressible import DamperModel, Fault, simulate
 #: What produces the forces of a protocol: ``engine(model, t, x, v)`` → an object with
 #: ``force_n`` and ``faults`` arrays (default :func:`simulate`, the offline model; the
 #: loopback dyno passes one that runs the samples over CAN, :mod:`can_bridge.loopback`).
+#: A physical dyno's engine adds ``measured_stroke_m``: the stroke it achieved, which the
+#: measured data then record (:func:`measured_motion`).
 Engine = Callable[..., Any] | None
+
+
+def measured_motion(result: Any, t: np.ndarray, x: np.ndarray, v: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The displacement and velocity the measured data record: an engine's measured stroke
+    and its central difference when it gives one (a physical dyno follows the demand
+    only so well), else the demanded ``x`` and ``v``."""
+    measured = getattr(result, "measured_stroke_m", None)
+    if measured is None:
+        return x, v
+    measured = np.asarray(measured, dtype=float)
+    return measured, np.gradient(measured, t)
 
 #: columns of ``14speed.csv``
 FOURTEEN_SPEED_COLUMNS = ("frequency_hz", "peak_velocity_rebound_m_s", "peak_force_rebound_n",
@@ -71,6 +85,7 @@ def simulate_sine(model: DamperModel, frequency: float, amplitude: float,
     t, x, v = protocols.sine(frequency, amplitude, cycles, rate, start_cycles=settle_cycles)
     check_travel(model, x, f"sine amplitude {amplitude:g} m")
     res = (engine or simulate)(model, t, x, v)
+    x, v = measured_motion(res, t, x, v)
     k = int(np.searchsorted(t, 0.0))  # protocols.sine puts a sample on t = 0
     return (t[k:], x[k:], v[k:], res.force_n[k:], res.faults[k:])
 

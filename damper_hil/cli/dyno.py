@@ -113,6 +113,15 @@ def add_parser(sub) -> None:
     c.add_argument("--external", action="store_true",
                    help="the emulator (emulator.trigger: input) and a bridge in dyno mode "
                         "already run on the bus: start nothing")
+    r = dyno.add_argument_group(
+        "a physical damper on a CAN dyno (--can-interface without --over-can)")
+    r.add_argument("--rig-config", metavar="HYBRID.yaml", type=Path, default=None,
+                   help="the run's settle, identification, compensation and safety limits "
+                        "(groups hybrid, compensator, safety; default: config/hybrid.yaml). "
+                        "The protocol runs on the dyno through DYNO_COMMAND/DYNO_FEEDBACK "
+                        "(docs/hybrid.md), compensated for its delay and servo; the CSVs "
+                        "record the stroke and force it measured; exit status 3 when the "
+                        "safety layer stops it")
     dyno.set_defaults(handler=run)
 
 
@@ -120,8 +129,49 @@ def run(args: argparse.Namespace) -> int:
     opts = _protocol_options(args)  # before the heavy imports: a typo fails fast
     model, params_file = load_model(args.params)
     if args.over_can:
+        if args.rig_config is not None:
+            raise CliError("--rig-config is for a physical dyno, not with --over-can")
         return _dyno_over_can(args, opts, model, params_file)
+    if args.can_interface is not None or args.can_channel is not None:
+        return _dyno_on_rig(args, opts, model, params_file)
+    if args.rig_config is not None:
+        raise CliError("--rig-config needs --can-interface and --can-channel (the dyno's "
+                       "bus)")
     return _run_dyno(args, opts, model, params_file)
+
+
+def _dyno_on_rig(args: argparse.Namespace, opts: dict, model, params_file) -> int:
+    from can_bridge.dbc import HYBRID_SIGNALS, load_database
+    from can_bridge.dyno_rig import RigEngine, RigStopped
+    from damper_emulator.realtime.rt import RealtimeRequest
+    from damper_hil.cli.virtual_rig import open_checked_bus
+    from ride_sim.hybrid.params import load_hybrid_config
+
+    if args.noise_std:
+        raise CliError("--noise-std does not apply on a dyno (the forces are measured)")
+    if args.can_interface is None or args.can_channel is None:
+        raise CliError("a physical dyno needs both --can-interface and --can-channel")
+    if args.external:
+        raise CliError("--external is for --over-can")
+    config = load_hybrid_config(args.rig_config)
+    db = load_database(required=HYBRID_SIGNALS)
+    bus = open_checked_bus(args)
+    engine = RigEngine(bus, db, config, realtime=RealtimeRequest(priority=70),
+                       progress=lambda phase: print(f"dyno on the rig: {phase}",
+                                                    file=sys.stderr, flush=True))
+    try:
+        status = _run_dyno(args, opts, model, params_file, engine=engine,
+                           extra={"rig": {"interface": bus.interface,
+                                          "channel": bus.channel, "runs": engine.runs}})
+    except RigStopped as exc:
+        write_json(args.out / "dyno.json", {"protocol": args.protocol, "status": "stopped",
+                                            "reason": str(exc),
+                                            "rig": {"runs": engine.runs}})
+        print(f"{PROG}: stopped: {exc}", file=sys.stderr)
+        return 3
+    finally:
+        engine.close()
+    return status
 def _protocol_options(args: argparse.Namespace) -> dict[str, Any]:
     """The options of ``args.protocol``, defaults filled in; an option given for another
     protocol is an error."""

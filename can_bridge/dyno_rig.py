@@ -1,0 +1,104 @@
+"""A physical damper dyno on the CAN bus as the virtual dyno's engine (``damper-hil dyno
+--can-interface ...`` without ``--over-can``).
+
+:class:`RigEngine` is a drop-in for the offline model in :mod:`damper_emulator.dyno.runner`
+(:data:`~damper_emulator.dyno.simulated.Engine`): each protocol's stroke history, resampled
+to the dyno's cycle (``DYNO_FEEDBACK``'s cycle time), is run on the dyno through the
+``DYNO_*`` messages by a :class:`~ride_sim.hybrid.protocol_host.ProtocolHost` (settle, the
+transfer system's identification, the history compensated, the safety layer throughout)
+and the stroke and force the dyno measured come back, resampled onto the protocol's times:
+the measured data record them.  A run the safety layer stops raises :class:`RigStopped`.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from can_bridge.bus import BusConfig
+from can_bridge.dbc import cycle_time_s
+from can_bridge.hybrid_link import FEEDBACK, run_hybrid_link
+from damper_emulator.errors import DamperHilError
+from damper_emulator.realtime.rt import RealtimeRequest
+from ride_sim.hybrid.params import HybridConfig
+from ride_sim.hybrid.protocol_host import ProtocolHost
+
+
+class RigStopped(DamperHilError, RuntimeError):
+    """The safety layer stopped a protocol on the dyno (one line: why)."""
+
+
+class RigEngine:
+    """Runs protocols on the dyno of ``bus`` (see the module docstring).
+
+    Parameters
+    ----------
+    bus : BusConfig
+    db : cantools.database.can.Database
+        With the ``DYNO_*`` messages.
+    config : HybridConfig
+        Its ``hybrid`` (settle, approach, connect, fit), ``compensator`` and ``safety``.
+    realtime : RealtimeRequest, optional
+        For the loop's thread.
+    progress : callable, optional
+        Called with one line per phase.
+    """
+
+    def __init__(self, bus: BusConfig, db: Any, config: HybridConfig, *,
+                 realtime: RealtimeRequest | None = None,
+                 progress: Callable[[str], None] | None = None) -> None:
+        self.bus = bus
+        self.db = db
+        self.config = config
+        self.realtime = realtime
+        self.progress = progress
+        period = cycle_time_s(db.get_message_by_name(FEEDBACK))
+        self.dt_s = float(period) if period else 1e-3
+        self.runs: list[dict[str, Any]] = []
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig-fit")
+        # the fit's thread starts under the normal policy, not the loop's (it would
+        # inherit SCHED_FIFO from it)
+        self._executor.submit(int).result()
+        self.stop = threading.Event()
+
+    def close(self) -> None:
+        self._executor.shutdown(wait=False, cancel_futures=True)
+
+    def __call__(self, model: Any, t: Any, x: Any, v: Any) -> SimpleNamespace:
+        t = np.asarray(t, dtype=float)
+        x = np.asarray(x, dtype=float)
+        grid = np.arange(t[0], t[-1] + 0.5 * self.dt_s, self.dt_s)
+        history = np.interp(grid, t, x)
+        c = self.config
+        host = ProtocolHost(c.hybrid, c.compensator, c.safety, history, self.dt_s,
+                            executor=self._executor)
+        host.warm_up()
+        stats = run_hybrid_link(self.bus, self.db, host, self.stop, realtime=self.realtime,
+                                progress=self.progress)
+        run: dict[str, Any] = {"samples": int(grid.size), "phase_at_end": host.phase,
+                               "reason": host.reason or "", "link": stats.summary()}
+        if host.transfer is not None:
+            run["transfer"] = host.transfer.to_dict()
+        k = host.k
+        if k > 10:
+            target, measured = host.record[0, :k], host.record[2, :k]
+            error = measured - target
+            run["tracking_nrms"] = float(np.sqrt(np.mean(error ** 2) / np.mean(target ** 2)))
+            run["peak_error_m"] = float(np.max(np.abs(error)))
+        self.runs.append(run)
+        if host.phase != "done":
+            if host.failure is not None and host.transfer is None:
+                raise RigStopped(host.failure)
+            raise RigStopped(host.reason or f"the run ended in phase {host.phase}")
+        measured = np.interp(t, grid, host.record[2])
+        force = np.interp(t, grid, host.record[3])
+        return SimpleNamespace(force_n=force, faults=np.zeros(t.size, dtype=np.int64),
+                               measured_stroke_m=measured)
+
+
+__all__ = ["RigEngine", "RigStopped"]

@@ -1,0 +1,322 @@
+"""The host's side of a rig run, one cycle per dyno cycle, free of any bus.
+
+:class:`RigHost` holds what every run of a physical damper on a CAN dyno shares: the
+phases before and after the run proper, the safety layer, the transfer system's
+identification and tracker, and the record.  :class:`~ride_sim.hybrid.host.HybridHost`
+(the quarter car drives the dyno) and :class:`~ride_sim.hybrid.protocol_host.ProtocolHost`
+(a dyno protocol) are its two runs.  It is called once per rig cycle with the newest valid
+``DYNO_FEEDBACK`` (or ``None`` when none came) and returns the ``DYNO_COMMAND`` to send:
+
+``connect``
+    ``Enable`` clear until the dyno's first feedback (none within ``connect_timeout_s``:
+    the run fails, :attr:`RigHost.failure`).
+``settle``
+    Enabled, the demand moves from where the rig stands to the static position at
+    ``approach_speed_m_s`` and holds there ``settle_s``; the force's mean over the hold's
+    second half is the static force (the tare).
+``identify``, ``fit``
+    The low-amplitude test signal (:func:`~ride_sim.hybrid.transfer.excitation`), then
+    the fit of the transfer system (:func:`~ride_sim.hybrid.transfer.identify`; run by the
+    ``executor`` given, the demand held at the static position meanwhile).
+the run proper (:attr:`RigHost.RUN_PHASE`)
+    The subclass's.
+``return``, ``done``
+    The demand returns to the static position; ``Enable`` is cleared.
+``stopped``
+    The safety layer stopped the run (:mod:`ride_sim.hybrid.safety`): ``Enable`` clear,
+    the demand held; :attr:`RigHost.reason` says why.
+
+Every demand passes :meth:`~ride_sim.hybrid.safety.SafetyLayer.clamp`, in every phase.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from damper_emulator.dyno.measured import write_measured_csv
+from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
+from ride_sim.hybrid.rig import Feedback
+from ride_sim.hybrid.safety import SafetyLayer
+from ride_sim.hybrid.transfer import TransferEstimate, TransferTracker, excitation, identify
+
+#: Rows of a run's record (:attr:`RigHost.record`), in ``hybrid.csv``'s order after
+#: ``t_monotonic_ns`` and ``time``.
+RECORD_COLUMNS = ("stroke_target", "stroke_command", "stroke_measured", "force_measured",
+                  "force_model", "enable")
+
+
+class Command(NamedTuple):
+    """One ``DYNO_COMMAND``."""
+
+    stroke_m: float
+    velocity_m_s: float
+    enable: bool
+
+
+#: Phases of a run, in order (``stopped`` may follow any; ``run`` is the run proper's,
+#: :attr:`RigHost.RUN_PHASE`).
+PHASES = ("connect", "settle", "identify", "fit", "run", "return", "done", "stopped")
+
+
+class _Immediate:
+    """An executor that runs the work at once (offline runs, tests)."""
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
+        future: Future[Any] = Future()
+        try:
+            future.set_result(fn(*args))
+        except Exception as exc:   # handed to the caller through the future
+            future.set_exception(exc)
+        return future
+
+
+class RigHost:
+    """The phases every rig run shares (see the module docstring).
+
+    Parameters
+    ----------
+    run : HybridRunParams
+        The run's settle, approach, connect and identification-fit settings.
+    compensator : CompensatorParams
+    safety : SafetyParams
+    dt_s : float
+        The rig's cycle [s] (the host runs once per feedback).
+    samples : int
+        Cycles of the run proper (the record's length).
+    executor : object with ``submit(fn, *args) -> Future``, optional
+        Runs the identification's fit off the loop (default: at once, in the cycle).
+    """
+
+    #: the name of the run proper's phase
+    RUN_PHASE = "run"
+
+    def __init__(self, run: HybridRunParams, compensator: CompensatorParams,
+                 safety: SafetyParams, dt_s: float, samples: int,
+                 executor: Any = None) -> None:
+        self.run = run
+        self.compensator_params = compensator
+        self.dt_s = float(dt_s)
+        self.safety = SafetyLayer(safety, dt_s)
+        self.executor = executor if executor is not None else _Immediate()
+        self.phase = "connect"
+        self.failure: str | None = None
+        self._phase_start_s: float | None = None
+        self._start_s: float | None = None
+        self._demand = 0.0
+        self._measured = math.nan
+        self._force = math.nan
+        self._temperature = math.nan
+        self._tare: list[float] = []
+        self.static_force_n = math.nan
+        self._excitation = excitation(compensator.identify_s, dt_s,
+                                      compensator.identify_amplitude_m,
+                                      compensator.identify_band_hz, seed=run.seed)
+        self.identification = np.full((2, self._excitation.size), np.nan)
+        self._j = 0
+        self._fit_job: Future[TransferEstimate] | None = None
+        self.transfer: TransferEstimate | None = None
+        self.tracker: TransferTracker | None = None
+        n = int(samples)
+        self.record = np.full((len(RECORD_COLUMNS), n), np.nan)
+        self.t_ns = np.zeros(n, dtype=np.int64)
+        self.delay_estimate_s = np.full(n, np.nan)
+        #: the dyno's latest oil temperature (DYNO_AUX) at each sample of the run [°C]
+        self.temperature_c = np.full(n, np.nan)
+        self._pending: tuple[float, float] | None = None
+        self.k = 0
+
+    def warm_up(self) -> None:
+        """Load what the identification's fit runs before the loop's clock starts."""
+        u = self._excitation
+        identify(u, np.concatenate([np.zeros(5), u[:-5]]), self.dt_s,
+                 self.compensator_params.max_delay_s)
+        TransferTracker(TransferEstimate(0.0055, 40.0, 0.7, 1.0), self.dt_s).push(0.0, 0.0)
+
+    # -- state -------------------------------------------------------------------------
+    @property
+    def reason(self) -> str | None:
+        """Why the run stopped (one line), or None."""
+        return self.safety.reason if self.safety.reason is not None else self.failure
+
+    @property
+    def demand_m(self) -> float:
+        """The latest stroke demand [m] (what a final command holds)."""
+        return self._demand
+
+    def stamp(self, t_ns: int) -> None:
+        """The time [ns, the host's monotonic clock] the latest cycle's command was sent:
+        the run's sample's ``t_monotonic_ns``."""
+        if self.k > 0 and self.t_ns[self.k - 1] == 0:
+            self.t_ns[self.k - 1] = t_ns
+
+    @property
+    def finished(self) -> bool:
+        return self.phase in ("done", "stopped")
+
+    def _enter(self, phase: str, t_s: float) -> None:
+        self.phase = phase
+        self._phase_start_s = t_s
+
+    def _elapsed(self, t_s: float) -> float:
+        return t_s - (self._phase_start_s if self._phase_start_s is not None else t_s)
+
+    def _toward(self, target_m: float) -> float:
+        step = self.run.approach_speed_m_s * self.dt_s
+        return min(max(target_m, self._demand - step), self._demand + step)
+
+    # -- the cycle ---------------------------------------------------------------------
+    def measure(self, t_s: float, feedback: Feedback) -> None:
+        """A valid feedback received at ``t_s`` whose cycle has already run (it came
+        late): the newest measurement for the next cycle; the safety layer checks it."""
+        self._measured, self._force = feedback.stroke_m, feedback.force_n
+        self._temperature = feedback.temperature_c
+        self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n)
+
+    def cycle(self, t_s: float, feedback: Feedback | None, t_ns: int = 0) -> Command:
+        """One cycle at ``t_s`` [s, the host's monotonic clock] with the newest valid
+        feedback since the last cycle (None: none arrived); ``t_ns`` is recorded as the
+        run's sample's send time.  Returns the command to send now."""
+        safety = self.safety
+        self.after_send()
+        if self._start_s is None:
+            self._start_s = t_s
+            self._phase_start_s = t_s
+        if feedback is not None:
+            self.measure(t_s, feedback)
+        safety.watchdog(t_s)
+        if self.phase == "connect":
+            if feedback is None:
+                if t_s - self._start_s > self.run.connect_timeout_s:
+                    self.failure = (f"no DYNO_FEEDBACK within {self.run.connect_timeout_s:g} s "
+                                    "(is a dyno on the bus?)")
+                    self.phase = "stopped"
+                return Command(self._demand, 0.0, False)
+            self._demand = feedback.stroke_m
+            self._enter("settle", t_s)
+        if not safety.enable and self.phase != "stopped":
+            self.phase = "stopped"
+        if self.phase == "stopped" or self.phase == "done":
+            return Command(self._demand, 0.0, False)
+        if self.phase == self.RUN_PHASE:
+            demand, velocity = self._run_cycle(t_s, t_ns)
+        else:
+            demand, velocity = getattr(self, "_" + self.phase)(t_s, feedback, t_ns)
+        previous = self._demand
+        self._demand = safety.clamp(demand, previous)
+        if self.phase == self.RUN_PHASE and self.tracker is not None and self.k > 0:
+            self.record[1, self.k - 1] = self._demand
+            if self.compensator_params.adapt:
+                self._pending = (self._demand, self._measured)
+        return Command(self._demand, velocity, True)
+
+    def after_send(self) -> None:
+        """The cycle's work that can wait until its command is out: the tracker's update
+        of the rig's delay and gain (the next cycle does it first if this is not called)."""
+        if self._pending is not None and self.tracker is not None:
+            self.tracker.push(*self._pending)
+        self._pending = None
+
+    def _settle(self, t_s: float, feedback: Feedback | None, t_ns: int) -> tuple[float, float]:
+        if self._demand != 0.0:
+            self._phase_start_s = t_s               # the hold starts at the position
+            return self._toward(0.0), 0.0
+        if self._elapsed(t_s) >= 0.5 * self.run.settle_s and math.isfinite(self._force):
+            self._tare.append(self._force)
+        if self._elapsed(t_s) >= self.run.settle_s and self._tare:
+            self.static_force_n = float(np.mean(self._tare))
+            self._enter("identify", t_s)
+            self._j = 0
+        return 0.0, 0.0
+
+    def _identify(self, t_s: float, feedback: Feedback | None, t_ns: int
+                  ) -> tuple[float, float]:
+        j = self._j
+        u = self._excitation
+        if j >= u.size:
+            self._enter("fit", t_s)
+            self._fit_job = self.executor.submit(identify, self.identification[0],
+                                             self.identification[1], self.dt_s,
+                                             self.compensator_params.max_delay_s)
+            return self._fit_poll(t_s)
+        # the measurement received this cycle, and the demand then sent (the tracker's pairing)
+        self.identification[:, j] = u[j], self._measured
+        self._j = j + 1
+        return float(u[j]), 0.0
+
+    def _fit_poll(self, t_s: float) -> tuple[float, float]:
+        assert self._fit_job is not None
+        if not self._fit_job.done():
+            return 0.0, 0.0
+        try:
+            estimate = self._fit_job.result()
+        except Exception as exc:
+            self.safety.stop(t_s, f"the transfer system's identification failed: {exc}")
+            self.phase = "stopped"
+            return 0.0, 0.0
+        if not estimate.fit_nrms <= self.run.max_fit_nrms:
+            self.safety.stop(t_s, f"the transfer system's identification fits the rig "
+                                  f"{estimate.fit_nrms:.0%} r.m.s. (limit "
+                                  f"{self.run.max_fit_nrms:.0%}): not the transfer system "
+                                  "it models")
+            self.phase = "stopped"
+            return 0.0, 0.0
+        self.transfer = estimate
+        p = self.compensator_params
+        self.tracker = TransferTracker(estimate, self.dt_s, p.adapt_window_s,
+                                       p.adapt_period_s, p.max_delay_s)
+        self.tracker.start(self._demand)
+        return self._after_fit(t_s)
+
+    def _fit(self, t_s: float, feedback: Feedback | None, t_ns: int) -> tuple[float, float]:
+        return self._fit_poll(t_s)
+
+    def _return(self, t_s: float, feedback: Feedback | None, t_ns: int) -> tuple[float, float]:
+        if self._demand == 0.0 and self._elapsed(t_s) > 0.1:
+            self.phase = "done"
+        return self._toward(0.0), 0.0
+
+
+    # -- the run proper: the subclass's ------------------------------------------------
+    def _after_fit(self, t_s: float) -> tuple[float, float]:
+        """The transfer system is known (:attr:`transfer`, :attr:`tracker`): start the
+        run proper (or what leads to it) and return this cycle's demand and rate."""
+        raise NotImplementedError
+
+    def _run_cycle(self, t_s: float, t_ns: int) -> tuple[float, float]:
+        """One cycle of the run proper: record sample :attr:`k`, advance it, and return
+        the demand and its rate (entering ``return`` after the last sample)."""
+        raise NotImplementedError
+
+    def _record_sample(self, k: int, target_m: float, t_ns: int) -> None:
+        """Sample ``k``'s target, measurement and state (the demand follows after the
+        safety layer's clamp)."""
+        rec = self.record
+        rec[0, k] = target_m
+        rec[2, k] = self._measured
+        rec[3, k] = self._force
+        rec[5, k] = 1.0
+        self.t_ns[k] = t_ns
+        assert self.tracker is not None
+        self.delay_estimate_s[k] = self.tracker.delay_s
+        self.temperature_c[k] = self._temperature
+
+
+def export_measured(host: RigHost, path: Path) -> Path | None:
+    """The run's samples as a measured-data CSV (docs/interfaces.md §2): ``time``, ``displacement``
+    (the measured stroke), ``velocity`` (its central difference), ``force`` (measured) and,
+    when the dyno reported it, ``temperature``: held-out data for ``validate`` and
+    ``diagnose``.  None when no sample of the run proper was recorded."""
+    k = host.k
+    if k < 3:
+        return None
+    x = host.record[2, :k]
+    t = np.arange(k) * host.dt_s
+    temperature = host.temperature_c[:k]
+    return write_measured_csv(path, t, x, host.record[3, :k], np.gradient(x, host.dt_s),
+                              temperature if np.isfinite(temperature).all() else None)

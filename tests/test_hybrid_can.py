@@ -29,7 +29,9 @@ from damper_emulator.model.compressible import DamperModel
 from ride_sim.hybrid.params import SafetyParams
 from ride_sim.hybrid.recorder import CSV_COLUMNS
 
-pytestmark = pytest.mark.can
+pytestmark = [pytest.mark.can, pytest.mark.ros]
+#: the ROS domain of the ride's live /diagnostics (tests/test_bridge.py uses 130..137)
+DOMAIN = 143
 
 CLI = [sys.executable, "-m", "damper_hil.cli"]
 #: a short run: the identification and the ride shortened, the rest the defaults
@@ -91,7 +93,7 @@ def start_rig(args) -> subprocess.Popen:
     return rig
 
 
-def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False):
+def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False, env=None):
     """``virtual-rig`` in the background, then ``hybrid`` to its end; returns the hybrid
     process, its output folder, the rig's statistics and the tap (or None)."""
     config = tmp / "short.yaml"
@@ -104,7 +106,7 @@ def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False):
     try:
         proc = subprocess.run([*CLI, "hybrid", "--out", str(out), "--config", str(config),
                                *bus_args, *hybrid_args],
-                              capture_output=True, text=True, timeout=300)
+                              capture_output=True, text=True, timeout=300, env=env)
     finally:
         rig.send_signal(2)
         try:
@@ -125,14 +127,39 @@ def bus_db():
 
 @pytest.fixture(scope="module")
 def ride(tmp_path_factory):
-    """A compensated 3 s ride, every 100th feedback frame corrupted on the way."""
+    """A compensated 3 s ride, every 100th feedback frame corrupted on the way, its live
+    ``/diagnostics`` (``--ros``) received by a node of the test's."""
+    from ros_probe import Probe
+
+    from damper_emulator.ros.launch import ros_environment
+
     bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["ride"]))
-    return run_pair(tmp_path_factory.mktemp("ride"), bus, ["--corrupt-every", "100"],
-                    ["--duration", "3"])
+    probe = Probe(DOMAIN, "hybrid_probe")
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    got: list = []
+    probe.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                   lambda m: got.extend(m.status), 10)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            probe.executor.spin_once(timeout_sec=0.05)
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
+    try:
+        result = run_pair(tmp_path_factory.mktemp("ride"), bus, ["--corrupt-every", "100"],
+                          ["--duration", "3", "--ros"], env=ros_environment(DOMAIN))
+    finally:
+        stop.set()
+        spinner.join(5)
+        probe.close()
+    return (*result, got)
 
 
 def test_compensated_ride_completes_and_tracks(ride):
-    proc, out, rig, _ = ride
+    proc, out, rig, _, _ = ride
     assert proc.returncode == 0, proc.stderr
     doc = json.loads((out / "hybrid.json").read_text())
     assert doc["status"] == "completed" and doc["reason"] == ""
@@ -150,7 +177,7 @@ def test_compensated_ride_completes_and_tracks(ride):
 
 
 def test_corrupted_frames_are_counted_and_the_ride_goes_on(ride):
-    proc, out, rig, _ = ride
+    proc, out, rig, _, _ = ride
     doc = json.loads((out / "hybrid.json").read_text())
     link = doc["link"]
     assert rig["corrupted"] > 50
@@ -163,7 +190,7 @@ def test_corrupted_frames_are_counted_and_the_ride_goes_on(ride):
 
 
 def test_csv_and_bag_hold_the_ride(ride):
-    proc, out, _, _ = ride
+    proc, out, _, _, _ = ride
     with open(out / "hybrid.csv", newline="") as f:
         rows = list(csv.reader(f))
     assert tuple(rows[0]) == CSV_COLUMNS
@@ -299,3 +326,15 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     assert 0 < np.max(np.abs(measured.displacement - model.displacement)) < 1e-3
     rel = np.sqrt(np.mean((measured.force - model.force) ** 2) / np.mean(model.force ** 2))
     assert rel < 0.05
+
+
+def test_the_twin_residual_is_live_on_diagnostics(ride):
+    from ride_sim.hybrid.recorder import DIAGNOSTIC_NAME
+
+    *_, got = ride
+    ours = [st for st in got if st.name == DIAGNOSTIC_NAME]
+    assert len(ours) >= 3                       # once a second over a 3 s ride and more
+    values = {kv.key: kv.value for kv in ours[-1].values}
+    assert float(values["twin_residual_rms_n"]) < 100.0
+    assert float(values["tracking_nrms"]) < 0.05
+    assert 4.0 < float(values["delay_ms"]) < 7.0

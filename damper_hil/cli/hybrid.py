@@ -72,6 +72,10 @@ def add_parser(sub) -> None:
     hy.add_argument("--json", metavar="FILE", type=Path, default=None,
                     help="also write hybrid.json's content to FILE")
     hy.add_argument("--no-bag", action="store_true", help="do not record the bag")
+    hy.add_argument("--ros", action="store_true",
+                    help="publish the twin's residual, the tracking and the rig's delay on "
+                         "/diagnostics once a second (node damper_hil_hybrid; ROS_DOMAIN_ID "
+                         "from the environment)")
     hy.add_argument("--priority", metavar="P", type=int, choices=range(1, 100), default=70,
                     help="SCHED_FIFO priority of the loop thread when permitted (default: 70)")
     hy.add_argument("--cpu", metavar="N", type=int, default=-1,
@@ -143,9 +147,21 @@ def run(args: argparse.Namespace) -> int:
     def progress(phase: str) -> None:
         say(f"hybrid: {phase}")
 
+    status = None
+    if args.ros:
+        from damper_emulator.ros.status_publisher import StatusPublisher
+        from ride_sim.hybrid.recorder import DIAGNOSTIC_NAME, JOINT
+
+        status = StatusPublisher("damper_hil_hybrid")
+
+    def on_status(level: int, message: str, values: list[tuple[str, str]]) -> None:
+        if status is not None:
+            status.publish(DIAGNOSTIC_NAME, level, message, JOINT, dict(values))
+
     started = time.monotonic()
     try:
-        with HybridRecorder(out, host, bag=not args.no_bag) as recorder:
+        with HybridRecorder(out, host, bag=not args.no_bag,
+                            on_status=on_status if status is not None else None) as recorder:
             stats = run_hybrid_link(bus, db, host, stop,
                                     realtime=RealtimeRequest(priority=args.priority, cpu=args.cpu),
                                     progress=progress)
@@ -153,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
             raise recorder.error
     finally:
         executor.shutdown(wait=False, cancel_futures=True)
+        if status is not None:
+            status.close()
     doc = summary(host)
     doc["link"] = stats.summary()
     doc["elapsed_s"] = time.monotonic() - started

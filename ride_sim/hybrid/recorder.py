@@ -31,7 +31,7 @@ import multiprocessing
 import signal
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -239,10 +239,18 @@ class HybridRecorder:
         How often the completed samples go to the writer [s].
     in_process : bool
         Write in this process's thread (offline runs, tests) instead of a writer process.
+    on_status : callable, optional
+        Called from the recorder's thread once per ``diagnostics_s`` with
+        :func:`loop_status`'s ``(level, message, values)`` over that window: the live
+        ``/diagnostics`` of ``damper-hil hybrid --ros``.
+    diagnostics_s : float
+        The window of ``on_status`` [s].
     """
 
     def __init__(self, out: Path, host: HybridHost, *, bag: bool = True,
-                 period_s: float = 0.1, in_process: bool = False) -> None:
+                 period_s: float = 0.1, in_process: bool = False,
+                 on_status: Callable[[int, str, list[tuple[str, str]]], None] | None = None,
+                 diagnostics_s: float = 1.0) -> None:
         self.out = Path(out)
         self.host = host
         self.csv_path = self.out / "hybrid.csv"
@@ -257,6 +265,9 @@ class HybridRecorder:
         self._conn: Connection | None = None
         self._process: Any = None
         self.error: BaseException | None = None
+        self._on_status = on_status
+        self._status_window = max(1, int(round(diagnostics_s / host.dt_s)))
+        self._next_status = self._status_window
 
     def __enter__(self) -> HybridRecorder:
         if self._in_process:
@@ -335,3 +346,9 @@ class HybridRecorder:
                                     f"{self._process.exitcode}) during the run")
             self._conn.send(chunk)
         self._written = k
+        while self._on_status is not None and self._next_status <= k:
+            end = self._next_status
+            self._on_status(*loop_status(host.record[:, end - self._status_window:end],
+                                         float(host.delay_estimate_s[end - 1]), host.phase,
+                                         host.reason))
+            self._next_status += self._status_window

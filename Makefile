@@ -38,7 +38,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/fleet_bench.py
 	$(BIN)/python benchmarks/tune_bench.py
 	$(BIN)/python benchmarks/demo_bench.py --runs 3 --host
-	$(BIN)/python benchmarks/hybrid_bench.py --repeats 2
+	$(BIN)/python benchmarks/hybrid_bench.py --repeats 2 --twin-chain --doc docs/performance.md
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .hypothesis .mypy_cache

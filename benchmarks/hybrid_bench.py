@@ -15,9 +15,16 @@ processes on a ``udp_multicast`` bus of their own, in turn (this is a 2-core mac
    valid feedback, on the wire); a corrupted feedback frame in every 100; 30 ms
    uncompensated (stopped by the detector before any limit?);
 3. **offline**: the same host and rig on a simulated timeline (no bus, no clock): what the
-   compensator reaches without jitter.
+   compensator reaches without jitter;
+4. **twin** (``--twin-chain``): a specimen that fades with temperature (a
+   ``viscosity_temperature`` extension the twin lacks); ``dyno`` quasi-static and chirp on
+   the rig, ``identify`` on them, ``hybrid`` with the identified twin, ``diagnose`` with the
+   ride as held-out data: the twin's residual over the ride and the diagnosed family.
 
-Usage: ``python benchmarks/hybrid_bench.py [--repeats 2] [--duration 20]``
+Usage: ``python benchmarks/hybrid_bench.py [--repeats 2] [--duration 20] [--twin-chain]
+[--doc docs/performance.md]``; ``--doc`` also writes the tables into that file's section
+between ``<!-- hybrid_bench -->`` and ``<!-- /hybrid_bench -->`` (added at its end when
+missing).
 """
 
 from __future__ import annotations
@@ -36,9 +43,10 @@ from pathlib import Path
 import numpy as np
 from machine import cpu_name  # noqa: E402  (same folder)
 
-from can_bridge.bus import BusConfig, ResilientBus, receive_time
+from can_bridge.bus import BusConfig
 from can_bridge.codec import Receiver
 from can_bridge.dbc import HYBRID_SIGNALS, load_database
+from can_bridge.tap import BusTap
 from damper_emulator.model.compressible import DamperModel
 from ride_sim.hybrid.host import RIDE_KEYS, HybridHost
 from ride_sim.hybrid.offline import run_offline
@@ -63,36 +71,13 @@ def channel(n: int) -> str:
     return f"[ff11::d7:{n:x}:{pid & 0xFFFF:x}]:{22000 + (pid % 300) * 10 + n}"
 
 
-class Tap:
-    def __init__(self, cfg: BusConfig):
-        self.bus = ResilientBus(cfg)
-        self.bus.ensure_open()
-        self.frames: list[tuple[float, int, bytes]] = []
-        self._offset = time.time() - time.monotonic()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            msg = self.bus.recv(0.05)
-            if msg is not None:
-                self.frames.append((receive_time(msg, self._offset), msg.arbitration_id,
-                                    bytes(msg.data)))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.bus.close()
-
-
 def run_pair(tmp: Path, n: int, rig_args, hybrid_args, tap=False):
     ch = channel(n)
     bus = ["--can-interface", "udp_multicast", "--can-channel", ch]
     rig = subprocess.Popen([*CLI, "virtual-rig", *bus, "--json", str(tmp / "rig.json"),
                             *PIN_RIG, *rig_args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                            text=True)
-    listener = Tap(BusConfig(interface="udp_multicast", channel=ch)) if tap else None
+    listener = BusTap(BusConfig(interface="udp_multicast", channel=ch)) if tap else None
     t0 = time.perf_counter()
     proc = subprocess.run([*CLI, "hybrid", "--out", str(tmp / "out"), *bus, *PIN_HOST,
                            *hybrid_args],
@@ -128,11 +113,47 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--duration", type=float, default=20.0)
+    ap.add_argument("--twin-chain", action="store_true")
+    ap.add_argument("--doc", type=Path, default=None)
     args = ap.parse_args()
+    if args.doc is not None:
+        import contextlib
+        import io
+
+        buffer = io.StringIO()
+
+        class _Both(io.TextIOBase):
+            def write(self, text: str) -> int:
+                sys.__stdout__.write(text)
+                return buffer.write(text)
+
+        with contextlib.redirect_stdout(_Both()):
+            run(args)
+        write_section(args.doc, buffer.getvalue())
+    else:
+        run(args)
+
+
+BEGIN, END = "<!-- hybrid_bench -->", "<!-- /hybrid_bench -->"
+
+
+def write_section(path: Path, text: str) -> None:
+    """``text`` between :data:`BEGIN` and :data:`END` in ``path`` (appended if absent)."""
+    old = path.read_text(encoding="utf-8") if path.exists() else ""
+    block = f"{BEGIN}\n{text.rstrip()}\n{END}\n"
+    if BEGIN in old and END in old:
+        head, rest = old.split(BEGIN, 1)
+        new = head + block + rest.split(END, 1)[1].lstrip("\n")
+    else:
+        new = (old.rstrip() + "\n\n" if old.strip() else "") + block
+    path.write_text(new, encoding="utf-8")
+
+
+def run(args: argparse.Namespace) -> None:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     root = Path(tempfile.mkdtemp(prefix="hybrid_bench_"))
     dur = ["--duration", f"{args.duration:g}", "--road-class", "C", "--speed", "20"]
-    print(f"# damper-hil hybrid against virtual-rig — {cpu_name()}, "
+    print(f"## Damper in the loop: `damper-hil hybrid` against `virtual-rig` — {cpu_name()}, "
           f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}\n")
     print(f"Rig: 4 ms transport delay, 40 Hz servo, damping 0.7, sport specimen; "
           f"{args.duration:g} s of ISO 8608 class C at 20 m/s; udp_multicast; host loop "
@@ -150,7 +171,7 @@ def main() -> None:
                 print(f"{mode} run {r}: failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
             rows.append((mode, r, proc.returncode, doc, elapsed))
-    print("## Compensated and uncompensated on the same rig\n")
+    print("### Compensated and uncompensated on the same rig\n")
     print("| compensation | run | exit | NRMS [%] | peak [mm] | residual delay [ms] | "
           "rig delay followed [ms] | SWS / ref | Wk accel / ref | DTL / ref | "
           "response p50 / p99 / max [µs] | force-path gain |")
@@ -176,7 +197,7 @@ def main() -> None:
               f"{statistics.mean(none) * 100:.2f} %: ratio "
               f"{statistics.mean(none) / statistics.mean(comp):.0f}×.\n")
     # 2. robustness
-    print("## Robustness\n")
+    print("### Robustness\n")
     print("| case | exit | reason | measure |")
     print("|---|---|---|---|")
     n += 1
@@ -229,7 +250,7 @@ def main() -> None:
           f"{lim.stroke_limit_m * 1e3:g}), max force {np.nanmax(np.abs(d[:, 5])):.0f} N "
           f"(limit {lim.force_limit_n:g}) |")
     # 3. offline
-    print("\n## Offline (the same cores on a simulated timeline, no bus)\n")
+    print("\n### Offline (the same cores on a simulated timeline, no bus)\n")
     print("| compensation | NRMS [%] | SWS / ref | Wk accel / ref | DTL / ref | time [s] |")
     print("|---|---|---|---|---|---|")
     model = DamperModel()
@@ -245,6 +266,84 @@ def main() -> None:
               + " | ".join(f"{(ride[k] / host.reference_metrics[k] - 1) * 100:+.2f} %"
                            if k in ride else "–" for k in RIDE_KEYS)
               + f" | {time.perf_counter() - t0:.1f} |")
+
+
+    if args.twin_chain:
+        twin_chain(root / "twin", args.duration)
+
+
+#: the fading specimen: the sport damper whose oil thins as it warms (a small lumped heat
+#: capacity: the dyno's tests warm it tens of kelvin)
+FADE = {"viscosity_temperature": {"temperature_coefficient_per_k": 0.03,
+                                  "reference_temperature_c": 25.0,
+                                  "heat_capacity_j_per_k": 200.0,
+                                  "cooling_time_constant_s": 600.0}}
+
+
+def twin_chain(tmp: Path, duration_s: float) -> None:
+    from damper_emulator.params import load_config, save_config, with_extensions
+
+    tmp.mkdir()
+    save_config(with_extensions(load_config(), FADE), tmp / "faded.yaml")
+    ch = channel(60)
+    bus = ["--can-interface", "udp_multicast", "--can-channel", ch]
+    rig = subprocess.Popen([*CLI, "virtual-rig", *bus, "--params", str(tmp / "faded.yaml"),
+                            *PIN_RIG], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                           text=True)
+    assert rig.stderr is not None
+    for line in rig.stderr:
+        if line.startswith("[virtual-rig] on "):
+            break
+    threading.Thread(target=rig.stderr.read, daemon=True).start()
+    steps = [
+        ("dyno quasi-static on the rig", ["dyno", "--protocol", "quasi-static", "--amplitude",
+                                          "0.05", "--cycles", "1", "--out", str(tmp / "rig"),
+                                          *bus]),
+        ("dyno chirp on the rig", ["dyno", "--protocol", "chirp", "--duration", "30",
+                                   "--v-end", "1.2", "--out", str(tmp / "rig"), *bus]),
+        ("identify", ["identify", "--quasi-static", str(tmp / "rig" / "quasi_static.csv"),
+                      "--chirp", str(tmp / "rig" / "chirp.csv"), "--out",
+                      str(tmp / "identified.yaml")]),
+        ("hybrid, the identified twin", ["hybrid", "--out", str(tmp / "ride"), "--duration",
+                                         f"{duration_s:g}", "--twin",
+                                         str(tmp / "identified.yaml"), *bus, *PIN_HOST]),
+    ]
+    times = {}
+    try:
+        for name, cmd in steps:
+            t0 = time.perf_counter()
+            proc = subprocess.run([*CLI, *cmd], capture_output=True, text=True)
+            times[name] = time.perf_counter() - t0
+            if proc.returncode != 0:
+                print(f"\n{name} failed: {proc.stderr.strip().splitlines()[-1:]}")
+                return
+    finally:
+        rig.send_signal(2)
+        rig.wait(timeout=30)
+    t0 = time.perf_counter()
+    proc = subprocess.run([*CLI, "diagnose", "--params", str(tmp / "identified.yaml"),
+                           "--quasi-static", str(tmp / "rig" / "quasi_static.csv"),
+                           "--chirp", str(tmp / "rig" / "chirp.csv"), "--validate",
+                           str(tmp / "ride" / "ride_measured.csv"), "--json",
+                           str(tmp / "diagnose.json")], capture_output=True, text=True)
+    times["diagnose"] = time.perf_counter() - t0
+    ride = json.loads((tmp / "ride" / "hybrid.json").read_text())
+    diag = json.loads((tmp / "diagnose.json").read_text()) if proc.returncode == 0 else {}
+    print("\n### Twin: a specimen fading with temperature, identified and diagnosed on the "
+          "rig\n")
+    twin = ride["twin"]
+    print(f"Ride with the identified twin: tracking NRMS {ride['tracking']['nrms'] * 100:.2f} "
+          f"%, oil {ride['link']['temperature_c']:.1f} °C at the end; twin residual "
+          f"{twin['residual_rms_first_n']:.0f} N r.m.s. over the ride's first 2 s, "
+          f"{twin['residual_rms_last_n']:.0f} N over its last.\n")
+    rms = diag.get("rms_before", {}), diag.get("rms_after", {})
+    print(f"Diagnosis: **{diag.get('family', 'failed')}** "
+          f"({diag.get('effect', proc.stderr.strip().splitlines()[-1:])}); held-out "
+          f"ride_measured.csv {rms[0].get('ride_measured.csv', float('nan')):.1f} → "
+          f"{rms[1].get('ride_measured.csv', float('nan')):.1f} N.\n")
+    print("| step | time [s] |\n|---|---|")
+    for name, seconds in times.items():
+        print(f"| {name} | {seconds:.0f} |")
 
 
 if __name__ == "__main__":

@@ -16,15 +16,15 @@ import os
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from can_bridge.bus import BusConfig, ResilientBus, receive_time, socketcan_problem
+from can_bridge.bus import BusConfig, socketcan_problem
 from can_bridge.codec import Receiver
 from can_bridge.dbc import HYBRID_SIGNALS, load_database
+from can_bridge.tap import BusTap
 from damper_emulator.model.compressible import DamperModel
 from ride_sim.hybrid.params import SafetyParams
 from ride_sim.hybrid.recorder import CSV_COLUMNS
@@ -49,31 +49,6 @@ def udp_channel(offset: int) -> str:
     17000..21999 is clear of the DDS ports of the ROS domains the tests use)."""
     pid = os.getpid()
     return f"[ff11::d6:{offset:x}:{pid & 0xFFFF:x}]:{17000 + (pid % 500) * 10 + offset}"
-
-
-class Tap:
-    """Every frame on the bus with its kernel receive time [s, monotonic]."""
-
-    def __init__(self, cfg: BusConfig):
-        self.bus = ResilientBus(cfg)
-        assert self.bus.ensure_open(), self.bus.last_error
-        self.frames: list[tuple[float, int, bytes]] = []
-        self._offset = time.time() - time.monotonic()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            msg = self.bus.recv(0.05)
-            if msg is not None:
-                self.frames.append((receive_time(msg, self._offset), msg.arbitration_id,
-                                    bytes(msg.data)))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.bus.close()
 
 
 def start_rig(args) -> subprocess.Popen:
@@ -101,7 +76,7 @@ def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False, 
     bus_args = ["--can-interface", bus.interface, "--can-channel", bus.channel]
     rig_json = tmp / "rig.json"
     rig = start_rig([*bus_args, "--config", str(config), "--json", str(rig_json), *rig_args])
-    listener = Tap(bus) if tap else None
+    listener = BusTap(bus) if tap else None
     out = tmp / "out"
     try:
         proc = subprocess.run([*CLI, "hybrid", "--out", str(out), "--config", str(config),

@@ -150,3 +150,16 @@ def read_data(paths: Sequence[Path], rig: Path | None) -> list[Any]:
         chain = load_rig(rig)
     data = [read_measured(p) for p in paths]
     return [dataclasses.replace(d, acquisition=chain) for d in data] if chain else data
+
+
+def add_realtime_options(parser: argparse.ArgumentParser, priority: int) -> None:
+    """``--priority P`` and ``--cpu N``: the loop thread's SCHED_FIFO priority (when
+    permitted) and the CPU it is pinned to (-1: the affinity left alone)."""
+    parser.add_argument("--priority", metavar="P", type=int, choices=range(1, 100),
+                        default=priority,
+                        help=f"SCHED_FIFO priority of the loop thread when permitted "
+                             f"(default: {priority})")
+    parser.add_argument("--cpu", metavar="N", type=int, default=-1,
+                        help="pin the loop thread to CPU N (default: -1, leave the affinity "
+                             "alone; with the dyno's loop on another CPU the response "
+                             "time's tail shortens)")

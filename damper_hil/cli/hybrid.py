@@ -9,7 +9,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from damper_hil.cli.common import PROG, CliError, Formatter, say, say_wrote, schema_type, write_json
+from damper_hil.cli.common import (
+    PROG,
+    CliError,
+    Formatter,
+    add_realtime_options,
+    say,
+    say_wrote,
+    schema_type,
+    write_json,
+)
 from damper_hil.cli.virtual_rig import add_bus_options, open_checked_bus
 from ride_sim.hybrid.params import COMPENSATION_MODES, ROAD_CLASSES, HybridRunParams
 
@@ -76,12 +85,7 @@ def add_parser(sub) -> None:
                     help="publish the twin's residual, the tracking and the rig's delay on "
                          "/diagnostics once a second (node damper_hil_hybrid; ROS_DOMAIN_ID "
                          "from the environment)")
-    hy.add_argument("--priority", metavar="P", type=int, choices=range(1, 100), default=70,
-                    help="SCHED_FIFO priority of the loop thread when permitted (default: 70)")
-    hy.add_argument("--cpu", metavar="N", type=int, default=-1,
-                    help="pin the loop thread to CPU N (default: -1, leave the affinity "
-                         "alone; with the dyno on another CPU the response time's tail "
-                         "shortens)")
+    add_realtime_options(hy, 70)
     hy.set_defaults(handler=run)
 
 

@@ -11,6 +11,7 @@ from damper_hil.cli.common import (
     PROG,
     CliError,
     Formatter,
+    add_realtime_options,
     non_negative_float,
     non_negative_int,
     positive_float,
@@ -86,12 +87,7 @@ def add_parser(sub) -> None:
     f.add_argument("--feedback-stop-at", metavar="S", type=non_negative_float, default=None,
                    help="from S seconds after the first valid command no DYNO_FEEDBACK "
                         "goes out")
-    rig.add_argument("--priority", metavar="P", type=int, choices=range(1, 100), default=75,
-                    help="SCHED_FIFO priority of the loop thread when permitted (default: 75)")
-    rig.add_argument("--cpu", metavar="N", type=int, default=-1,
-                    help="pin the loop thread to CPU N (default: -1, leave the affinity "
-                         "alone; with the dyno on another CPU the response time's tail "
-                         "shortens)")
+    add_realtime_options(rig, 75)
     rig.set_defaults(handler=run)
 
 

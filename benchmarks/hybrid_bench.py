@@ -114,6 +114,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--twin-chain", action="store_true")
+    ap.add_argument("--twin-only", action="store_true", help="only the twin chain")
     ap.add_argument("--doc", type=Path, default=None)
     args = ap.parse_args()
     if args.doc is not None:
@@ -152,6 +153,9 @@ def write_section(path: Path, text: str) -> None:
 def run(args: argparse.Namespace) -> None:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     root = Path(tempfile.mkdtemp(prefix="hybrid_bench_"))
+    if args.twin_only:
+        twin_chain(root / "twin", args.duration)
+        return
     dur = ["--duration", f"{args.duration:g}", "--road-class", "C", "--speed", "20"]
     print(f"## Damper in the loop: `damper-hil hybrid` against `virtual-rig` — {cpu_name()}, "
           f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}\n")
@@ -287,9 +291,8 @@ def twin_chain(tmp: Path, duration_s: float) -> None:
     save_config(with_extensions(load_config(), FADE), tmp / "faded.yaml")
     ch = channel(60)
     bus = ["--can-interface", "udp_multicast", "--can-channel", ch]
-    rig = subprocess.Popen([*CLI, "virtual-rig", *bus, "--params", str(tmp / "faded.yaml"),
-                            *PIN_RIG], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                           text=True)
+    rig = subprocess.Popen([*CLI, "virtual-rig", *bus, "--params", str(tmp / "faded.yaml")],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     assert rig.stderr is not None
     for line in rig.stderr:
         if line.startswith("[virtual-rig] on "):
@@ -306,7 +309,7 @@ def twin_chain(tmp: Path, duration_s: float) -> None:
                       str(tmp / "identified.yaml")]),
         ("hybrid, the identified twin", ["hybrid", "--out", str(tmp / "ride"), "--duration",
                                          f"{duration_s:g}", "--twin",
-                                         str(tmp / "identified.yaml"), *bus, *PIN_HOST]),
+                                         str(tmp / "identified.yaml"), *bus]),
     ]
     times = {}
     try:

@@ -313,3 +313,13 @@ def test_parameter_groups_refuse_bad_values_in_one_line():
         build(SafetyParams, {"watchdog_s": 0.0}, "safety")
     with pytest.raises(Exception, match=r"actuator\.bandwidth_hz"):
         build(ActuatorParams, {"bandwidth_hz": -1.0}, "actuator")
+
+
+def test_measured_velocity_counts_the_cycles_of_lost_frames():
+    safety = SafetyLayer(SafetyParams(velocity_limit_m_s=1.5), DT)
+    cycle = 0
+    for k in range(30):                       # 1.2 m/s, every third frame lost
+        cycle += 2 if k % 3 == 2 else 1
+        safety.feedback(k * DT, 1.2 * cycle * DT, 0.0, cycle)
+    assert safety.enable
+    assert safety.velocity_m_s == pytest.approx(1.2, rel=1e-9)

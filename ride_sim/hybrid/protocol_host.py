@@ -57,6 +57,7 @@ class ProtocolHost(RigHost):
         self.stroke = x
         self.velocity = np.gradient(x, self.dt_s)
         self.acceleration = np.gradient(self.velocity, self.dt_s)
+        self._grid = np.arange(x.size, dtype=float)
 
     def _after_fit(self, t_s: float) -> tuple[float, float]:
         self._enter("approach", t_s)
@@ -79,8 +80,7 @@ class ProtocolHost(RigHost):
         tracker, est = self.tracker, self.transfer
         assert tracker is not None and est is not None
         j = min(max(k + tracker.delay_s / self.dt_s + 0.5, 0.0), self.stroke.size - 1.0)
-        grid = np.arange(self.stroke.size)
-        x, v, a = (float(np.interp(j, grid, h))
+        x, v, a = (float(np.interp(j, self._grid, h))
                    for h in (self.stroke, self.velocity, self.acceleration))
         w = 2.0 * math.pi * est.bandwidth_hz
         lead = 2.0 * est.damping / w

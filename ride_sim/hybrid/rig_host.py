@@ -129,6 +129,7 @@ class RigHost:
         #: the dyno's latest oil temperature (DYNO_AUX) at each sample of the run [°C]
         self.temperature_c = np.full(n, np.nan)
         self._pending: tuple[float, float] | None = None
+        self._cycles = 0            # cycles run: the rig's cycles, lost frames included
         self.k = 0
 
     def warm_up(self) -> None:
@@ -176,13 +177,14 @@ class RigHost:
         late): the newest measurement for the next cycle; the safety layer checks it."""
         self._measured, self._force = feedback.stroke_m, feedback.force_n
         self._temperature = feedback.temperature_c
-        self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n)
+        self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n, self._cycles)
 
     def cycle(self, t_s: float, feedback: Feedback | None, t_ns: int = 0) -> Command:
         """One cycle at ``t_s`` [s, the host's monotonic clock] with the newest valid
         feedback since the last cycle (None: none arrived); ``t_ns`` is recorded as the
         run's sample's send time.  Returns the command to send now."""
         safety = self.safety
+        self._cycles += 1
         self.after_send()
         if self._start_s is None:
             self._start_s = t_s

@@ -53,7 +53,8 @@ class SafetyLayer:
         self.stopped_at_s: float | None = None
         self.last_valid_s: float | None = None
         self.clamped = 0
-        self._strokes: deque[float] = deque()
+        self._strokes: deque[tuple[int, float]] = deque()
+        self._frames = 0
         self._span = max(1, int(round(params.velocity_span_s / dt_s)))
         self.velocity_m_s = 0.0
         self._window = max(1, int(round(params.window_s / dt_s)))
@@ -90,19 +91,23 @@ class SafetyLayer:
             self.clamped += 1
         return value
 
-    def feedback(self, t_s: float, stroke_m: float, force_n: float) -> None:
+    def feedback(self, t_s: float, stroke_m: float, force_n: float,
+                 cycle: int | None = None) -> None:
         """A valid ``DYNO_FEEDBACK`` received at ``t_s``: feed the watchdog, check the
-        measured stroke, velocity and force (the velocity over ``velocity_span_s`` of
-        feedback frames, one per cycle ``dt_s``)."""
+        measured stroke, velocity and force.  The velocity is the stroke's change over at
+        least ``velocity_span_s`` of the rig's cycles: ``cycle`` numbers the frame's cycle
+        (a lost frame leaves a gap); without it, one frame per cycle ``dt_s``.  Not the
+        arrival times: they jitter (a host that stalled reads several frames at once)."""
         p = self.params
         self.last_valid_s = float(t_s)
-        # the velocity over the last velocity_span_s of feedback, one frame per cycle: the
-        # frames' arrival times jitter (a host that stalled reads several at once)
         strokes = self._strokes
-        strokes.append(float(stroke_m))
-        if len(strokes) > self._span:
+        self._frames += 1
+        strokes.append((self._frames if cycle is None else int(cycle), float(stroke_m)))
+        while len(strokes) > 2 and strokes[-1][0] - strokes[1][0] >= self._span:
             strokes.popleft()
-            self.velocity_m_s = (strokes[-1] - strokes[0]) / ((len(strokes) - 1) * self.dt_s)
+        (c0, x0), (c1, x1) = strokes[0], strokes[-1]
+        if c1 - c0 >= self._span:
+            self.velocity_m_s = (x1 - x0) / ((c1 - c0) * self.dt_s)
         if not (math.isfinite(stroke_m) and math.isfinite(force_n)):
             self.stop(t_s, "the dyno reported a non-finite stroke or force")
         elif abs(stroke_m) > p.stroke_limit_m:

@@ -34,6 +34,9 @@ from ride_sim.hybrid.params import ActuatorParams, RigParams
 #: shell maps them to)
 STATUS_ENABLED, STATUS_AT_LIMIT, STATUS_FAULT = 1, 2, 4
 
+#: A demand moves on at its rate for at most this many cycles after it became due.
+RATE_HOLD_CYCLES = 2
+
 #: The oil temperature reported by a specimen without a thermal model [°C].
 AMBIENT_TEMPERATURE_C = 25.0
 
@@ -66,7 +69,7 @@ class VirtualRig:
         self.rig = rig
         self.period_s = 1.0 / rig.rate_hz
         self.servo = Servo(actuator)
-        self.delay = DelayLine(actuator.delay_s, horizon_s=rig.hold_after_s)
+        self.delay = DelayLine(actuator.delay_s, horizon_s=self._horizon())
         self.specimen = DamperStepper(model)
         thermal = model.cfg.damper.extensions.viscosity_temperature \
             if model.cfg.damper.extensions is not None else None
@@ -78,6 +81,12 @@ class VirtualRig:
         self.following = False
         self.force_n = self.specimen.force_n
 
+    def _horizon(self) -> float:
+        """How long a demand moves on at its rate: :data:`RATE_HOLD_CYCLES` cycles (an
+        interpolation to the next command, not an extrapolation through a stall: a chirp's
+        1 m/s for the hold's 50 ms would be 50 mm)."""
+        return RATE_HOLD_CYCLES * self.period_s
+
     def set_delay(self, delay_s: float) -> None:
         """Change the transport delay from now on (e.g. a slower bus mid-run)."""
         self.delay.delay_s = float(delay_s)
@@ -86,7 +95,7 @@ class VirtualRig:
                 velocity_m_s: float = 0.0) -> None:
         """A valid ``DYNO_COMMAND`` arrived at ``t_s`` [s, the rig's clock]: the demand
         follows ``stroke_m`` and moves on at ``velocity_m_s`` until the next one is due
-        (for at most ``hold_after_s``)."""
+        (for at most :data:`RATE_HOLD_CYCLES` cycles)."""
         self._last_command_s = float(t_s)
         self._enable = bool(enable)
         if enable:
@@ -102,7 +111,7 @@ class VirtualRig:
         self.force_n = float(force)
         follow = self._enable and (t_s - self._last_command_s) <= rig.hold_after_s
         if not follow and self.following:        # hold from here; forget pending demands
-            self.delay = DelayLine(self.delay.delay_s, x, self.rig.hold_after_s)
+            self.delay = DelayLine(self.delay.delay_s, x, self._horizon())
         self.following = follow
         demand = self.delay.at(t_s) if follow else self.delay.at(-math.inf)
         status = STATUS_ENABLED if follow else 0

@@ -16,6 +16,7 @@ import numpy as np
 
 from damper_emulator.dyno.plots import decorate, new_figure, save
 from damper_emulator.outputs import write_text
+from ride_sim.hybrid.criteria import TWIN_WINDOW_S
 from ride_sim.hybrid.host import HybridHost
 from ride_sim.hybrid.transfer import response
 
@@ -135,7 +136,8 @@ def write_report(out: Path, host: HybridHost, doc: dict[str, Any]) -> list[Path]
     twin = doc["twin"]
     lines += ["## Twin", "",
               f"Residual r.m.s. {_fmt(twin['residual_rms_n'], '.1f')} N over the run; "
-              f"{_fmt(twin['residual_rms_first_n'], '.1f')} N over the ride's first 2 s, "
+              f"{_fmt(twin['residual_rms_first_n'], '.1f')} N over the ride's first "
+              f"{TWIN_WINDOW_S:g} s, "
               f"{_fmt(twin['residual_rms_last_n'], '.1f')} N over its last.", "",
               "![force](hybrid_force.png)", ""]
     if "transfer" in doc:

@@ -16,6 +16,8 @@ import numpy as np
 from ride_sim.hybrid.compensator import force_path_gain, steepest_slope
 from ride_sim.hybrid.host import RIDE_KEYS, HybridHost
 
+#: The twin's residual is also reported over the ride's first and last this long [s].
+TWIN_WINDOW_S = 2.0
 #: Lags searched for the residual delay, ± [samples].
 MAX_LAG_SAMPLES = 50
 
@@ -77,10 +79,11 @@ def summary(host: HybridHost) -> dict[str, Any]:
                                  for key in RIDE_KEYS} if ride is not None else None)
     residual = rec[3, :k] - rec[4, :k]
     ok = np.isfinite(residual)
+    window = max(1, int(round(TWIN_WINDOW_S / host.dt_s)))
     doc["twin"] = {"residual_rms_n": float(np.sqrt(np.mean(residual[ok] ** 2)))
                    if ok.any() else math.nan,
-                   "residual_rms_first_n": _rms(residual[ridden][: 2000]),
-                   "residual_rms_last_n": _rms(residual[ridden][-2000:])}
+                   "residual_rms_first_n": _rms(residual[ridden][:window]),
+                   "residual_rms_last_n": _rms(residual[ridden][-window:])}
     doc["static_force_n"] = host.static_force_n
     if host.transfer is not None:
         slope = steepest_slope(host.twin_model)

@@ -59,11 +59,11 @@ from ride_sim.quarter_car import (
     Q_FSTATIC,
     Q_MR,
     QuarterCar,
-    _advance,
-    _motion,
-    _outputs,
-    _road_pair,
+    advance_state,
     road_array,
+    road_pair,
+    state_motion,
+    state_outputs,
     wheel_force,
 )
 
@@ -85,12 +85,12 @@ def _car_sample(d: _Vec, q: _Vec, s: _Vec, force: float, out: _Vec, j: int, k: i
     one sample on (not after the road's last sample)."""
     qj = q[j]
     sj = s[j]
-    sws, accel, dtl = _outputs(qj, sj, force, u0, u1)
+    sws, accel, dtl = state_outputs(qj, sj, force, u0, u1)
     out[j, M_SWS, k] = sws
     out[j, M_ACC, k] = accel
     out[j, M_DTL, k] = dtl
     if k + 1 < out.shape[2]:
-        _advance(d, sj, wheel_force(force, qj[Q_FSTATIC], qj[Q_MR]), u0, u1)
+        advance_state(d, sj, wheel_force(force, qj[Q_FSTATIC], qj[Q_MR]), u0, u1)
 
 
 @kernel
@@ -112,12 +112,12 @@ def _loop_block(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, c
     """Designs ``first … end − 1`` over the whole road."""
     n = road.size
     for k in range(n):
-        u0, u1 = _road_pair(road, k)
+        u0, u1 = road_pair(road, k)
         for j in range(first, end):
             qj = q[j]
             sj = s[j]
             if k > 0:
-                x, v = _motion(qj, sj)
+                x, v = state_motion(qj, sj)
                 f, fault = _compressible_step(prm[j], coef_r[j, :n_r[j]], coef_c[j, :n_c[j]],
                                               dstate[j], x, v, qj[Q_DT])
                 force[j] = f
@@ -143,10 +143,10 @@ def _loop_lanes(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, c
     for first in range(0, s.shape[0], LANES):
         load_lanes(prm, n_r, n_c, dstate, first, lv)
         for k in range(n):
-            u0, u1 = _road_pair(road, k)
+            u0, u1 = road_pair(road, k)
             if k > 0:
                 for b in range(LANES):
-                    x, v = _motion(q[first + b], s[first + b])
+                    x, v = state_motion(q[first + b], s[first + b])
                     lv[L_X * LANES + b] = x
                     lv[L_V * LANES + b] = v
                 step_lanes(prm, coef_r, n_r, coef_c, n_c, sides, dstate, first, q[first, Q_DT],

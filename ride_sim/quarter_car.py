@@ -117,8 +117,8 @@ def _discretise(params: QuarterCarParams, dt_s: float,
 
 
 # --------------------------------------------------------------------------------------
-# The one vehicle update, compiled; used by QuarterCar (one call per sample) and by the
-# batch loops.
+# The one vehicle update, compiled; used by QuarterCar (one call per sample), by the
+# batch loops and by the hybrid compensator's prediction.
 
 
 @inlined_kernel
@@ -129,7 +129,7 @@ def wheel_force(damper_force: float, static_force: float, motion_ratio: float) -
 
 
 @kernel
-def _advance(d: _Vec, s: _Vec, f: float, u0: float, u1: float) -> None:
+def advance_state(d: _Vec, s: _Vec, f: float, u0: float, u1: float) -> None:
     """``s ← D (s, f, u0, u1)`` in place (exact step, see :func:`discretise`)."""
     a0, a1, a2, a3 = s[0], s[1], s[2], s[3]
     for i in range(4):
@@ -138,14 +138,14 @@ def _advance(d: _Vec, s: _Vec, f: float, u0: float, u1: float) -> None:
 
 
 @kernel
-def _motion(q: _Vec, s: _Vec) -> tuple[float, float]:
+def state_motion(q: _Vec, s: _Vec) -> tuple[float, float]:
     """Damper stroke and velocity (extension +) of state ``s``."""
     return -(s[0] - s[2]) / q[Q_MR], -(s[1] - s[3]) / q[Q_MR]
 
 
 @kernel
-def _outputs(q: _Vec, s: _Vec, damper_force: float, u0: float, u1: float
-             ) -> tuple[float, float, float]:
+def state_outputs(q: _Vec, s: _Vec, damper_force: float, u0: float, u1: float
+                  ) -> tuple[float, float, float]:
     """``(sws, body acceleration, dtl)`` at the sample, force held over the next step."""
     f = wheel_force(damper_force, q[Q_FSTATIC], q[Q_MR])
     sws = s[0] - s[2]
@@ -157,8 +157,8 @@ def _outputs(q: _Vec, s: _Vec, damper_force: float, u0: float, u1: float
 @kernel
 def _record(q: _Vec, s: _Vec, k: int, force: float, fault: int, u0: float, u1: float,
             out: _Vec, faults: NDArray[np.int64]) -> None:
-    sws, accel, dtl = _outputs(q, s, force, u0, u1)
-    x, v = _motion(q, s)
+    sws, accel, dtl = state_outputs(q, s, force, u0, u1)
+    x, v = state_motion(q, s)
     out[0, k] = s[0]
     out[1, k] = s[1]
     out[2, k] = s[2]
@@ -177,7 +177,7 @@ def _record(q: _Vec, s: _Vec, k: int, force: float, fault: int, u0: float, u1: f
 
 
 @kernel
-def _road_pair(road: _Vec, k: int) -> tuple[float, float]:
+def road_pair(road: _Vec, k: int) -> tuple[float, float]:
     n = road.size
     if k + 1 < n:
         return road[k], road[k + 1]
@@ -195,12 +195,12 @@ def _loop_compressible(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force0: float, prm
     fault = 0
     for k in range(n):
         if k > 0:
-            x, v = _motion(q, s)
+            x, v = state_motion(q, s)
             force, fault = _compressible_step(prm, coef_r, coef_c, dstate, x, v, q[Q_DT])
-        u0, u1 = _road_pair(road, k)
+        u0, u1 = road_pair(road, k)
         _record(q, s, k, force, fault, u0, u1, out, faults)
         if k + 1 < n:
-            _advance(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]), u0, u1)
+            advance_state(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]), u0, u1)
 
 
 @kernel
@@ -212,13 +212,13 @@ def _loop_stateless(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force0: float, kind: 
     force = force0
     for k in range(n):
         if k > 0:
-            v = _motion(q, s)[1]
+            v = state_motion(q, s)[1]
             force = stateless_force(kind, f0, rate, knots, coef, f_lo, f_hi, slope_lo,
                                     slope_hi, coulomb, v)
-        u0, u1 = _road_pair(road, k)
+        u0, u1 = road_pair(road, k)
         _record(q, s, k, force, 0, u0, u1, out, faults)
         if k + 1 < n:
-            _advance(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]), u0, u1)
+            advance_state(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]), u0, u1)
 
 
 # --------------------------------------------------------------------------------------
@@ -299,7 +299,7 @@ class QuarterCar:
 
     def damper_motion(self) -> tuple[float, float]:
         """Damper ``(stroke [m], velocity [m/s])``, extension +, of the current state."""
-        x, v = _motion(self._q, self._s)
+        x, v = state_motion(self._q, self._s)
         return float(x), float(v)
 
     def outputs(self, damper_force_n: float, road_now_m: float,
@@ -307,14 +307,14 @@ class QuarterCar:
         """SWS, body acceleration and DTL at the current sample, with ``damper_force_n``
         (full force) held over the coming step and the road going from ``road_now_m`` to
         ``road_next_m``."""
-        return RideSample(*map(float, _outputs(self._q, self._s, float(damper_force_n),
+        return RideSample(*map(float, state_outputs(self._q, self._s, float(damper_force_n),
                                                float(road_now_m), float(road_next_m))))
 
     def advance(self, damper_force_n: float, road_now_m: float, road_next_m: float) -> None:
         """Advance exactly by ``dt`` with ``damper_force_n`` (full damper force, rebound +)
         held and the road linear from ``road_now_m`` to ``road_next_m``."""
         f = wheel_force(float(damper_force_n), self.static_force_n, self.params.motion_ratio)
-        _advance(self.matrix, self._s, f, float(road_now_m), float(road_next_m))
+        advance_state(self.matrix, self._s, f, float(road_now_m), float(road_next_m))
 
 
 @dataclass(frozen=True)
@@ -425,7 +425,7 @@ def simulate(params: QuarterCarParams, damper: DamperPlugin, road_height_m: Arra
                     raise UserError(f"damper {damper.name!r} returned a non-finite force "
                                      f"{force!r} at sample {k}")
                 fault = int(getattr(damper, "last_fault", 0))
-            u0, u1 = _road_pair(road, k)
+            u0, u1 = road_pair(road, k)
             _record(car._q, s, k, force, fault, u0, u1, out, faults)
             if k + 1 < n:
                 car.advance(force, u0, u1)

@@ -33,7 +33,7 @@ from ride_sim.quarter_car import (
     RideResult,
     _record,
     _result,
-    _road_pair,
+    road_pair,
     simulate,
 )
 from ride_sim.study import metrics, random_road_input, start_state
@@ -134,7 +134,7 @@ class RideSession:
         k = self.k
         if k >= self.n:
             raise IndexError("the ride is complete")
-        u0, u1 = _road_pair(self.heights, k)
+        u0, u1 = road_pair(self.heights, k)
         _record(self.car._q, self.car._s, k, float(force_n), int(fault), u0, u1, self._out,
                 self._faults)
         if k + 1 < self.n:

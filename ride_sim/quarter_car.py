@@ -286,6 +286,12 @@ class QuarterCar:
         self._s = np.zeros(4)
 
     @property
+    def kernel_params(self) -> np.ndarray:
+        """The kernels' parameter vector (indices ``Q_*``: masses, stiffnesses, motion
+        ratio, ``dt``, static force); read it, do not change it."""
+        return self._q
+
+    @property
     def state(self) -> np.ndarray:
         """``(z1, z1', z2, z2')`` deviations from static equilibrium [m, m/s] (a copy)."""
         return self._s.copy()

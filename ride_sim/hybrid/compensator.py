@@ -31,17 +31,78 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 
 from damper_emulator.model.compressible import DamperModel, DamperStepper
+from damper_emulator.model.compressible import step as damper_step
+from damper_emulator.model.jit import kernel
 from ride_sim.hybrid.actuator import frequency_response
 from ride_sim.hybrid.params import CompensatorParams
 from ride_sim.hybrid.transfer import TransferEstimate
 from ride_sim.params import QuarterCarParams
-from ride_sim.quarter_car import QuarterCar, continuous_model
+from ride_sim.quarter_car import (
+    Q_DT,
+    Q_FSTATIC,
+    Q_MR,
+    QuarterCar,
+    advance_state,
+    continuous_model,
+    state_motion,
+    wheel_force,
+)
 
 #: Fractional prediction steps are rounded to this many per cycle (their exact
 #: discretisations are cached).
 FRACTION_STEPS = 20
+
+_Vec = NDArray[np.float64]
+
+
+@kernel
+def road_at(heights: _Vec, k: float) -> float:
+    """The road at the fractional sample ``k`` (linear between samples; the last height
+    beyond the end) [m]."""
+    n = heights.size
+    if k >= n - 1:
+        last: float = heights[n - 1]
+        return last
+    i = int(k)
+    h: float = heights[i] + (k - i) * (heights[i + 1] - heights[i])
+    return h
+
+
+@kernel
+def predict(d: _Vec, d_fraction: _Vec, q: _Vec, a: _Vec, b: _Vec, s: _Vec, heights: _Vec,
+            k: int, whole: int, fraction: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec,
+            twin: _Vec, correction: float) -> tuple[float, float, float]:
+    """The damper's stroke, velocity and acceleration ``whole + fraction`` cycles after the
+    car's state ``s`` at sample ``k``: the car advanced exactly (``d``, and ``d_fraction``
+    over the last ``fraction`` of a cycle) on the road ``heights``, with the twin's force
+    (damper state ``twin``, stepped on the car's motion) plus ``correction``; the
+    acceleration from the continuous model ``ṡ = A s + B (f_wheel, u, u̇)``.  ``s`` and
+    ``twin`` are scratch: both end at the horizon."""
+    dt = q[Q_DT]
+    for j in range(whole):
+        x, v = state_motion(q, s)
+        force = damper_step(prm, coef_r, coef_c, twin, x, v, dt)[0] + correction
+        advance_state(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]),
+                      road_at(heights, k + j), road_at(heights, k + j + 1))
+    x, v = state_motion(q, s)
+    force = damper_step(prm, coef_r, coef_c, twin, x, v, dt)[0] + correction
+    f_wheel = wheel_force(force, q[Q_FSTATIC], q[Q_MR])
+    road0 = road_at(heights, k + whole)
+    if fraction > 0.0:
+        road1 = road_at(heights, k + whole + fraction)
+        advance_state(d_fraction, s, f_wheel, road0, road1)
+        x, v = state_motion(q, s)
+        road0 = road1
+    rate = (road_at(heights, k + whole + fraction + 1.0) - road0) / dt
+    accel = 0.0
+    for i in (1, 3):
+        si = (a[i, 0] * s[0] + a[i, 1] * s[1] + a[i, 2] * s[2] + a[i, 3] * s[3]
+              + b[i, 0] * f_wheel + b[i, 1] * road0 + b[i, 2] * rate)
+        accel += si if i == 1 else -si
+    return x, v, -accel / q[Q_MR]
 
 
 def effective_mass_kg(car: QuarterCarParams) -> float:
@@ -74,13 +135,15 @@ class Compensator:
         self.car = car
         self.dt_s = float(dt_s)
         self.static_force_n = float(static_force_n)
-        self._heights = np.asarray(heights, dtype=float)
-        self._scratch = QuarterCar(car, dt_s, static_force_n)
+        self._heights = np.ascontiguousarray(heights, dtype=float)
+        self._car = QuarterCar(car, dt_s, static_force_n)
         self._fraction_cars: dict[int, QuarterCar] = {}
         a, b = continuous_model(car)
-        self._a, self._b = a, b
+        self._a, self._b = np.ascontiguousarray(a), np.ascontiguousarray(b)
         self._mr = car.motion_ratio
         self.on_target = DamperStepper(model)
+        self._s = np.zeros(4)
+        self._twin = self.on_target.state.copy()
         self._model_force = self.on_target.force_n
         self._correction = 0.0
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * params.force_correction_hz * dt_s)
@@ -97,13 +160,6 @@ class Compensator:
             car = QuarterCar(self.car, steps * self.dt_s / FRACTION_STEPS, self.static_force_n)
             self._fraction_cars[steps] = car
         return car
-
-    def _road(self, k: float) -> float:
-        h = self._heights
-        if k >= h.size - 1:
-            return float(h[-1])
-        i = int(k)
-        return float(h[i] + (k - i) * (h[i + 1] - h[i]))
 
     def observe(self, stroke_m: float, velocity_m_s: float, force_measured_n: float) -> None:
         """Step the twin on the car's damper motion at this sample and update the
@@ -125,29 +181,15 @@ class Compensator:
         fraction = int(round((horizon - whole * self.dt_s) / self.dt_s * FRACTION_STEPS))
         if fraction == FRACTION_STEPS:
             whole, fraction = whole + 1, 0
-        car = self._scratch
-        car.reset(state)
-        twin = self.on_target.copy()
-        for j in range(whole):
-            x, v = car.damper_motion()
-            force = twin.step(x, v, self.dt_s)[0] + self._correction
-            car.advance(force, self._road(k + j), self._road(k + j + 1))
-        x, v = car.damper_motion()
-        force = twin.step(x, v, self.dt_s)[0] + self._correction
-        road0 = self._road(k + whole)
-        s = car.state
-        if fraction:
-            step = self._fraction_car(fraction)
-            road1 = self._road(k + whole + fraction / FRACTION_STEPS)
-            step.reset(s)
-            step.advance(force, road0, road1)
-            s = step.state
-            x, v = step.damper_motion()
-            road0 = road1
-        rate = (self._road(k + whole + fraction / FRACTION_STEPS + 1) - road0) / self.dt_s
-        wheel_force = (force - self.static_force_n) / mr
-        sdot = self._a @ s + self._b @ np.array((wheel_force, road0, rate))
-        a = -(sdot[1] - sdot[3]) / mr
+        car = self._car
+        d_fraction = self._fraction_car(fraction).matrix if fraction else car.matrix
+        self._s[:] = state
+        self._twin[:] = self.on_target.state
+        model = self.on_target.model
+        x, v, a = predict(car.matrix, d_fraction, car.kernel_params, self._a, self._b,
+                          self._s, self._heights, k, whole, fraction / FRACTION_STEPS,
+                          model.prm, model.tables[0].coef, model.tables[1].coef,
+                          self._twin, self._correction)
         w = 2.0 * math.pi * estimate.bandwidth_hz
         u = (x + 2.0 * estimate.damping / w * v + a / (w * w)) / gain
         # the demand's rate, for the rig to move on between commands (the jerk's term

@@ -5,7 +5,10 @@
 :class:`~ride_sim.hybrid.protocol_host.ProtocolHost`) from a dyno's frames: the host runs
 one cycle per valid ``DYNO_FEEDBACK`` as soon as it arrives and sends the ``DYNO_COMMAND``
 at once (the dyno's clock paces the loop: the command goes out a computation after the
-feedback it used). The run advances one step per cycle of the rig, counted by the feedback's
+feedback it used).  The host sleeps until ``poll_before_s`` (the run's parameters) before a
+feedback is due and polls the bus from then on: the frame is read as it lands, without the
+scheduler's wake-up (on a virtual machine, the halted CPU's return too).
+The run advances one step per cycle of the rig, counted by the feedback's
 alive counter: a cycle whose feedback does not come (lost or invalid) runs
 ``MISSED_FEEDBACK_PERIODS`` periods after the last one on the last measurement (the watchdog
 keeps counting), and the next feedback runs the cycles its counter says are still owed.
@@ -66,15 +69,34 @@ class LinkStats:
     response_us: list[float] = field(default_factory=list, repr=False)
     #: when each of those feedback frames arrived [ns, monotonic]
     response_at_ns: list[int] = field(default_factory=list, repr=False)
+    #: of each response, the part before the host read the frame (the wake-up, the
+    #: interface's receive) [µs]
+    read_us: list[float] = field(default_factory=list, repr=False)
 
     def summary(self) -> dict[str, object]:
-        r = np.asarray(self.response_us)
         d = {k: v for k, v in dataclasses.asdict(self).items()
-             if k not in ("response_us", "response_at_ns")}
-        d["response_p50_us"] = float(np.percentile(r, 50)) if r.size else math.nan
-        d["response_p99_us"] = float(np.percentile(r, 99)) if r.size else math.nan
-        d["response_max_us"] = float(r.max()) if r.size else math.nan
+             if k not in ("response_us", "response_at_ns", "read_us")}
+        for name, values in (("response", self.response_us), ("read", self.read_us)):
+            r = np.asarray(values)
+            d[f"{name}_p50_us"] = float(np.percentile(r, 50)) if r.size else math.nan
+            d[f"{name}_p99_us"] = float(np.percentile(r, 99)) if r.size else math.nan
+            d[f"{name}_max_us"] = float(r.max()) if r.size else math.nan
         return d
+
+
+def _receive(bus: ResilientBus, poll_from: float, deadline: float) -> can.Message | None:
+    """The next frame by ``deadline`` [s, monotonic]: asleep until ``poll_from``, then
+    polling (a frame due soon is read as it lands, not a wake-up later)."""
+    now = time.monotonic()
+    if now < min(poll_from, deadline):
+        msg = bus.recv(min(poll_from, deadline) - now)
+        if msg is not None:
+            return msg
+    while time.monotonic() < deadline:
+        msg = bus.recv(0.0)
+        if msg is not None:
+            return msg
+    return None
 
 
 def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event, *,
@@ -90,6 +112,7 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
     if report is not None:
         stats.realtime = report.summary()
     period = host.dt_s
+    poll = host.run.poll_before_s
     bus_cfg = dataclasses.replace(bus_cfg, receive_ids=receiver.frame_ids)
     phase = host.phase
 
@@ -134,13 +157,14 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
                 if stop.is_set():
                     host.safety.stop(time.monotonic(), "stopped by the user")
                     break
-                timeout = last_cycle + MISSED_FEEDBACK_PERIODS * period - time.monotonic()
-                msg = bus.recv(max(0.0, timeout))
+                deadline = last_cycle + MISSED_FEEDBACK_PERIODS * period
+                msg = _receive(bus, last_cycle + period - poll, deadline)
+                read_ns = time.monotonic_ns()
                 # when it arrived (the kernel's stamp): the response time counts a stall
-                arrival = time.monotonic() if msg is None else receive_time(msg, offset)
+                arrival = read_ns * 1e-9 if msg is None else receive_time(msg, offset)
                 arrival_ns = int(arrival * 1e9)
                 if msg is None:
-                    if arrival < last_cycle + MISSED_FEEDBACK_PERIODS * period:
+                    if arrival < deadline:
                         continue
                     # no feedback this cycle: run it on the last measurement (the watchdog
                     # counts on)
@@ -172,6 +196,7 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
                 if owed <= 0:                   # its cycle already ran on the timeout
                     host.measure(arrival, feedback)
                 else:
+                    stats.read_us.append((read_ns - arrival_ns) / 1e3)
                     cycle(arrival, feedback, arrival_ns)
                     for _ in range(owed - 1):   # lost frames: their cycles, on this one's
                         cycle(arrival, None, None)

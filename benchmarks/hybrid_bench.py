@@ -165,12 +165,18 @@ def run(args: argparse.Namespace) -> None:
     # 1. compensated and uncompensated, in turn
     rows = []
     n = 0
+    # the host sleeping until each feedback comes (no polling): what polling buys
+    sleeping = root / "sleeping.yaml"
+    sleeping.write_text("/**:\n  ros__parameters:\n    hybrid:\n      poll_before_s: 0.0\n",
+                        encoding="utf-8")
+    cases = (("model", []), ("none", []), ("model, no polling", ["--config", str(sleeping)]))
     for r in range(args.repeats):
-        for mode in ("model", "none"):
+        for i, (mode, extra) in enumerate(cases):
             n += 1
-            tmp = root / f"{mode}{r}"
+            tmp = root / f"case{i}-{r}"
             tmp.mkdir()
-            proc, doc, elapsed, _ = run_pair(tmp, n, [], [*dur, "--compensation", mode])
+            proc, doc, elapsed, _ = run_pair(tmp, n, [], [*dur, "--compensation",
+                                                           mode.split(",")[0], *extra])
             if not doc:
                 print(f"{mode} run {r}: failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
@@ -178,8 +184,8 @@ def run(args: argparse.Namespace) -> None:
     print("### Compensated and uncompensated on the same rig\n")
     print("| compensation | run | exit | NRMS [%] | peak [mm] | residual delay [ms] | "
           "rig delay followed [ms] | SWS / ref | Wk accel / ref | DTL / ref | "
-          "response p50 / p99 / max [µs] | force-path gain |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "response p50 / p99 / max [µs] | of it, read p50 / p99 [µs] | force-path gain |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for mode, r, rc, doc, _ in rows:
         tr = doc.get("tracking") or {}
         rr = doc.get("ride_vs_reference") or {}
@@ -192,9 +198,18 @@ def run(args: argparse.Namespace) -> None:
               + f" | {fmt(link.get('response_p50_us'), '.0f')} / "
               f"{fmt(link.get('response_p99_us'), '.0f')} / "
               f"{fmt(link.get('response_max_us'), '.0f')} | "
+              f"{fmt(link.get('read_p50_us'), '.0f')} / {fmt(link.get('read_p99_us'), '.0f')} | "
               f"{fmt(st.get('force_path_gain'))} |")
     comp = [d["tracking"]["nrms"] for m, _, _, d, _ in rows if m == "model" and d.get("tracking")]
     none = [d["tracking"]["nrms"] for m, _, _, d, _ in rows if m == "none" and d.get("tracking")]
+    p99 = {label: [d["link"]["response_p99_us"] for m, _, _, d, _ in rows
+                   if m == label and d.get("link", {}).get("response_p99_us") is not None]
+           for label, _ in cases}
+    if p99["model"] and p99["model, no polling"]:
+        print(f"\nResponse p99 compensated, polling: {statistics.mean(p99['model']):.0f} µs "
+              f"(runs {', '.join(f'{x:.0f}' for x in p99['model'])}); sleeping until the "
+              f"frame comes: {statistics.mean(p99['model, no polling']):.0f} µs: ratio "
+              f"{statistics.mean(p99['model, no polling']) / statistics.mean(p99['model']):.2f}.")
     if comp and none:
         print(f"\nNRMS compensated {statistics.mean(comp) * 100:.2f} % (spread "
               f"{(max(comp) - min(comp)) * 100:.2f}), uncompensated "

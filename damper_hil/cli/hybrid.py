@@ -115,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
     from ride_sim.hybrid.criteria import summary
     from ride_sim.hybrid.host import HybridHost, export_measured
     from ride_sim.hybrid.params import load_hybrid_config
-    from ride_sim.hybrid.recorder import HybridRecorder
+    from ride_sim.hybrid.recorder import HybridRecorder, WriterProcess
+    from ride_sim.hybrid.rig_host import HOST_CYCLE_S
     from ride_sim.params import load_quarter_car
 
     config = load_hybrid_config(args.config)
@@ -138,12 +139,20 @@ def run(args: argparse.Namespace) -> int:
     say(f"hybrid: {run_params.duration_s:g} s of an ISO 8608 class {run_params.road_class} "
         f"road at {run_params.speed_m_s:g} m/s, {compensator.mode} compensation, twin "
         f"{twin_file}, on {bus.interface} {bus.channel}")
+    # the record's writer starts up (imports, the bag) while the host builds and warms up
+    writer = WriterProcess(out, HOST_CYCLE_S, bag=not args.no_bag)
     executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hybrid-fit")
     # its thread starts now, under the normal policy: started from the loop's thread it
     # would inherit SCHED_FIFO and keep the loop off its CPU while it fits
     executor.submit(int).result()
-    host = HybridHost(run_params, car, twin, compensator, config.safety, executor=executor)
-    host.warm_up()
+    try:
+        host = HybridHost(run_params, car, twin, compensator, config.safety, dt_s=HOST_CYCLE_S,
+                          executor=executor)
+        host.warm_up()
+    except BaseException:
+        writer.close()
+        executor.shutdown(wait=False)
+        raise
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -164,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
 
     started = time.monotonic()
     try:
-        with HybridRecorder(out, host, bag=not args.no_bag,
+        with HybridRecorder(out, host, bag=not args.no_bag, writer=writer,
                             on_status=on_status if status is not None else None) as recorder:
             stats = run_hybrid_link(bus, db, host, stop,
                                     realtime=RealtimeRequest(priority=args.priority, cpu=args.cpu),

@@ -25,11 +25,11 @@ from damper_emulator.model.compressible import DamperModel, DamperStepper
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.hybrid.compensator import Compensator
 from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
-from ride_sim.hybrid.rig_host import RECORD_COLUMNS, Command, RigHost, export_measured
+from ride_sim.hybrid.rig_host import HOST_CYCLE_S, RECORD_COLUMNS, Command, RigHost, export_measured
 
 __all__ = ["RECORD_COLUMNS", "RIDE_KEYS", "Command", "HybridHost", "HybridRoad",
            "export_measured", "hybrid_road", "reference_run"]
-from ride_sim.hybrid.transfer import TransferEstimate
+from ride_sim.hybrid.transfer import NOMINAL_ESTIMATE
 from ride_sim.params import QuarterCarParams, RoadParams
 from ride_sim.quarter_car import RideResult, simulate
 from ride_sim.road import iso8608_class
@@ -106,7 +106,7 @@ class HybridHost(RigHost):
     RUN_PHASE = "ride"
 
     def __init__(self, run: HybridRunParams, car: QuarterCarParams, twin: DamperModel,
-                 compensator: CompensatorParams, safety: SafetyParams, dt_s: float = 1e-3,
+                 compensator: CompensatorParams, safety: SafetyParams, dt_s: float = HOST_CYCLE_S,
                  executor: Any = None) -> None:
         road = hybrid_road(run, dt_s)
         super().__init__(run, compensator, safety, dt_s, road.heights.size, executor)
@@ -132,8 +132,7 @@ class HybridHost(RigHost):
                            self.twin_model, self.road.heights)
         comp.reset(0.0, 0.0)
         comp.observe(0.0, 0.0, static)
-        estimate = TransferEstimate(0.0055, 40.0, 0.7, 1.0)
-        comp.demand(np.zeros(4), 0, estimate, estimate.delay_s, 1.0)
+        comp.demand(np.zeros(4), 0, NOMINAL_ESTIMATE, NOMINAL_ESTIMATE.delay_s, 1.0)
 
     def _after_fit(self, t_s: float) -> tuple[float, float]:
         self.session = RideSession.on_road(self.car, self.road.heights, self.road.n_lead,

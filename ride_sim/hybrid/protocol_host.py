@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
-from ride_sim.hybrid.rig_host import RigHost
+from ride_sim.hybrid.rig_host import HOST_CYCLE_S, RigHost
 
 #: The hold at the history's first stroke before it starts [s].
 START_HOLD_S = 0.2
@@ -47,7 +47,7 @@ class ProtocolHost(RigHost):
     RUN_PHASE = "test"
 
     def __init__(self, run: HybridRunParams, compensator: CompensatorParams,
-                 safety: SafetyParams, stroke_m: Any, dt_s: float = 1e-3,
+                 safety: SafetyParams, stroke_m: Any, dt_s: float = HOST_CYCLE_S,
                  executor: Any = None) -> None:
         x = np.ascontiguousarray(stroke_m, dtype=float)
         if x.ndim != 1 or x.size < 3 or not np.isfinite(x).all():

@@ -225,6 +225,75 @@ def _writer_main(conn: Connection, out: str, dt_s: float, bag: bool) -> None:
         writer.close()
 
 
+class WriterProcess:
+    """The writer process of a run (:func:`_writer_main`), started ahead of the host: its
+    imports and the bag's codec load while the host builds its reference run and warms
+    up.  :meth:`ready` waits until its files are open; :meth:`close` ends it (idempotent).
+
+    Parameters
+    ----------
+    out : Path
+        The run's directory (exists).
+    dt_s : float
+        The cycle [s].
+    bag : bool
+        Write the bag (``out/bag``) too.
+    """
+
+    def __init__(self, out: Path, dt_s: float, bag: bool = True) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        ours, theirs = ctx.Pipe(duplex=True)
+        self.process: Any = ctx.Process(target=_writer_main, name="hybrid-writer",
+                                        args=(theirs, str(out), float(dt_s), bag),
+                                        daemon=False)
+        self.process.start()
+        theirs.close()
+        self.conn: Connection | None = ours
+
+    def ready(self) -> None:
+        """Wait until the writer has opened its files.
+
+        Raises
+        ------
+        RecorderError
+            It did not start within :data:`WRITER_START_TIMEOUT_S`, or could not open them.
+        """
+        conn = self.conn
+        assert conn is not None
+        if not conn.poll(WRITER_START_TIMEOUT_S):
+            self.close()
+            raise RecorderError(f"the record's writer did not start within "
+                                f"{WRITER_START_TIMEOUT_S:g} s")
+        try:
+            answer = conn.recv()
+        except EOFError:
+            answer = "it ended"
+        if answer != "ready":
+            self.close()
+            raise RecorderError(f"the record's writer could not start: {answer}")
+
+    def send(self, chunk: Chunk) -> None:
+        """Hand ``chunk`` over to be written."""
+        if not self.process.is_alive():
+            raise RecorderError(f"the record's writer process ended (status "
+                                f"{self.process.exitcode}) during the run")
+        assert self.conn is not None
+        self.conn.send(chunk)
+
+    def close(self) -> int:
+        """Tell the writer the run is over, wait for it to close its files; its exit
+        status."""
+        if self.conn is not None:
+            try:
+                self.conn.send(None)
+            except OSError:
+                pass
+            self.conn.close()
+            self.conn = None
+        self.process.join()
+        return int(self.process.exitcode)
+
+
 class HybridRecorder:
     """Hands ``host``'s completed samples to a :class:`RecordWriter` every ``period_s``.
 
@@ -245,12 +314,15 @@ class HybridRecorder:
         ``/diagnostics`` of ``damper-hil hybrid --ros``.
     diagnostics_s : float
         The window of ``on_status`` [s].
+    writer : WriterProcess, optional
+        The writer process, started earlier (default: started on entering); the recorder
+        closes it.
     """
 
     def __init__(self, out: Path, host: HybridHost, *, bag: bool = True,
                  period_s: float = 0.1, in_process: bool = False,
                  on_status: Callable[[int, str, list[tuple[str, str]]], None] | None = None,
-                 diagnostics_s: float = 1.0) -> None:
+                 diagnostics_s: float = 1.0, writer: WriterProcess | None = None) -> None:
         self.out = Path(out)
         self.host = host
         self.csv_path = self.out / "hybrid.csv"
@@ -262,8 +334,7 @@ class HybridRecorder:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._writer: RecordWriter | None = None
-        self._conn: Connection | None = None
-        self._process: Any = None
+        self._process: WriterProcess | None = writer
         self.error: BaseException | None = None
         self._on_status = on_status
         self._status_window = max(1, int(round(diagnostics_s / host.dt_s)))
@@ -273,25 +344,10 @@ class HybridRecorder:
         if self._in_process:
             self._writer = RecordWriter(self.out, self.host.dt_s, bag=self._bag)
         else:
-            ctx = multiprocessing.get_context("spawn")
-            ours, theirs = ctx.Pipe(duplex=True)
-            self._process = ctx.Process(target=_writer_main, name="hybrid-writer",
-                                        args=(theirs, str(self.out), self.host.dt_s,
-                                              self._bag), daemon=False)
-            self._process.start()
-            theirs.close()
-            self._conn = ours
+            if self._process is None:
+                self._process = WriterProcess(self.out, self.host.dt_s, self._bag)
             # the writer's start-up (imports, the bag's codec) before the run, not in it
-            if not ours.poll(WRITER_START_TIMEOUT_S):
-                raise RecorderError(f"the record's writer did not start within "
-                                    f"{WRITER_START_TIMEOUT_S:g} s")
-            try:
-                answer = ours.recv()
-            except EOFError:
-                answer = "it ended"
-            if answer != "ready":
-                self._process.join()
-                raise RecorderError(f"the record's writer could not start: {answer}")
+            self._process.ready()
         self._thread = threading.Thread(target=self._run, name="hybrid-recorder",
                                         daemon=True)
         self._thread.start()
@@ -306,18 +362,12 @@ class HybridRecorder:
         finally:
             if self._writer is not None:
                 self._writer.close()
-            if self._conn is not None:
-                try:
-                    self._conn.send(None)
-                except OSError:
-                    pass
-                self._conn.close()
             if self._process is not None:
-                self._process.join()
-                if self._process.exitcode != 0 and self.error is None:
+                status = self._process.close()
+                if status != 0 and self.error is None:
                     self.error = RecorderError(
-                        f"the record's writer process ended with status "
-                        f"{self._process.exitcode}: {self.csv_path} may be incomplete")
+                        f"the record's writer process ended with status {status}: "
+                        f"{self.csv_path} may be incomplete")
 
     def _run(self) -> None:
         while not self._stop.wait(self._period):
@@ -340,11 +390,8 @@ class HybridRecorder:
         if self._writer is not None:
             self._writer.write(chunk)
         else:
-            assert self._conn is not None
-            if self._process is not None and not self._process.is_alive():
-                raise RecorderError(f"the record's writer process ended (status "
-                                    f"{self._process.exitcode}) during the run")
-            self._conn.send(chunk)
+            assert self._process is not None
+            self._process.send(chunk)
         self._written = k
         while self._on_status is not None and self._next_status <= k:
             end = self._next_status

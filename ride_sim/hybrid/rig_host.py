@@ -43,8 +43,17 @@ from damper_emulator.dyno.measured import write_measured_csv
 from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
 from ride_sim.hybrid.rig import Feedback
 from ride_sim.hybrid.safety import SafetyLayer
-from ride_sim.hybrid.transfer import TransferEstimate, TransferTracker, excitation, identify
+from ride_sim.hybrid.transfer import (
+    NOMINAL_ESTIMATE,
+    TransferEstimate,
+    TransferTracker,
+    excitation,
+    identify,
+    response,
+)
 
+#: The host's cycle: one per cycle of a dyno at 1 kHz [s] (the hosts' default ``dt_s``).
+HOST_CYCLE_S = 1e-3
 #: Rows of a run's record (:attr:`RigHost.record`), in ``hybrid.csv``'s order after
 #: ``t_monotonic_ns`` and ``time``.
 RECORD_COLUMNS = ("stroke_target", "stroke_command", "stroke_measured", "force_measured",
@@ -133,11 +142,10 @@ class RigHost:
         self.k = 0
 
     def warm_up(self) -> None:
-        """Load what the identification's fit runs before the loop's clock starts."""
-        u = self._excitation
-        identify(u, np.concatenate([np.zeros(5), u[:-5]]), self.dt_s,
-                 self.compensator_params.max_delay_s)
-        TransferTracker(TransferEstimate(0.0055, 40.0, 0.7, 1.0), self.dt_s).push(0.0, 0.0)
+        """Run once what the cycle's tracker and the identification's model use before the
+        loop's clock starts (the fit itself runs off the loop, on the executor)."""
+        response(self._excitation, self.dt_s, NOMINAL_ESTIMATE)
+        TransferTracker(NOMINAL_ESTIMATE, self.dt_s).push(0.0, 0.0)
 
     # -- state -------------------------------------------------------------------------
     @property

@@ -61,6 +61,11 @@ class TransferEstimate:
                 "damping": self.damping, "gain": self.gain, "fit_nrms": self.fit_nrms}
 
 
+#: A transfer system like the rigs' (5.5 ms, 40 Hz, ζ 0.7, gain 1): what the hosts'
+#: warm-ups run on before the rig's own is known.
+NOMINAL_ESTIMATE = TransferEstimate(0.0055, 40.0, 0.7, 1.0)
+
+
 def servo_filter(bandwidth_hz: float, damping: float, dt_s: float
                  ) -> tuple[np.ndarray, np.ndarray]:
     """``(b, a)`` of the servo ``ω²/(s² + 2ζωs + ω²)`` discretised with a zero-order hold

@@ -180,7 +180,7 @@ class RideNode(Node):
             return
         row = self.session.last()
         k = self.session.k - 1
-        u0, u1 = qc._road_pair(self.session.heights, k)   # the road over the step
+        u0, u1 = qc.road_pair(self.session.heights, k)   # the road over the step
         self._ride_out.publish(stamp, (
             float(row[qc.O_Z1]), float(row[qc.O_Z2]), float(u0),
             float(row[qc.O_Z1D]), float(row[qc.O_Z2D]), float(u1 - u0) / self.session.dt_s,

@@ -66,6 +66,15 @@ def test_delay_line_gives_the_demand_in_effect_a_delay_after_it_arrived():
     assert line.at(0.005) == 2.0
 
 
+def test_delay_line_moves_a_demand_on_at_its_rate_for_the_horizon_only():
+    line = DelayLine(0.004, horizon_s=0.002)
+    line.push(0.0, 1.0, rate=10.0)
+    assert line.at(0.0045) == pytest.approx(1.0 + 10.0 * 0.0005, abs=1e-12)
+    assert line.at(0.1) == pytest.approx(1.0 + 10.0 * 0.002, abs=1e-12)   # no further
+    line.push(0.2, 3.0)                                                     # rate 0: held
+    assert line.at(0.3) == 3.0
+
+
 def test_virtual_rig_lags_a_sine_as_its_transfer_function_says(model):
     act = ActuatorParams(delay_s=0.004, bandwidth_hz=40.0, damping=0.7)
     rig = VirtualRig(model, act, RigParams(force_noise_n=0.0, stroke_noise_m=0.0))

@@ -102,10 +102,10 @@ class DelayLine:
     initial : float
         The demand in effect before any arrived.
     horizon_s : float
-        The longest a demand moves on at its rate [s].
+        The longest a demand moves on at its rate [s] (default 0: each demand is held).
     """
 
-    def __init__(self, delay_s: float, initial: float = 0.0, horizon_s: float = 0.05) -> None:
+    def __init__(self, delay_s: float, initial: float = 0.0, horizon_s: float = 0.0) -> None:
         self.delay_s = float(delay_s)
         self.horizon_s = float(horizon_s)
         self._times: deque[float] = deque()

@@ -20,6 +20,15 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
+from diagnose_support import (
+    FEW_NFEV,
+    NOISE_N,
+    PARAMETER_TOLERANCE,
+    PROTOCOL,
+    identify_and_diagnose,
+    pooled,
+    truth_session,
+)
 
 from damper_emulator.diagnose.report import markdown, named_from, write_report
 from damper_emulator.diagnose.selection import (
@@ -34,113 +43,16 @@ from damper_emulator.diagnose.selection import (
 from damper_emulator.diagnose.truth import (
     EXAMPLE_EFFECTS,
     REALISTIC,
-    Protocol,
     example_config,
     simulate_session,
     write_session,
 )
-from damper_emulator.dyno.protocols import Chirp, QuasiStatic
 from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import EXTENSION_FAMILIES, load_config, save_config
 from damper_hil.cli import main
 
 pytestmark = pytest.mark.slow
-
-#: a shorter chirp and one quasi-static cycle keep the suite quick; the rest as the paper
-PROTOCOL = Protocol(chirp=Chirp(duration_s=12.0), quasi_static=QuasiStatic(cycles=1))
-NOISE_N = 4.0
-#: joint-fit evaluations where a test compares two runs rather than the fit's result
-FEW_NFEV = 6
-#: for each single effect, two candidates that take part of it when it is absent
-CONFUSABLE = {
-    "lugre_friction": ("end_stops", "valve_lag"),
-    "viscosity_temperature": ("valve_lag", "gas_heat_transfer"),
-    "cavitation": ("air_entrainment", "series_compliance"),
-    "valve_lag": ("series_compliance", "air_entrainment"),
-    "series_compliance": ("valve_lag", "air_entrainment"),
-    "end_stops": ("gas_heat_transfer", "bypass_groove"),
-    "air_entrainment": ("series_compliance", "cavitation"),
-    "bypass_groove": ("end_stops", "lugre_friction"),
-    "gas_heat_transfer": ("end_stops", "air_entrainment"),
-}
-#: relative tolerance on the main recovered parameters (identification from the same
-#: data and a truth of another model form: the parameters are close, not exact)
-PARAMETER_TOLERANCE = 0.25
-#: the parameters checked (the others are weakly determined on the short protocol)
-CHECKED = {"lugre_friction": ("coulomb_n",), "cavitation": (),
-           "viscosity_temperature": ("temperature_coefficient_per_k",),
-           "end_stops": ("rebound_position_m", "compression_position_m"),
-           "bypass_groove": ("center_m", "half_length_m")}
-
-
-def _session(effects, damper="sport", seed=3, extra_force=None, chain_given=True):
-    """The data sheet and the files.  The truth's files are recorded raw, and with
-    ``chain_given`` the test says so (``--rig`` of a rig without filter): the diagnosis
-    then does not estimate the rig's delay, one fit fewer per round (the tests of the
-    estimated chain are the load-cell filter's, the inertia's and the command line's)."""
-    import dataclasses
-
-    from damper_emulator.acquisition.rig import RigParams
-
-    sheet = load_config(f"config/{damper}.yaml")
-    truth = example_config(effects, sheet)
-    data = list(simulate_session(truth, PROTOCOL, noise_std_n=NOISE_N, seed=seed,
-                                 temperature=True, extra_force=extra_force,
-                                 form=REALISTIC).values())
-    if chain_given:
-        data = [dataclasses.replace(d, acquisition=RigParams()) for d in data]
-    return sheet, data
-
-
-def _identify_and_diagnose(sheet, data, effects=None, **kw):
-    cfg = identify(data[0], data[1], sheet).config
-    return diagnose(DamperModel(cfg), data[:2], data[2:], effects, jobs=2, **kw)
-
-
-def _pooled(rms: dict[str, float], names) -> float:
-    return math.sqrt(sum(rms[n] ** 2 for n in names) / len(names))
-
-
-#: families not yet found after an identification on the same files on this protocol
-#: (the diagnosis is an honest ``other``): skipped, not a strict xfail, a whole diagnosis
-#: only to see it still fail; the truth benchmark re-runs it.  None since 2026-11-26: the
-#: gas heat transfer is found since the slow test has a friction of its own
-#: (``joint.QUASI_STATIC_FRICTION_RATIO``; its heat loss had mimicked the truth's smooth
-#: friction)
-NOT_YET: dict[str, str] = {}
-
-
-@pytest.mark.parametrize("effect", [
-    pytest.param(e, marks=pytest.mark.skip(reason=f"not yet found (issue 15): {NOT_YET[e]}; "
-                                                  "benchmarks/diagnose_bench.py tracks it"))
-    if e in NOT_YET else e for e in EXAMPLE_EFFECTS])
-def test_each_family_is_found_after_identify_on_the_same_files(effect):
-    sheet, data = _session(effect)
-    diag = _identify_and_diagnose(sheet, data, [effect, *CONFUSABLE[effect]])
-    assert diag.family == EXTENSION_FAMILIES[effect], (
-        f"{effect}: diagnosed {diag.family}; first round "
-        + ", ".join(f"{c.candidate.effect} {c.score:.3f}/{c.delta_bic:.0f}"
-                    for c in diag.ranking))
-    assert diag.effect == effect and diag.significant
-    before = _pooled(diag.rms_before, diag.held_out)
-    after = _pooled(diag.rms_after, diag.held_out)
-    # the effect's residual is gone: down to the floor, and at least halved
-    assert after <= max(diag.floor_n, 2.0 * NOISE_N) and after <= 0.5 * before, (
-        effect, before, after, diag.floor_n)
-    truth_params = EXAMPLE_EFFECTS[effect]["params"]
-    main = diag.to_json()["effects"][0]
-    for name in CHECKED.get(effect, tuple(truth_params)):
-        assert main["parameters"][name] == pytest.approx(
-            truth_params[name], rel=PARAMETER_TOLERANCE), (effect, name, main)
-    # each fitted parameter has a finite uncertainty
-    assert all(math.isfinite(f["std"]) for f in main["fitted"].values()), main
-    if effect == "cavitation":
-        # its fit started from a re-identification with the friction at speed searched:
-        # the truth's smooth seal has 1/tanh(4/5) = 1.5 times the quasi-static friction
-        first = {f["effect"]: f for f in diag.to_json()["rounds"][0]}
-        assert first["cavitation"]["reidentified"], first["cavitation"]
-        assert first["cavitation"]["friction_factor"] == pytest.approx(1.5, abs=0.25)
 
 
 @pytest.mark.parametrize("damper, effects", [
@@ -150,13 +62,13 @@ def test_without_an_extra_effect_the_answer_is_none_on_two_dampers(damper, effec
     """No extension in the truth, only its model-form differences: all nine candidates
     (on the van, the four that took most of a noise-only residual in the benchmark) are
     tried and none is significant."""
-    sheet, data = _session(None, damper)
-    diag = _identify_and_diagnose(sheet, data, effects)
+    sheet, data = truth_session(None, damper)
+    diag = identify_and_diagnose(sheet, data, effects)
     assert diag.family == "none" and diag.effect is None and not diag.significant, [
         (c.candidate.effect, c.score, c.delta_bic) for c in diag.ranking]
     assert not diag.steps and all(not c.significant for c in diag.ranking)
     # the refitted paper's model is within the floor, which is what `none` says
-    refit = _pooled(diag.refit.rms_held_out, diag.held_out)
+    refit = pooled(diag.refit.rms_held_out, diag.held_out)
     assert refit <= diag.floor_n
     # the floor is at least 1 % of the held-out force r.m.s. (the counted samples)
     force = np.concatenate([r.data.force[r.start:] for r in diag.records if r.held_out])
@@ -168,8 +80,8 @@ def test_without_an_extra_effect_the_answer_is_none_on_two_dampers(damper, effec
 
 def test_two_effects_together_are_both_found_by_forward_selection():
     pair = ("lugre_friction", "valve_lag")
-    sheet, data = _session(pair)
-    diag = _identify_and_diagnose(sheet, data, [*pair, "series_compliance"])
+    sheet, data = truth_session(pair)
+    diag = identify_and_diagnose(sheet, data, [*pair, "series_compliance"])
     assert {s.candidate.effect for s in diag.steps} == set(pair), diag.to_json()["rounds"]
     doc = diag.to_json()
     assert doc["effect"] == doc["effects"][0]["effect"]
@@ -178,7 +90,7 @@ def test_two_effects_together_are_both_found_by_forward_selection():
     # the model after carries both effects, with the fitted values the JSON reports
     active = diag.model_after().cfg.damper.extensions.active()
     assert sorted(active) == sorted(pair)
-    after = _pooled(diag.rms_after, diag.held_out)
+    after = pooled(diag.rms_after, diag.held_out)
     assert after <= max(diag.floor_n, 2.0 * NOISE_N)
 
 
@@ -190,8 +102,8 @@ def test_two_effects_the_identification_files_confound_are_found_as_a_pair():
     groove (the most evidence on the identification files) with each other candidate and
     adds the pair, which takes the held-out residual to the floor."""
     pair = ("bypass_groove", "viscosity_temperature")
-    sheet, data = _session(pair)
-    diag = _identify_and_diagnose(sheet, data, [*pair, "valve_lag"])
+    sheet, data = truth_session(pair)
+    diag = identify_and_diagnose(sheet, data, [*pair, "valve_lag"])
     assert not any(f.significant for f in diag.rounds[0]), diag.to_json()["rounds"]
     assert [s.candidate.effect for s in diag.steps] == list(pair), diag.to_json()["rounds"]
     assert diag.family == EXTENSION_FAMILIES["bypass_groove"]
@@ -199,7 +111,7 @@ def test_two_effects_the_identification_files_confound_are_found_as_a_pair():
     assert doc["pair_gain"] == doc["score"] == diag.pair_gain >= MIN_SCORE
     # the groove was not significant alone; the temperature law is, on top of it
     assert [e["significant"] for e in doc["effects"]] == [False, True]
-    assert _pooled(diag.rms_after, diag.held_out) <= max(diag.floor_n, 2.0 * NOISE_N)
+    assert pooled(diag.rms_after, diag.held_out) <= max(diag.floor_n, 2.0 * NOISE_N)
     assert f"cuts the held-out r.m.s. by {100 * diag.pair_gain:.1f} %" in markdown(diag)
     fitted = {e["effect"]: e["parameters"] for e in doc["effects"]}
     for effect, names in (("bypass_groove", ("center_m", "half_length_m")),
@@ -240,7 +152,7 @@ def test_a_load_cell_filter_is_the_rigs_not_an_effect(tmp_path):
     sheet = load_config("config/sport.yaml")
     data = list(simulate_session(example_config(None, sheet), PROTOCOL, NOISE_N, seed=4,
                                  temperature=True, form=REALISTIC, rig=rig).values())
-    diag = _identify_and_diagnose(sheet, data, ["valve_lag", "series_compliance"])
+    diag = identify_and_diagnose(sheet, data, ["valve_lag", "series_compliance"])
     doc = diag.to_json()
     assert diag.family == "none" and not diag.steps, (doc["rounds"], doc["acquisition"])
     acq = doc["acquisition"]
@@ -248,8 +160,8 @@ def test_a_load_cell_filter_is_the_rigs_not_an_effect(tmp_path):
     assert acq["force_delay_s"] == pytest.approx(math.sqrt(2) / (2 * math.pi * 150.0),
                                                  rel=0.1)
     assert 0 < acq["force_delay_std_s"] < 0.1 * acq["force_delay_s"]
-    before = _pooled(diag.rms_before, diag.held_out)
-    after = _pooled(diag.rms_after, diag.held_out)
+    before = pooled(diag.rms_before, diag.held_out)
+    after = pooled(diag.rms_after, diag.held_out)
     assert after <= max(diag.floor_n, 2.0 * NOISE_N) and after < 0.25 * before
     # the delay is the rig's: not among the damper's parameters
     assert "acquisition_delay_s" not in doc["base_parameters_after"]["values"]
@@ -277,10 +189,10 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia(tmp_pat
     def inertia(t, x, v):
         return mass_kg * np.gradient(v, t)
 
-    sheet, data = _session(None, extra_force=inertia, chain_given=False)
+    sheet, data = truth_session(None, extra_force=inertia, chain_given=False)
     # the two candidates that act on the force's phase most as a mass does (the benchmark
     # runs all nine)
-    diag = _identify_and_diagnose(sheet, data, ["valve_lag", "series_compliance"])
+    diag = identify_and_diagnose(sheet, data, ["valve_lag", "series_compliance"])
     assert diag.structure_before > STRUCTURE_RATIO  # there is something to find
     doc = diag.to_json()
     found = doc["discovered"]
@@ -319,7 +231,7 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia(tmp_pat
 def test_the_fits_run_on_any_executor_in_self_contained_tasks():
     """A spawned process pool shares nothing with this process (no fork, no globals), as
     a cluster's workers would: the same diagnosis comes back."""
-    sheet, data = _session("valve_lag")
+    sheet, data = truth_session("valve_lag")
     cfg = identify(data[0], data[1], sheet).config
     # a few evaluations per fit: the point is that both executors give the same fits
     kw = {"max_effects": 1, "nfev": FEW_NFEV}
@@ -356,7 +268,7 @@ def test_a_fit_task_runs_blas_on_one_thread_and_gives_the_caller_its_threads_bac
         raise Stop
 
     monkeypatch.setattr(selection, "joint_fit", joint_fit)
-    _, data = _session("valve_lag")
+    _, data = truth_session("valve_lag")
     task = FitTask(load_config(), (data[0], data[1]), (data[2],), (1.0, 1.0), {}, (), None)
     with threadpool_limits(limits=2, user_api="blas"):
         before = blas_threads()
@@ -498,7 +410,7 @@ def test_a_runaway_simulation_counts_as_refused_and_the_fit_ends_cleanly(monkeyp
         make_record,
     )
 
-    sheet, data = _session(())
+    sheet, data = truth_session(())
     records = [make_record(d, False) for d in data[:2]]
     lag = next(c for c in candidates(sheet, data[:2]) if c.effect == "valve_lag")
     base = {p.name: p.start for p in base_parameters(sheet, data[:2])}
@@ -555,7 +467,7 @@ def test_the_jacobian_is_scipys_forward_difference_and_steps_back_where_refused(
 
     from damper_emulator.diagnose.joint import DIFF_STEP
 
-    sheet, data = _session(())
+    sheet, data = truth_session(())
     space, s = _lag_space(sheet, data, monkeypatch, lambda tau: False)
     f0 = space.residuals(s)
     reference = approx_derivative(space.residuals, s, method="2-point", rel_step=DIFF_STEP,
@@ -580,7 +492,7 @@ def test_sigma_is_the_covariance_of_the_resolved_parameters_and_infinite_for_the
     both ways has no slope and an infinite σ."""
     import types
 
-    sheet, data = _session(())
+    sheet, data = truth_session(())
     space, s = _lag_space(sheet, data, monkeypatch,
                           lambda tau: abs(tau - 2e-3) > 1e-12)
     f0 = space.residuals(s)
@@ -628,7 +540,7 @@ def test_a_joint_fit_stops_after_a_step_that_moves_neither_measure(monkeypatch):
     Jacobian it took), its cost, and the differenced Jacobian there (for σ)."""
     from damper_emulator.diagnose import joint
 
-    sheet, data = _session(())
+    sheet, data = truth_session(())
     space, s = _lag_space(sheet, data, monkeypatch, lambda tau: False)
     rng = np.random.default_rng(3)
     n = space.n
@@ -676,7 +588,7 @@ def test_the_slow_test_gets_its_own_friction_as_a_smooth_seal_gives_it():
         make_record,
     )
 
-    sheet, data = _session(())
+    sheet, data = truth_session(())
     cfg = identify(data[0], data[1], sheet).config
     records = [make_record(d, False) for d in data[:2]]
     weights = [1.0 / (math.sqrt(r.counted) * NOISE_N) for r in records]
@@ -749,7 +661,7 @@ def test_identify_takes_the_friction_at_speed_as_a_multiple_of_the_quasi_static_
     from damper_emulator.diagnose.joint import make_record
     from damper_emulator.identify.quasi_static import IdentificationError
 
-    sheet, data = _session(())
+    sheet, data = truth_session(())
     truth = sheet.damper
     plain = identify(data[0], data[1], sheet)
     speed = float(np.median(np.abs(make_record(data[0], False).velocity)))

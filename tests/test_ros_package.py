@@ -1,4 +1,4 @@
-"""Issue 18: the repository is a colcon-buildable ROS 2 package (``damper_hil``,
+"""The repository is a colcon-buildable ROS 2 package (``damper_hil``,
 ament_python).  ``package.xml`` is validated with catkin_pkg; a copy of the repository (its
 tracked and unignored files, as a clone has them) is built with ``colcon build`` in a
 workspace of its own, and the installed executables run from the workspace's environment
@@ -47,6 +47,12 @@ def test_package_xml_is_valid_and_declares_every_dependency():
     from importlib import metadata
 
     assert pkg.version == metadata.version("damper-hil")
+    # one licence: the ROS convention's, the same in package.xml, the Python metadata and
+    # the LICENSE file
+    assert pkg.licenses == ["Apache-2.0"]
+    assert metadata.metadata("damper-hil")["License"] == "Apache-2.0"
+    text = (ROOT / "LICENSE").read_text(encoding="utf-8")
+    assert "Apache License" in text and "Version 2.0, January 2004" in text
     runtime = [r for r in metadata.requires("damper-hil") or [] if "extra ==" not in r]
     assert runtime
     for spec in runtime:

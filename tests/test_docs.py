@@ -93,3 +93,17 @@ def test_every_number_in_the_schema_states_its_unit_and_rule():
     # every spec says what its rule is (none falls through to a bare type)
     assert all(s.constraint for group, _, _, cls, _ in _groups()
                for s in field_specs(cls, group))
+
+
+def test_the_pre_commit_hooks_run_what_make_test_runs():
+    """``.pre-commit-config.yaml`` runs the linter and the type checker ``make test`` runs,
+    with the same arguments (their settings live in pyproject.toml for both)."""
+    import yaml
+
+    config = yaml.safe_load((REPO / ".pre-commit-config.yaml").read_text(encoding="utf-8"))
+    hooks = {h["id"]: h for repo in config["repos"] for h in repo["hooks"]}
+    recipe = (REPO / "Makefile").read_text(encoding="utf-8").split("\ntest:", 1)[1]
+    made = [line.strip().replace("$(BIN)", ".venv/bin") for line in recipe.splitlines()[1:3]]
+    # make test lints the whole tree (ruff check .); the hook gets the changed files
+    assert made == [hooks["ruff"]["entry"] + " .", hooks["mypy"]["entry"]]
+    assert hooks["mypy"]["pass_filenames"] is False

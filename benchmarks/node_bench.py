@@ -58,7 +58,7 @@ def receive(domain: int, n_max: int, duration_s: float, out: str, ready) -> None
     import rclpy
     from sensor_msgs.msg import JointState
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos
 
     sys.setswitchinterval(1e-4)
@@ -92,9 +92,9 @@ def measure(rate_hz: float, fifo: bool, latency_us: int, duration_s: float, work
     import rclpy
     from sensor_msgs.msg import JointState
 
+    from damper_emulator import topics
     from damper_emulator.realtime.loop import PeriodicLoop
     from damper_emulator.realtime.rt import RealtimeRequest
-    from damper_emulator.ros import topics
     from damper_emulator.ros.common import control_qos
 
     tag = f"{int(rate_hz)}_{int(fifo)}_{latency_us}"

@@ -1,6 +1,8 @@
-"""CAN bridge between the emulator and a CAN dyno or adaptive-damper controller (issue 6).
+"""The CAN side: the bridge between the emulator and a CAN dyno or adaptive-damper
+controller, and the physical damper in the loop's link and virtual rig.
 
-The CAN layer is pure Python (no rclpy):
+The CAN layer is pure Python (no rclpy; the bridge's node, :mod:`can_bridge.node`, is the
+rclpy shell beside :mod:`can_bridge.core`):
 
 - :mod:`can_bridge.dbc`: the database ``config/damper.dbc`` (cantools), its checks, cycle
   times and bus load;

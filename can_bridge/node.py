@@ -30,11 +30,11 @@ from can_bridge.settings import (
     bridge_params_from_mapping,
     default_bridge_mapping,
 )
+from damper_emulator import topics
 from damper_emulator.bag.cdr_fast import JointStateSample
 from damper_emulator.params import ParameterError
 from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
-from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
     JointStateIn,
     JointStateOut,

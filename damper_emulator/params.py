@@ -34,6 +34,8 @@ from damper_emulator.model.valve import VALVE_FORMS
 if TYPE_CHECKING:  # pragma: no cover
     from _typeshed import DataclassInstance
 
+    from damper_emulator.model.valve_table import ValveTable
+
 #: a parameter group (a dataclass of :func:`rule` fields)
 _G = TypeVar("_G", bound="DataclassInstance")
 
@@ -670,16 +672,34 @@ def validate(cfg: ModelConfig) -> None:
     if d.adaptive is not None:
         _check_adaptive(d, where)
     # The inverse valve table checks monotonicity of both characteristics.
-    from damper_emulator.model.valve_table import ValveTableError, build_valve_tables
+    from damper_emulator.model.valve_table import ValveTableError
 
     try:
-        build_valve_tables(cfg)
+        valve_tables(cfg)
     except ValveTableError as exc:
         raise ParameterError(f"{where}: {exc}") from None
     except ArithmeticError as exc:  # a division by zero or overflow in the valve laws
         raise ParameterError(f"{where}: the valve characteristics cannot be evaluated "
                              f"({one_line(exc, with_type=True)}): a valve parameter is "
                              "far outside its physical range") from None
+
+
+def valve_tables(cfg: ModelConfig) -> tuple[ValveTable, ValveTable]:
+    """The inverse valve tables (rebound, compression) of ``cfg``'s valves (docs/model.md
+    §2.1; :func:`damper_emulator.model.valve_table.build_valve_tables`).
+
+    Raises
+    ------
+    damper_emulator.model.valve_table.ValveTableError
+        A characteristic that is not finite and strictly increasing up to the table's
+        largest velocity.
+    """
+    from damper_emulator.model.valve_table import build_valve_tables
+
+    d, n = cfg.damper, cfg.numerics
+    return build_valve_tables(d.rebound, d.compression, d.annulus_area_m2,
+                              d.oil_kinematic_viscosity_m2_s, n.valve_form,
+                              n.valve_table_points, n.valve_table_max_velocity_m_s)
 
 
 def _check_adaptive(d: DamperParams, where: str) -> None:

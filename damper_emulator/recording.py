@@ -13,9 +13,7 @@ import numpy as np
 
 from damper_emulator import force_message
 from damper_emulator.bag import BagError, cdr_fast, open_bag
-
-# the topic names only: damper_emulator.ros.topics imports no rclpy
-from damper_emulator.ros.topics import DIAGNOSTICS, FORCE, RIDE_STATE, STATE, VALVE_COMMAND
+from damper_emulator.topics import DIAGNOSTICS, FORCE, RIDE_STATE, STATE, VALVE_COMMAND
 
 
 @dataclass(frozen=True)

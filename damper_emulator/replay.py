@@ -69,7 +69,7 @@ Semantics
    recorded and replayed force against time, their difference, and a detail around the
    largest difference.
 
-The model runs in :func:`~damper_emulator.model.compressible._simulate`, the batch loop
+The model runs in :func:`~damper_emulator.model.compressible.simulate_samples`, the batch loop
 around the stepper's kernel, on times in seconds relative to the first sample: its time
 steps are float differences of those, equal to the node's ``Δns · 1e-9`` to about 1e-12
 (relative), so a replay of exactly the node's inputs gives its forces to about 1e-6 N,
@@ -116,9 +116,9 @@ from damper_emulator.errors import UserError
 from damper_emulator.model.compressible import (
     DamperModel,
     DamperStepper,
-    _simulate,
-    _simulate_commanded,
     new_state,
+    simulate_commanded_samples,
+    simulate_samples,
 )
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.core import (
@@ -135,7 +135,7 @@ from damper_emulator.realtime.settings import (
     emulator_params_from_mapping,
 )
 from damper_emulator.recording import read_valve_commands
-from damper_emulator.ros.topics import FORCE, STATE, VALVE_COMMAND
+from damper_emulator.topics import FORCE, STATE, VALVE_COMMAND
 
 __all__ = [
     "BagData",
@@ -305,9 +305,9 @@ def _run_model(model: DamperModel, stamp_ns: np.ndarray, x: np.ndarray, v: np.nd
         args = (model.prm, model.tables[0].coef, model.tables[1].coef, new_state(), t,
                 np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(v, dtype=float))
         if command is None:
-            _simulate(*args, force, np.empty(n), np.empty(n), flags)
+            simulate_samples(*args, force, np.empty(n), np.empty(n), flags)
         else:
-            _simulate_commanded(*args, np.ascontiguousarray(command, dtype=float),
+            simulate_commanded_samples(*args, np.ascontiguousarray(command, dtype=float),
                                 np.full(n, np.nan), force, np.empty(n), np.empty(n),
                                 np.empty(n), flags)
     return force, flags

@@ -21,9 +21,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from can_bridge.loopback import default_bus
+from damper_emulator import topics
 from damper_emulator.errors import DamperHilError
 from damper_emulator.recording import read_recording
-from damper_emulator.ros import topics
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
 from damper_hil.hil_report import write_report
 from ride_sim import loop_delay

@@ -18,9 +18,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from damper_emulator import force_message
+from damper_emulator import force_message, topics
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
-from damper_emulator.ros import topics
 from damper_emulator.ros.common import JointStateIn, control_qos, log_info, take_all
 from damper_emulator.ros.live import LIVE_PRIORITY, LiveServer
 from ride_sim.iso2631 import WeightingFilter

@@ -17,12 +17,12 @@ from ride_sim.study import (
     Progress,
     StudyResult,
     StudySettings,
-    _quiet,
-    _summary,
     band_at_speed,
     check_random_road,
     default_model,
+    quiet,
     random_road_input,
+    seed_summary,
 )
 
 #: Cases of :func:`adaptive_study`, in order, and their labels.
@@ -42,7 +42,7 @@ def _ratio_stats(values: Sequence[float]) -> dict[str, float]:
 
 
 def adaptive_study(settings: StudySettings, skyhook, *, model=None,
-                   progress: Progress = _quiet, keep_traces: bool = True) -> StudyResult:
+                   progress: Progress = quiet, keep_traces: bool = True) -> StudyResult:
     """The adaptive damper on ``road.length_m`` of random road at ``road.speed_m_s``,
     ``road.seeds`` seeds: passive sport, passive comfort and skyhook (:data:`ADAPTIVE_CASES`).
 
@@ -130,7 +130,7 @@ def adaptive_study(settings: StudySettings, skyhook, *, model=None,
                     "once per step, force and valve command held (zero-order hold)",
     }
     for case in ADAPTIVE_CASES:
-        doc[case] = _summary(per_seed[case], None)
+        doc[case] = seed_summary(per_seed[case], None)
         doc[case]["fault_bits"] = faults[case]
         if case in _PASSIVE_COMMAND:
             doc[case]["valve_command"] = _PASSIVE_COMMAND[case]

@@ -32,13 +32,12 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from damper_emulator import force_message
+from damper_emulator import force_message, topics
 from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.outputs import write_text
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
-from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
     JointStateIn,
     JointStateOut,

@@ -155,7 +155,7 @@ def state_outputs(q: _Vec, s: _Vec, damper_force: float, u0: float, u1: float
 
 
 @kernel
-def _record(q: _Vec, s: _Vec, k: int, force: float, fault: int, u0: float, u1: float,
+def record_sample(q: _Vec, s: _Vec, k: int, force: float, fault: int, u0: float, u1: float,
             out: _Vec, faults: NDArray[np.int64]) -> None:
     sws, accel, dtl = state_outputs(q, s, force, u0, u1)
     x, v = state_motion(q, s)
@@ -198,7 +198,7 @@ def _loop_compressible(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force0: float, prm
             x, v = state_motion(q, s)
             force, fault = _compressible_step(prm, coef_r, coef_c, dstate, x, v, q[Q_DT])
         u0, u1 = road_pair(road, k)
-        _record(q, s, k, force, fault, u0, u1, out, faults)
+        record_sample(q, s, k, force, fault, u0, u1, out, faults)
         if k + 1 < n:
             advance_state(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]), u0, u1)
 
@@ -216,7 +216,7 @@ def _loop_stateless(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force0: float, kind: 
             force = stateless_force(kind, f0, rate, knots, coef, f_lo, f_hi, slope_lo,
                                     slope_hi, coulomb, v)
         u0, u1 = road_pair(road, k)
-        _record(q, s, k, force, 0, u0, u1, out, faults)
+        record_sample(q, s, k, force, 0, u0, u1, out, faults)
         if k + 1 < n:
             advance_state(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]), u0, u1)
 
@@ -350,7 +350,7 @@ class RideResult:
         return int(np.bitwise_or.reduce(self.faults)) if self.faults.size else 0
 
 
-def _result(t: np.ndarray, road: np.ndarray, out: np.ndarray, faults: np.ndarray, name: str,
+def ride_result(t: np.ndarray, road: np.ndarray, out: np.ndarray, faults: np.ndarray, name: str,
             dt: float) -> RideResult:
     return RideResult(t, road, out[O_SWS], out[O_ACC], out[O_DTL], out[O_Z1], out[O_Z2],
                       out[O_Z1D], out[O_Z2D], out[O_X], out[O_V], out[O_F], faults, name, dt)
@@ -432,8 +432,8 @@ def simulate(params: QuarterCarParams, damper: DamperPlugin, road_height_m: Arra
                                      f"{force!r} at sample {k}")
                 fault = int(getattr(damper, "last_fault", 0))
             u0, u1 = road_pair(road, k)
-            _record(car._q, s, k, force, fault, u0, u1, out, faults)
+            record_sample(car._q, s, k, force, fault, u0, u1, out, faults)
             if k + 1 < n:
                 car.advance(force, u0, u1)
-    return _result(t, road, out, faults, getattr(damper, "name", type(damper).__name__),
+    return ride_result(t, road, out, faults, getattr(damper, "name", type(damper).__name__),
                    car.dt_s)

@@ -31,8 +31,8 @@ from ride_sim.quarter_car import (
     Z2D,
     QuarterCar,
     RideResult,
-    _record,
-    _result,
+    record_sample,
+    ride_result,
     road_pair,
     simulate,
 )
@@ -135,7 +135,7 @@ class RideSession:
         if k >= self.n:
             raise IndexError("the ride is complete")
         u0, u1 = road_pair(self.heights, k)
-        _record(self.car._q, self.car._s, k, float(force_n), int(fault), u0, u1, self._out,
+        record_sample(self.car._q, self.car._s, k, float(force_n), int(fault), u0, u1, self._out,
                 self._faults)
         if k + 1 < self.n:
             self.car.advance(force_n, u0, u1)
@@ -150,7 +150,7 @@ class RideSession:
         """Time histories of the samples run so far."""
         k = self.k
         t = np.arange(k) * self.dt_s
-        return _result(t, self.heights[:k], self._out[:, :k], self._faults[:k], name,
+        return ride_result(t, self.heights[:k], self._out[:, :k], self._faults[:k], name,
                        self.dt_s)
 
     def metrics(self) -> dict[str, float]:

@@ -143,7 +143,7 @@ PAPER_CLAIM = {"dtl_rms_reduction": 0.06, "dtl_peak_reduction": 0.10}
 Progress = Callable[[str], None]
 
 
-def _quiet(_msg: str) -> None:
+def quiet(_msg: str) -> None:
     pass
 
 
@@ -420,7 +420,7 @@ def history_metrics(sws_m: np.ndarray, body_accel_m_s2: np.ndarray, dtl_n: np.nd
     return {k: out[k] for k in OUTPUT_KEYS}
 
 
-def _summary(per_seed: list[dict[str, float]], paper: Mapping[str, float] | None
+def seed_summary(per_seed: list[dict[str, float]], paper: Mapping[str, float] | None
              ) -> dict[str, Any]:
     """Means of each key, their spread over seeds, the paper's values and ratios."""
     doc: dict[str, Any] = {}
@@ -452,7 +452,7 @@ class StudyResult:
 
 
 def figure10(settings: StudySettings, *, representations: Sequence[str] = ALL_REPRESENTATIONS,
-             progress: Progress = _quiet, keep_traces: bool = True) -> StudyResult:
+             progress: Progress = quiet, keep_traces: bool = True) -> StudyResult:
     """Figure 10: ``road.length_m`` of random road at ``road.speed_m_s``, every
     representation on the same ``road.seeds`` seeds; means, spread, the paper's values and
     ratios, the linear frequency-domain prediction and the claim check."""
@@ -503,7 +503,7 @@ def figure10(settings: StudySettings, *, representations: Sequence[str] = ALL_RE
                     "the paper's SWS values are compared with both",
     }
     for kind in representations:
-        doc[kind] = _summary(per_seed[kind], PAPER_FIGURE_10.get(kind))
+        doc[kind] = seed_summary(per_seed[kind], PAPER_FIGURE_10.get(kind))
         doc[kind]["damper"] = dampers[kind].name
         doc[kind]["fault_bits"] = faults[kind]
     if "linear" in representations:
@@ -604,7 +604,7 @@ def pothole_input(road: RoadParams, speed_m_s: float, dt_s: float
 
 
 def figure13(settings: StudySettings, *, representations: Sequence[str] = ALL_REPRESENTATIONS,
-             progress: Progress = _quiet) -> StudyResult:
+             progress: Progress = quiet) -> StudyResult:
     """Figure 13: the pothole at ``road.pothole_speed_m_s``.  r.m.s. over the window
     ``[t_edge − window_before_s, t_edge + window_after_s)``, peaks over the whole run."""
     started = time.perf_counter()
@@ -710,7 +710,7 @@ def crossing_speed(speeds: Sequence[float], a: Sequence[float], b: Sequence[floa
 
 
 def figure11(settings: StudySettings, *, representations: Sequence[str] = REPRESENTATIONS,
-             workers: int | None = None, progress: Progress = _quiet) -> StudyResult:
+             workers: int | None = None, progress: Progress = quiet) -> StudyResult:
     """Figure 11: r.m.s. outputs (weighted acceleration first) against speed on the random
     road, ``road.seeds`` seeds per speed and representation, in a process pool of
     ``workers`` processes (default: all cores; 1 runs in this process)."""

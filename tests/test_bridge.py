@@ -432,7 +432,7 @@ class TestDynoBridge:
         values as published."""
         from sensor_msgs.msg import JointState
 
-        from damper_emulator.ros import topics
+        from damper_emulator import topics
         from damper_emulator.ros.common import control_qos
 
         lone = dyno_rig.lone
@@ -563,7 +563,7 @@ def controller_rig(tmp_path_factory, db):
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos
 
     tmp = tmp_path_factory.mktemp("controller")
@@ -703,7 +703,7 @@ def test_bridge_on_socketcan_vcan0(tmp_path, db):
     assert socketcan_available("vcan0")
     from sensor_msgs.msg import JointState
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos
 
     bridge = start_node("bridge", "bridge", DOMAINS["socketcan"], tmp_path,

@@ -66,15 +66,16 @@ def _type_checking_lines(tree: ast.AST) -> set[int]:
 MODULES = _modules()
 
 
-def _graph() -> tuple[dict[str, set[str]], dict[str, set[str]]]:
+def _graph(type_checking: bool = False) -> tuple[dict[str, set[str]], dict[str, set[str]]]:
     """``(internal, external)``: per module, the project modules and the top-level
-    third-party modules it imports."""
+    third-party modules it imports (with ``type_checking``, those for the type checker
+    only too)."""
     mods = MODULES
     internal: dict[str, set[str]] = defaultdict(set)
     external: dict[str, set[str]] = defaultdict(set)
     for name, path in mods.items():
         tree = ast.parse(path.read_text(encoding="utf-8"))
-        skip = _type_checking_lines(tree)
+        skip = set() if type_checking else _type_checking_lines(tree)
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
         for node in ast.walk(tree):
             if not isinstance(node, (ast.Import, ast.ImportFrom)) or node.lineno in skip:
@@ -104,6 +105,8 @@ def _graph() -> tuple[dict[str, set[str]], dict[str, set[str]]]:
 
 
 GRAPH, EXTERNAL = _graph()
+#: with the imports for the type checker: a reader follows those too
+TYPED_GRAPH, _ = _graph(type_checking=True)
 
 
 def test_packages_depend_downward_only():
@@ -113,6 +116,8 @@ def test_packages_depend_downward_only():
 
 
 def test_no_module_imports_itself_back():
+    """Not even through an import for the type checker: a module a reader must understand
+    before the one it imports is a cycle all the same."""
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     stack: list[str] = []
@@ -123,7 +128,7 @@ def test_no_module_imports_itself_back():
         index[v] = low[v] = len(index)
         stack.append(v)
         on_stack.add(v)
-        for w in GRAPH.get(v, ()):
+        for w in TYPED_GRAPH.get(v, ()):
             if w not in index:
                 visit(w)
                 low[v] = min(low[v], low[w])
@@ -140,10 +145,45 @@ def test_no_module_imports_itself_back():
             if len(comp) > 1:
                 cycles.append(sorted(comp))
 
-    for v in sorted(set(GRAPH) | {w for d in GRAPH.values() for w in d}):
+    for v in sorted(set(TYPED_GRAPH) | {w for d in TYPED_GRAPH.values() for w in d}):
         if v not in index:
             visit(v)
     assert not cycles, cycles
+
+
+def _private_imports() -> list[str]:
+    """Every use of another project module's private name (``_x``): ``from m import _x``
+    and ``m._x`` where ``m`` is a project module."""
+    found = []
+    for name, path in MODULES.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        modules: dict[str, str] = {}        # local name → the project module it is
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name in MODULES:
+                        modules[a.asname or a.name.split(".")[0]] = (
+                            a.name if a.asname else a.name.split(".")[0])
+            elif isinstance(node, ast.ImportFrom) and node.module in MODULES:
+                for a in node.names:
+                    if a.name.startswith("_") and not a.name.startswith("__") \
+                            and node.module != name:
+                        found.append(f"{name}:{node.lineno} from {node.module} import "
+                                     f"{a.name}")
+                    if f"{node.module}.{a.name}" in MODULES:
+                        modules[a.asname or a.name] = f"{node.module}.{a.name}"
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) \
+                    and node.value.id in modules and node.attr.startswith("_") \
+                    and not node.attr.startswith("__") and modules[node.value.id] != name:
+                found.append(f"{name}:{node.lineno} {modules[node.value.id]}.{node.attr}")
+    return sorted(found)
+
+
+def test_no_module_uses_another_modules_private_names():
+    """What one module needs of another is published under a public name."""
+    bad = _private_imports()
+    assert not bad, "\n".join(bad)
 
 
 def _reach(start: str) -> set[str]:

@@ -84,7 +84,7 @@ def _diagnostics(probe: Probe, prefix: str) -> list:
 def test_the_emulator_through_every_transition(tmp_path):
     from sensor_msgs.msg import JointState
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos, set_stamp
 
     node = start_node("emulator", "emulate", DOMAINS["emulator"], tmp_path, {
@@ -206,7 +206,7 @@ def test_the_dyno_bridge_through_every_transition(tmp_path, db):
 def test_the_controller_bridge_applies_its_fail_safe_command_on_deactivation(tmp_path, db):
     from std_msgs.msg import Float64
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos
 
     channel = udp_channel(OFFSETS["controller_bridge"])
@@ -338,7 +338,7 @@ def test_every_transition_in_every_state_is_taken_or_refused(kind, tmp_path, db)
     from lifecycle_msgs.msg import Transition
     from sensor_msgs.msg import JointState
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos
 
     name = MANAGED_NODES[kind][1]
@@ -388,7 +388,7 @@ def _feed_forces(probe: Probe, tap, since_ns: int) -> None:
     publisher on its side)."""
     from sensor_msgs.msg import JointState
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos
 
     pub = probe.node.create_publisher(JointState, topics.FORCE, control_qos(100))
@@ -443,7 +443,7 @@ def test_a_stop_signal_while_active_sends_the_safe_output(kind, signum, tmp_path
     ``/diagnostics``, and the process exits 0."""
     from sensor_msgs.msg import JointState
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos
 
     subcommand, name, params = MANAGED_NODES[kind]

@@ -105,7 +105,7 @@ def test_the_emulator_serves_its_own_live_view(tmp_path):
     from sensor_msgs.msg import JointState
     from test_bridge import start_node  # noqa: E402
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos, set_stamp
 
     with socket.socket() as s:

@@ -243,7 +243,7 @@ def test_newton_solve_of_eq2_converges_in_few_evaluations(sport_model, monkeypat
 
     counts: list[int] = []
     evaluations = [0]
-    valve_state = comp._valve_state
+    valve_state = comp.valve_state
     implicit_substep = comp._implicit_substep
 
     def _py(kernel):  # the Python function of a compiled kernel (itself without numba)
@@ -259,7 +259,7 @@ def test_newton_solve_of_eq2_converges_in_few_evaluations(sport_model, monkeypat
         counts.append(evaluations[0])
         return out
 
-    monkeypatch.setattr(comp, "_valve_state", counting_valve_state)
+    monkeypatch.setattr(comp, "valve_state", counting_valve_state)
     monkeypatch.setattr(comp, "_implicit_substep", counting_substep)
     t, x, v = chirp(1.0, 12.0, duration_s=2.0, rate_hz=1000)
     state = comp.new_state()

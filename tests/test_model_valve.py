@@ -12,7 +12,7 @@ import pytest
 from scipy.optimize import brentq
 
 from damper_emulator.model import valve as V
-from damper_emulator.model.valve_table import build_valve_tables
+from damper_emulator.params import valve_tables
 
 NU = 21e-6  # docs/model.md §2.3
 
@@ -162,7 +162,7 @@ def test_smoothed_curve_continuous_and_strictly_increasing(valve, form):
 def test_inverse_table_round_trip(sport_cfg):
     rng = np.random.default_rng(1)
     d = sport_cfg.damper
-    for side, table in zip(("rebound", "compression"), build_valve_tables(sport_cfg)):
+    for side, table in zip(("rebound", "compression"), valve_tables(sport_cfg)):
         dp = np.exp(rng.uniform(np.log(1.0), np.log(table.max_pressure_drop_pa), 5000))
         q = table.flow(dp)
         back = V.pressure_drop_array(q, getattr(d, side), d.oil_kinematic_viscosity_m2_s)
@@ -181,7 +181,7 @@ def test_valve_point_is_the_exact_pressure_drop_and_the_table_flow(sport_cfg, po
 
     cfg = dataclasses.replace(sport_cfg, numerics=dataclasses.replace(
         sport_cfg.numerics, valve_table_points=points))
-    for table in build_valve_tables(cfg):
+    for table in valve_tables(cfg):
         n = table.coef.shape[0]
         nodes = table.step * np.arange(n + 1)
         z = np.concatenate([nodes, nodes[:-1] + 0.5 * table.step,

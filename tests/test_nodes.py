@@ -22,8 +22,8 @@ from rosbags.rosbag2 import Reader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
+from damper_emulator import topics  # noqa: E402
 from damper_emulator.realtime.core import Status  # noqa: E402
-from damper_emulator.ros import topics  # noqa: E402
 from damper_emulator.ros.common import control_qos  # noqa: E402
 from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment  # noqa: E402
 

@@ -128,7 +128,7 @@ def test_cold_emulate_is_active_before_its_first_force(tmp_path):
     from ros_probe import Probe
     from sensor_msgs.msg import JointState
 
-    from damper_emulator.ros import topics
+    from damper_emulator import topics
     from damper_emulator.ros.common import control_qos
     from damper_emulator.ros.launch import NodeProcess, node_command
 

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from damper_emulator.acquisition.rig import ForceChannel, RigParams, _Channel, rig_to_mapping
+from damper_emulator.acquisition.rig import Channel, ForceChannel, RigParams, rig_to_mapping
 from damper_emulator.errors import UserError
 
 __all__ = ["ESTIMATED_DELAY_BOUND_S", "ESTIMATED_DELAY_START_S", "AcquisitionError",
@@ -58,7 +58,7 @@ class AcquisitionError(UserError):
     """Acquisition settings or data the chain cannot be applied to; one line."""
 
 
-def analog_lowpass(ch: _Channel) -> tuple[np.ndarray, np.ndarray] | None:
+def analog_lowpass(ch: Channel) -> tuple[np.ndarray, np.ndarray] | None:
     """The channel's analog filter ``H(s) = B(s)/A(s)`` as ``(b, a)`` (scipy's order:
     highest power first), ``None`` for ``filter: none``."""
     if not ch.filtered:
@@ -73,7 +73,7 @@ def analog_lowpass(ch: _Channel) -> tuple[np.ndarray, np.ndarray] | None:
     return np.atleast_1d(b), np.atleast_1d(a)
 
 
-def dc_group_delay(ch: _Channel) -> float:
+def dc_group_delay(ch: Channel) -> float:
     """The filter's group delay at zero frequency [s], ``τ = a₁/a₀ − b₁/b₀`` with
     ``H(s) = (b₀ + b₁s + …)/(a₀ + a₁s + …)`` (the slope of ``−arg H(jω)`` at ω = 0);
     0 without a filter.  A 2nd-order Butterworth filter at ``f_c``: ``√2 / (2π f_c)``."""
@@ -86,7 +86,7 @@ def dc_group_delay(ch: _Channel) -> float:
     return float(a1 / a[0] - b1 / b[0])
 
 
-def _sos(ch: _Channel, dt: float) -> np.ndarray | None:
+def _sos(ch: Channel, dt: float) -> np.ndarray | None:
     ba = analog_lowpass(ch)
     if ba is None:
         return None
@@ -101,7 +101,7 @@ def _uniform(t: np.ndarray) -> tuple[bool, float]:
     return bool(np.all(np.abs(steps - dt) <= UNIFORM_TOLERANCE * dt)), dt
 
 
-def filter_samples(t: np.ndarray, y: np.ndarray, ch: _Channel) -> np.ndarray:
+def filter_samples(t: np.ndarray, y: np.ndarray, ch: Channel) -> np.ndarray:
     """``y`` (samples at times ``t``, increasing) through the channel's analog filter,
     from steady state at the first sample; ``y`` itself without a filter, ``y`` delayed
     by the filter's :func:`dc_group_delay` for a filter far faster than the samples
@@ -148,7 +148,7 @@ def delayed(t: np.ndarray, y: np.ndarray, tau: float) -> np.ndarray:
     return out
 
 
-def quantise(y: np.ndarray, ch: _Channel) -> np.ndarray:
+def quantise(y: np.ndarray, ch: Channel) -> np.ndarray:
     """The converter: ``y`` rounded to steps of ``ch.adc_step`` and clipped to its range
     ``[−full_scale, full_scale − step]``; ``y`` itself for ``adc_bits: 0``."""
     if ch.adc_bits == 0:
@@ -159,7 +159,7 @@ def quantise(y: np.ndarray, ch: _Channel) -> np.ndarray:
     return out
 
 
-def record_channel(t_fine: np.ndarray, y_fine: np.ndarray, ch: _Channel,
+def record_channel(t_fine: np.ndarray, y_fine: np.ndarray, ch: Channel,
                    t_samples: np.ndarray, noise_std: float = 0.0,
                    rng: np.random.Generator | None = None) -> np.ndarray:
     """What the channel records of a signal ``y_fine`` given on the fine grid ``t_fine``:

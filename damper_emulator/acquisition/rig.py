@@ -49,7 +49,7 @@ MAX_SKEW_S = 0.1
 
 
 @dataclass(frozen=True)
-class _Channel:
+class Channel:
     """What one channel of the rig does to its signal, in order: an analog low-pass
     filter, a delay against the DAQ's clock, sampling, an analog-to-digital converter."""
 
@@ -83,7 +83,7 @@ class _Channel:
 
 
 @dataclass(frozen=True)
-class ForceChannel(_Channel):
+class ForceChannel(Channel):
     """The force channel: load cell, amplifier, DAQ."""
 
     full_scale_n: float = rule("positive",
@@ -96,7 +96,7 @@ class ForceChannel(_Channel):
 
 
 @dataclass(frozen=True)
-class DisplacementChannel(_Channel):
+class DisplacementChannel(Channel):
     """The displacement channel: LVDT or encoder, conditioner, DAQ.
 
     A velocity channel derived from it shares its filter."""
@@ -124,10 +124,10 @@ class RigParams:
                        for ch in (self.force, self.displacement))
 
 
-_C = TypeVar("_C", bound=_Channel)
+_C = TypeVar("_C", bound=Channel)
 
 #: the channel groups of a ``rig`` group, by key
-CHANNELS: dict[str, type[_Channel]] = {"force": ForceChannel,
+CHANNELS: dict[str, type[Channel]] = {"force": ForceChannel,
                                        "displacement": DisplacementChannel}
 
 

@@ -282,7 +282,7 @@ def make_record(data: MeasuredData, held_out: bool) -> Record:
     return Record(data, record_velocity(data)[0], held_out)
 
 
-def _get(cfg: ModelConfig, path: str) -> float:
+def config_value(cfg: ModelConfig, path: str) -> float:
     obj: Any = cfg.damper  # a group, then the attribute the path names
     for part in path.split("."):
         obj = getattr(obj, part)
@@ -305,7 +305,7 @@ def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
     for bp in BASE_PARAMETERS:
         if any(e in effects for e in bp.replaced_by):
             continue
-        value = _get(cfg, bp.path)
+        value = config_value(cfg, bp.path)
         if bp.path == "friction_force_n":
             hi = FRICTION_FACTOR * value + FRICTION_MARGIN_N
             out.append(Parameter(bp.path, 0.0, hi, value, False, bp.unit))
@@ -745,7 +745,7 @@ def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
                          chirp_friction_factor=friction_factor)
     except (IdentificationError, ParameterError, ValueError):
         return None
-    out = {bp.path: _get(ident.config, bp.path) for bp in BASE_PARAMETERS}
+    out = {bp.path: config_value(ident.config, bp.path) for bp in BASE_PARAMETERS}
     if friction_factor != 1.0:
         out[QUASI_STATIC_FRICTION_RATIO] = 1.0 / friction_factor
     return out

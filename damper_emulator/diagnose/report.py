@@ -150,7 +150,7 @@ def _fmt_sd(x: float | None) -> str:
 
 def _base_table(diag: Diagnosis) -> list[str]:
     """The paper's parameters: identified, after the diagnosis, ± 1σ."""
-    from damper_emulator.diagnose.joint import BASE_PARAMETERS, _get
+    from damper_emulator.diagnose.joint import BASE_PARAMETERS, config_value
 
     doc = diag.base_after_json()
     if doc is None:
@@ -164,7 +164,7 @@ def _base_table(diag: Diagnosis) -> list[str]:
         replaced = bp.path not in doc["uncertainties"]
         held = " (replaced by the effect)" if replaced else ""
         sd = "–" if replaced else _fmt_sd(doc["uncertainties"][bp.path])
-        lines.append(f"| {bp.path} | {_fmt(_get(cfg, bp.path))} | {_fmt(after)}{held} | "
+        lines.append(f"| {bp.path} | {_fmt(config_value(cfg, bp.path))} | {_fmt(after)}{held} | "
                      f"{sd} | {bp.unit} |")
     return lines
 

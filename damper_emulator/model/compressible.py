@@ -61,12 +61,7 @@ from damper_emulator.model.extensions import (
 )
 from damper_emulator.model.gas import compression_chamber_pressure_kernel
 from damper_emulator.model.jit import inlined_kernel, kernel
-from damper_emulator.model.valve_table import (
-    EXTRAPOLATION_LIMIT,
-    build_valve_tables,
-    valve_point,
-    z_of_pressure_drop,
-)
+from damper_emulator.model.valve_table import EXTRAPOLATION_LIMIT, valve_point, z_of_pressure_drop
 from damper_emulator.params import (
     BypassGrooveParams,
     DamperParams,
@@ -77,6 +72,7 @@ from damper_emulator.params import (
     ViscosityTemperatureParams,
     check_extensions,
     load_config,
+    valve_tables,
 )
 
 
@@ -114,8 +110,8 @@ _Vec = NDArray[np.float64]
 # The same bits as plain ints for the compiled kernel.
 _INVALID_INPUT = int(Fault.INVALID_INPUT)
 _STROKE_CLAMPED = int(Fault.STROKE_CLAMPED)
-_VALVE_EXTRAPOLATED = int(Fault.VALVE_EXTRAPOLATED)
-_SOLVER = int(Fault.SOLVER)
+FAULT_VALVE_EXTRAPOLATED = int(Fault.VALVE_EXTRAPOLATED)
+FAULT_SOLVER = int(Fault.SOLVER)
 _VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
 
 # Layout of the packed parameter vector (see ``DamperModel``); the bypass constants of the
@@ -162,7 +158,7 @@ S_SIZE = S_DT_ROW + N_TERMS
 
 
 @kernel
-def _valve_state(z: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec
+def valve_state(z: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec
                  ) -> tuple[float, float, float, float, bool]:
     """Signed Δp [Pa], dΔp/dz, signed Q_pv [m³/s], dQ/dz, beyond-table flag at ``z``."""
     if z >= 0.0:
@@ -184,11 +180,11 @@ def _z_of(prm: _Vec, dp: float, visc: float) -> float:
 def _flow_state(z: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec, area: float, gr_area: float,
                 visc: float, q_lag: float, lag_w: float
                 ) -> tuple[float, float, float, float, bool, float]:
-    """:func:`_valve_state` with the extensions and parallel paths: the valve drop scaled by
+    """:func:`valve_state` with the extensions and parallel paths: the valve drop scaled by
     ``visc``, the valve flow lagged (old flow ``q_lag``, weight ``lag_w``), the bypass (open
     ``area`` [m²]) and the groove (open ``gr_area``) in parallel.  Returns signed Δp,
     dΔp/dz, total flow, its derivative in ``z``, beyond-table flag, the valve's own flow."""
-    dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
+    dp, ddp, q, dq, beyond = valve_state(z, prm, coef_r, coef_c)
     if visc != 1.0:
         dp *= visc
         ddp *= visc
@@ -385,7 +381,7 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
     for _ in range(int(prm[P_MAXIT])):
         # _flow_state written out (through a wrapper the valve look-up is no longer inlined
         # into this loop, measured 25 % slower)
-        dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)
+        dp, ddp, q, dq, beyond = valve_state(z, prm, coef_r, coef_c)
         if ext:
             if visc != 1.0:
                 dp *= visc
@@ -430,15 +426,15 @@ def _implicit_substep(prm: _Vec, coef_r: _Vec, coef_c: _Vec, p_old: float, z_old
             break
         z = z_new
     else:
-        dp, ddp, q, dq, beyond = _valve_state(z, prm, coef_r, coef_c)  # Δp only
+        dp, ddp, q, dq, beyond = valve_state(z, prm, coef_r, coef_c)  # Δp only
         if visc != 1.0:
             dp *= visc
         p = p_com + dp
         if mount_c > 0.0:
             p += gas_c * ((area * dp + f_const) * mount_s - f_ref)
-        flags = _SOLVER
+        flags = FAULT_SOLVER
     if beyond:
-        flags |= _VALVE_EXTRAPOLATED
+        flags |= FAULT_VALVE_EXTRAPOLATED
     return z, p, q_valve, flags
 
 
@@ -535,7 +531,7 @@ def _groove_area(prm: _Vec, x: float) -> float:
 
 
 @kernel
-def _bypass_area_of(prm: _Vec, command: float) -> float:
+def bypass_area_of(prm: _Vec, command: float) -> float:
     """Open bypass area [m²] at the effective ``command``."""
     return bypass_area(command, prm[P_BP_AREA_COMFORT], prm[P_BP_AREA_NORMAL])
 
@@ -568,7 +564,7 @@ def init_state(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: 
     (no cavity, the gas at the wall temperature, the bristles in steady sliding); the heat
     model's temperature rise and the measured temperature are kept."""
     x = min(max(x, prm[P_X_MIN]), prm[P_X_MAX])
-    area = _bypass_area_of(prm, state[S_CMD_EFF])
+    area = bypass_area_of(prm, state[S_CMD_EFF])
     gr_area = _groove_area(prm, x)
     visc = _viscosity_factor(prm, state)
     if v != 0.0:
@@ -638,7 +634,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
                                          prm[P_TH_TAU])
         init_state(prm, coef_r, coef_c, state, x, v)
         return state[S_FORCE], flags
-    bp_area = _bypass_area_of(prm, cmd)
+    bp_area = bypass_area_of(prm, cmd)
     fr = _friction(prm, state, v, dt)
     visc = _viscosity_factor(prm, state)
     n_sub, h = substeps(prm, dt)
@@ -772,7 +768,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
 
 
 @kernel
-def _simulate_commanded(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _Vec, x: _Vec,
+def simulate_commanded_samples(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _Vec, x: _Vec,
                         v: _Vec, command: _Vec, temperature: _Vec, force: _Vec, p_reb: _Vec,
                         p_com: _Vec, command_eff: _Vec, flags: NDArray[np.int64]) -> None:
     """The batch loop: ``command[i]`` is the valve command from sample ``i`` on (it drives
@@ -796,7 +792,7 @@ def _simulate_commanded(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _
 
 
 @kernel
-def _simulate(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _Vec, x: _Vec, v: _Vec,
+def simulate_samples(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _Vec, x: _Vec, v: _Vec,
               force: _Vec, p_reb: _Vec, p_com: _Vec, flags: NDArray[np.int64]) -> None:
     """The batch loop at valve command 1 ('sport', bypass closed) throughout, whatever
     ``state`` holds (the replay passes a zero state)."""
@@ -879,7 +875,7 @@ class DamperModel:
     def __init__(self, cfg: ModelConfig | None = None):
         self.cfg = cfg if cfg is not None else load_config()
         d, n = self.cfg.damper, self.cfg.numerics
-        rebound, compression = build_valve_tables(self.cfg)
+        rebound, compression = valve_tables(self.cfg)
         self.tables = (rebound, compression)
         prm = np.zeros(P_SIZE)
         prm[P_A_ANNULUS] = d.annulus_area_m2
@@ -1240,6 +1236,6 @@ def simulate(model: DamperModel, time_s: ArrayLike, stroke_m: ArrayLike,
         _check_finite("temperature", temp)
     force, p_reb, p_com, c_eff = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     faults = np.zeros(n, dtype=np.int64)
-    _simulate_commanded(model.prm, model.tables[0].coef, model.tables[1].coef, new_state(),
+    simulate_commanded_samples(model.prm, model.tables[0].coef, model.tables[1].coef, new_state(),
                         t, x, v, cmd, temp, force, p_reb, p_com, c_eff, faults)
     return SimulationResult(t, x, v, force, p_reb, p_com, faults, c_eff)

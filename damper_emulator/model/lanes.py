@@ -47,8 +47,8 @@ from numpy.typing import NDArray
 
 from damper_emulator.model.adaptive import bypass_flow
 from damper_emulator.model.compressible import (
-    _SOLVER,
-    _VALVE_EXTRAPOLATED,
+    FAULT_SOLVER,
+    FAULT_VALVE_EXTRAPOLATED,
     P_A_ANNULUS,
     P_A_PISTON,
     P_A_ROD,
@@ -97,11 +97,10 @@ from damper_emulator.model.compressible import (
     S_Z,
     S_Z_PREV,
     V_GAS,
-    _bypass_area_of,
-    _valve_state,
     bdf2_combination,
     bdf2_step,
     bdf2_weight,
+    bypass_area_of,
     clamp_input,
     coulomb_friction,
     damper_force,
@@ -110,6 +109,7 @@ from damper_emulator.model.compressible import (
     newton_update,
     step,
     substeps,
+    valve_state,
 )
 from damper_emulator.model.gas import (
     compression_chamber_pressure_kernel,
@@ -186,7 +186,7 @@ def _load_lane(prm: _Vec, n_r: _Int, n_c: _Int, dstate: _Vec, j: int, lv: _Vec, 
     lv[L_SCALE_C * LANES + b] = pr[P_SCALE_C]
     lv[L_N_R * LANES + b] = n_r[j]
     lv[L_N_C * LANES + b] = n_c[j]
-    lv[L_BP_AREA * LANES + b] = _bypass_area_of(pr, st[S_CMD_EFF])
+    lv[L_BP_AREA * LANES + b] = bypass_area_of(pr, st[S_CMD_EFF])
     lv[L_BP_A * LANES + b] = pr[P_BP_LAMINAR]
     lv[L_BP_B * LANES + b] = pr[P_BP_TURBULENT]
     lv[L_P_GAS * LANES + b] = pr[P_GAS]
@@ -436,7 +436,7 @@ def _pre_lane(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, j: in
               lv: _Vec, b: int) -> None:
     """Lane ``b``'s valve point by the one-design look-up (design ``j``), where
     :func:`_locate` said so: beyond the table, or a table too coarse for the polynomial."""
-    dp, ddp, q, dq, beyond = _valve_state(lv[L_Z * LANES + b], prm[j],
+    dp, ddp, q, dq, beyond = valve_state(lv[L_Z * LANES + b], prm[j],
                                           coef_r[j, :n_r[j]], coef_c[j, :n_c[j]])
     lv[L_DP * LANES + b] = dp
     lv[L_DDP * LANES + b] = ddp
@@ -618,11 +618,11 @@ def _unconverged(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, fi
         if lv[L_SKIP * LANES + b] != 0.0 or lv[L_DONE * LANES + b] != 0.0:
             continue
         j = first + b
-        dp, _d, _q, _dq, beyond = _valve_state(lv[L_Z * LANES + b], prm[j],
+        dp, _d, _q, _dq, beyond = valve_state(lv[L_Z * LANES + b], prm[j],
                                                coef_r[j, :n_r[j]], coef_c[j, :n_c[j]])
         lv[L_P * LANES + b] = lv[L_P_COM * LANES + b] + dp
         lv[L_BEYOND * LANES + b] = 1.0 if beyond else 0.0
-        lv[L_FLAGS * LANES + b] = int(lv[L_FLAGS * LANES + b]) | _SOLVER
+        lv[L_FLAGS * LANES + b] = int(lv[L_FLAGS * LANES + b]) | FAULT_SOLVER
 
 
 @lane_kernel
@@ -646,7 +646,7 @@ def _extrapolated(lv: _Vec) -> None:
     look-up was beyond its table in some sub-step (:func:`_substep_end`)."""
     for b in range(LANES):
         if lv[L_EXTRAP * LANES + b] != 0.0:
-            lv[L_FLAGS * LANES + b] = int(lv[L_FLAGS * LANES + b]) | _VALVE_EXTRAPOLATED
+            lv[L_FLAGS * LANES + b] = int(lv[L_FLAGS * LANES + b]) | FAULT_VALVE_EXTRAPOLATED
 
 
 @lane_kernel

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Iterable
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,9 +30,6 @@ from scipy.interpolate import PchipInterpolator
 from damper_emulator.errors import UserError
 from damper_emulator.model.jit import inlined_kernel, kernel
 from damper_emulator.model.valve import FLOW_EXPONENT, form_code, pressure_drop, pressure_drop_array
-
-if TYPE_CHECKING:  # pragma: no cover
-    from damper_emulator.params import ModelConfig
 
 # pressure_drop_of_z's square roots are the power FLOW_EXPONENT − 1 = 3/4
 assert FLOW_EXPONENT == 1.75
@@ -281,16 +278,22 @@ def build_valve_table(valve: Iterable[float], annulus_area_m2: float, nu_m2_s: f
     return ValveTable(scale, step, coef, float(q_nodes[-1]), float(dp[-1]))
 
 
-def build_valve_tables(cfg: ModelConfig) -> tuple[ValveTable, ValveTable]:
-    """The (rebound, compression) tables of a configuration (cached per valve: a change of
-    the gas or of one valve rebuilds only what it changes)."""
-    d, n = cfg.damper, cfg.numerics
-    rebound, compression = (_build_table(getattr(d, side), d.annulus_area_m2,
-                                         d.oil_kinematic_viscosity_m2_s, n.valve_form,
-                                         n.valve_table_points, n.valve_table_max_velocity_m_s,
-                                         f"damper.{side} valve")
-                            for side in ("rebound", "compression"))
-    return rebound, compression
+class Valve(Hashable, Iterable[float], Protocol):
+    """A valve's parameters in the order of the valve laws (:mod:`~damper_emulator.model.valve`),
+    hashable (the tables are cached per valve): e.g. the frozen parameter group."""
+
+
+def build_valve_tables(rebound: Valve, compression: Valve,
+                       annulus_area_m2: float, nu_m2_s: float, form: str, points: int,
+                       max_velocity_m_s: float) -> tuple[ValveTable, ValveTable]:
+    """The (rebound, compression) tables of a damper's two valves (each hashable, e.g. a
+    frozen parameter group; cached per valve: a change of the gas or of one valve
+    rebuilds only what it changes).  :func:`damper_emulator.params.valve_tables` gives
+    them for a configuration."""
+    return (_build_table(rebound, annulus_area_m2, nu_m2_s, form, points, max_velocity_m_s,
+                         "damper.rebound valve"),
+            _build_table(compression, annulus_area_m2, nu_m2_s, form, points,
+                         max_velocity_m_s, "damper.compression valve"))
 
 
 _build_table = functools.lru_cache(maxsize=64)(build_valve_table)

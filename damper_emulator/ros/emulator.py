@@ -37,7 +37,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from damper_emulator import force_message
+from damper_emulator import force_message, topics
 from damper_emulator.bag.cdr_fast import JointStateSample
 from damper_emulator.errors import UserError
 from damper_emulator.model import jit
@@ -60,7 +60,6 @@ from damper_emulator.realtime.settings import (
     default_emulator_mapping,
     emulator_params_from_mapping,
 )
-from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
     JointStateIn,
     JointStateOut,

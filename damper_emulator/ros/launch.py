@@ -18,7 +18,7 @@ import yaml
 
 #: How long a stopped node has for a clean shutdown before SIGKILL [s]: longer than a
 #: publisher's wait for its subscribers' acknowledgements
-#: (:data:`damper_emulator.ros.topics.ACK_TIMEOUT_S`).
+#: (:data:`damper_emulator.topics.ACK_TIMEOUT_S`).
 STOP_TIMEOUT_S = 30.0
 #: Default domain range for runs that were not given one: 40 .. 89 by process id.
 _DOMAIN_BASE, _DOMAIN_SPAN = 40, 50

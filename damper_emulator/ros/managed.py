@@ -50,7 +50,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
-from damper_emulator.ros import topics
+from damper_emulator import topics
 from damper_emulator.ros.common import StopSignals, latched_qos, lifecycle_state_topic
 
 #: The managed nodes' own parameter: configure and activate at start.
@@ -190,7 +190,7 @@ class ManagedNode(LifecycleNode):
 
     def _leave_active_safely(self, reason: str) -> None:
         """:meth:`_leave_active`, then wait (at most
-        :data:`~damper_emulator.ros.topics.ACK_TIMEOUT_S`) until every subscriber has
+        :data:`~damper_emulator.topics.ACK_TIMEOUT_S`) until every subscriber has
         acknowledged what the node published: where the publishers are destroyed next
         (shutdown, error processing, then the end of the process), a publisher destroyed
         right after a publish takes with it the safe output and what a recorder running

@@ -18,10 +18,10 @@ from pathlib import Path
 from rclpy.duration import Duration
 from rclpy.node import Node
 
+from damper_emulator import topics
 from damper_emulator.bag import BagWriter, Qos
 from damper_emulator.errors import UserError
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
-from damper_emulator.ros import topics
 from damper_emulator.ros.common import (
     StopSignals,
     SubscriptionThread,
@@ -81,7 +81,7 @@ class RecorderNode(Node):
         self.exit_status = 0
         self._handles: dict[str, object] = {}
         self.counts = {t: 0 for t in names}
-        classes = topics.message_classes()
+        classes = _message_classes()
         # taken on a thread of its own without the executor (about 0.4 ms of Python per
         # message through it: at the 3 kHz of the demo's topics, more than a core)
         self._input = SubscriptionThread(
@@ -130,3 +130,13 @@ class RecorderNode(Node):
             self.exit_status = 1
         self.writer.close()
         log_info(self, "bag closed: " + ", ".join(f"{t} {n}" for t, n in self.counts.items()))
+
+
+def _message_classes() -> dict:
+    """topic → message class (rclpy), for subscriptions."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    classes = {"sensor_msgs/msg/JointState": JointState, "std_msgs/msg/Float64": Float64,
+               "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}
+    return {topic: classes[t] for topic, t in topics.TYPES.items()}

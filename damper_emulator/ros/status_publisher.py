@@ -15,7 +15,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 
-from damper_emulator.ros import topics
+from damper_emulator import topics
 from damper_emulator.ros.common import publish_diagnostics
 
 

@@ -43,6 +43,7 @@ from damper_emulator.bag import BagWriter, Topic
 from damper_emulator.bag.cdr_fast import encode_joint_states, rows_to_bytes
 from damper_emulator.bag.messages import DIAGNOSTIC_ARRAY, JOINT_STATE, diagnostic_array
 from damper_emulator.errors import DamperHilError
+from damper_emulator.topics import DIAGNOSTICS, FORCE, HYBRID_LOOP, STATE
 from ride_sim.hybrid.host import RECORD_COLUMNS, HybridHost
 
 #: hybrid.csv's header
@@ -50,8 +51,8 @@ CSV_COLUMNS = ("t_monotonic_ns", "time") + RECORD_COLUMNS
 #: one hybrid.csv row
 ROW_FORMAT = "%d,%.6f,%.9g,%.9g,%.9g,%.9g,%.9g,%d\n"
 #: the bag's topics and their types
-TOPICS = {"/damper/state": JOINT_STATE, "/damper/force": JOINT_STATE,
-          "/hybrid/loop": JOINT_STATE, "/diagnostics": DIAGNOSTIC_ARRAY}
+TOPICS = {STATE: JOINT_STATE, FORCE: JOINT_STATE, HYBRID_LOOP: JOINT_STATE,
+          DIAGNOSTICS: DIAGNOSTIC_ARRAY}
 #: the joint of ``/damper/state`` and ``/damper/force``; the joints of ``/hybrid/loop``
 JOINT = "damper"
 LOOP_JOINTS = ("target", "command", "twin")
@@ -176,10 +177,10 @@ class RecordWriter:
         zero = np.zeros(n)
         col = np.column_stack
         messages: dict[str, tuple[Sequence[str], np.ndarray, np.ndarray, np.ndarray]] = {
-            "/damper/state": ([JOINT], col([x]), col([v]), empty),
-            "/damper/force": ([JOINT], col([x]), col([v]), col([rec[3]])),
-            "/hybrid/loop": (list(LOOP_JOINTS), col([rec[0], rec[1], x]), empty,
-                             col([zero, zero, np.nan_to_num(rec[4], nan=0.0)])),
+            STATE: ([JOINT], col([x]), col([v]), empty),
+            FORCE: ([JOINT], col([x]), col([v]), col([rec[3]])),
+            HYBRID_LOOP: (list(LOOP_JOINTS), col([rec[0], rec[1], x]), empty,
+                  col([zero, zero, np.nan_to_num(rec[4], nan=0.0)])),
         }
         stamps = self._stamps(chunk.t_ns)
         encoded = [(self._topics[name], rows_to_bytes(
@@ -194,7 +195,7 @@ class RecordWriter:
             level, message, values = loop_status(self._recent, chunk.delay_s, chunk.phase,
                                                  chunk.reason)
             stamp = int(stamps[-1])          # written after the chunk: its last stamp
-            bag.write(self._topics["/diagnostics"], stamp,
+            bag.write(self._topics[DIAGNOSTICS], stamp,
                       diagnostic_array(stamp, [(level, DIAGNOSTIC_NAME, message, JOINT,
                                                 values)]))
             self._next_diag += self._window

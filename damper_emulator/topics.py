@@ -1,4 +1,7 @@
-"""Topic names, message types and QoS of the project's ROS 2 interface (docs/interfaces.md)."""
+"""Topic names, message types and QoS depths of the project's ROS 2 interface
+(docs/interfaces.md §5).  Plain names and numbers, no rclpy: the bag tools
+(:mod:`damper_emulator.recording`, :mod:`damper_emulator.replay`, the hybrid record) use
+them without ROS."""
 
 from __future__ import annotations
 
@@ -7,6 +10,7 @@ FORCE = "/damper/force"                 # sensor_msgs/JointState, out of the emu
 VALVE_COMMAND = "/damper/valve_command"  # std_msgs/Float64, 0 softest .. 1 firmest
 DIAGNOSTICS = "/diagnostics"            # diagnostic_msgs/DiagnosticArray
 RIDE_STATE = "/ride/state"              # sensor_msgs/JointState: wheel, body, road (ride node)
+HYBRID_LOOP = "/hybrid/loop"            # sensor_msgs/JointState: target, command, twin (hybrid)
 
 #: topic → ROS 2 message type, for the recorder and the bag readers
 TYPES = {
@@ -42,12 +46,3 @@ ACK_TIMEOUT_S = 10.0
 #: its Python thread, starved on a busy machine, catches up.
 RECORDER_DEPTH = 20000
 
-
-def message_classes() -> dict:
-    """topic → message class (rclpy), for subscriptions."""
-    from diagnostic_msgs.msg import DiagnosticArray
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64
-    classes = {"sensor_msgs/msg/JointState": JointState, "std_msgs/msg/Float64": Float64,
-               "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}
-    return {topic: classes[t] for topic, t in TYPES.items()}

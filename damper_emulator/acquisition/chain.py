@@ -28,7 +28,6 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from damper_emulator.acquisition.rig import Channel, ForceChannel, RigParams, rig_to_mapping
 from damper_emulator.errors import UserError
@@ -61,6 +60,7 @@ class AcquisitionError(UserError):
 def analog_lowpass(ch: Channel) -> tuple[np.ndarray, np.ndarray] | None:
     """The channel's analog filter ``H(s) = B(s)/A(s)`` as ``(b, a)`` (scipy's order:
     highest power first), ``None`` for ``filter: none``."""
+    from scipy import signal  # here: most of a data reader's import time otherwise
     if not ch.filtered:
         return None
     wc = 2.0 * math.pi * ch.cutoff_hz
@@ -87,6 +87,7 @@ def dc_group_delay(ch: Channel) -> float:
 
 
 def _sos(ch: Channel, dt: float) -> np.ndarray | None:
+    from scipy import signal  # here: most of a data reader's import time otherwise
     ba = analog_lowpass(ch)
     if ba is None:
         return None
@@ -114,6 +115,7 @@ def filter_samples(t: np.ndarray, y: np.ndarray, ch: Channel) -> np.ndarray:
     AcquisitionError
         The resampled record would exceed :data:`MAX_RESAMPLED_POINTS`.
     """
+    from scipy import signal  # here: most of a data reader's import time otherwise
     y = np.asarray(y, dtype=float)
     if not ch.filtered or y.size < 2:
         return y

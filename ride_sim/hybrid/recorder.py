@@ -230,15 +230,7 @@ class WriterProcess:
     """The writer process of a run (:func:`_writer_main`), started ahead of the host: its
     imports and the bag's codec load while the host builds its reference run and warms
     up.  :meth:`ready` waits until its files are open; :meth:`close` ends it (idempotent).
-
-    Parameters
-    ----------
-    out : Path
-        The run's directory (exists).
-    dt_s : float
-        The cycle [s].
-    bag : bool
-        Write the bag (``out/bag``) too.
+    ``out``, ``dt_s`` and ``bag`` are the :class:`RecordWriter`'s it runs.
     """
 
     def __init__(self, out: Path, dt_s: float, bag: bool = True) -> None:

@@ -1,4 +1,4 @@
-"""What colcon's ament_python build needs beyond pyproject.toml (issue 18): the ament index
+"""What colcon's ament_python build needs beyond pyproject.toml: the ament index
 marker, package.xml, the launch files and parameter files under ``share/damper_hil``, and
 the node executables under ``lib/damper_hil`` where ``ros2 run`` finds them.
 

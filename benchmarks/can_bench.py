@@ -28,7 +28,7 @@ the window and the sending never pauses).  Reported per case:
 
 Cases: ``timer`` (default: ``emulator.trigger: timer`` at 1 kHz, the HIL set-up) and ``input``
 (``emulator.trigger: input``: one force per sample, the loopback dyno's set-up).
-Targets (issue 6): round trip p99 <= 2 ms, no lost frames over 60 s.
+Targets: round trip p99 <= 2 ms, no lost frames over 60 s.
 
 Usage: ``python benchmarks/can_bench.py [--duration S] [--case timer|input ...] [--json FILE]``
 """
@@ -416,7 +416,7 @@ def main() -> None:
               f"{_counts(r['dyno_rx'])} | "
               f"{'?' if r['emulator']['timeouts'] is None else r['emulator']['timeouts']} | "
               f"{r['sender_period_p99_us']:.0f} µs |")
-    print(f"\nTargets (issue 6): round trip p99 ≤ {TARGET_P99_MS:g} ms, no lost frames over "
+    print(f"\nTargets: round trip p99 ≤ {TARGET_P99_MS:g} ms, no lost frames over "
           "60 s.")
     for r in rows:
         verdict = "met" if r["round_trip_ms"]["p99"] <= TARGET_P99_MS else "NOT met"

@@ -17,7 +17,7 @@ emulator's priority, waking every millisecond, for the whole run: its wake-ups l
 1 ms are the machine stopping (on a VM, the hypervisor stopping a vCPU), which no process
 can avoid.  Each overrun of the emulator's loop is then classed by whether a sentinel was
 stalled during it (``host``) or not (``own``): the loop's own overruns are the ones to fix.
-Targets (issue 14): real-time factor >= 0.99, no overrun after ready, p99 period error
+Targets: real-time factor >= 0.99, no overrun after ready, p99 period error
 <= 100 µs, no fault outputs after the first input.
 
 Usage: ``python benchmarks/demo_bench.py [--runs N] [--duration S] [--cold] [--host]

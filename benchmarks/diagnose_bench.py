@@ -28,7 +28,7 @@ shorter sub-steps (``REALISTIC_FINE``).  Scenarios:
   commands, else estimated): no effect on the three dampers at 100–300 Hz, and the
   library's effects at 150 Hz, each with and without the chain given.
 
-Targets (issues 15, 37): every single effect named with the held-out r.m.s. within 2×
+Targets: every single effect named with the held-out r.m.s. within 2×
 the noise afterwards, and through a filter named with the held-out r.m.s. at least
 halved; ``none`` on all three dampers, raw and through a filter with and
 without the chain given; ``inertia`` for the mass (held-out within 2× the noise);

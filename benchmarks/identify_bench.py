@@ -2,7 +2,7 @@
 """Benchmark of identification on the paper's protocol; prints a markdown table.
 
 Virtual-dyno data of the sport damper with 4 N force noise: quasi-static 150 s at 50 Hz and
-chirp 60 s at 1 kHz.  Target (issue 3): identification in ≤ 10 s wall on one core.
+chirp 60 s at 1 kHz.  Target: identification in ≤ 10 s wall on one core.
 
 Usage: ``python benchmarks/identify_bench.py [--repeats N]``
 """

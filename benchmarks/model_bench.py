@@ -5,7 +5,7 @@
 * batch simulation (``simulate``) of the paper's chirp at 1 kHz: damper steps per second;
 * model load (parameter validation + inverse valve tables).
 
-Targets (issue 2): real-time step median <= 10 µs; batch >= 1,000,000 steps/s on one core.
+Targets: real-time step median <= 10 µs; batch >= 1,000,000 steps/s on one core.
 
 Usage: ``python benchmarks/model_bench.py [--calls N] [--repeats N]``
 """

@@ -13,7 +13,7 @@ thread, each sample tagged by a unique velocity, and receives ``/damper/force``.
 
 Cases: 1 kHz with the node's default real-time settings (SCHED_FIFO, mlockall, CPU wake-up
 latency request ``cpu_dma_latency_us: 0``), 1 kHz without SCHED_FIFO and mlockall, 1 kHz
-with none of them, 2 kHz with all of them.  Targets (issue 5) at 1 kHz with SCHED_FIFO: p99 period
+with none of them, 2 kHz with all of them.  Targets at 1 kHz with SCHED_FIFO: p99 period
 error <= 100 us, overruns <= 0.1 % over 60 s, latency p99 <= 2 ms.
 
 Usage: ``python benchmarks/node_bench.py [--duration S] [--json FILE]``

@@ -9,7 +9,7 @@
   process pool on all cores, wall time including the pool start-up;
 * figure 10 (5 seeds x 4 dampers, one process).
 
-Targets (issue 4): one run <= 0.5 s; the sweep <= 60 s using all cores.
+Targets: one run <= 0.5 s; the sweep <= 60 s using all cores.
 
 Usage: ``python benchmarks/ride_bench.py [--repeats N] [--workers N]``
 """

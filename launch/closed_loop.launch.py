@@ -1,4 +1,4 @@
-"""The closed-loop demo as a ROS 2 launch (issue 18; ``damper-hil demo`` without its
+"""The closed-loop demo as a ROS 2 launch (``damper-hil demo`` without its
 report): the emulator and the CAN bridge in controller mode (``emulator_bridge.launch.py``),
 the quarter car on the minor road, the skyhook controller on the bus and the MCAP recorder.
 

@@ -1,7 +1,7 @@
 """Emulator + CAN bridge for an adaptive-damper controller test: the controller (an
 ECU, or ``damper-hil skyhook``) reads ``VEHICLE_MOTION`` and ``DAMPER_FORCE`` and sends
 ``VALVE_COMMAND``; the damper's motion comes from ``/damper/state`` (the ride node, a rig,
-a bag) (issue 18): ``emulator_bridge.launch.py`` with
+a bag): ``emulator_bridge.launch.py`` with
 ``mode:=controller``.
 
     ros2 launch damper_hil controller.launch.py [damper_params:=...] [emulator_params:=...]

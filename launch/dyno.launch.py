@@ -1,5 +1,5 @@
 """Emulator + CAN bridge for a damper dyno: the dyno sends ``DAMPER_STATE`` on the bus and
-receives ``DAMPER_FORCE`` (issue 18): ``emulator_bridge.launch.py`` with
+receives ``DAMPER_FORCE``: ``emulator_bridge.launch.py`` with
 ``mode:=dyno``.
 
     ros2 launch damper_hil dyno.launch.py [damper_params:=...] [emulator_params:=...]

@@ -1,4 +1,4 @@
-"""Emulator + CAN bridge, the pair every rig needs (issue 18); ``dyno.launch.py``,
+"""Emulator + CAN bridge, the pair every rig needs; ``dyno.launch.py``,
 ``controller.launch.py`` and ``closed_loop.launch.py`` include it.
 
     ros2 launch damper_hil emulator_bridge.launch.py mode:=dyno|controller

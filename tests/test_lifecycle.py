@@ -1,4 +1,4 @@
-"""Issue 18: the emulator and the CAN bridge are managed (lifecycle) nodes.  Started with
+"""The emulator and the CAN bridge are managed (lifecycle) nodes.  Started with
 ``autostart:=false`` as separate processes, they are driven through every transition over
 the standard ``lifecycle_msgs`` services (real DDS, localhost, ROS domains 150..152) and
 what each publishes (ROS topics, CAN frames on a real ``udp_multicast`` bus) is checked in

@@ -1,4 +1,4 @@
-"""Issue 18: the live view.  ``damper-hil demo --live PORT`` runs the closed loop with the
+"""The live view.  ``damper-hil demo --live PORT`` runs the closed loop with the
 ``live_view`` node; a WebSocket client in the test speaks the Foxglove WebSocket protocol
 to it while the demo runs (subscribes to every advertised channel, decodes the binary
 message frames and their JSON payloads) and checks what it receives against the demo's own

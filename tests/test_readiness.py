@@ -1,4 +1,4 @@
-"""Issue 14: nothing compiles inside a real-time loop, the readiness handshake, where the
+"""Nothing compiles inside a real-time loop, the readiness handshake, where the
 compiled kernels are cached, and a first start with a cold cache.
 
 - A fresh process warms up a core (:meth:`EmulatorCore.warm_up`) and a ride session

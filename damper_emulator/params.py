@@ -154,7 +154,7 @@ class AdaptiveParams:
 
 
 # --------------------------------------------------------------------------------------
-# Model extensions (issue 7; damper_emulator/model/extensions.py has the equations): effects
+# Model extensions (damper_emulator/model/extensions.py has the equations): effects
 # the paper's model lacks, each an optional sub-group of ``damper.extensions``, off when
 # absent.  The identification's ``diagnose`` fits them on top of identified parameters.
 
@@ -381,7 +381,7 @@ class DamperParams:
         "rule": "adaptive", "doc": "solenoid bypass of the softer settings (docs/model.md §6); "
                                    "None: no bypass, the valve command has no effect"})
     extensions: ExtensionParams | None = field(default=None, metadata={
-        "rule": "extensions", "doc": "effects the paper's model lacks (issue 7); None: the "
+        "rule": "extensions", "doc": "effects the paper's model lacks; None: the "
                                      "paper's model"})
 
     @property

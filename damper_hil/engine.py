@@ -1,4 +1,4 @@
-"""Dask, the engine of the project's distributed work (``fleet``, ``tune``; issue 17).
+"""Dask, the engine of the project's distributed work (``fleet``, ``tune``).
 
 One interface, :func:`open_engine`, over three ways of running independent tasks:
 

@@ -32,7 +32,7 @@ INPUT_NODE_NAME = f"{NODE_NAME}_input"
 FLUSH_RATE_HZ = 50.0
 #: queue depth of the 1 kHz subscriptions: a second of messages.  On a busy 2-core machine
 #: the view at normal priority (``--priority 0``) waits behind two SCHED_FIFO 1 kHz loops,
-#: and its flushes came 0.3–1.5 s apart (2026-11-25): a queue of one flush period lost the
+#: and its flushes came up to 1.5 s apart: a queue of one flush period lost the
 #: samples between two flushes
 QUEUE_DEPTH = 1000
 #: the emulator's diagnostic status (its name's prefix)

@@ -88,9 +88,8 @@ __all__ = [
 
 def _sps() -> ModuleType:
     """``scipy.signal``, imported on first use: every ``damper-hil`` command imports this
-    module while building its parser, and imported here it made each command half a second
-    slower (2026-11-26, the Xeon VM: ``damper-hil live`` refusing a bad option 2.05 s,
-    1.52 s with it imported on first use; means of three, alternated)."""
+    module while building its parser, and imported here it made each command about half a
+    second slower (tests/test_layers.py keeps it out of the parser's imports)."""
     import importlib
 
     return importlib.import_module("scipy.signal")

@@ -1,4 +1,4 @@
-"""Many quarter cars with compressible dampers at once, on one road (issue 17: virtual
+"""Many quarter cars with compressible dampers at once, on one road (virtual
 tuning runs thousands of valve designs over the same roads).
 
 :func:`simulate_many` advances ``D`` designs together on structure-of-arrays state (the
@@ -71,8 +71,8 @@ _Vec = NDArray[np.float64]
 #: Designs advanced together over the whole road, one block after another: a sample of
 #: every design at once touches each design's parameters, state and valve-table rows, and
 #: beyond a few dozen designs those no longer stay in the processor's nearest caches
-#: (256 designs at once ran at 0.55–0.66 of the single path's rate per design, 8 at
-#: 0.95–1.07; measured 2026-11-25 on the 2-core Xeon VM).
+#: (256 designs at once ran at about 0.6 of the single path's rate per design, 8 at about
+#: 1: benchmarks/many_bench.py).
 BLOCK = 8
 #: rows of :func:`simulate_many`'s history array
 (M_SWS, M_ACC, M_DTL, M_SIZE) = range(4)
@@ -138,7 +138,7 @@ def _loop_lanes(d: _Vec, q: _Vec, road: _Vec, s: _Vec, force: _Vec, prm: _Vec, c
     (The cars in lanes too were 5 % faster, but the vectorised update rounds the last bit
     differently, and Coulomb friction's sign at a relative velocity of exactly zero, as at
     a start moving with the road, follows that bit: a 2 F_friction step in the force, 1e-4
-    of the ride's histories; measured 2026-11-27.)"""
+    of the ride's histories.)"""
     n = road.size
     for first in range(0, s.shape[0], LANES):
         load_lanes(prm, n_r, n_c, dstate, first, lv)
@@ -183,8 +183,7 @@ def _stack_tables(tables: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]
 
 #: Fewest designs in a block of lanes: a block of fewer is mostly copies (each lane costs
 #: the same) and its designs run one by one instead; with 16 lanes a design there costs
-#: about 0.36 of one by one (benchmarks/many_bench.py, 2026-11-27: 5.7 against 2.06 M
-#: steps/s; a block of 6 would break even).
+#: about 0.36 of one by one (benchmarks/many_bench.py; a block of 6 would break even).
 MIN_BLOCK = LANES // 2
 
 

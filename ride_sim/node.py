@@ -96,9 +96,9 @@ class RideNode(Node):
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
         self.main_thread_priority = (executor_priority(cfg.ride.priority)
                                      if cfg.ride.sched_fifo else 0)
-        #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal).  Found
-        #: 2026-11-27: under normal scheduling beside the other nodes' real-time threads
-        #: on a 2-core VM, the force reached the ride up to 0.75 s late
+        #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal).  Under
+        #: normal scheduling beside the other nodes' real-time threads on a two-core
+        #: machine the force reached the ride up to 0.75 s late
         self.dds_priority = cfg.ride.dds_priority
         static = DamperStepper(model).force_n
         self.session = RideSession(cfg.quarter_car, cfg.road, cfg.ride, cfg.simulation.step_s,

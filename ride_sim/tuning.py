@@ -1,4 +1,4 @@
-"""Virtual damper tuning (the paper's motive; issue 17): valve designs evaluated on the
+"""Virtual damper tuning (the paper's motive): valve designs evaluated on the
 quarter car, their Pareto front and what moves it (docs/tune.md).
 
 **Design space.**  Per valve direction, the blow-off preload ``Δp0`` and spring rate

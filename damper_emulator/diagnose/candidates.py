@@ -35,7 +35,7 @@ OUTER_STROKE_FRACTION = 0.25
 #: Compression forces within this fraction of a file's largest count as a cavity's
 #: plateau (and its shoulders) for the cavitation's re-identification: on the sport
 #: damper with a cavity at 20 kPa this leaves the compression valve's blow-off below the
-#: plateau in the fit, and the valve comes back within 7 % (2026-11-24).
+#: plateau in the fit, and the valve comes back within 7 % (benchmarks/diagnose_bench.py).
 CAVITY_PLATEAU_FRACTION = 0.85
 #: Cooling time constant of a damper body held in the heat model [s] (order of magnitude
 #: of a dyno-mounted damper in still air; the fit is over minutes, so it matters little).

@@ -1,4 +1,4 @@
-"""Joint least-squares fit of the paper's parameters and the extensions (issue 15).
+"""Joint least-squares fit of the paper's parameters and the extensions.
 
 ``identify`` fits the paper's parameters in stages (the quasi-static fit, eq 37; the valve
 fits, eqs 8–10 and 28) on data whose effect nobody declared: part of the missing effect is
@@ -19,7 +19,7 @@ and a gas volume that always leaves the rod room for the largest compression in 
 
 Slow records are simulated for the fit with a longer sub-step (:func:`fit_substep`): the
 quasi-static test at 4 mm/s on 5 ms sub-steps differs from the 0.5 ms reference by at most
-0.05 N r.m.s. (every extension; measured 2026-11-24), and costs a ninth.  Scores and the
+0.05 N r.m.s. (every extension), and costs a ninth.  Scores and the
 figures reported are always from the full model.
 """
 
@@ -85,12 +85,12 @@ BASE_PARAMETERS: tuple[BaseParameter, ...] = (
 #: (quasi-static) files see, as a fraction of the friction at speed (0..1).  A real seal's
 #: friction rises from rest over a few mm/s (the benchmark's truth: 43.7 N tanh(ẋ/5 mm/s),
 #: 29 N at the quasi-static test's 4 mm/s); eq 4's single level cannot be both, and the
-#: fit's compromise moved the gas spring and the effects fitted on top of it (thermal
-#: 10.6 → 5.2 N, gas heat transfer 16.3 → 5.1 N held out, 2026-11-26).  Not above 1: a
-#: friction higher at low speed is the Stribeck effect, the friction family's (LuGre)
-#: candidate; free above 1, the refitted paper's model explained a LuGre truth to 8.7 N and
-#: the answer was ``none``.  Only the fit uses it: the model a diagnosis reports, its
-#: statistics and the held-out scores have eq 4's one friction.
+#: fit's compromise moved the gas spring and the effects fitted on top of it (the thermal
+#: and gas heat transfer cases of benchmarks/diagnose_bench.py held out twice the error).
+#: Not above 1: a friction higher at low speed is the Stribeck effect, the friction
+#: family's (LuGre) candidate; free above 1, the refitted paper's model explained a LuGre
+#: truth to 8.7 N and the answer was ``none``.  Only the fit uses it: the model a diagnosis
+#: reports, its statistics and the held-out scores have eq 4's one friction.
 QUASI_STATIC_FRICTION_RATIO = "quasi_static_friction_ratio"
 #: The parameter of the estimated measurement chain, when the files carry none
 #: (``--rig``): the delay [s] of the recorded force against the recorded displacement,
@@ -156,8 +156,8 @@ JOINT_MIN_RELATIVE_STEP = 1e-3
 #: a bare mention".  Either alone would not do: a residual far above its noise is strongly
 #: autocorrelated, and its effective sample count so small that a first step 7 % down
 #: gains under one BIC unit; a residual at its noise is white, and 10⁻³ of it is ~60 units.
-#: Measured 2026-11-26 (sport damper, LuGre friction and valve lag): a valve-lag fit with
-#: end stops on top crawled by 2.8·10⁻⁴ … 2.3·10⁻⁵ of its cost per step for 25 steps, each
+#: On the sport damper with LuGre friction and valve lag, a valve-lag fit with end stops
+#: on top crawled by 2.8·10⁻⁴ … 2.3·10⁻⁵ of its cost per step for 25 steps, each
 #: a simulation per parameter, and its held-out r.m.s. did not change by 0.1 N.
 JOINT_MIN_BIC_STEP = 1.0
 #: Evaluations per start of the extension-only pre-fit, and for the best start after.
@@ -170,12 +170,12 @@ ACTIVE_FORCE_FRACTION = 0.02
 #: acts on at most this fraction of each record.
 MAX_ACTIVE_FRACTION = 0.6
 #: A re-identification's valve fits take at most this many chirp samples per direction
-#: (``identify``'s ``max_valve_samples``): half of what the paper's protocol selects
-#: (about 13,400).  It is only a start for the joint fit, which takes every sample; its
-#: complex-step valve Jacobian was a quarter of a candidate's time (end stops, 8 of 35 s,
-#: 2026-11-26).  A quarter (3,400) was faster still, but the valve lag fitted on top of a
-#: cavity then started in the other of the two basins docs/diagnose.md describes (3 Hz
-#: sine 784 N against 129 N): the sport damper's cavity is that sensitive to the start.
+#: (``identify``'s ``max_valve_samples``): half of what the paper's protocol selects (about
+#: 13,400).  It is only a start for the joint fit, which takes every sample; its
+#: complex-step valve Jacobian was a quarter of a candidate's time (end stops).  A quarter
+#: (3,400) was faster still, but the valve lag fitted on top of a cavity then started in
+#: the other of the two basins docs/diagnose.md describes (3 Hz sine 784 N against 129 N):
+#: the sport damper's cavity is that sensitive to the start.
 REIDENTIFY_VALVE_SAMPLES = 6_700
 #: Cost of a residual vector for parameters the model refuses (every element); a simulation
 #: whose weighted residual leaves ±FAILED_COST anywhere (a force error of order 10⁹ N: the
@@ -496,9 +496,9 @@ class Space:
         except (ParameterError, ValueError):
             residuals = np.full(self.n, FAILED_COST)
         else:
-            # found 2026-11-25: a series spring with a nearly closed gas volume ran away on
-            # the 5 ms sub-step of a slow record (forces of 1e299 N), and trf's Jacobian
-            # overflowed to inf and ended the diagnosis with a traceback
+            # a series spring with a nearly closed gas volume can run away on
+            # the 5 ms sub-step of a slow record (forces of 1e299 N); trf's Jacobian would
+            # overflow to inf and end the diagnosis with a traceback
             self.refused = not np.all(np.abs(residuals) < FAILED_COST)
             if self.refused:
                 residuals = np.full(self.n, FAILED_COST)
@@ -541,7 +541,7 @@ class Space:
         refused both ways (or with no room) gets a zero column: the data show no slope for
         it, and its σ is undetermined (:meth:`std`).
 
-        Found 2026-11-25 on the FSAE data: ``identify`` had left the compression valve's
+        The case (the FSAE data): ``identify`` had left the compression valve's
         blow-off stiffness where 1 % more makes its Δp(Q) non-monotonic at Q = 0 (a
         ``ValveTableError``).  scipy's own differences then took ``(FAILED_COST − r)/h``,
         a column of 10¹¹ against 10²–10³ of the others, and the covariance's
@@ -757,18 +757,16 @@ def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
 #: (seal friction of dampers rises with speed by tens of percent; the benchmark's smooth
 #: friction is 1.5× at speed what it is at the quasi-static 4 mm/s) ...
 FRICTION_SEARCH_FACTORS = (1.0, 1.5, 2.0)
-#: ... and then once more at the least of the parabola through the three costs (clipped to
-#: their range; :func:`search_friction`).  The pre-fit's cost is sharp and smooth in the
-#: factor: on the sport damper with a cavity (truth 1.51) 72, 33, 1.7, 20 and 56 at 1,
-#: 1.25, 1.5, 1.75 and 2; the parabola through 72, 1.7 and 56 has its least at 1.53.  A
-#: grid of five with a refinement either side of its best found the same minimum in
-#: seven re-identifications instead of four.
-#: The search is made only where the effect pre-fitted on the present model lowers the
-#: records' cost by at least this fraction.  Measured 2026-11-26 (sport damper, round
-#: 1): with a cavity in the data 79 % (the cavity alone) and 62 % (with a valve lag);
-#: without one 20 % (air entrainment with LuGre friction: the cavity follows the
-#: air's lag at the largest pushes), −0.1 % (LuGre and a lag) and less than nothing
-#: (noise only).  Searched on the air case, the diagnosis took 211 s instead of about 180.
+#: ... and then once more at the least of the parabola through the three costs (clipped to their
+#: range; :func:`search_friction`).  The pre-fit's cost is sharp and smooth in the factor: on the
+#: sport damper with a cavity (truth 1.51) 72, 33, 1.7, 20 and 56 at 1, 1.25, 1.5, 1.75 and 2; the
+#: parabola through 72, 1.7 and 56 has its least at 1.53.  A grid of five with a refinement either
+#: side of its best found the same minimum in seven re-identifications instead of four. The search
+#: is made only where the effect pre-fitted on the present model lowers the records' cost by at
+#: least this fraction.  On the sport damper (round 1): with a cavity in the data 79 % (the cavity
+#: alone) and 62 % (with a valve lag); without one 20 % (air entrainment with LuGre friction: the
+#: cavity follows the air's lag at the largest pushes), −0.1 % (LuGre and a lag) and less than
+#: nothing (noise only).  Searched on the air case, the diagnosis took 211 s instead of about 180.
 FRICTION_SEARCH_MIN_GAIN = 0.4
 
 _Tried = TypeVar("_Tried", bound=tuple[Any, ...])
@@ -842,8 +840,8 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
        The valve fits take the quasi-static fit's friction; for a candidate whose force
        trades with the friction at speed (``Candidate.friction_coupled``) the
        re-identification is repeated over :func:`search_friction`'s friction levels and
-       the best pre-fit taken.  Measured
-       on the sport damper with a cavity (2026-11-26): re-identified with the
+       the best pre-fit taken.  On the sport damper with a cavity,
+       re-identified with the
        quasi-static friction (29 N, at speed 43.7 N) the compression preload came out 3 %
        high, the pre-fit's cost was 72 (1.7 at the truth's friction), and the joint fit
        went into a valley of its own (p_cav 31 kPa, truth 20; held-out 3 Hz sine 28.8 N;

@@ -262,10 +262,9 @@ class FitTask:
 #: BLAS threads a fit task runs with (:func:`run_fit_task`).  The fits are the parallel
 #: work, one task per core; OpenBLAS would otherwise start a pool of one thread per core in
 #: every worker, and those threads (which spin before they sleep) competed with the other
-#: worker's fit: on the 2-core Xeon VM (2026-11-27, sport damper, cavitation and valve lag,
-#: 2 processes) every task ran 1.4x longer than alone (round 1: 193 s of task time
-#: against 140 s in one process), and the diagnosis took 198 s; with one BLAS thread per
-#: task 139 s (the whole truth benchmark: median 90 -> 66 s, max 232 -> 178 s).  Dask's
+#: worker's fit: with two processes on two cores every task ran about 1.4× longer than
+#: alone; with one BLAS thread per task the diagnosis takes about a third less
+#: (benchmarks/diagnose_bench.py).  Dask's
 #: nanny sets the same for its workers (``OPENBLAS_NUM_THREADS=1``,
 #: ``distributed.nanny.pre-spawn-environ``).  It also keeps the fits' sums independent of
 #: the machine's core count (threaded BLAS splits them by thread, and a fit's path can

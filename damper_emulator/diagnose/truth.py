@@ -156,7 +156,7 @@ def session_temperatures(name: str, t: np.ndarray, sine_index: int | None) -> np
 @dataclass(frozen=True)
 class ModelForm:
     """How the truth differs in model form from the emulator's model, as a real damper
-    does (issue 15): nothing by default.
+    does: nothing by default.
 
     ``friction_smoothing_m_s``: eq 4's Coulomb switch ``F_fr sgn(ẋ)`` becomes the smooth
     ``F_fr tanh(ẋ / v_f)`` (every real seal has a finite pre-sliding slope; not with LuGre

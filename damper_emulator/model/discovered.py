@@ -1,4 +1,4 @@
-"""The discovered term (issue 37): a force the diagnosis found in what the library of
+"""The discovered term: a force the diagnosis found in what the library of
 effects left, as a sum of coefficients times features of the motion and of the model's
 own states, evaluated in the compressible model's one compiled step.
 

@@ -1,4 +1,4 @@
-"""Model extensions: effects the paper's model lacks (issue 7), as compiled kernels.
+"""Model extensions: effects the paper's model lacks, as compiled kernels.
 
 Each is a physically parameterised add-on to the compressible model of
 :mod:`damper_emulator.model.compressible`, evaluated inside its one compiled step, off unless

@@ -43,7 +43,7 @@ def log_series(ratio: float, gamma: float) -> float:
     (:mod:`damper_emulator.model.lanes`, the two halves in two loops): within two machine
     epsilons of the exact power (the library's: half of one; tested against 40-digit
     arithmetic), with no library call, so that a loop over designs runs it in SIMD lanes
-    (the library's power was a quarter of that loop's time, measured 2026-11-27).  The
+    (the library's power was a quarter of that loop's time: benchmarks/many_bench.py).  The
     one-design step keeps the library's power (:func:`compression_chamber_pressure`): in
     its one chain of dependent operations the series' 33 multiply-adds took longer (3-5 %
     of a ride simulation).

@@ -124,9 +124,9 @@ def _registered(dispatcher: Any) -> Any:
 #: The physics kernels are compiled without numba's runtime (``_nrt=False``): they never
 #: allocate (every array comes from the caller), and with the runtime each call between
 #: kernels that passes an array (the step's parameter vector, valve tables and state) takes
-#: and gives back a reference with an atomic instruction.  On the 2-core Xeon VM those
-#: atomics were 60 % of the profile of a chirp simulation (perf, 2026-11-25); without them
-#: the batch simulation is 1.4–1.6× faster, forces bit for bit the same.  A kernel that
+#: and gives back a reference with an atomic instruction.  Those atomics were most of the
+#: profile of a chirp simulation (perf); without them the batch simulation is markedly
+#: faster (benchmarks/model_bench.py), forces bit for bit the same.  A kernel that
 #: allocated would fail to compile, not misbehave.
 # (numba's stubs do not declare the private ``_nrt`` option)
 _physics = njit(cache=True, fastmath=set(FASTMATH_FLAGS),

@@ -1,4 +1,4 @@
-"""The compressible damper's step for many designs at once, in SIMD lanes (issue 17).
+"""The compressible damper's step for many designs at once, in SIMD lanes.
 
 :func:`step_lanes` advances :data:`LANES` designs by one sample, as
 :func:`damper_emulator.model.compressible.step` advances one, out of the same equations:
@@ -125,7 +125,7 @@ _Int = NDArray[np.int64]
 
 #: Designs per call of :func:`step_lanes`.  A run of 16 per quantity: the compiler
 #: vectorises the Newton arithmetic over a loop of this constant length (at 8 it unrolled
-#: the loop instead of vectorising it; measured 2026-11-27 on the 2-core Xeon VM).
+#: the loop instead of vectorising it: benchmarks/many_bench.py).
 LANES = 16
 #: Lanes left unconverged that finish one at a time instead of in lockstep (:func:`_finish`).
 STRAGGLERS = 2
@@ -339,9 +339,8 @@ def _gas(lv: _Vec) -> None:
     :func:`_gas_exponent`'s exponent, vectorised; a skipped lane keeps its pressure.  (Eq
     3's power is the series' two halves, :func:`~damper_emulator.model.gas.log_series`
     and :func:`~damper_emulator.model.gas.exp_series`, in two loops: in one, a group of
-    lanes waited for the long chain of the group before it; in two the gas law took 38
-    instead of 50 cycles of the time-stamp counter a design and sample, measured
-    2026-11-27.)"""
+    lanes waited for the long chain of the group before it; in two the gas law takes about a
+    quarter fewer cycles a design and sample: benchmarks/many_bench.py.)"""
     for b in range(LANES):
         p_com = lv[L_P_GAS * LANES + b] * exp_series(lv[L_GAS_Y * LANES + b])
         p_old = lv[L_P_COM * LANES + b]
@@ -406,7 +405,8 @@ def lane_tables(coef_r: np.ndarray, coef_c: np.ndarray) -> np.ndarray:
     ``(D, L_c, TABLE_COLUMNS)``, zero-padded) side by side, ``(D, 2, max(L_r, L_c),
     TABLE_COLUMNS)``, as
     :func:`step_lanes` gathers their rows: a lane's row is then an offset computed from
-    its side, not a choice between two arrays (25 % of the gather, measured 2026-11-27)."""
+    its side, not a choice between two arrays (a quarter of the gather:
+    benchmarks/many_bench.py)."""
     length = max(coef_r.shape[1], coef_c.shape[1])
     sides = np.zeros((coef_r.shape[0], 2, length, coef_r.shape[2]))
     sides[:, 0, :coef_r.shape[1]] = coef_r
@@ -463,7 +463,7 @@ def _gather(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, sides: 
     on the lane's state (a converged lane's row is not used); then, one at a time, the
     one-design look-up for the unconverged lanes :func:`_locate` marked.  (A test per
     lane on its state and on the row it held was a branch the processor mispredicted:
-    loading every row was 5 % faster, measured 2026-11-27 on the 2-core Xeon VM.)"""
+    loading every row is faster: benchmarks/many_bench.py.)"""
     for b in range(LANES):
         live = (lv[L_SKIP * LANES + b] == 0.0) & (lv[L_DONE * LANES + b] == 0.0)
         beyond_old = lv[L_BEYOND * LANES + b]
@@ -579,7 +579,7 @@ def _finish(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, sides: 
     """Phase 3c: the last few unconverged lanes, one at a time (the same look-up and
     update, up to ``iterations`` more): a lockstep iteration costs every lane's work,
     and about one lane in thirteen needs a third iteration (which, in lockstep, took
-    seven blocks in ten into one; measured 2026-11-27).  Returns the number of lanes left
+    most blocks into one: benchmarks/many_bench.py).  Returns the number of lanes left
     unconverged."""
     left = 0
     for b in range(LANES):

@@ -389,8 +389,8 @@ def pressure_drop_jacobian(q_m3_s: ArrayLike, valve: Iterable[float], nu_m2_s: f
     Analytic (:func:`pressure_drop_gradient`): the complex-step derivative of
     :func:`pressure_drop` to 10⁻¹³ … 3·10⁻¹⁰ of each column's largest entry (tested), at a
     ninth of its cost (6,700 flows: 21.4 → 2.4 ms): the identification's
-    valve fits had spent 18 % of a diagnosis in five complex evaluations per sample
-    (2026-11-27, cProfile, sport damper, cavitation and valve lag: 48 of 273 s).
+    valve fits had spent a sixth of a diagnosis in five complex evaluations per sample
+    (benchmarks/diagnose_bench.py).
 
     Returns
     -------

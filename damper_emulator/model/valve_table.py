@@ -110,7 +110,7 @@ def valve_point(coef: NDArray[np.float64], step: float, scale_pa: float, z: floa
     offset ``0 <= t < step`` by its Taylor polynomial to ``t⁶/720`` (remainder below
     ``t⁷/5040``, under 10⁻¹⁸ of ``t`` on a step below :data:`MAX_STEP`; a coarser table
     takes the library's): the same number as ``math.expm1`` to a few ulp, without its
-    library call, a fifth of the batch simulation's time before (perf, 2026-11-25).
+    library call, which took a fifth of the batch simulation's time (benchmarks/model_bench.py).
     """
     i_float, t, inside = table_interval(z, step, coef.shape[0])
     if not inside:
@@ -151,7 +151,7 @@ def _flows_at(dp_nodes: NDArray[np.float64], q_hi: float, valve: tuple[float, ..
 
     (Plain bisection to 2⁻⁶⁴ took 64 characteristic evaluations per node, 13 ms a table;
     this takes about ten, and a table costs about a fifth: it is rebuilt at every change
-    of a valve constant while ``diagnose`` fits them, measured 2026-11-24.)"""
+    of a valve constant while ``diagnose`` fits them.)"""
     k_leak, k_port, k_spring, preload, g = valve
     q_prev = 0.0
     for i in range(dp_nodes.size):

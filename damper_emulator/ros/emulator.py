@@ -110,7 +110,7 @@ def load_node_model(node: Node, extra: dict | None = None,
     overrides = parameter_overrides(node)
     ext = {n[len(EXTENSIONS_PREFIX):]: p.value for n, p in overrides.items()
            if n.startswith(EXTENSIONS_PREFIX)}
-    if ext:  # model extensions (issue 7) exist only where a params file gives them
+    if ext:  # model extensions exist only where a params file gives them
         defaults["damper"] = {**defaults["damper"],
                               "extensions": unflatten({k: plain_value(v)
                                                       for k, v in ext.items()})}

@@ -1,4 +1,4 @@
-"""The live view (issue 18): the damper and the ride as they run, in Foxglove or Lichtblick,
+"""The live view: the damper and the ride as they run, in Foxglove or Lichtblick,
 through the Foxglove SDK's WebSocket server (``foxglove-sdk``, optional).
 
 :class:`LiveServer` serves, on ``ws://127.0.0.1:PORT`` (localhost only), three JSON channels
@@ -29,9 +29,9 @@ from damper_emulator.errors import UserError
 
 #: SCHED_FIFO priority (when permitted) of the view's threads (its flush timer, the DDS and
 #: WebSocket threads); 0: normal scheduling.  Above every normally scheduled process, so
-#: that a busy machine does not freeze the view (under two CPU hogs on the 2-core VM its
-#: flushes came up to 4.1 s apart, 2026-11-26, and a loaded CI machine sent no ride
-#: message at all), and below the recorder's (50), the bridge's and the loops', so that
+#: that a busy machine does not freeze the view (under two CPU hogs on a two-core machine
+#: its flushes came seconds apart, and a loaded one sent no ride message at all), and
+#: below the recorder's (50), the bridge's and the loops', so that
 #: the view never delays what is recorded or emulated.
 LIVE_PRIORITY = 10
 

@@ -1,5 +1,5 @@
 """``damper-hil fleet``: identify, validate and diagnose many dampers' dyno tests as Dask
-tasks (issue 17; docs/fleet.md).
+tasks (docs/fleet.md).
 
 :mod:`.inputs` finds each damper's test set, :mod:`.task` is the work of one damper (pure
 computation, run on a worker), :mod:`.table` the one-row-per-damper results,

@@ -1,4 +1,4 @@
-"""``damper-hil tune``: virtual damper tuning on Dask (issue 17; docs/tune.md).
+"""``damper-hil tune``: virtual damper tuning on Dask (docs/tune.md).
 
 :mod:`ride_sim.tuning` holds the design space, the objectives and the front;
 :mod:`.runner` runs the search (chunks of designs as Dask tasks); :mod:`.report` writes

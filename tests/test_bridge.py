@@ -510,15 +510,13 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
         err = np.abs(can_data.force - off_data.force)
         assert np.isfinite(can_data.force).all()
         # The emulator steps on its own timer, so the loop is not bit for bit the offline
-        # run (largest difference about 50 N of 1.9 kN here).  A host stall of this VM
-        # (issue 14) can put one sample's force up to ~900 N off (seen once in a clean-clone
-        # run, 2026-11-25: 20 N r.m.s. from that sample alone): at most 0.5 % of the samples
+        # run (largest difference about 50 N of 1.9 kN).  A stall of a virtual machine's
+        # host can put one sample's force up to ~900 N off: at most 0.5 % of the samples
         # may be further off than 5 % of the force r.m.s., plus the samples a measured
         # stall spans (and one either side): the longest stall the dyno measured in its
-        # own send timing (an 18 ms stall at 500 Hz put 11 of 2001 off, 2026-11-25), or
+        # own send timing (an 18 ms stall at 500 Hz puts 11 of 2001 off), or
         # the forces that came back late, computed on a stale input (a stall on the
-        # emulator's side: 22 off where the dyno's own stall of 12.3 ms allowed 19, the
-        # round trip's p99 16.6 ms, 2026-11-26), whichever is more; the others must agree
+        # emulator's side), whichever is more; the others must agree
         # to 1 %.
         outliers = err > 0.05 * f_rms
         stalled = max(math.ceil(run["send_interval_error_max_ms"] * 1e-3 * run["rate_hz"]),

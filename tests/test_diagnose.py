@@ -656,8 +656,8 @@ def test_identify_takes_the_friction_at_speed_as_a_multiple_of_the_quasi_static_
     4 mm/s), the chirp F.  The paper's identification carries the quasi-static friction
     into the valve fits, whose pressure drops then hold the difference; with
     ``chirp_friction_factor`` = ``1/tanh(ẋ/v_f)`` (the closed form) the configuration's
-    friction is F and both preloads move to the truth's (seeds 3–5, 2026-11-26: rebound
-    +0.8–0.9 % → +0.1–0.2 %, compression +2.6–2.7 % → +0.1–0.3 %)."""
+    friction is F and both preloads move to the truth's (seeds 3–5: rebound
+    within 0.2 % instead of 0.9 %, compression within 0.3 % instead of 2.7 %)."""
     from damper_emulator.diagnose.joint import make_record
     from damper_emulator.identify.quasi_static import IdentificationError
 

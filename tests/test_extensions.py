@@ -1019,7 +1019,7 @@ def test_series_compliance_stays_bounded_with_an_extreme_identified_valve():
 @pytest.mark.parametrize("substep_s", [5e-4, 5e-3])
 def test_series_compliance_with_a_nearly_closed_gas_volume_stays_quasi_steady(sport_cfg,
                                                                              substep_s):
-    """Regression (2026-11-25): a gas volume only 5 % larger than the rod's stroke, behind
+    """Regression: a gas volume only 5 % larger than the rod's stroke, behind
     a mount as stiff as the oil column, ramped slowly to 96 % of the gas column (the gas
     ends stiffer than the mount).  The gas pressure used to follow the spring's force of
     the sub-step before: here the force ended 19 % (0.5 ms sub-step) and 12× (the 5 ms

@@ -139,7 +139,7 @@ def test_the_analytic_gradient_is_the_complex_step_derivative(valve, form):
         # form loses digits to cancellation at large flows (3.1e-10 here, at 43 B0, where
         # a 50-digit evaluation agreed with the analytic value to 2e-13); elsewhere 1e-13
         # (the Jacobian loop's inlined copy of the gradient differed from the gradient
-        # called alone by 7e-13 of an entry in one fresh compile, 2026-11-27: both are
+        # called alone by up to 7e-13 of an entry in a fresh compile: both are
         # held to the complex step, not to each other bit for bit)
         for jac in (grad[:, 1:], V.pressure_drop_jacobian(q, v, NU, form)):
             err = np.abs(jac - cs).max(axis=0) / np.abs(cs).max(axis=0)

@@ -91,10 +91,9 @@ def test_closed_loop_demo_writes_a_bag_rosbags_reads(cold_demo):
     if delay["p99_ms"] <= delay["bound_ms"]:
         assert 0.016 < m["sws_rms"] < 0.064 and 800 < m["dtl_rms"] < 4000, m
     # else: a slow host; the run says so (above) and its metrics are not the damper's.
-    # Found 2026-11-26/27 on the 2-core VM: the force the ride applied answered a state up
-    # to 0.2-0.75 s old, which pumped the wheel hop (DTL 4.5-4.9 kN r.m.s.); the ride's
-    # DDS threads ran under normal scheduling behind the other nodes' SCHED_FIFO ones
-    # (now ride.dds_priority: max 12-84 ms, DTL 1.84-1.99 kN in four demos)
+    # The case this guards: on a two-core machine the force the ride applied could answer
+    # a state up to 0.75 s old, which pumped the wheel hop, when the ride's DDS threads ran
+    # under normal scheduling behind the other nodes' SCHED_FIFO ones (ride.dds_priority)
     assert summary["valve_command"]["count"] > 100, summary["valve_command"]
     assert summary["bridge_diagnostics"], "no /diagnostics from the CAN bridge recorded"
     for f in ("ride.png", "damper.png", "control.png", "loop.png", "report.md", "demo.json"):
@@ -112,8 +111,8 @@ def _fifo_permitted() -> bool:
 
 def test_the_ride_runs_its_middleware_threads_under_sched_fifo(tmp_path):
     """``ride.dds_priority``: the DDS threads (receive, events) of the ride's process run
-    under SCHED_FIFO at that priority, or normally at 0.  Found 2026-11-27: under normal
-    scheduling, beside the other nodes' real-time threads on a 2-core VM, the emulator's
+    under SCHED_FIFO at that priority, or normally at 0.  Under normal scheduling, beside
+    the other nodes' real-time threads on a two-core machine, the emulator's
     force reached the ride up to 0.75 s late (README, the ride node's loop delay)."""
     if not _fifo_permitted():
         pytest.skip("SCHED_FIFO not permitted here")

@@ -229,3 +229,14 @@ def test_the_command_line_starts_without_the_heavy_modules():
     assert "damper_hil.cli.fleet_example" in loaded  # the walk sees the subcommands
     bad = [m for m in loaded if any(m == f or m.startswith(f + ".") for f in START_FORBIDDEN)]
     assert not bad, bad
+
+
+def test_figures_come_from_the_one_plotting_helper():
+    """Every figure is made by :func:`damper_emulator.dyno.plots.new_figure` and saved by
+    its ``save`` (the Agg canvas, printable labels): no module drives pyplot, whose global
+    backend and figure registry are not thread-safe and not headless by default."""
+    bad = sorted(m for m, deps in EXTERNAL.items()
+                 if any(d == "matplotlib.pyplot" or d.startswith("matplotlib.pyplot.")
+                        or d == "matplotlib.use" for d in deps))
+    assert not bad, bad
+    assert "matplotlib.figure" in EXTERNAL["damper_emulator.dyno.plots"]

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from damper_emulator.dyno.plots import save
+from damper_emulator.dyno.plots import new_figure, save
 from damper_emulator.errors import ESCAPE, printable
 from damper_emulator.outputs import Outputs
 from damper_hil.fleet.outliers import RULES, SCORED
@@ -46,15 +46,11 @@ def _values(rows: list[dict[str, Any]], column: str) -> tuple[list[str], np.ndar
 
 
 def plot_parameters(run: FleetRun, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     n = len(SCORED)
     cols = 3
-    fig, axes = plt.subplots(math.ceil(n / cols), cols, figsize=(13, 2.0 * math.ceil(n / cols)),
-                             squeeze=False)
+    rows = math.ceil(n / cols)
+    fig = new_figure(13, 2.0 * rows)
+    axes = fig.subplots(rows, cols, squeeze=False)
     rng = np.random.default_rng(0)  # vertical jitter only, so that points do not overlap
     for ax, (column, log) in zip(axes.flat, SCORED):
         ids, v = _values(run.rows, column)
@@ -80,20 +76,14 @@ def plot_parameters(run: FleetRun, path: Path) -> Path:
         ax.axis("off")
     fig.suptitle(f"Identified parameters of {len(run.rows)} dampers (dashed: the fleet's "
                  "median; red: flagged on that parameter)", fontsize=11)
-    fig.tight_layout()
     save(fig, path, dpi=110)
-    plt.close(fig)
     return path
 
 
 def plot_validation(run: FleetRun, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     ids, v = _values(run.rows, "validation_rms_n")
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.45 * len(ids) + 2), 3.6))
+    fig = new_figure(max(6.0, 0.45 * len(ids) + 2), 3.6)
+    ax = fig.subplots()
     colours = [COLOURS[bool(run.flags.get(i))] for i in ids]
     ax.bar(range(len(ids)), v, color=colours)
     ax.set_xticks(range(len(ids)), [printable(i) for i in ids], rotation=60, ha="right",
@@ -102,29 +92,21 @@ def plot_validation(run: FleetRun, path: Path) -> Path:
     if v.size:
         ax.axhline(float(np.median(v)), color="0.5", lw=0.8, ls="--")
     ax.set_title("Validation error per damper (pooled over its sines; red: flagged by any rule)")
-    fig.tight_layout()
     save(fig, path, dpi=110)
-    plt.close(fig)
     return path
 
 
 def plot_diagnosis(run: FleetRun, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     counts = Counter(r.get("diagnosis_family") for r in run.rows
                      if r.get("status") == "ok" and r.get("diagnosis_family"))
-    fig, ax = plt.subplots(figsize=(7, 3.2))
+    fig = new_figure(7, 3.2)
+    ax = fig.subplots()
     names = sorted(counts, key=lambda k: (-counts[k], k))
     ax.barh(names, [counts[k] for k in names], color=COLOURS[0])
     ax.invert_yaxis()
     ax.set_xlabel("dampers")
     ax.set_title("Diagnosis per damper")
-    fig.tight_layout()
     save(fig, path, dpi=110)
-    plt.close(fig)
     return path
 
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from damper_emulator.dyno.plots import save
+from damper_emulator.dyno.plots import new_figure, save
 from damper_emulator.params import ModelConfig, save_config
 from damper_hil.tune.runner import TuneRun
 from ride_sim import tuning as tu
@@ -146,19 +146,10 @@ def _write_csv(path: Path, run: TuneRun, rows: np.ndarray, front: np.ndarray,
     say(path)
 
 
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_front(run: TuneRun, picks: dict[str, int], front: np.ndarray, path: Path) -> Path:
-    plt = _pyplot()
     obj = run.objectives
-    fig, ax = plt.subplots(figsize=(8, 5.5))
+    fig = new_figure(8, 5.5)
+    ax = fig.subplots()
     infeasible = ~run.feasible
     ax.scatter(obj[~front & ~infeasible, 1], obj[~front & ~infeasible, 0], s=8,
                color="0.75", label="dominated")
@@ -182,9 +173,7 @@ def plot_front(run: TuneRun, picks: dict[str, int], front: np.ndarray, path: Pat
                  "the random roads\n(the front is in three objectives: a front design may "
                  "look dominated in this view)", fontsize=10)
     ax.legend(fontsize=8, loc="upper right")
-    fig.tight_layout()
     save(fig, path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -192,8 +181,8 @@ def plot_fourteen_speed(run: TuneRun, base: ModelConfig, picks: dict[str, int], 
                         ) -> Path:
     from damper_emulator.model.compressible import DamperModel
     from damper_emulator.model.representations import fourteen_speed_damper
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig = new_figure(8, 5)
+    ax = fig.subplots()
     curves = [("baseline", base, "k", "-")]
     styles = {"balanced": ("tab:blue", "-"), "comfort": ("tab:green", "--"),
               "road_holding": ("tab:orange", "-.")}
@@ -210,16 +199,14 @@ def plot_fourteen_speed(run: TuneRun, base: ModelConfig, picks: dict[str, int], 
     ax.set_ylabel("force [N] (rebound +)")
     ax.set_title("14-speed curves (virtual dyno) of the chosen designs and the baseline")
     ax.legend(fontsize=8)
-    fig.tight_layout()
     save(fig, path, dpi=110)
-    plt.close(fig)
     return path
 
 
 def plot_sensitivity(run: TuneRun, rho: np.ndarray, path: Path) -> Path:
-    plt = _pyplot()
     names = run.spec.variables
-    fig, ax = plt.subplots(figsize=(9, 0.45 * len(names) + 1.8))
+    fig = new_figure(9, 0.45 * len(names) + 1.8)
+    ax = fig.subplots()
     y = np.arange(len(names))
     width = 0.8 / len(tu.OBJECTIVES)
     for k, (obj, _, _) in enumerate(tu.OBJECTIVES):
@@ -232,9 +219,7 @@ def plot_sensitivity(run: TuneRun, rho: np.ndarray, path: Path) -> Path:
                   "raises it)")
     ax.set_title("Which valve constant moves which objective")
     ax.legend(fontsize=8)
-    fig.tight_layout()
     save(fig, path, dpi=110)
-    plt.close(fig)
     return path
 
 

@@ -12,6 +12,7 @@ exponential backoff.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import ipaddress
 import logging
@@ -387,10 +388,8 @@ class ResilientBus:
             bus, self._bus = self._bus, None
             self._record_failure(f"CAN bus {self.config.label}: {what} failed: "
                                  f"{one_line(exc, with_type=True)}")
-        try:
+        with contextlib.suppress(Exception):  # already broken; nothing more to do
             bus.shutdown()
-        except Exception:  # already broken; nothing more to do
-            pass
 
     def _succeeded(self) -> None:
         if self._backoff != self._backoff_initial:

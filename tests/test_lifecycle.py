@@ -65,9 +65,10 @@ class Lifecycle:
 
 def _locked_kb(pid: int) -> int:
     """The process's locked memory (``VmLck`` of /proc/PID/status) [kB]."""
-    for line in open(f"/proc/{pid}/status"):
-        if line.startswith("VmLck:"):
-            return int(line.split()[1])
+    with open(f"/proc/{pid}/status") as status:
+        for line in status:
+            if line.startswith("VmLck:"):
+                return int(line.split()[1])
     return 0
 
 

@@ -81,15 +81,15 @@ def test_a_run_that_fails_or_is_interrupted_leaves_the_previous_result_whole(tmp
                                                                               python_sigint):
     report, params = _first_run(tmp_path)
     before = _tree(tmp_path)
-    with pytest.raises(KeyboardInterrupt if how == "sigint" else RuntimeError):
-        with Outputs() as out:
-            new_report = out.folder(report)
-            new_params = out.file(params)
-            (new_report / "b.txt").write_text("second, half writ")
-            new_params.write_text("second")
-            if how == "sigint":
-                signal.raise_signal(signal.SIGINT)   # Python's handler: KeyboardInterrupt
-            raise RuntimeError("the work failed")
+    with pytest.raises(KeyboardInterrupt if how == "sigint" else RuntimeError), \
+            Outputs() as out:
+        new_report = out.folder(report)
+        new_params = out.file(params)
+        (new_report / "b.txt").write_text("second, half writ")
+        new_params.write_text("second")
+        if how == "sigint":
+            signal.raise_signal(signal.SIGINT)   # Python's handler: KeyboardInterrupt
+        raise RuntimeError("the work failed")
     assert _tree(tmp_path) == before
     assert not _partials(tmp_path)
 
@@ -109,12 +109,11 @@ def test_a_signal_during_the_renames_waits_until_the_set_is_in_place(tmp_path, m
             signal.raise_signal(signal.SIGINT)
 
     monkeypatch.setattr(out_mod.os, "replace", replace_then_signal)
-    with pytest.raises(KeyboardInterrupt):
-        with Outputs() as out:
-            new_params = out.file(params)
-            new_report = out.folder(report)
-            new_params.write_text("second params")
-            (new_report / "c.txt").write_text("second c")
+    with pytest.raises(KeyboardInterrupt), Outputs() as out:
+        new_params = out.file(params)
+        new_report = out.folder(report)
+        new_params.write_text("second params")
+        (new_report / "c.txt").write_text("second c")
     assert delivered
     assert _tree(tmp_path) == {"fitted.yaml": b"second params", "report/c.txt": b"second c",
                                f"report/{MARKER}": out_mod._MARKER_TEXT.encode()}

@@ -13,6 +13,7 @@ price is idle CPUs that poll instead of halting.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import os
@@ -54,10 +55,8 @@ class RealtimeReport:
     def release(self) -> None:
         """Withdraw the requests that last while a file is open (the latency request)."""
         while self.held_fds:
-            try:
+            with contextlib.suppress(OSError):
                 os.close(self.held_fds.pop())
-            except OSError:
-                pass
 
     @property
     def sched_fifo(self) -> bool:
@@ -123,9 +122,9 @@ def apply_realtime(request: RealtimeRequest) -> RealtimeReport:
             report.refused.append(f"SCHED_FIFO: {getattr(exc, 'strerror', None) or exc}")
     if request.cpu_dma_latency_us >= 0:
         _request_latency(request.cpu_dma_latency_us, report)
-    if request.timer_slack_ns > 0 and libc is not None:
-        if libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(request.timer_slack_ns), 0, 0, 0) == 0:
-            report.applied.append(f"timer slack {request.timer_slack_ns} ns")
+    if request.timer_slack_ns > 0 and libc is not None and libc.prctl(
+            _PR_SET_TIMERSLACK, ctypes.c_ulong(request.timer_slack_ns), 0, 0, 0) == 0:
+        report.applied.append(f"timer slack {request.timer_slack_ns} ns")
     return report
 
 

@@ -11,6 +11,7 @@ traceback).  Subcommands: ``damper-hil --help`` and docs/interfaces.md §3.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from collections.abc import Sequence
 
@@ -80,10 +81,9 @@ def _escape_terminal() -> None:
     for stream in (sys.stdout, sys.stderr):
         reconfigure = getattr(stream, "reconfigure", None)
         if reconfigure is not None:
-            try:
+            # a stream that cannot change its errors keeps them
+            with contextlib.suppress(ValueError, OSError):
                 reconfigure(errors=ESCAPE)
-            except (ValueError, OSError):   # a stream that cannot change its errors
-                pass
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -90,13 +90,12 @@ def _run_round(engine: Engine, base: ModelConfig, factors: np.ndarray, spec: tu.
     tasks = ((i, EvalTask(base, factors[i:i + chunk], spec, car, road, dt_s))
              for i in starts)
     t0 = time.perf_counter()
-    done = designs = 0
-    for outcome in engine.map_unordered(evaluate_task, tasks):
+    designs = 0
+    for done, outcome in enumerate(engine.map_unordered(evaluate_task, tasks), start=1):
         if outcome.error is not None:
             raise outcome.error
         i = outcome.key
         out[i:i + chunk] = outcome.value
-        done += 1
         designs += outcome.value.shape[0]
         elapsed = time.perf_counter() - t0
         say(f"{label} {bar(done, len(starts))} {done}/{len(starts)} tasks, {designs} "

@@ -26,6 +26,7 @@ command was sent), ``time`` [s, from the ride's start], ``stroke_target``,
 
 from __future__ import annotations
 
+import contextlib
 import math
 import multiprocessing
 import signal
@@ -115,8 +116,8 @@ class RecordWriter:
                  diagnostics_s: float = 1.0) -> None:
         self.dt_s = float(dt_s)
         self._window = max(1, int(round(diagnostics_s / dt_s)))
-        self._csv: IO[str] = open(Path(out) / "hybrid.csv", "w", encoding="utf-8",
-                                  newline="\n")
+        self._csv: IO[str] = open(  # noqa: SIM115 (the writer holds it until close())
+            Path(out) / "hybrid.csv", "w", encoding="utf-8", newline="\n")
         self._csv.write(",".join(CSV_COLUMNS) + "\n")
         self._csv.flush()
         self._bag: BagWriter | None = None
@@ -277,10 +278,8 @@ class WriterProcess:
         """Tell the writer the run is over, wait for it to close its files; its exit
         status."""
         if self.conn is not None:
-            try:
+            with contextlib.suppress(OSError):      # the writer has gone already
                 self.conn.send(None)
-            except OSError:
-                pass
             self.conn.close()
             self.conn = None
         self.process.join()

@@ -2,9 +2,10 @@
 """Benchmark of ``damper-hil hybrid`` against ``damper-hil virtual-rig``; prints markdown
 tables.
 
-The issue's rig: 4 ms transport delay, a 40 Hz servo with damping 0.7, the sport specimen
+The rig: 4 ms transport delay, a 40 Hz servo with damping 0.7, the sport specimen
 without extensions; 20 s of an ISO 8608 class C road at 20 m/s.  Both commands run as
-processes on a ``udp_multicast`` bus of their own, in turn (this is a 2-core machine):
+processes on a ``udp_multicast`` bus of their own, in turn (so that on a 2-core machine
+they do not compete for the cores):
 
 1. **compensated** and **uncompensated** on the same rig, ``--repeats`` times each:
    tracking NRMS, peak error, residual delay, the ride's r.m.s. values against the

@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """Benchmark of ``damper-hil tune``; prints a markdown table.
 
-1. **The issue's case**: ``damper-hil tune --designs 1000`` (three ISO 8608 roads of 500 m
+1. **The reference case**: ``damper-hil tune --designs 1000`` (three ISO 8608 roads of 500 m
    at 20 m/s plus the pothole, two refinement rounds of 64) on a local cluster of 2
    workers, the whole command timed (cluster start, search, report and plots).  Target:
-   at most 10 minutes on this 2-core machine.
+   at most 10 minutes on a 2-core machine.
 2. **Scaling**: the search alone (``--scaling-designs``, no refinement) on dask's
    synchronous scheduler, a LocalCluster of 2 processes (started for each run) and a
    ``dask scheduler`` + 2 ``dask worker`` commands (started once); ``--repeats`` runs in

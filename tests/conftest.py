@@ -18,8 +18,9 @@ from damper_emulator.params import load_config
 # Hypothesis profiles.  "default" (``make test``): a bounded search, so that the
 # property-based reader tests (tests/test_fuzz_*.py) add about a minute to the suite on a
 # 2-core machine; "fuzz" (``make fuzz``): a long search of the same properties.  No
-# deadline: the readers touch files, and a virtual machine stalls its guests (the tests bound a hang
-# themselves, tests/fuzz_support.py).  Tests with settings of their own keep them.
+# deadline: the readers touch files, and a virtual machine's host can stall it (the tests
+# bound a hang themselves, tests/fuzz_support.py).  Tests with settings of their own keep
+# them.
 _PROFILE_COMMON = {"deadline": None, "print_blob": True,
                    "suppress_health_check": [HealthCheck.too_slow]}
 settings.register_profile("default", max_examples=60, **_PROFILE_COMMON)

@@ -478,7 +478,7 @@ class TestDynoBridge:
 
 
 # ======================================================================================
-# 3. loopback dyno over CAN vs the offline virtual dyno (the issue's acceptance test)
+# 3. loopback dyno over CAN vs the offline virtual dyno (the acceptance test)
 # ======================================================================================
 
 
@@ -514,10 +514,9 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
         # host can put one sample's force up to ~900 N off: at most 0.5 % of the samples
         # may be further off than 5 % of the force r.m.s., plus the samples a measured
         # stall spans (and one either side): the longest stall the dyno measured in its
-        # own send timing (an 18 ms stall at 500 Hz puts 11 of 2001 off), or
-        # the forces that came back late, computed on a stale input (a stall on the
-        # emulator's side), whichever is more; the others must agree
-        # to 1 %.
+        # own send timing (an 18 ms stall at 500 Hz puts 11 of 2001 off), or the forces
+        # that came back late, computed on a stale input (a stall on the emulator's side),
+        # whichever is more; the others must agree to 1 %.
         outliers = err > 0.05 * f_rms
         stalled = max(math.ceil(run["send_interval_error_max_ms"] * 1e-3 * run["rate_hz"]),
                       run["late_samples"]) + 2
@@ -537,7 +536,7 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
 
 
 # Sample rate 500 Hz: at 1 kHz the three Python processes of the loop (dyno, bridge,
-# emulator) need about one core of this 2-core machine, and with other jobs running the
+# emulator) need about one core of a 2-core machine, and with other jobs running the
 # emulator falls more than the /damper/state queue (100 samples) behind and samples are lost
 # (the run then fails, as it should: "N forces did not come back" or "computed from another
 # sample").  benchmarks/can_bench.py measures the 1 kHz case.

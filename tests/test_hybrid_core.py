@@ -2,7 +2,8 @@
 
 The actuator against closed forms; the identification against rigs of known transfer
 systems; the safety layer on its own; the loop (host + virtual rig on a simulated timeline)
-against the all-numerical reference and through the disturbances the issue names.
+against the all-numerical reference and through a rig's disturbances (a doubled delay, a
+feedback cut, lost frames, an unstable setting, a thermal fade).
 """
 
 from __future__ import annotations

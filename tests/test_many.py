@@ -21,7 +21,7 @@ from ride_sim.quarter_car import simulate
 from ride_sim.road import random_road
 from ride_sim.study import pothole_input, start_state
 
-#: the agreement the issue asks for
+#: the agreement the batch path must keep with the single path (relative)
 RTOL = 1e-9
 
 

@@ -86,7 +86,8 @@ BASE_PARAMETERS: tuple[BaseParameter, ...] = (
 #: friction rises from rest over a few mm/s (the benchmark's truth: 43.7 N tanh(ẋ/5 mm/s),
 #: 29 N at the quasi-static test's 4 mm/s); eq 4's single level cannot be both, and the
 #: fit's compromise moved the gas spring and the effects fitted on top of it (the thermal
-#: and gas heat transfer cases of benchmarks/diagnose_bench.py held out twice the error).
+#: and gas heat transfer cases of benchmarks/diagnose_bench.py held out two to three times
+#: the error).
 #: Not above 1: a friction higher at low speed is the Stribeck effect, the friction
 #: family's (LuGre) candidate; free above 1, the refitted paper's model explained a LuGre
 #: truth to 8.7 N and the answer was ``none``.  Only the fit uses it: the model a diagnosis
@@ -541,11 +542,12 @@ class Space:
         refused both ways (or with no room) gets a zero column: the data show no slope for
         it, and its σ is undetermined (:meth:`std`).
 
-        The case (the FSAE data): ``identify`` had left the compression valve's
-        blow-off stiffness where 1 % more makes its Δp(Q) non-monotonic at Q = 0 (a
-        ``ValveTableError``).  scipy's own differences then took ``(FAILED_COST − r)/h``,
-        a column of 10¹¹ against 10²–10³ of the others, and the covariance's
-        pseudo-inverse cut every other direction: each σ came out 10⁻¹⁵ of its value.
+        The case this guards against (the FSAE data): ``identify`` can leave the
+        compression valve's blow-off stiffness where 1 % more makes its Δp(Q)
+        non-monotonic at Q = 0 (a ``ValveTableError``).  scipy's own differences would
+        then take ``(FAILED_COST − r)/h``, a column of 10¹¹ against 10²–10³ of the
+        others, and the covariance's pseudo-inverse would cut every other direction: each
+        σ would come out 10⁻¹⁵ of its value.
         """
         if self._last is None or not np.array_equal(self._last[0], s):
             self.residuals(s)
@@ -757,16 +759,18 @@ def reidentify(cfg: ModelConfig, records: Sequence[Record], n_quasi_static: int,
 #: (seal friction of dampers rises with speed by tens of percent; the benchmark's smooth
 #: friction is 1.5× at speed what it is at the quasi-static 4 mm/s) ...
 FRICTION_SEARCH_FACTORS = (1.0, 1.5, 2.0)
-#: ... and then once more at the least of the parabola through the three costs (clipped to their
-#: range; :func:`search_friction`).  The pre-fit's cost is sharp and smooth in the factor: on the
-#: sport damper with a cavity (truth 1.51) 72, 33, 1.7, 20 and 56 at 1, 1.25, 1.5, 1.75 and 2; the
-#: parabola through 72, 1.7 and 56 has its least at 1.53.  A grid of five with a refinement either
-#: side of its best found the same minimum in seven re-identifications instead of four. The search
-#: is made only where the effect pre-fitted on the present model lowers the records' cost by at
-#: least this fraction.  On the sport damper (round 1): with a cavity in the data 79 % (the cavity
-#: alone) and 62 % (with a valve lag); without one 20 % (air entrainment with LuGre friction: the
-#: cavity follows the air's lag at the largest pushes), −0.1 % (LuGre and a lag) and less than
-#: nothing (noise only).  Searched on the air case, the diagnosis took 211 s instead of about 180.
+#: ... and then once more at the least of the parabola through the three costs (clipped to
+#: their range; :func:`search_friction`).  The pre-fit's cost is sharp and smooth in the
+#: factor: on the sport damper with a cavity (truth 1.51) 72, 33, 1.7, 20 and 56 at 1,
+#: 1.25, 1.5, 1.75 and 2; the parabola through 72, 1.7 and 56 has its least at 1.53.  A
+#: grid of five with a refinement either side of its best found the same minimum in
+#: seven re-identifications instead of four.
+#: The search is made only where the effect pre-fitted on the present model lowers the
+#: records' cost by at least this fraction.  On the sport damper (round 1): with a cavity
+#: in the data 79 % (the cavity alone) and 62 % (with a valve lag); without one 20 % (air
+#: entrainment with LuGre friction: the cavity follows the air's lag at the largest
+#: pushes), −0.1 % (LuGre and a lag) and less than nothing (noise only).  Searched on the
+#: air case, the diagnosis took 211 s instead of about 180.
 FRICTION_SEARCH_MIN_GAIN = 0.4
 
 _Tried = TypeVar("_Tried", bound=tuple[Any, ...])
@@ -840,8 +844,7 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
        The valve fits take the quasi-static fit's friction; for a candidate whose force
        trades with the friction at speed (``Candidate.friction_coupled``) the
        re-identification is repeated over :func:`search_friction`'s friction levels and
-       the best pre-fit taken.  On the sport damper with a cavity,
-       re-identified with the
+       the best pre-fit taken.  On the sport damper with a cavity, re-identified with the
        quasi-static friction (29 N, at speed 43.7 N) the compression preload came out 3 %
        high, the pre-fit's cost was 72 (1.7 at the truth's friction), and the joint fit
        went into a valley of its own (p_cav 31 kPa, truth 20; held-out 3 Hz sine 28.8 N;

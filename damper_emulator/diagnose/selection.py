@@ -261,14 +261,13 @@ class FitTask:
 
 #: BLAS threads a fit task runs with (:func:`run_fit_task`).  The fits are the parallel
 #: work, one task per core; OpenBLAS would otherwise start a pool of one thread per core in
-#: every worker, and those threads (which spin before they sleep) competed with the other
-#: worker's fit: with two processes on two cores every task ran about 1.4× longer than
+#: every worker, and those threads (which spin before they sleep) compete with the other
+#: worker's fit: with two processes on two cores every task runs about 1.4× longer than
 #: alone; with one BLAS thread per task the diagnosis takes about a third less
-#: (benchmarks/diagnose_bench.py).  Dask's
-#: nanny sets the same for its workers (``OPENBLAS_NUM_THREADS=1``,
-#: ``distributed.nanny.pre-spawn-environ``).  It also keeps the fits' sums independent of
-#: the machine's core count (threaded BLAS splits them by thread, and a fit's path can
-#: follow the last bits: docs/diagnose.md).
+#: (benchmarks/diagnose_bench.py).  Dask's nanny sets the same for its workers
+#: (``OPENBLAS_NUM_THREADS=1``, ``distributed.nanny.pre-spawn-environ``).  It also keeps
+#: the fits' sums independent of the machine's core count (threaded BLAS splits them by
+#: thread, and a fit's path can follow the last bits: docs/diagnose.md).
 FIT_BLAS_THREADS = 1
 
 

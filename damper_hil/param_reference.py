@@ -215,68 +215,21 @@ def _options_table(title: str, cls: type, option: Callable[[str], str], prefix: 
     return lines
 
 
-#: the README's per-node parameter lists: node → (its groups as in :func:`_groups`, a note)
-NODES = {
-    "damper_emulator": (("emulator",), "plus the damper's `damper.*` and `numerics.*` "
-                        "(docs/parameters.md) and `autostart`"),
-    "can_bridge": (("",), "plus `autostart`"),
-    "ride_sim": (("quarter_car", "simulation", "road", "ride"), "plus the damper's "
-                 "`damper.*` and `numerics.*`"),
-}
-README = REPO / "README.md"
-
-
-def node_table(node: str) -> str:
-    """The README's compact list of ``node``'s parameters (name, type, unit, default,
-    run time, description), from the same schema as docs/parameters.md."""
-    groups, note = NODES[node]
-    lines = [f"Parameters of `{node}` ({note}; rules and ranges in "
-             f"[docs/parameters.md](docs/parameters.md); `ros2 param describe` gives the "
-             "same):", "",
-             "| parameter | type | unit | default | run time | description |",
-             "|---|---|---|---|---|---|"]
-    for group, _path, _who, cls, defaults in _groups():
-        if group not in groups:
-            continue
-        obj = defaults()
-        for spec in field_specs(cls, group):
-            key = spec.key[len(group) + 1:] if group else spec.key
-            lines.append(f"| `{spec.key}` | {spec.type} | {_cell(spec.unit) or ' '} | "
-                         f"{_cell(_fmt(_value(obj, key)))} | "
-                         f"{'yes' if spec.runtime else 'no'} | {_cell(spec.description)} |")
-    return "\n".join(lines)
-
-
-def render_readme(text: str) -> str:
-    """``text`` (the README) with every ``<!-- params:NODE:begin/end -->`` block
-    regenerated."""
-    for node in NODES:
-        begin, end = f"<!-- params:{node}:begin -->", f"<!-- params:{node}:end -->"
-        i, j = text.find(begin), text.find(end)
-        if i < 0 or j < i:
-            raise SystemExit(f"README.md lacks the {begin} ... {end} block")
-        text = text[:i + len(begin)] + "\n" + node_table(node) + "\n" + text[j:]
-    return text
-
-
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description="write docs/parameters.md and the README's "
-                                             "node parameter lists from the schema")
+    ap = argparse.ArgumentParser(description="write docs/parameters.md from the schema")
     ap.add_argument("--check", action="store_true",
-                    help="exit 1 when docs/parameters.md or the README's lists are not what "
-                         "the schema gives")
+                    help="exit 1 when docs/parameters.md is not what the schema gives")
     args = ap.parse_args(argv)
-    outputs = {OUTPUT: render(), README: render_readme(README.read_text(encoding="utf-8"))}
+    text = render()
     if args.check:
-        stale = [p for p, text in outputs.items()
-                 if (p.read_text(encoding="utf-8") if p.exists() else "") != text]
-        for p in stale:
-            print(f"{p} is out of date: run python -m damper_hil.param_reference",
+        current = OUTPUT.read_text(encoding="utf-8") if OUTPUT.exists() else ""
+        if current != text:
+            print(f"{OUTPUT} is out of date: run python -m damper_hil.param_reference",
                   file=sys.stderr)
-        return 1 if stale else 0
-    for p, text in outputs.items():
-        p.write_text(text, encoding="utf-8")
-        print(f"wrote {p}")
+            return 1
+        return 0
+    OUTPUT.write_text(text, encoding="utf-8")
+    print(f"wrote {OUTPUT}")
     return 0
 
 

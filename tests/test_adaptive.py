@@ -155,7 +155,7 @@ def test_quasi_steady_force_matches_an_independent_solve(sport_cfg, sport_model,
 
 def test_settings_are_ordered_and_the_documented_ratios_hold(sport_model, sport_cfg):
     """Comfort < normal < sport in |F − F_static| at every speed and direction, monotone in
-    the command; at 0.5 m/s rebound comfort is 40–50 %, normal 65–75 % of sport (README,
+    the command; at 0.5 m/s rebound comfort is 40–50 %, normal 65–75 % of sport (docs/model.md §6,
     config/sport.yaml: 0.445 and 0.708)."""
     fs = sport_cfg.damper.static_force_n
     for v in (-1.0, -0.5, -0.1, 0.1, 0.5, 1.0):

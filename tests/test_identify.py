@@ -187,7 +187,7 @@ def test_malformed_files_exit_2_with_one_line(tmp_path, cli, body, words):
 
 def test_paper_procedure_without_correction_is_biased(sport_cfg, sport_model):
     """Why the compressibility correction exists: the paper's filter alone leaves the
-    hysteresis of the compressible data in the rebound fit (documented in the README)."""
+    hysteresis of the compressible data in the rebound fit (docs/identification.md)."""
     qs, chirp = _virtual(sport_cfg, sport_model, 3)
     plain = identify(qs, chirp, sport_cfg, correct_compressibility=False)
     corrected = identify(qs, chirp, sport_cfg)

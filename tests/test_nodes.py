@@ -113,7 +113,7 @@ def test_the_ride_runs_its_middleware_threads_under_sched_fifo(tmp_path):
     """``ride.dds_priority``: the DDS threads (receive, events) of the ride's process run
     under SCHED_FIFO at that priority, or normally at 0.  Under normal scheduling, beside
     the other nodes' real-time threads on a two-core machine, the emulator's
-    force reached the ride up to 0.75 s late (README, the ride node's loop delay)."""
+    force reached the ride up to 0.75 s late (docs/ros_can.md, "The ride node")."""
     if not _fifo_permitted():
         pytest.skip("SCHED_FIFO not permitted here")
     for priority, policy in ((60, os.SCHED_FIFO), (0, os.SCHED_OTHER)):

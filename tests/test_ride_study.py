@@ -308,7 +308,7 @@ def adaptive_doc(cfg):
 
 def test_adaptive_study_physics(adaptive_doc):
     """Skyhook lowers the weighted body acceleration against passive sport (and comfort);
-    comfort lowers it too but raises SWS and DTL (docs: README 'Adaptive damper')."""
+    comfort lowers it too but raises SWS and DTL (docs/ride_study.md §8)."""
     d = adaptive_doc
     r = d["ratio_to_sport"]
     assert r["skyhook"]["accel_w_rms"]["max"] < 0.9

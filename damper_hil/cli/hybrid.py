@@ -142,37 +142,35 @@ def run(args: argparse.Namespace) -> int:
     # the record's writer starts up (imports, the bag) while the host builds and warms up
     writer = WriterProcess(out, HOST_CYCLE_S, bag=not args.no_bag)
     executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hybrid-fit")
-    # its thread starts now, under the normal policy: started from the loop's thread it
-    # would inherit SCHED_FIFO and keep the loop off its CPU while it fits
-    executor.submit(int).result()
-    try:
-        host = HybridHost(run_params, car, twin, compensator, config.safety, dt_s=HOST_CYCLE_S,
-                          executor=executor)
-        host.warm_up()
-    except BaseException:
-        writer.close()
-        executor.shutdown(wait=False)
-        raise
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-
-    def progress(phase: str) -> None:
-        say(f"hybrid: {phase}")
-
     status = None
-    if args.ros:
-        from damper_emulator.ros.status_publisher import StatusPublisher
-        from ride_sim.hybrid.recorder import DIAGNOSTIC_NAME, JOINT
-
-        status = StatusPublisher("damper_hil_hybrid")
-
-    def on_status(level: int, message: str, values: list[tuple[str, str]]) -> None:
-        if status is not None:
-            status.publish(DIAGNOSTIC_NAME, level, message, JOINT, dict(values))
-
-    started = time.monotonic()
+    # until the recorder takes the writer over, a failure (a host that cannot be built, a
+    # ROS node that cannot start) must end it too: its pipe held open would keep the
+    # writer, and so this process, waiting
     try:
+        # the fit's thread starts now, under the normal policy: started from the loop's
+        # thread it would inherit SCHED_FIFO and keep the loop off its CPU while it fits
+        executor.submit(int).result()
+        host = HybridHost(run_params, car, twin, compensator, config.safety,
+                          dt_s=HOST_CYCLE_S, executor=executor)
+        host.warm_up()
+        stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+
+        def progress(phase: str) -> None:
+            say(f"hybrid: {phase}")
+
+        if args.ros:
+            from damper_emulator.ros.status_publisher import StatusPublisher
+            from ride_sim.hybrid.recorder import DIAGNOSTIC_NAME, JOINT
+
+            status = StatusPublisher("damper_hil_hybrid")
+
+        def on_status(level: int, message: str, values: list[tuple[str, str]]) -> None:
+            if status is not None:
+                status.publish(DIAGNOSTIC_NAME, level, message, JOINT, dict(values))
+
+        started = time.monotonic()
         with HybridRecorder(out, host, bag=not args.no_bag, writer=writer,
                             on_status=on_status if status is not None else None) as recorder:
             stats = run_hybrid_link(bus, db, host, stop,
@@ -181,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
         if recorder.error is not None:
             raise recorder.error
     finally:
+        writer.close()          # idempotent: the recorder has closed it when it ran
         executor.shutdown(wait=False, cancel_futures=True)
         if status is not None:
             status.close()

@@ -5,9 +5,10 @@
 :class:`~ride_sim.hybrid.protocol_host.ProtocolHost`) from a dyno's frames: the host runs
 one cycle per valid ``DYNO_FEEDBACK`` as soon as it arrives and sends the ``DYNO_COMMAND``
 at once (the dyno's clock paces the loop: the command goes out a computation after the
-feedback it used).  The host sleeps until ``poll_before_s`` (the run's parameters) before a
-feedback is due and polls the bus from then on: the frame is read as it lands, without the
-scheduler's wake-up (on a virtual machine, the halted CPU's return too).
+feedback it used).  With the loop pinned to a CPU (``--cpu``), the host sleeps until
+``poll_before_s`` (the run's parameters) before a feedback is due and polls the bus from
+then on: the frame is read as it lands, without the scheduler's wake-up (on a virtual
+machine, the halted CPU's return too).
 The run advances one step per cycle of the rig, counted by the feedback's
 alive counter: a cycle whose feedback does not come (lost or invalid) runs
 ``MISSED_FEEDBACK_PERIODS`` periods after the last one on the last measurement (the watchdog
@@ -65,6 +66,7 @@ class LinkStats:
     temperature_c: float = math.nan  # the latest DYNO_AUX
     dyno_status_bits: int = 0        # OR of every DYNO_FEEDBACK Status
     realtime: str = ""
+    poll_before_s: float = 0.0       # the polling the loop used (0 unless pinned to a CPU)
     #: feedback arrival → its command sent [µs], one per cycle run on a feedback
     response_us: list[float] = field(default_factory=list, repr=False)
     #: when each of those feedback frames arrived [ns, monotonic]
@@ -112,7 +114,10 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
     if report is not None:
         stats.realtime = report.summary()
     period = host.dt_s
-    poll = host.run.poll_before_s
+    # polling pays only on a CPU of the loop's own: unpinned, it takes the CPU the other
+    # processes of the run (the writer, on a small machine the dyno's) need
+    poll = host.run.poll_before_s if report is not None and report.pinned else 0.0
+    stats.poll_before_s = poll
     bus_cfg = dataclasses.replace(bus_cfg, receive_ids=receiver.frame_ids)
     phase = host.phase
 

@@ -62,6 +62,11 @@ class RealtimeReport:
     def sched_fifo(self) -> bool:
         return any(a.startswith("SCHED_FIFO") for a in self.applied)
 
+    @property
+    def pinned(self) -> bool:
+        """The thread was pinned to a CPU (``RealtimeRequest.cpu``)."""
+        return any(a.startswith("CPU ") for a in self.applied)
+
     def summary(self) -> str:
         parts = []
         if self.applied:

@@ -122,10 +122,11 @@ class HybridRunParams:
                                             "least this well (r.m.s. error / r.m.s. "
                                             "stroke), or the run stops [-]", 0.2)
     poll_before_s: float = _rule(("closed", 0.0, 0.01),
-                                 "the host polls the bus, without sleeping, from this long "
-                                 "before the next DYNO_FEEDBACK is due: the wake-up's latency "
-                                 "leaves the response time, for a CPU busy that long each "
-                                 "cycle (0: it sleeps until the frame comes) [s]", 4e-4)
+                                 "with its loop pinned to a CPU (--cpu), the host polls the "
+                                 "bus, without sleeping, from this long before the next "
+                                 "DYNO_FEEDBACK is due: the wake-up's latency leaves the "
+                                 "response time, for that CPU busy that long each cycle (0, "
+                                 "or unpinned: it sleeps until the frame comes) [s]", 4e-4)
 
 
 def build(cls: type[_G], data: Any, prefix: str, where: str = "<memory>") -> _G:

@@ -89,9 +89,10 @@ class LinkStats:
 def _receive(bus: ResilientBus, poll_from: float, deadline: float) -> can.Message | None:
     """The next frame by ``deadline`` [s, monotonic]: asleep until ``poll_from``, then
     polling (a frame due soon is read as it lands, not a wake-up later)."""
+    wake = min(poll_from, deadline)
     now = time.monotonic()
-    if now < min(poll_from, deadline):
-        msg = bus.recv(min(poll_from, deadline) - now)
+    if now < wake:
+        msg = bus.recv(wake - now)
         if msg is not None:
             return msg
     while time.monotonic() < deadline:

@@ -97,12 +97,18 @@ def predict(d: _Vec, d_fraction: _Vec, q: _Vec, a: _Vec, b: _Vec, s: _Vec, heigh
         x, v = state_motion(q, s)
         road0 = road1
     rate = (road_at(heights, k + whole + fraction + 1.0) - road0) / dt
-    accel = 0.0
-    for i in (1, 3):
-        si = (a[i, 0] * s[0] + a[i, 1] * s[1] + a[i, 2] * s[2] + a[i, 3] * s[3]
-              + b[i, 0] * f_wheel + b[i, 1] * road0 + b[i, 2] * rate)
-        accel += si if i == 1 else -si
-    return x, v, -accel / q[Q_MR]
+    wheel_accel = _state_rate(a, b, s, 1, f_wheel, road0, rate)
+    body_accel = _state_rate(a, b, s, 3, f_wheel, road0, rate)
+    return x, v, -(wheel_accel - body_accel) / q[Q_MR]
+
+
+@kernel
+def _state_rate(a: _Vec, b: _Vec, s: _Vec, i: int, f_wheel: float, u: float, du: float
+                ) -> float:
+    """Row ``i`` of ``ṡ = A s + B (f_wheel, u, u̇)``."""
+    rate: float = (a[i, 0] * s[0] + a[i, 1] * s[1] + a[i, 2] * s[2] + a[i, 3] * s[3]
+                   + b[i, 0] * f_wheel + b[i, 1] * u + b[i, 2] * du)
+    return rate
 
 
 def effective_mass_kg(car: QuarterCarParams) -> float:

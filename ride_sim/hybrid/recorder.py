@@ -181,7 +181,7 @@ class RecordWriter:
             STATE: ([JOINT], col([x]), col([v]), empty),
             FORCE: ([JOINT], col([x]), col([v]), col([rec[3]])),
             HYBRID_LOOP: (list(LOOP_JOINTS), col([rec[0], rec[1], x]), empty,
-                  col([zero, zero, np.nan_to_num(rec[4], nan=0.0)])),
+                          col([zero, zero, np.nan_to_num(rec[4], nan=0.0)])),
         }
         stamps = self._stamps(chunk.t_ns)
         encoded = [(self._topics[name], rows_to_bytes(

@@ -30,15 +30,7 @@ fuzz: $(STAMP)
 	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest -q --durations=15 tests/test_fuzz_*.py
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/model_bench.py
-	$(BIN)/python benchmarks/message_bench.py
-	$(BIN)/python benchmarks/identify_bench.py
-	$(BIN)/python benchmarks/ride_bench.py
-	$(BIN)/python benchmarks/many_bench.py
-	$(BIN)/python benchmarks/fleet_bench.py
-	$(BIN)/python benchmarks/tune_bench.py
-	$(BIN)/python benchmarks/demo_bench.py --runs 3 --host
-	$(BIN)/python benchmarks/hybrid_bench.py --repeats 2 --twin-chain --doc docs/performance.md
+	$(BIN)/python benchmarks/run_all.py --doc docs/performance.md
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .hypothesis .mypy_cache

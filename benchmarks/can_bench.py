@@ -393,10 +393,11 @@ def main() -> None:
     loads = {b: {"all": bus_load(db, b, REQUIRED_SIGNALS),
                  "dyno": bus_load(db, b, ["DAMPER_STATE", "DAMPER_FORCE"])} for b in BITRATES}
 
-    print(f"\nCAN round trip DAMPER_STATE → bridge → emulator → bridge → DAMPER_FORCE, "
+    print("# CAN round trip through the bridge and the emulator\n")
+    print(f"CAN round trip DAMPER_STATE → bridge → emulator → bridge → DAMPER_FORCE, "
           f"{args.duration:g} s per case at {RATE_HZ:g} Hz, udp_multicast (interface-local), "
           f"dyno in a separate process; {cpu_name()}, {os.cpu_count()} cores, "
-          f"Python {platform.python_version()}, {time.strftime('%Y-%m-%d')}; load average "
+          f"Python {platform.python_version()}, load average "
           f"(1 min) {load_before[0]:.2f} before, {load_after[0]:.2f} after"
           + (f"; bridge executor thread on SCHED_FIFO {args.bridge_executor_fifo}"
              if args.bridge_executor_fifo else "") + "\n")

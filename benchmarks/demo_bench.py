@@ -158,7 +158,7 @@ def main() -> int:
         ap.error("--runs must be at least 1 and --duration positive")
     rows = run(args)
     print(f"# demo real-time figures: {cpu_name()}, {os.cpu_count()} CPUs, Python "
-          f"{platform.python_version()}, {time.strftime('%Y-%m-%d %H:%M')}; "
+          f"{platform.python_version()}; "
           f"{args.duration:g} s ride per run")
     print()
     host = any("host_stalls" in r for r in rows)

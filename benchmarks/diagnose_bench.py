@@ -182,8 +182,9 @@ def main() -> None:
     todo = [s for s in scenarios() if args.only is None or s[0] in args.only]
     if not todo:
         sys.exit("no such scenario; one of: " + ", ".join(s[0] for s in scenarios()))
+    print("# Identify + diagnose on the truth scenarios\n")
     print(f"machine: {cpu_name()}, {os.cpu_count()} CPUs; diagnose with {args.jobs} "
-          f"process(es); {time.strftime('%Y-%m-%d')}; force noise {NOISE_N} N")
+          f"process(es); force noise {NOISE_N} N")
     print()
     print("| scenario | expected | diagnosed (effects added) | ok | held-out r.m.s. [N]: "
           "identified → refit → after (floor) | main effect fitted | identify + diagnose "

@@ -80,7 +80,7 @@ def main() -> None:
                 dt, start = timed(data, tmp / key, **engine)
                 rates[key].append(n / dt * 60.0)
                 starts[key].append(start)
-    print(f"# damper-hil fleet benchmark — {time.strftime('%Y-%m-%d')}, {cpu_name()}, "
+    print(f"# damper-hil fleet benchmark — {cpu_name()}, "
           f"{os.cpu_count()} CPUs")
     print()
     print(f"{n} dampers, {'short' if args.short else 'paper'} protocol, identify + validate "

@@ -22,10 +22,9 @@ they do not compete for the cores):
    the rig, ``identify`` on them, ``hybrid`` with the identified twin, ``diagnose`` with the
    ride as held-out data: the twin's residual over the ride and the diagnosed family.
 
-Usage: ``python benchmarks/hybrid_bench.py [--repeats 2] [--duration 20] [--twin-chain]
-[--doc docs/performance.md]``; ``--doc`` also writes the tables into that file's section
-between ``<!-- hybrid_bench -->`` and ``<!-- /hybrid_bench -->`` (added at its end when
-missing).
+Usage: ``python benchmarks/hybrid_bench.py [--repeats 2] [--duration 20] [--twin-chain]``
+(``make bench`` runs it through ``benchmarks/run_all.py``, which writes its tables into
+docs/performance.md).
 """
 
 from __future__ import annotations
@@ -116,39 +115,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--twin-chain", action="store_true")
     ap.add_argument("--twin-only", action="store_true", help="only the twin chain")
-    ap.add_argument("--doc", type=Path, default=None)
-    args = ap.parse_args()
-    if args.doc is not None:
-        import contextlib
-        import io
-
-        buffer = io.StringIO()
-
-        class _Both(io.TextIOBase):
-            def write(self, text: str) -> int:
-                sys.__stdout__.write(text)
-                return buffer.write(text)
-
-        with contextlib.redirect_stdout(_Both()):
-            run(args)
-        write_section(args.doc, buffer.getvalue())
-    else:
-        run(args)
-
-
-BEGIN, END = "<!-- hybrid_bench -->", "<!-- /hybrid_bench -->"
-
-
-def write_section(path: Path, text: str) -> None:
-    """``text`` between :data:`BEGIN` and :data:`END` in ``path`` (appended if absent)."""
-    old = path.read_text(encoding="utf-8") if path.exists() else ""
-    block = f"{BEGIN}\n{text.rstrip()}\n{END}\n"
-    if BEGIN in old and END in old:
-        head, rest = old.split(BEGIN, 1)
-        new = head + block + rest.split(END, 1)[1].lstrip("\n")
-    else:
-        new = (old.rstrip() + "\n\n" if old.strip() else "") + block
-    path.write_text(new, encoding="utf-8")
+    run(ap.parse_args())
 
 
 def run(args: argparse.Namespace) -> None:
@@ -158,7 +125,7 @@ def run(args: argparse.Namespace) -> None:
         twin_chain(root / "twin", args.duration)
         return
     dur = ["--duration", f"{args.duration:g}", "--road-class", "C", "--speed", "20"]
-    print(f"## Damper in the loop: `damper-hil hybrid` against `virtual-rig` — {cpu_name()}, "
+    print(f"# Damper in the loop: `damper-hil hybrid` against `virtual-rig` — {cpu_name()}, "
           f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}\n")
     print(f"Rig: 4 ms transport delay, 40 Hz servo, damping 0.7, sport specimen; "
           f"{args.duration:g} s of ISO 8608 class C at 20 m/s; udp_multicast; host loop "
@@ -182,7 +149,7 @@ def run(args: argparse.Namespace) -> None:
                 print(f"{mode} run {r}: failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
             rows.append((mode, r, proc.returncode, doc, elapsed))
-    print("### Compensated and uncompensated on the same rig\n")
+    print("## Compensated and uncompensated on the same rig\n")
     print("| compensation | run | exit | NRMS [%] | peak [mm] | residual delay [ms] | "
           "rig delay followed [ms] | SWS / ref | Wk accel / ref | DTL / ref | "
           "response p50 / p99 / max [µs] | of it, read p50 / p99 [µs] | force-path gain |")
@@ -217,7 +184,7 @@ def run(args: argparse.Namespace) -> None:
               f"{statistics.mean(none) * 100:.2f} %: ratio "
               f"{statistics.mean(none) / statistics.mean(comp):.0f}×.\n")
     # 2. robustness
-    print("### Robustness\n")
+    print("## Robustness\n")
     print("| case | exit | reason | measure |")
     print("|---|---|---|---|")
     n += 1
@@ -270,7 +237,7 @@ def run(args: argparse.Namespace) -> None:
           f"{lim.stroke_limit_m * 1e3:g}), max force {np.nanmax(np.abs(d[:, 5])):.0f} N "
           f"(limit {lim.force_limit_n:g}) |")
     # 3. offline
-    print("\n### Offline (the same cores on a simulated timeline, no bus)\n")
+    print("\n## Offline (the same cores on a simulated timeline, no bus)\n")
     print("| compensation | NRMS [%] | SWS / ref | Wk accel / ref | DTL / ref | time [s] |")
     print("|---|---|---|---|---|---|")
     model = DamperModel()
@@ -348,7 +315,7 @@ def twin_chain(tmp: Path, duration_s: float) -> None:
     times["diagnose"] = time.perf_counter() - t0
     ride = json.loads((tmp / "ride" / "hybrid.json").read_text())
     diag = json.loads((tmp / "diagnose.json").read_text()) if proc.returncode == 0 else {}
-    print("\n### Twin: a specimen fading with temperature, identified and diagnosed on the "
+    print("\n## Twin: a specimen fading with temperature, identified and diagnosed on the "
           "rig\n")
     twin = ride["twin"]
     print(f"Ride with the identified twin: tracking NRMS {ride['tracking']['nrms'] * 100:.2f} "

@@ -46,8 +46,7 @@ def main() -> None:
     for side in ("rebound", "compression"):
         errors += list(np.abs(np.array(tuple(getattr(d, side)))
                               / np.array(tuple(getattr(d0, side))) - 1))
-    print(f"# damper-hil identification benchmark — {time.strftime('%Y-%m-%d')}, "
-          f"{cpu_name()}")
+    print(f"# damper-hil identification benchmark — {cpu_name()}")
     print()
     print("| measure | result | target |")
     print("|---|---|---|")

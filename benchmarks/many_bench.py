@@ -80,8 +80,8 @@ def main() -> None:
         t0 = time.perf_counter()
         simulate_many(car, models[:64], heights, dt, lanes=False)
         rates["alone64"].append(64 * heights.size / (time.perf_counter() - t0))
-    print(f"# damper-hil many-design kernel benchmark — {time.strftime('%Y-%m-%d')}, "
-          f"{cpu_name()}, one core")
+    print(f"# damper-hil many-design kernel benchmark — {cpu_name()}, "
+          "one core")
     print()
     print(f"{heights.size:,} samples of {args.length:g} m at {road.speed_m_s:g} m/s, dt "
           f"{dt * 1e3:g} ms; {args.repeats} repeats")

@@ -182,9 +182,10 @@ def main() -> None:
             r = measure(rate, fifo, latency_us, args.duration, Path(tmp), 60 + i)
             r["case"] = label
             rows.append(r)
-    print(f"\nemulator node, {args.duration:g} s per case, input at {INPUT_RATE_HZ:g} Hz from "
+    print("# The emulator node over DDS\n")
+    print(f"Emulator node, {args.duration:g} s per case, input at {INPUT_RATE_HZ:g} Hz from "
           f"a separate process; {cpu_name()}, {os.cpu_count()} cores, "
-          f"Python {platform.python_version()}, {time.strftime('%Y-%m-%d')}\n")
+          f"Python {platform.python_version()}\n")
     print("| case | achieved rate | period p50 / p99 / max | p99 period error | overruns "
           "(> 2 periods) | wake-up latency p50 / p99 | tick work p99 / max | state→force latency "
           "p50 / p99 | input samples superseded before a tick |")

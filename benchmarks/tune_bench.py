@@ -72,7 +72,7 @@ def main() -> None:
                     run_tune(base, spec, ride.quarter_car, ride.road, dt, eng,
                              say=lambda m: None)
                 rates[key].append(steps / (time.perf_counter() - t0))
-    print(f"# damper-hil tune benchmark — {time.strftime('%Y-%m-%d')}, {cpu_name()}")
+    print(f"# damper-hil tune benchmark — {cpu_name()}")
     print()
     print(f"`damper-hil tune --designs {args.designs} --workers 2` (roads "
           f"{', '.join(r.name for r in roads)}), whole command: **{full_s:.0f} s** "

@@ -107,3 +107,49 @@ def test_the_pre_commit_hooks_run_what_make_test_runs():
     # make test lints the whole tree (ruff check .); the hook gets the changed files
     assert made == [hooks["ruff"]["entry"] + " .", hooks["mypy"]["entry"]]
     assert hooks["mypy"]["pass_filenames"] is False
+
+
+def _benchmark_driver():
+    """``benchmarks/run_all.py`` as a module (it imports ``machine`` from its directory)."""
+    import importlib.util
+    import sys
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        spec = importlib.util.spec_from_file_location("run_all",
+                                                      REPO / "benchmarks/run_all.py")
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    return module
+
+
+def test_make_bench_runs_every_benchmark_into_its_section_of_the_performance_page():
+    """Every ``benchmarks/*_bench.py`` is one the driver runs (``make bench`` or by name),
+    ``make bench`` calls the driver with the page, and the page holds a section per
+    benchmark for the driver to rewrite."""
+    run_all = _benchmark_driver()
+    scripts = {p.stem for p in (REPO / "benchmarks").glob("*_bench.py")}
+    assert scripts == set(run_all.BENCHMARKS) | set(run_all.BY_NAME_ONLY)
+    recipe = (REPO / "Makefile").read_text(encoding="utf-8").split("\nbench:", 1)[1]
+    assert "benchmarks/run_all.py --doc docs/performance.md" in recipe.split("\n\n", 1)[0]
+    page = (REPO / "docs/performance.md").read_text(encoding="utf-8")
+    for name in [*scripts, "machine"]:
+        begin, end = run_all.markers(name)
+        assert page.count(begin) == 1 and page.count(end) == 1, name
+        assert page.index(begin) < page.index(end), name
+
+
+def test_the_benchmark_driver_rewrites_a_section_and_keeps_the_rest(tmp_path):
+    """A section written twice holds only the second text; text around it stays; a missing
+    section is added at the end."""
+    run_all = _benchmark_driver()
+    page = tmp_path / "p.md"
+    page.write_text("intro\n\n<!-- a -->\nold\n<!-- /a -->\n\ntail\n", encoding="utf-8")
+    run_all.write_section(page, "a", "first")
+    run_all.write_section(page, "a", "second\n")
+    run_all.write_section(page, "b", "new")
+    assert page.read_text(encoding="utf-8") == (
+        "intro\n\n<!-- a -->\nsecond\n<!-- /a -->\n\ntail\n\n<!-- b -->\nnew\n<!-- /b -->\n\n")

@@ -51,7 +51,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from machine import cpu_name  # noqa: E402  (same folder)
+from machine import cpu_name
 
 from damper_emulator.diagnose.selection import diagnose
 from damper_emulator.diagnose.truth import (

@@ -31,7 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from machine import cpu_name  # noqa: E402  (same folder)
+from machine import cpu_name
 
 from damper_emulator.params import load_config
 from damper_hil.engine import command_cluster, open_engine

@@ -41,7 +41,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from machine import cpu_name  # noqa: E402  (same folder)
+from machine import cpu_name
 
 from can_bridge.bus import BusConfig
 from can_bridge.codec import Receiver
@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> None:
     proc, doc, _, _ = run_pair(tmp, n, ["--delay-change-at", "12", "--delay-change-to-ms",
                                         "8"], dur)
     if doc:
-        starts, nrms = windows(tmp / "out")
+        _starts, nrms = windows(tmp / "out")
         # the change comes 12 s after the first command, some 8 s into the ride (settle,
         # identification and fit first): from the worst window on
         peak_i = int(np.argmax(nrms[: len(nrms) - 4]))

@@ -14,7 +14,7 @@ import statistics
 import time
 
 import numpy as np
-from machine import cpu_name  # noqa: E402  (same folder)
+from machine import cpu_name
 
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.measured import MeasuredData

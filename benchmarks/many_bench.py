@@ -22,7 +22,7 @@ import dataclasses
 import statistics
 import time
 
-from machine import cpu_name  # noqa: E402  (same folder)
+from machine import cpu_name
 from scipy.stats import qmc
 
 from damper_emulator.model.compressible import DamperModel

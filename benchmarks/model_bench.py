@@ -27,7 +27,7 @@ from damper_emulator.params import load_config
 
 
 def bench_step(model: DamperModel, calls: int) -> tuple[float, float, float]:
-    t, x, v = chirp(0.5, 16.0, duration_s=calls / 1000.0, v_start_m_s=0.05, v_end_m_s=1.5,
+    _t, x, v = chirp(0.5, 16.0, duration_s=calls / 1000.0, v_start_m_s=0.05, v_end_m_s=1.5,
                     rate_hz=1000.0)
     stepper = DamperStepper(model, x[0], v[0])
     xs, vs = x.tolist(), v.tolist()

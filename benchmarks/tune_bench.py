@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from machine import cpu_name  # noqa: E402  (same folder)
+from machine import cpu_name
 
 from damper_emulator.params import load_config
 from damper_hil.engine import command_cluster, open_engine

@@ -36,9 +36,11 @@ from can_bridge.dbc import (
 )
 
 __all__ = [
+    "DEFAULT_DBC",
+    "HYBRID_SIGNALS",
+    "REQUIRED_SIGNALS",
     "BusConfig",
     "CanBusError",
-    "DEFAULT_DBC",
     "DbcError",
     "Decoded",
     "DynoStatus",
@@ -46,8 +48,6 @@ __all__ = [
     "Encoder",
     "ForceStatus",
     "FrameCounters",
-    "HYBRID_SIGNALS",
-    "REQUIRED_SIGNALS",
     "Receiver",
     "ResilientBus",
     "bus_load",

@@ -32,10 +32,10 @@ from damper_emulator.errors import UserError, one_line
 __all__ = [
     "BusConfig",
     "CanBusError",
+    "ResilientBus",
     "open_bus",
     "socketcan_available",
     "socketcan_problem",
-    "ResilientBus",
 ]
 
 _log = logging.getLogger(__name__)
@@ -493,7 +493,7 @@ class ResilientBus:
         if bus is not None:
             try:
                 bus.shutdown()
-            except Exception as exc:
+            except Exception as exc:  # noqa: BLE001 - best effort: the bus is dropped anyway
                 _log.debug("shutting down %s: %s", self.config.label, exc)
 
     def __enter__(self) -> ResilientBus:

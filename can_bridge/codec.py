@@ -38,7 +38,7 @@ from can_bridge.dbc import (
     raw_range,
 )
 
-__all__ = ["EncodedFrame", "Encoder", "Decoded", "FrameCounters", "Receiver"]
+__all__ = ["Decoded", "EncodedFrame", "Encoder", "FrameCounters", "Receiver"]
 
 _COUNTER_MODULO = 16
 
@@ -252,7 +252,7 @@ class Encoder:
 
 
 class _RxMessage:
-    __slots__ = ("message", "crc_index", "counters", "last_counter")
+    __slots__ = ("counters", "crc_index", "last_counter", "message")
 
     def __init__(self, message: Message) -> None:
         self.message = message

@@ -22,22 +22,22 @@ from cantools.database.can import Database, Message, Signal
 from damper_emulator.errors import UserError, one_line
 
 __all__ = [
-    "DEFAULT_DBC",
-    "REQUIRED_SIGNALS",
-    "HYBRID_SIGNALS",
-    "COUNTER_SIGNAL",
     "CHECKSUM_SIGNAL",
-    "ForceStatus",
-    "DynoStatus",
+    "COUNTER_SIGNAL",
+    "DEFAULT_DBC",
+    "HYBRID_SIGNALS",
+    "REQUIRED_SIGNALS",
     "DbcError",
-    "load_database",
+    "DynoStatus",
+    "ForceStatus",
+    "bus_load",
     "check_message",
     "checksum_byte",
-    "raw_range",
-    "messages_for",
     "cycle_time_s",
     "frame_bits",
-    "bus_load",
+    "load_database",
+    "messages_for",
+    "raw_range",
 ]
 
 #: The project's CAN database.

@@ -91,7 +91,7 @@ def plot_relative_rms_summary(path: str | Path, results: Mapping[str, Mapping[st
     ax.set_xticks(range(len(names)), names, rotation=20 if len(names) > 4 else 0,
                   ha="right" if len(names) > 4 else "center")
     ax.set_ylabel("relative r.m.s. force error [%]")
-    ax.set_ylim(0.0, max(rel + [1e-3]) * 1.18)
+    ax.set_ylim(0.0, max([*rel, 0.001]) * 1.18)
     ax.grid(True, axis="y", alpha=0.35)
     ax.set_title(title or "Validation: r.m.s. force error per file (label: newtons)")
     return save(fig, path)

@@ -99,7 +99,7 @@ class SynchronousEngine(Engine):
         for key, arg in items:
             try:
                 value = dask.delayed(fn, pure=False)(arg).compute(scheduler="synchronous")
-            except Exception as exc:  # the task's failure is its outcome
+            except Exception as exc:  # noqa: BLE001 - the task's failure is its outcome
                 yield Outcome(key, error=exc)
             else:
                 yield Outcome(key, value=value)
@@ -140,7 +140,7 @@ class DaskEngine(Engine):
             key = keys.pop(future.key)
             try:
                 value = future.result()
-            except Exception as exc:  # the task's failure (or KilledWorker) is its outcome
+            except Exception as exc:  # noqa: BLE001 - a task's failure (or KilledWorker) is its outcome
                 outcome: Outcome[K] = Outcome(key, error=exc)
             else:
                 outcome = Outcome(key, value=value)

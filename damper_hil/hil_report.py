@@ -149,7 +149,7 @@ def _control_lines(summary: dict[str, Any]) -> list[str]:
                      f"checksum / counter) {bridge.get('dropped_length')} / "
                      f"{bridge.get('dropped_checksum')} / {bridge.get('dropped_counter')}, "
                      f"lost {bridge.get('lost_frames')} |")
-    return lines + [""]
+    return [*lines, ""]
 
 
 def _delay_line(delay: dict[str, Any] | None) -> str:
@@ -208,7 +208,7 @@ def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
             "mean": float(rec.valve_command[1].mean()),
             "min": float(rec.valve_command[1].min()),
             "max": float(rec.valve_command[1].max())},
-        "files": files + ["demo.json", "report.md"],
+        "files": [*files, "demo.json", "report.md"],
     }
     write_text(out / "demo.json", json.dumps(summary, indent=2) + "\n")
     m = ride_doc.get("metrics", {})

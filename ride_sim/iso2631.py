@@ -72,10 +72,10 @@ from damper_emulator.errors import UserError
 __all__ = [
     "BAND_LIMIT_Q",
     "DESIGN",
-    "DigitalDesignSettings",
     "WD",
     "WEIGHTINGS",
     "WK",
+    "DigitalDesignSettings",
     "UpwardStep",
     "WeightingConstants",
     "WeightingFilter",

@@ -106,7 +106,7 @@ class RideSession:
         scratch = RideSession.on_road(self.car.params, self.heights[:WARM_UP_SAMPLES], 0,
                                       self.dt_s, self.car.static_force_n)
         while not scratch.done:
-            x, v = scratch.motion()
+            _x, v = scratch.motion()
             scratch.body_velocity()
             scratch.apply(self.car.static_force_n + v, 0)
             scratch.last()

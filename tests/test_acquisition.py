@@ -179,7 +179,7 @@ def test_rig_file_round_trip_and_defaults(tmp_path):
     assert rig_from_mapping({"dyno": {"ros__parameters": rig_to_mapping(rig)}}) == rig
 
 
-@pytest.mark.parametrize("doc, words", [
+@pytest.mark.parametrize(("doc", "words"), [
     ({"rig": {"forse": {}}}, "unknown channel rig.forse"),
     ({"rig": {"force": {"cutoff": 200}}}, "unknown parameter rig.force.cutoff"),
     ({"rig": {"force": {"filter": "chebyshev"}}}, "rig.force.filter"),

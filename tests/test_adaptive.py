@@ -205,7 +205,7 @@ def test_lag_kernel_edges():
 def test_invalid_input_does_not_advance_the_lag(sport_model):
     s = DamperStepper(sport_model)
     s.set_valve_command(0.0)
-    force, fault = s.step(0.0, math.nan, 1e-3)
+    _force, fault = s.step(0.0, math.nan, 1e-3)
     assert fault == Fault.INVALID_INPUT and s.effective_valve_command == 1.0
     s.step(0.0, 0.1, -1e-3)
     assert s.effective_valve_command == 1.0
@@ -349,7 +349,7 @@ def test_round_trip_keeps_or_omits_the_group(tmp_path, sport_cfg):
     assert load_config(path).damper.adaptive is None
 
 
-@pytest.mark.parametrize("key, value, words", [
+@pytest.mark.parametrize(("key", "value", "words"), [
     ("oil_density_kg_m3", -870.0, "must be positive"),
     ("oil_density_kg_m3", "oil", "must be a number"),
     ("bypass_discharge_coefficient", 0.0, r"must lie in \(0, 1\]"),
@@ -383,13 +383,13 @@ def test_missing_unknown_and_malformed_adaptive_keys():
         assert "\n" not in str(err.value)
     doc = read_yaml(DEFAULT_PARAMS_FILE)
     doc["/**"]["ros__parameters"]["damper"]["adaptive"] = [1, 2]
-    with pytest.raises(ParameterError, match="damper.adaptive must be a mapping"):
+    with pytest.raises(ParameterError, match=r"damper\.adaptive must be a mapping"):
         config_from_mapping(doc, "bad.yaml")
 
 
 def test_replace_damper_validates_the_group(sport_cfg):
     bad = dataclasses.replace(sport_cfg.damper.adaptive, oil_density_kg_m3=-1.0)
-    with pytest.raises(ParameterError, match="damper.adaptive.oil_density_kg_m3"):
+    with pytest.raises(ParameterError, match=r"damper\.adaptive\.oil_density_kg_m3"):
         sport_cfg.replace_damper(adaptive=bad)
 
 

@@ -5,6 +5,7 @@ Reader and the ``mcap`` package's reader, on real files.
 """
 
 import contextlib
+import itertools
 import json
 import os
 import signal
@@ -172,7 +173,7 @@ def test_message_helpers_round_trip():
     msg = messages.deserialize(data, DIAG)
     assert msg.status[0].name == "damper" and msg.status[0].values[0].value == "81.5"
     assert messages.deserialize(messages.float64(2.5), F64).data == 2.5
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="stamp_ns -1 out of range"):
         messages.joint_state(-1, [], [], [], [])
     with pytest.raises(BagError):
         messages.deserialize(b"\x00\x01\x00\x00\x01", JS)
@@ -328,7 +329,7 @@ def test_background_flush_holds_back_the_newest_50_ms(tmp_path, caplog):
     assert on_disk() == list(range(50))  # stamped within 50 ms of the newest: held back
     w.write(c, T0 + 60 * ms + 500, messages.float64(-1))  # handed over late, still in order
     background_flush()  # what was held is always written by the next round
-    assert on_disk() == sorted(list(range(100)) + [60.0005])
+    assert on_disk() == sorted([*range(100), 60.0005])
     w.write(c, T0 + 10 * ms, messages.float64(-2))  # far too late for the hold-back
     with caplog.at_level("WARNING"):
         background_flush()  # held back (newest of its round) ...
@@ -337,7 +338,7 @@ def test_background_flush_holds_back_the_newest_50_ms(tmp_path, caplog):
     with pytest.raises(BagError, match="timestamp order"):
         list(read_messages(bag))  # the unclosed file's linear scan refuses it...
     w.close()
-    assert on_disk() == sorted(list(range(100)) + [60.0005, 10])  # ...the closed bag is indexed
+    assert on_disk() == sorted([*range(100), 60.0005, 10])  # ...the closed bag is indexed
 
 
 # ---------------------------------------------------------- live (unclosed) file
@@ -524,7 +525,7 @@ def test_sigkill_loses_at_most_half_a_second(tmp_path):
         msgs, _ = read_rosbags(bag)  # opens, every message decodes
         got = [(ts, round(m.position[0] * 1000)) for _, ts, m in msgs]
         assert got, "nothing recorded"
-        assert all(a[0] < b[0] for a, b in zip(got, got[1:]))
+        assert all(a[0] < b[0] for a, b in itertools.pairwise(got))
         for (ts, i), (_, _, m) in zip(got, msgs):
             assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == ts and m.velocity[0] == i
         # exactly what the child wrote, in order (one written but not yet printed may be extra)

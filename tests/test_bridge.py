@@ -23,7 +23,7 @@ from types import SimpleNamespace
 import can
 import numpy as np
 import pytest
-from ros_probe import Probe  # noqa: E402
+from ros_probe import Probe
 
 from can_bridge import (
     BusConfig,
@@ -164,9 +164,9 @@ def external_run(tmp_path_factory):
     """``dyno --over-can --external`` with nothing on its bus: started with the module, it
     waits out its 20 s connect timeout in the background while the other tests run."""
     out = tmp_path_factory.mktemp("external")
-    cmd = CLI + ["dyno", "--protocol", "sine", "--over-can", "--external",
-                 "--can-interface", "udp_multicast",
-                 "--can-channel", udp_channel(OFFSETS["external"]), "--out", str(out)]
+    cmd = [*CLI, "dyno", "--protocol", "sine", "--over-can", "--external",
+           "--can-interface", "udp_multicast", "--can-channel", udp_channel(OFFSETS["external"]),
+           "--out", str(out)]
     proc = subprocess.Popen(cmd, env=_cli_env(DOMAINS["external"]), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     run = SimpleNamespace(proc=proc, started=time.monotonic(), ended=math.inf, out="",
@@ -486,14 +486,13 @@ def _loopback_vs_offline(tmp: Path, key: str, protocol: list[str]) -> None:
     from damper_emulator.dyno.measured import read_measured_csv
 
     env = _cli_env(DOMAINS[key])
-    base = CLI + ["dyno", *protocol]
+    base = [*CLI, "dyno", *protocol]
     # one after the other: the offline run would take the CPU the real-time run needs
-    over = subprocess.run(base + ["--over-can", "--can-interface", "udp_multicast",
-                                  "--can-channel", udp_channel(OFFSETS[key]),
-                                  "--out", str(tmp / "can")],
+    over = subprocess.run([*base, "--over-can", "--can-interface", "udp_multicast",
+                           "--can-channel", udp_channel(OFFSETS[key]), "--out", str(tmp / "can")],
                           env=env, capture_output=True, text=True, timeout=180)
     assert over.returncode == 0, over.stderr
-    offline = subprocess.run(base + ["--out", str(tmp / "offline")], env=env,
+    offline = subprocess.run([*base, "--out", str(tmp / "offline")], env=env,
                              capture_output=True, text=True, timeout=180)
     assert offline.returncode == 0, offline.stderr
     assert "Traceback" not in over.stderr
@@ -663,7 +662,7 @@ def test_bad_bridge_parameters_exit_2_with_one_line():
               "socketcan"),
              (["-p", "colour:=red"], "colour")]
     env = _cli_env(DOMAINS["badparams"])
-    procs = [subprocess.Popen(CLI + ["bridge", "--ros-args", *args], env=env,
+    procs = [subprocess.Popen([*CLI, "bridge", "--ros-args", *args], env=env,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for args, _ in cases]
     try:

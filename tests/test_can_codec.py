@@ -70,7 +70,7 @@ def test_crc_catalogue_check_value():
 
 def test_crc_matches_bitwise_reference():
     rng = random.Random(6)
-    for n in list(range(0, 12)) + [64, 257]:
+    for n in [*range(12), 64, 257]:
         for _ in range(20):
             data = bytes(rng.randrange(256) for _ in range(n))
             assert crc8_sae_j1850(data) == crc8_bitwise(data)
@@ -122,13 +122,13 @@ def test_dbc_layout_units_ranges_cycle_times(db):
 
 def test_dbc_errors_are_one_line_and_name_the_file(tmp_path):
     missing = tmp_path / "nope.dbc"
-    with pytest.raises(DbcError, match="nope.dbc") as err:
+    with pytest.raises(DbcError, match=r"nope\.dbc") as err:
         load_database(missing)
     assert "\n" not in str(err.value)
 
     bad = tmp_path / "bad.dbc"
     bad.write_text('BO_ 256 X: 8 A\n SG_ S : 0|16@1- (1,0 [0|1] "" B\n')
-    with pytest.raises(DbcError, match="bad.dbc.*cannot read") as err:
+    with pytest.raises(DbcError, match=r"bad\.dbc.*cannot read") as err:
         load_database(bad)
     assert "\n" not in str(err.value)
 
@@ -136,13 +136,13 @@ def test_dbc_errors_are_one_line_and_name_the_file(tmp_path):
     no_checksum = tmp_path / "no_checksum.dbc"
     no_checksum.write_text(text.replace(
         ' SG_ Checksum : 56|8@1+ (1,0) [0|255] "" EMULATOR\n\nBO_ 257', '\nBO_ 257'))
-    with pytest.raises(DbcError, match="no_checksum.dbc: message DAMPER_STATE lacks "
-                                       "signal.*Checksum"):
+    with pytest.raises(DbcError, match=r"no_checksum\.dbc: message DAMPER_STATE lacks "
+                                       r"signal.*Checksum"):
         load_database(no_checksum)
 
     no_message = tmp_path / "no_message.dbc"
     no_message.write_text(text.replace("VEHICLE_MOTION", "OTHER_MOTION"))
-    with pytest.raises(DbcError, match="no_message.dbc: message VEHICLE_MOTION missing"):
+    with pytest.raises(DbcError, match=r"no_message\.dbc: message VEHICLE_MOTION missing"):
         load_database(no_message)
 
     shifted = tmp_path / "shifted.dbc"
@@ -158,7 +158,7 @@ def test_frame_bits_and_bus_load(db):
     assert frame_bits(8) == 135
     assert frame_bits(0) == 47 + 8
     assert frame_bits(8, extended=True) == 67 + 64 + (54 + 64 - 1) // 4 == 160
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"dlc must be an integer 0\.\.8"):
         frame_bits(9)
     # by hand: two 1 ms and two 5 ms messages of 135 bits
     bits_per_s = 135 / 0.001 * 2 + 135 / 0.005 * 2

@@ -55,7 +55,7 @@ from damper_hil.cli import main
 pytestmark = pytest.mark.slow
 
 
-@pytest.mark.parametrize("damper, effects", [
+@pytest.mark.parametrize(("damper", "effects"), [
     ("sport", None),
     ("van", ["lugre_friction", "valve_lag", "series_compliance", "end_stops"])])
 def test_without_an_extra_effect_the_answer_is_none_on_two_dampers(damper, effects):
@@ -364,7 +364,7 @@ def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
     assert doc["acquisition"]["rig"]["force"]["filter"] == "none"
 
 
-@pytest.mark.parametrize("extra, message", [
+@pytest.mark.parametrize(("extra", "message"), [
     (["--effects", "lugre_friction,warp_drive"], "unknown effect 'warp_drive'"),
     (["--quasi-static", "/nonexistent/qs.csv"], "qs.csv"),
 ])

@@ -138,7 +138,7 @@ def test_a_term_round_trips_through_a_params_file(sport_cfg):
     assert config_from_mapping(config_to_mapping(cfg)) == cfg
     doc["/**"]["ros__parameters"]["damper"]["extensions"]["discovered_term"][
         "acceleration_kg"] = float("nan")
-    with pytest.raises(ParameterError, match="acceleration_kg .* must be finite"):
+    with pytest.raises(ParameterError, match=r"acceleration_kg .* must be finite"):
         config_from_mapping(doc)
 
 

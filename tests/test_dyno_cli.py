@@ -85,7 +85,7 @@ def test_invalid_params_file_is_one_line_exit_2(tmp_path):
     assert not (tmp_path / "o" / "sine_1hz.csv").exists()
 
 
-@pytest.mark.parametrize("args, needle", [
+@pytest.mark.parametrize(("args", "needle"), [
     (["--protocol", "chirp", "--frequency", "3"], "--frequency does not apply"),
     (["--protocol", "sine", "--amplitude", "0.5"], "travel"),
     (["--protocol", "sine", "--frequency", "400"], "sample rate"),
@@ -185,7 +185,7 @@ def _write(path: Path, text: str) -> Path:
 GOOD = "time,displacement,force\n0,0,1000\n0.001,0.001,2000\n0.002,0.002,3000\n"
 
 
-@pytest.mark.parametrize("text, row, needle", [
+@pytest.mark.parametrize(("text", "row", "needle"), [
     ("time,displacement\n0,0\n0.001,0.001\n", None, "missing required column 'force'"),
     ("time,displacement,force\n0,0,10\n0.001,nan,20\n0.002,0.002,30\n", 2, "displacement"),
     ("time,displacement,force\n0,0,10\n0.001,0.001,inf\n0.002,0.002,30\n", 2, "force"),
@@ -266,7 +266,7 @@ def test_fast_and_field_by_field_reads_agree(tmp_path):
 
 
 def test_reader_missing_file_is_measured_data_error(tmp_path):
-    with pytest.raises(MeasuredDataError, match="nope.csv"):
+    with pytest.raises(MeasuredDataError, match=r"nope\.csv"):
         read_measured_csv(tmp_path / "nope.csv")
 
 
@@ -316,7 +316,7 @@ def _set(column: str, row: int, value: float):
     return edit
 
 
-@pytest.mark.parametrize("edit, row, needle", [
+@pytest.mark.parametrize(("edit", "row", "needle"), [
     # a whole file 10^12 times too large, and one absurd sample in a good file
     (lambda t, x, v, f, T: f.__imul__(1e12), 1, "exceeds 100000 N in magnitude"),
     (_set("f", 700, 1e9), 700, "exceeds 100000 N in magnitude"),

@@ -147,7 +147,7 @@ def test_no_extensions_is_the_papers_model_bit_for_bit(sport_cfg, sport_model, p
         assert np.array_equal(r.compression_pressure_pa, ref.compression_pressure_pa)
 
 
-@pytest.mark.parametrize("name, params", [
+@pytest.mark.parametrize(("name", "params"), [
     ("end_stops", {"rebound_position_m": 0.9, "compression_position_m": -0.9,
                    "stiffness_n_m2": 1e7}),                          # stops never reached
     ("bypass_groove", {"area_m2": 5e-6, "center_m": 0.8, "half_length_m": 0.02}),
@@ -176,7 +176,7 @@ def test_viscosity_at_the_reference_temperature_is_bit_for_bit(sport_cfg, sport_
     assert np.array_equal(simulate(m, t, x, v).force_n, r.force_n)  # no reading: T_ref
 
 
-@pytest.mark.parametrize("name, params, tol", [
+@pytest.mark.parametrize(("name", "params", "tol"), [
     ("valve_lag", {"time_constant_s": 1e-8}, 1e-5),
     ("air_entrainment", {"air_volume_fraction": 1e-9}, 1e-7),
     ("series_compliance", {"stiffness_n_m": 1e14}, 1e-7),
@@ -571,7 +571,7 @@ def test_series_compliance_settles_at_the_static_deflection(sport_cfg):
         s = DamperStepper(m, x)
         for _ in range(3000):
             force, _f = s.step(x, 0.0, 1e-3)
-        xd, ref = _mount_equilibrium(sport_cfg, x, k)
+        _xd, ref = _mount_equilibrium(sport_cfg, x, k)
         assert force == pytest.approx(ref, abs=1e-3)
         assert abs(ref + sport_cfg.damper.rod_area_m2 * float(_p_com(x, sport_cfg.damper))) > 5
 
@@ -914,7 +914,7 @@ def test_extension_loads_from_a_mapping_and_round_trips(sport_cfg, tmp_path, nam
     assert np.array_equal(DamperModel(loaded).prm, ref.prm)
 
 
-@pytest.mark.parametrize("ext, key", [
+@pytest.mark.parametrize(("ext", "key"), [
     ({"friction_lugre": {"coulomb_n": 1.0}}, "damper.extensions.friction_lugre"),
     ({"series_compliance": {"stiffness_n_m": -1.0e6}},
      "damper.extensions.series_compliance.stiffness_n_m"),
@@ -943,7 +943,7 @@ def test_bad_extension_parameters_are_refused_naming_the_key(sport_cfg, ext, key
 
 
 def test_with_extensions_checks_the_values(sport_model):
-    with pytest.raises(ParameterError, match="series_compliance.stiffness_n_m"):
+    with pytest.raises(ParameterError, match=r"series_compliance\.stiffness_n_m"):
         sport_model.with_extensions(ExtensionParams(
             series_compliance=SeriesComplianceParams(stiffness_n_m=-1.0)))
     with pytest.raises(ParameterError, match="series_compliance"):

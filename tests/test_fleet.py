@@ -86,11 +86,11 @@ def test_local_cluster_identifies_every_unit_and_flags_the_seeded_defects(batch,
             assert r["friction_force_n"] == pytest.approx(seen, rel=0.05)
     flags = {uid: set(filter(None, rows[uid]["flags"].split(";"))) for uid in rows}
     defects = {f"unit_{k:02d}": name for k, (name, _) in DEFECTS.items()}
-    assert "low_gas_charge" in flags[[u for u, d in defects.items()
-                                      if d == "low_gas_charge"][0]]
-    assert "high_friction" in flags[[u for u, d in defects.items() if d == "high_friction"][0]]
+    assert "low_gas_charge" in flags[next(u for u, d in defects.items()
+                                      if d == "low_gas_charge")]
+    assert "high_friction" in flags[next(u for u, d in defects.items() if d == "high_friction")]
     # the lag is no parameter of the model: the validation shows it
-    assert "poor_fit" in flags[[u for u, d in defects.items() if d == "valve_lag"][0]]
+    assert "poor_fit" in flags[next(u for u, d in defects.items() if d == "valve_lag")]
     for uid, f in flags.items():  # the units without a defect are not flagged
         assert (not f) == (uid not in defects), (uid, f)
     # the CSV holds the same rows and values
@@ -167,7 +167,7 @@ def test_a_rerun_on_the_same_out_does_not_redo_finished_dampers(batch, tmp_path)
 
 
 def test_diagnose_in_the_fleet_names_the_seeded_valve_lag(batch, tmp_path):
-    lag = [f"unit_{k:02d}" for k, (name, _) in DEFECTS.items() if name == "valve_lag"][0]
+    lag = next(f"unit_{k:02d}" for k, (name, _) in DEFECTS.items() if name == "valve_lag")
     data = tmp_path / "data"
     for uid in ("unit_01", lag):
         shutil.copytree(batch / uid, data / uid)

@@ -212,12 +212,12 @@ def test_synthetic_file_conversion(tmp_path):
     assert w[0] == pytest.approx(np.pi * 0.5 * FORCE_N_PER_V * 18.6e-3, rel=1e-3)
 
 
-@pytest.mark.parametrize("mutate, row, what", [
-    (lambda i, r: ([r[0] if i != 3 else "2025-11-14 20:07:10.531160"] + r[1:]), 4,
+@pytest.mark.parametrize(("mutate", "row", "what"), [
+    (lambda i, r: ([r[0] if i != 3 else "2025-11-14 20:07:10.531160", *r[1:]]), 4,
      "time is not strictly increasing"),
-    (lambda i, r: (r[:1] + ["abc"] + r[2:]) if i == 6 else r, 7, "Force (V) is 'abc'"),
-    (lambda i, r: (["yesterday"] + r[1:]) if i == 2 else r, 3, "not an ISO date-time"),
-    (lambda i, r: (r[:3] + ["nan"] + r[4:]) if i == 9 else r, 10, "Displacement (V) is nan"),
+    (lambda i, r: ([*r[:1], "abc", *r[2:]]) if i == 6 else r, 7, "Force (V) is 'abc'"),
+    (lambda i, r: (["yesterday", *r[1:]]) if i == 2 else r, 3, "not an ISO date-time"),
+    (lambda i, r: ([*r[:3], "nan", *r[4:]]) if i == 9 else r, 10, "Displacement (V) is nan"),
     (lambda i, r: r[:3] if i == 11 else r, 12, "no value for column"),
 ])
 def test_malformed_vendor_file_names_file_and_row(tmp_path, mutate, row, what):

@@ -221,7 +221,7 @@ def test_bridge_on_frame(mode, data):
         with time_limit():
             got = core.on_frame(frame_id, data, now_ns)
         lost_before = model.total["lost"]
-        outcome, name = model.step(frame_id, data, False)
+        outcome, _name = model.step(frame_id, data, False)
         trouble |= outcome in ("length", "checksum", "counter") \
             or model.total["lost"] > lost_before
         if outcome != "accepted":

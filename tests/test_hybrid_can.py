@@ -134,7 +134,7 @@ def ride(tmp_path_factory):
 
 
 def test_compensated_ride_completes_and_tracks(ride):
-    proc, out, rig, _, _ = ride
+    proc, out, _rig, _, _ = ride
     assert proc.returncode == 0, proc.stderr
     doc = json.loads((out / "hybrid.json").read_text())
     assert doc["status"] == "completed" and doc["reason"] == ""
@@ -152,7 +152,7 @@ def test_compensated_ride_completes_and_tracks(ride):
 
 
 def test_corrupted_frames_are_counted_and_the_ride_goes_on(ride):
-    proc, out, rig, _, _ = ride
+    _proc, out, rig, _, _ = ride
     doc = json.loads((out / "hybrid.json").read_text())
     link = doc["link"]
     assert rig["corrupted"] > 50
@@ -165,7 +165,7 @@ def test_corrupted_frames_are_counted_and_the_ride_goes_on(ride):
 
 
 def test_csv_and_bag_hold_the_ride(ride):
-    proc, out, _, _, _ = ride
+    _proc, out, _, _, _ = ride
     with open(out / "hybrid.csv", newline="") as f:
         rows = list(csv.reader(f))
     assert tuple(rows[0]) == CSV_COLUMNS
@@ -246,7 +246,7 @@ def test_no_dyno_is_one_line_and_exit_2(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-@pytest.mark.parametrize("args, says", [
+@pytest.mark.parametrize(("args", "says"), [
     (["--duration", "-1"], "--duration"),
     (["--road-class", "Z"], "--road-class"),
     (["--can-interface", "nope"], "not a python-can interface"),

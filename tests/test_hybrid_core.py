@@ -122,7 +122,7 @@ def _identification_run(model, act):
     return u, x
 
 
-@pytest.mark.parametrize("delay_ms, bandwidth, damping", [(4.0, 40.0, 0.7),
+@pytest.mark.parametrize(("delay_ms", "bandwidth", "damping"), [(4.0, 40.0, 0.7),
                                                            (9.0, 20.0, 0.4),
                                                            (2.0, 80.0, 1.0)])
 def test_identify_recovers_the_rigs_transfer_system(model, delay_ms, bandwidth, damping):
@@ -173,7 +173,7 @@ def test_watchdog_clears_enable_within_its_time_of_the_last_valid_feedback():
     assert "DYNO_FEEDBACK" in safety.reason
 
 
-@pytest.mark.parametrize("stroke, force, what", [(0.07, 0.0, "stroke"),
+@pytest.mark.parametrize(("stroke", "force", "what"), [(0.07, 0.0, "stroke"),
                                                   (0.0, 9000.0, "force")])
 def test_measured_limits_stop_the_run(stroke, force, what):
     safety = SafetyLayer(SafetyParams(stroke_limit_m=0.06, force_limit_n=8000.0), DT)
@@ -270,7 +270,7 @@ def test_adaptation_follows_a_doubled_delay(model):
 
 
 def test_feedback_cut_clears_enable_within_the_watchdog(model):
-    host, rig = _run(model, disturbance=Disturbance(feedback_cut_at_s=5.0))
+    host, _rig = _run(model, disturbance=Disturbance(feedback_cut_at_s=5.0))
     assert host.phase == "stopped" and "DYNO_FEEDBACK" in host.reason
     assert host.safety.stopped_at_s - host.safety.last_valid_s <= 0.05
 
@@ -282,7 +282,7 @@ def test_a_lost_frame_every_hundred_does_not_stop_the_run(model):
 
 def test_unstable_setting_is_stopped_before_any_limit(model):
     safety = SafetyParams()
-    host, rig = _run(model, mode="none", delay_s=0.030, safety=safety)
+    host, _rig = _run(model, mode="none", delay_s=0.030, safety=safety)
     assert host.phase == "stopped" and "unstable" in host.reason
     measured = host.record[2, :host.k]
     force = host.record[3, :host.k]

@@ -42,8 +42,8 @@ def round_trip(tmp_path_factory):
                                    "--seed", 10 + k]) for k, (f, a) in enumerate(PAPER_SINES)]
     # the five dyno runs at once, each into its own folder (each writes its dyno.json):
     # one after another they took 15 s of the suite
-    runs = [(name, subprocess.Popen(CLI + ["dyno", *map(str, args), "--noise-std", "4",
-                                           "--out", str(d / name[:-4])],
+    runs = [(name, subprocess.Popen([*CLI, "dyno", *map(str, args), "--noise-std", "4",
+                                     "--out", str(d / name[:-4])],
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
             for name, args in tests]
     for name, proc in runs:
@@ -164,7 +164,7 @@ def test_fits_supply_exact_jacobians(sport_cfg, monkeypatch):
             np.testing.assert_allclose(jac[:, j], fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max())
 
 
-@pytest.mark.parametrize("body, words", [
+@pytest.mark.parametrize(("body", "words"), [
     ("time,displacement\n0,0\n0.001,0\n", "force"),
     ("time,displacement,force\n0,0,1\n0.001,nan,1\n0.002,0,1\n", "row 2"),
     ("time,displacement,force\n0,0,1\n0.002,0,1\n0.001,0,1\n", "row 3"),
@@ -287,7 +287,7 @@ def test_intercept_penalty_gradient_matches_finite_differences(sport_cfg):
 
     nu = sport_cfg.damper.oil_kinematic_viscosity_m2_s
     theta = np.array([1.8e16, 4.9e7, 2.1e12, 3.7e3, 1.5])
-    value, grad = extension_intercept_excess(theta, nu)
+    _value, grad = extension_intercept_excess(theta, nu)
     for k in range(4):
         up, down = theta.copy(), theta.copy()
         up[k] *= 1 + 1e-4
@@ -339,7 +339,7 @@ def test_alpha_search_recovers_the_compressibility(sport_cfg):
     assert result.config.damper.oil_compressibility_per_pa == result.alpha_fit["alpha_per_pa"]
 
 
-@pytest.mark.parametrize("spec, words", [
+@pytest.mark.parametrize(("spec", "words"), [
     ("foo=1", "NAME one of"),
     ("smoothing_g=-1", "positive"),
     ("sideways.k_port=1e9", "NAME one of"),

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from damper_emulator.errors import UserError
 from ride_sim import iso2631, metrics
 
 # --------------------------------------------------------------------------------------------
@@ -140,7 +141,7 @@ def test_static_offset_is_rejected():
 
 
 def test_digital_filter_rejects_bad_input():
-    with pytest.raises(ValueError, match="below the minimum 100.0 Hz"):
+    with pytest.raises(ValueError, match=r"below the minimum 100\.0 Hz"):
         iso2631.weight_signal("Wk", np.zeros(10), 50.0)
     with pytest.raises(ValueError, match="finite and positive"):
         iso2631.WeightingFilter("Wd", float("nan"))
@@ -213,11 +214,14 @@ def test_running_rms_matches_its_definition():
     assert b[49] == pytest.approx(math.sqrt(m), rel=1e-12)
 
 
-@pytest.mark.parametrize("bad", [[], [[1.0, 2.0]], [1.0, np.nan], [np.inf]])
-def test_metrics_reject_bad_signals(bad):
+@pytest.mark.parametrize(("bad", "why"), [([], "must not be empty"),
+                                          ([[1.0, 2.0]], "must be 1-D"),
+                                          ([1.0, np.nan], "must be finite"),
+                                          ([np.inf], "must be finite")])
+def test_metrics_reject_bad_signals(bad, why):
     for call in (metrics.rms, metrics.peaks, metrics.crest_factor,
                  lambda x: metrics.vdv(x, FS), lambda x: metrics.mtvv(x, FS)):
-        with pytest.raises(ValueError):
+        with pytest.raises(UserError, match=f"signal {why}"):
             call(bad)
 
 

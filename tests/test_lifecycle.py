@@ -13,8 +13,8 @@ import signal
 import time
 
 import pytest
-from ros_probe import Probe  # noqa: E402
-from test_bridge import ROOT, BusTap, bridge_params, start_node, udp_channel  # noqa: E402
+from ros_probe import Probe
+from test_bridge import ROOT, BusTap, bridge_params, start_node, udp_channel
 
 from can_bridge import ForceStatus, load_database
 from can_bridge.core import FORCE
@@ -240,7 +240,7 @@ def test_the_controller_bridge_applies_its_fail_safe_command_on_deactivation(tmp
 
 #: Transition ids a request may carry: every id lifecycle_msgs defines (the manager's and
 #: the state machine's internal ones), and ids it does not define.
-REQUEST_IDS = sorted(TRANSITION_NAMES) + [9, 99, 255]
+REQUEST_IDS = [*sorted(TRANSITION_NAMES), 9, 99, 255]
 #: Labels a request may carry: every transition label of the design, and one that is none.
 REQUEST_LABELS = ("configure", "cleanup", "activate", "deactivate", "shutdown",
                   "unconfigured_shutdown", "create", "destroy", "no_such_transition")
@@ -436,7 +436,7 @@ def _assert_safe_output(kind: str, probe: Probe, forces: list, n_before: int, ta
         assert tap.of(FORCE, t_last + 1) == [], "frames after the safe output"
 
 
-@pytest.mark.parametrize("kind,signum", [("EmulatorNode", signal.SIGTERM),
+@pytest.mark.parametrize(("kind", "signum"), [("EmulatorNode", signal.SIGTERM),
                                          ("BridgeNode", signal.SIGINT)])
 def test_a_stop_signal_while_active_sends_the_safe_output(kind, signum, tmp_path, db):
     """SIGINT (a launch file's Ctrl-C) or SIGTERM (a service manager's stop) while active

@@ -101,9 +101,9 @@ def test_the_emulator_serves_its_own_live_view(tmp_path):
     import socket
     import threading
 
-    from ros_probe import Probe  # noqa: E402
+    from ros_probe import Probe
     from sensor_msgs.msg import JointState
-    from test_bridge import start_node  # noqa: E402
+    from test_bridge import start_node
 
     from damper_emulator import topics
     from damper_emulator.ros.common import control_qos, set_stamp

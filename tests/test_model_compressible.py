@@ -77,7 +77,7 @@ def test_compressible_converges_to_incompressible_model(sport_cfg):
     assert errors[2] < 0.01
 
 
-@pytest.mark.parametrize("f_hz, amp_m", [(1.0, 0.05), (3.0, 0.05), (12.0, 0.005),
+@pytest.mark.parametrize(("f_hz", "amp_m"), [(1.0, 0.05), (3.0, 0.05), (12.0, 0.005),
                                          (0.2, 0.01), (8.0, 0.02)])
 def test_every_closed_sine_cycle_dissipates(sport_model, f_hz, amp_m):
     t, x, v = sine(f_hz, amp_m, cycles=4, rate_hz=2000, start_cycles=1)
@@ -217,7 +217,7 @@ def test_stepper_survives_a_pause(sport_model):
         0.05, sport_model.cfg.damper), rel=1e-3)
 
 
-@pytest.mark.parametrize("t, x, v, words", [
+@pytest.mark.parametrize(("t", "x", "v", "words"), [
     ([0, 1e-3, 2e-3], [0, np.nan, 0], None, "stroke sample 1"),
     ([0, 1e-3, 2e-3], [0, 0, 0], [0, np.inf, 0], "velocity sample 1"),
     ([0, 1e-3, 1e-3], [0, 0, 0], None, "not strictly increasing at sample 2"),

@@ -52,7 +52,7 @@ def _error_for(doc):
     return msg
 
 
-@pytest.mark.parametrize("edit, key, words", [
+@pytest.mark.parametrize(("edit", "key", "words"), [
     (lambda d: d.update(rod_diameter_m=0.04), "damper.rod_diameter_m", "smaller than"),
     (lambda d: d.update(x0_m=0.5), "damper.x0_m", "smaller than"),
     (lambda d: d.update(gas_volume_static_m3=-1e-4), "damper.gas_volume_static_m3", "positive"),

@@ -407,7 +407,7 @@ def _node_model(params_file):
         rclpy.shutdown(context=ctx)
 
 
-@pytest.mark.parametrize("params_file, has_bypass", [
+@pytest.mark.parametrize(("params_file", "has_bypass"), [
     (None, True),                                        # sport: the adaptive damper
     (ROOT / "config" / "fsae_ttx25_base.yaml", False),   # another damper, no adaptive group
 ])

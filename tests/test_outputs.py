@@ -81,8 +81,9 @@ def test_a_run_that_fails_or_is_interrupted_leaves_the_previous_result_whole(tmp
                                                                               python_sigint):
     report, params = _first_run(tmp_path)
     before = _tree(tmp_path)
+    # the with-block's exit on the failure is what is tested
     with pytest.raises(KeyboardInterrupt if how == "sigint" else RuntimeError), \
-            Outputs() as out:
+            Outputs() as out:  # noqa: PT012
         new_report = out.folder(report)
         new_params = out.file(params)
         (new_report / "b.txt").write_text("second, half writ")
@@ -109,7 +110,8 @@ def test_a_signal_during_the_renames_waits_until_the_set_is_in_place(tmp_path, m
             signal.raise_signal(signal.SIGINT)
 
     monkeypatch.setattr(out_mod.os, "replace", replace_then_signal)
-    with pytest.raises(KeyboardInterrupt), Outputs() as out:
+    # the with-block's exit on the interrupt is what is tested
+    with pytest.raises(KeyboardInterrupt), Outputs() as out:  # noqa: PT012
         new_params = out.file(params)
         new_report = out.folder(report)
         new_params.write_text("second params")
@@ -193,9 +195,9 @@ def test_an_input_is_never_an_output_or_inside_one(tmp_path):
         Outputs(inputs=[params]).file(params)
     with pytest.raises(OutputError, match="holds the input"):
         Outputs(inputs=[report / "b.txt", None]).folder(report)
+    o = Outputs()
+    o.file(tmp_path / "x.json")
     with pytest.raises(OutputError, match="two outputs"):
-        o = Outputs()
-        o.file(tmp_path / "x.json")
         o.file(tmp_path / "." / "x.json")
 
 

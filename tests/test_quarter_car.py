@@ -120,7 +120,7 @@ def test_default_config_is_the_papers_front_corner():
     assert load_quarter_car(DEFAULT_QUARTER_CAR_FILE) == p
 
 
-@pytest.mark.parametrize("group, key, value, match", [
+@pytest.mark.parametrize(("group", "key", "value", "match"), [
     ("quarter_car", "sprung_mass_kg", -451.8, r"quarter_car\.sprung_mass_kg = -451\.8 must be "
                                               r"positive"),
     ("quarter_car", "motion_ratio", 0.0, r"quarter_car\.motion_ratio = 0 must be positive"),
@@ -248,7 +248,7 @@ def test_rms_from_psd_integrates_and_bands():
 # 1 kHz (|sim/H| − 1): 0.5–3 Hz ≤ 0.31 %; wheel hop 8–12 Hz up to 1.2 % (SWS, accel) and
 # 2.6 % (DTL); 15–20 Hz up to 2.8 % (SWS, accel).  It halves with dt, and the delayed-damper
 # model C_s e^{−jω dt/2} accounts for it (SWS, DTL within 0.15 % to 20 Hz).
-@pytest.mark.parametrize("f, tol", [(0.5, 0.01), (1.2, 0.01), (3.0, 0.01), (8.0, 0.03),
+@pytest.mark.parametrize(("f", "tol"), [(0.5, 0.01), (1.2, 0.01), (3.0, 0.01), (8.0, 0.03),
                                     (12.0, 0.03), (20.0, 0.03)])
 def test_sine_road_steady_state_matches_transfer_function(car, f, tol):
     n = int(round((4.0 + 10.0 / f) / DT)) + 1

@@ -12,6 +12,7 @@ compiled kernels are cached, and a first start with a cold cache.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import subprocess
@@ -149,7 +150,7 @@ def test_cold_emulate_is_active_before_its_first_force(tmp_path):
         assert probe.spin_until(lambda: len(forces) >= 1, 30), emu.log_tail()
         first_s = forces[0] - started
         assert probe.spin_until(lambda: len(forces) >= 1000, 30), emu.log_tail()
-        gaps = [b - a for a, b in zip(forces, forces[1:])]
+        gaps = [b - a for a, b in itertools.pairwise(forces)]
     finally:
         probe.close()
         emu.stop()

@@ -43,7 +43,7 @@ def test_bad_parameters_are_one_line_errors(params):
         with pytest.raises(ParameterError, match=words) as err:
             emulator_params_from_mapping({**data, key: value}, "f.yaml")
         assert "\n" not in str(err.value)
-    with pytest.raises(ParameterError, match="unknown parameter emulator.rate"):
+    with pytest.raises(ParameterError, match=r"unknown parameter emulator\.rate"):
         emulator_params_from_mapping({**data, "rate": 1.0}, "f.yaml")
 
 
@@ -73,7 +73,7 @@ def test_non_finite_and_out_of_range_input_is_rejected_and_counted(sport_model, 
     good = core.tick(now + MS)
     for x, v in ((math.nan, 0.1), (0.01, math.inf), (0.01, -math.nan)):
         assert "non-finite" in core.submit(0, x, v, now + MS)
-    lo, hi = sport_model.stroke_limits_m
+    _lo, hi = sport_model.stroke_limits_m
     assert "outside the travel" in core.submit(0, hi + 0.05, 0.0, now + MS)
     assert "velocity" in core.submit(0, 0.0, 50.0, now + MS)
     assert core.counters.rejected_non_finite == 3 and core.counters.rejected_range == 2

@@ -165,7 +165,7 @@ def without_timing(doc: dict) -> dict:
 # CDR
 
 
-@pytest.mark.parametrize("names,pos,vel,eff,frame", [
+@pytest.mark.parametrize(("names", "pos", "vel", "eff", "frame"), [
     (["damper"], [0.01], [0.2], [], ""),
     (["damper", "damper/status"], [0.01, -1.0], [0.2, 0.0], [1234.5, 3.0], ""),
     (["ab"], [], [0.2], [], "xyz"),
@@ -197,7 +197,7 @@ def test_fast_cdr_big_endian_and_errors():
                                                     [3.0], []), JS)
     be = bytes(store.serialize_cdr(msg, JS, little_endian=False))
     assert be[:2] == b"\x00\x00"
-    stamp, frame, names, p, v, e = cdr_fast.decode_joint_state(be)
+    stamp, _frame, names, p, v, e = cdr_fast.decode_joint_state(be)
     assert (stamp, names, p.tolist(), v.tolist(), e.size) == (5_000_000_001, ("a", "bc"),
                                                               [1.0, 2.0], [3.0], 0)
     good = messages.joint_state(1, ["damper"], [0.1], [0.2], [0.3])

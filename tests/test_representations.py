@@ -69,7 +69,7 @@ def test_table_from_branches_joins_through_static_force():
     assert np.array_equal(td.velocity_m_s, V) and np.array_equal(td.force_n, F)
 
 
-@pytest.mark.parametrize("v, f, match", [
+@pytest.mark.parametrize(("v", "f", "match"), [
     ([0.0, 1.0, 0.5], [0.0, 1.0, 2.0], "not strictly increasing at point 2"),
     ([0.0, 1.0, 2.0], [0.0, 2.0, 1.0], "not monotonic at point 2"),
     ([0.0, math.nan], [0.0, 1.0], r"velocity\[1\] is nan"),

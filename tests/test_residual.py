@@ -64,7 +64,7 @@ def test_model_on_its_own_data_has_no_residual(sport_model, sine):
 def test_coulomb_term_is_a_function_of_velocity(sport_model, sine):
     v = sine[2]
     extra = 30.0 * np.tanh(v / 0.005)
-    rec, feats = features_with(sport_model, sine, extra)
+    _rec, feats = features_with(sport_model, sine, extra)
     assert feats["r2_velocity"] > 0.95
     assert feats["corr_sign_velocity"] > 0.95
     assert feats["r2_displacement"] < 0.05
@@ -123,7 +123,7 @@ def test_binned_r2_of_a_constant_channel_is_zero():
 
 
 def test_temperature_channel_and_estimated_velocity_and_plot(sport_model, sine, tmp_path):
-    t, x, v, f = sine
+    t, x, _v, f = sine
     temp = 25.0 + 10.0 * t / t[-1]
     extra = 3.0 * (temp - 25.0)  # fade with temperature
     data = MeasuredData(time=t, displacement=x, force=f + extra, temperature=temp,

@@ -47,7 +47,7 @@ def test_linear_time_domain_matches_frequency_domain(cfg, band):
     exact = study.metrics(study.run_linear_exact(s.car, heights, s.dt_s), *window)
     damper = study.make_representation("linear", s.car)
     sampled = study.metrics(study.run(s.car, damper, heights, s.dt_s), *window)
-    for key in RMS_KEYS + ("accel_rms",):
+    for key in (*RMS_KEYS, "accel_rms"):
         assert exact[key] == pytest.approx(pred[key], rel=0.01), key
         assert sampled[key] == pytest.approx(pred[key], rel=0.03), key
     # the sampling costs most in DTL (lightly damped wheel hop), not nothing
@@ -135,7 +135,7 @@ def test_fourteen_speed_table_matches_incompressible_curve_in_the_ride(cfg):
     doc = study.figure10(_settings(cfg, seeds=1, length_m=150.0),
                          representations=("14speed", "incompressible"),
                          keep_traces=False).doc
-    for key in RMS_KEYS + ("sws_mean",):
+    for key in (*RMS_KEYS, "sws_mean"):
         assert doc["14speed"][key] == pytest.approx(doc["incompressible"][key], rel=0.01), key
 
 
@@ -259,7 +259,7 @@ def test_semi_active_loop_equals_the_compiled_loop_at_a_fixed_command(cfg, comma
     from ride_sim.session import semi_active_run
 
     s = _settings(cfg, length_m=120.0, lead_in_s=0.5)
-    heights, n_lead, n_eval = study.random_road_input(s.road, 20.0, 0, s.dt_s)
+    heights, n_lead, _n_eval = study.random_road_input(s.road, 20.0, 0, s.dt_s)
     model = study.default_model()
     ref = study.run(s.car, CompressiblePlugin(model, valve_command=command), heights, s.dt_s)
     out = semi_active_run(s.car, heights, n_lead, s.dt_s,

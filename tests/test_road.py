@@ -1,5 +1,6 @@
 """Tests of ride_sim.road: spectra, random roads, features, tyre enveloping, files, speed."""
 
+import itertools
 import math
 
 import numpy as np
@@ -156,7 +157,7 @@ def test_random_road_welch_matches_target_random_amplitudes():
     ratio = psd[1:] / target
     # average the ratio over 1/3-octave bands in the interior of the band
     edges = 0.1 * 2.0 ** (np.arange(0, 16) / 3.0)          # 0.1 .. 3.2 cycles/m
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in itertools.pairwise(edges):
         sel = (n[1:] >= lo) & (n[1:] < hi)
         assert np.mean(ratio[sel]) == pytest.approx(1.0, abs=0.15), (lo, hi)
     above = n >= 1.5 * band[1]
@@ -186,7 +187,7 @@ def test_random_road_scatter_between_seeds_depends_on_synthesis():
     assert np.std(rnd) / np.mean(rnd) > 0.05                  # Gaussian process: scatter
 
 
-@pytest.mark.parametrize("kwargs, match", [
+@pytest.mark.parametrize(("kwargs", "match"), [
     (dict(band_cycles_per_m=(1.0, 0.5)), "n_max"),
     (dict(band_cycles_per_m=(0.001, 1.0)), "longer than the road"),
     (dict(band_cycles_per_m=(0.1, 60.0), spacing_m=0.01), "Nyquist"),
@@ -231,7 +232,7 @@ def test_profile_interpolation_and_slope():
     with pytest.raises(RoadError, match="off the road"):
         p.slope_at([0.0, -1.5])
     assert np.ndim(p.height_at(0.5)) == 0 and np.ndim(p.slope_at(0.5)) == 0
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         p.height_m[0] = 1.0                                   # read-only
 
 
@@ -244,7 +245,7 @@ def test_slope_is_derivative_of_height():
     np.testing.assert_allclose(p.slope_at(s)[~on_knot], fd[~on_knot], rtol=1e-6, atol=1e-9)
 
 
-@pytest.mark.parametrize("d, h, match", [
+@pytest.mark.parametrize(("d", "h", "match"), [
     ([0.0, 1.0, 1.0], [0, 0, 0], r"distance_m\[2\]"),
     ([0.0, 2.0, 1.0], [0, 0, 0], "not greater"),
     ([0.0, 1.0], [0.0, np.nan], "not finite"),
@@ -402,7 +403,7 @@ def test_csv_extra_columns_comments_and_order(tmp_path):
     assert p.name == "m"
 
 
-@pytest.mark.parametrize("text, match", [
+@pytest.mark.parametrize(("text", "match"), [
     ("distance,z\n0,0\n1,0\n", r"line 1: missing column 'height'"),
     ("distance,height\n0,0\n1,nan\n", r"line 3: height 'nan' is not finite"),
     ("distance,height\n0,0\n2,0\n1,0\n", r"line 4: distance 1 m is not greater than 2 m"),

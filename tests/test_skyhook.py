@@ -32,7 +32,7 @@ def law(vb, vd):
     return skyhook_command(vb, vd, C_SKY, RATES, DEADBAND)
 
 
-@pytest.mark.parametrize("vb, vd, expected", [
+@pytest.mark.parametrize(("vb", "vd", "expected"), [
     # rebound, same sign: required 4000·0.2/0.4 = 2000 → (2000 − 1000)/4000
     (0.2, 0.4, 0.25),
     # compression, same sign: 4000·0.1/0.25 = 1600 → (1600 − 800)/1200
@@ -129,7 +129,7 @@ def _doc():
     return read_yaml(DEFAULT_SKYHOOK_FILE)
 
 
-@pytest.mark.parametrize("key, value, words", [
+@pytest.mark.parametrize(("key", "value", "words"), [
     ("c_sky_ns_m", -5.0, "skyhook.c_sky_ns_m = -5 must be positive"),
     ("rate_hz", 0.0, r"skyhook.rate_hz = 0 must lie in"),
     ("deadband_m_s", 0.0, "skyhook.deadband_m_s = 0 must be positive"),
@@ -170,7 +170,7 @@ def test_file_errors(tmp_path):
         load_skyhook(path)
     assert str(path) in str(err.value)
     path.write_text(text.replace("c_sky_ns_m: 5.0e+3", ""))
-    with pytest.raises(ParameterError, match="missing parameter skyhook.c_sky_ns_m"):
+    with pytest.raises(ParameterError, match=r"missing parameter skyhook\.c_sky_ns_m"):
         load_skyhook(path)
     path.write_text("other: {}\n")
     with pytest.raises(ParameterError, match="no 'skyhook' parameters"):

@@ -169,7 +169,7 @@ def test_tune_end_to_end_on_a_local_cluster(tmp_path):
     assert dyno.returncode == 0, dyno.stderr
 
 
-@pytest.mark.parametrize("args, needle", [
+@pytest.mark.parametrize(("args", "needle"), [
     (["--road-classes", "Z"], "ISO 8608 class"),
     (["--bypass", "--params", "PASSIVE"], "damper.adaptive"),
     (["--designs", "0"], "--designs"),

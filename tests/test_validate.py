@@ -181,7 +181,7 @@ def test_cli_default_json_location(sine_files, tmp_path, monkeypatch, capsys):
     capsys.readouterr()
 
 
-@pytest.mark.parametrize("content, problem", [
+@pytest.mark.parametrize(("content", "problem"), [
     ("time,force\n0,1\n0.001,2\n", "missing required column 'displacement'"),
     ("time,displacement,force\n0,0,1\n0.001,nan,2\n", "row 2"),
     ("time,displacement,force\n0,0,1\n0,0.001,2\n", "time is not strictly increasing"),

@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from fsae_identify import ALPHA_BOUNDS, FIXED, run_cli  # noqa: E402  (same folder)
+from fsae_identify import ALPHA_BOUNDS, FIXED, run_cli
 
 from damper_emulator.dyno.fsae import export_fsae_csv, read_fsae_ttx25
 from damper_emulator.dyno.measured import MeasuredData

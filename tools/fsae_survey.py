@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import csv
 import gzip
+import itertools
 import json
 import math
 import sys
@@ -142,7 +143,7 @@ def survey_file(path: Path, root: Path):
     # per-cycle extremes and mid-stroke forces
     vmax, vmin, fmax, fmin, f_ext, f_com, v_ext, v_com, t_cyc = ([] for _ in range(9))
     lag_c, lag_r, dw_top, dw_bot, f_avg, tm_cyc = [], [], [], [], [], []
-    for a, b in zip(s[:-1], s[1:]):
+    for a, b in itertools.pairwise(s):
         a, b = int(a), int(b)
         sl = slice(a, b)
         # compression starts at the x-max end, rebound at the x-min end (which comes

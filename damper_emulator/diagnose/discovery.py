@@ -43,6 +43,7 @@ autocorrelation, as the joint fits' are.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -421,7 +422,7 @@ def _blocks(records: Sequence[Record]) -> list[np.ndarray]:
         n = t.size
         edges = np.searchsorted(t, np.arange(t[0], t[-1] + BLOCK_S, BLOCK_S))
         edges = np.unique(np.append(edges, n))
-        out += [np.arange(offset + a, offset + b) for a, b in zip(edges[:-1], edges[1:])
+        out += [np.arange(offset + a, offset + b) for a, b in itertools.pairwise(edges)
                 if b > a]
         offset += n
     return out

@@ -127,7 +127,7 @@ def with_extension(cfg: ModelConfig, name: str | None, params: Mapping[str, Any]
                            base_changes)
 
 
-def example_config(name: str | None | Sequence[str], base: ModelConfig | None = None
+def example_config(name: str | Sequence[str] | None, base: ModelConfig | None = None
                    ) -> ModelConfig:
     """The truth configuration of :data:`EXAMPLE_EFFECTS` ``[name]`` (or of several names
     together) on ``base`` (default ``config/sport.yaml``); ``None``: the base model."""

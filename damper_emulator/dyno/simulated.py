@@ -114,7 +114,7 @@ def fourteen_speed_table(model: DamperModel, points: int = FourteenSpeed.points,
     rows = []
     faults = np.zeros(0, dtype=np.int64)
     for freq in freqs:
-        t, x, v, f, flt = simulate_sine(model, float(freq), amplitude, cycles, rate, 1,
+        _t, _x, v, f, flt = simulate_sine(model, float(freq), amplitude, cycles, rate, 1,
                                         engine)
         f = add_noise(f, noise_std, rng)
         rows.append((freq, v.max(), f.max(), v.min(), f.min()))

@@ -20,6 +20,7 @@ Start values come from the data: the measured pressure drop ``Δp = (F − F_gas
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable, Mapping
 
 import numpy as np
@@ -76,8 +77,8 @@ def start_values(q: np.ndarray, dp: np.ndarray, nu_m2_s: float) -> np.ndarray:
     order = np.argsort(q)
     q, dp = q[order], dp[order]
     edges = np.linspace(0, q.size, START_BINS + 1).astype(int)
-    qb = np.array([np.median(q[a:b]) for a, b in zip(edges[:-1], edges[1:]) if b > a])
-    pb = np.array([np.median(dp[a:b]) for a, b in zip(edges[:-1], edges[1:]) if b > a])
+    qb = np.array([np.median(q[a:b]) for a, b in itertools.pairwise(edges) if b > a])
+    pb = np.array([np.median(dp[a:b]) for a, b in itertools.pairwise(edges) if b > a])
     ok = (qb > 0) & (pb > 0)
     qb, pb = qb[ok], pb[ok]
     if qb.size < 6:

@@ -109,7 +109,7 @@ class LiveServer:
 
         try:
             self.server = foxglove.start_server(name=name, host=HOST, port=port)
-        except Exception as exc:  # the SDK's own error type: a port in use, ...
+        except Exception as exc:  # noqa: BLE001 - the SDK's own error type: a port in use, ...
             raise UserError(f"live view: cannot serve on {HOST}:{port} ({exc})") from None
         self.channels = {topic: foxglove.Channel(topic, message_encoding="json",
                                                  schema=foxglove.Schema(

@@ -48,7 +48,7 @@ from damper_emulator.topics import DIAGNOSTICS, FORCE, HYBRID_LOOP, STATE
 from ride_sim.hybrid.host import RECORD_COLUMNS, HybridHost
 
 #: hybrid.csv's header
-CSV_COLUMNS = ("t_monotonic_ns", "time") + RECORD_COLUMNS
+CSV_COLUMNS = ("t_monotonic_ns", "time", *RECORD_COLUMNS)
 #: one hybrid.csv row
 ROW_FORMAT = "%d,%.6f,%.9g,%.9g,%.9g,%.9g,%.9g,%d\n"
 #: the bag's topics and their types
@@ -365,7 +365,7 @@ class HybridRecorder:
         while not self._stop.wait(self._period):
             try:
                 self._hand_over(final=False)
-            except BaseException as exc:   # kept; the caller raises it after the run
+            except BaseException as exc:  # noqa: BLE001 - kept; the caller raises it after the run
                 self.error = exc
                 # a run that cannot be recorded does not go on
                 self.host.safety.stop(time.monotonic(), f"the recording failed: {exc}")

@@ -80,7 +80,7 @@ class _Immediate:
         future: Future[Any] = Future()
         try:
             future.set_result(fn(*args))
-        except Exception as exc:   # handed to the caller through the future
+        except Exception as exc:  # noqa: BLE001 - handed to the caller through the future
             future.set_exception(exc)
         return future
 
@@ -265,7 +265,7 @@ class RigHost:
             return 0.0, 0.0
         try:
             estimate = self._fit_job.result()
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - any failed fit stops the ride safely
             self.safety.stop(t_s, f"the transfer system's identification failed: {exc}")
             self.phase = "stopped"
             return 0.0, 0.0

@@ -145,14 +145,18 @@ def test_quasi_static_default_lasts_150_s_at_50_hz(tmp_path, capsys):
 
 
 def test_chirp_with_noise_is_reproducible(tmp_path, capsys):
+    """The same seed gives the same file; ``--no-plot`` changes nothing but the PNG."""
     args = ["dyno", "--protocol", "chirp", "--duration", "2", "--noise-std", "5",
             "--seed", "7"]
     assert main([*args, "--out", str(tmp_path / "a")]) == 0
-    assert main([*args, "--out", str(tmp_path / "b")]) == 0
+    assert main([*args, "--no-plot", "--out", str(tmp_path / "b")]) == 0
     a = read_measured_csv(tmp_path / "a" / "chirp.csv")
     b = read_measured_csv(tmp_path / "b" / "chirp.csv")
     assert len(a) == 2001 and np.array_equal(a.force, b.force)
     assert is_png(tmp_path / "a" / "chirp.png")
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == ["chirp.csv", "dyno.json"]
+    files = json.loads((tmp_path / "b" / "dyno.json").read_text())["files"]
+    assert files == ["chirp.csv", "dyno.json"]
     err = capsys.readouterr().err
     assert f"wrote {tmp_path / 'a' / 'chirp.csv'}" in err
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from damper_emulator.dyno import plots, protocols
+from damper_emulator.dyno import protocols
 from damper_emulator.dyno.measured import MeasuredData, check_measured, failure, write_measured_csv
 from damper_emulator.dyno.protocols import Chirp, FourteenSpeed, QuasiStatic, Sine
 from damper_emulator.dyno.simulated import (
@@ -70,11 +70,18 @@ def _write(out_dir: Path, name: str, progress: Progress, t, x, v, f) -> Path:
     return path
 
 
-def _plot(path: Path, progress: Progress, fn, *args, **kw) -> Path:
-    fn(path, *args, **kw)
+def _plot(plot: bool, path: Path, progress: Progress, name: str, *args: Any,
+          **kw: Any) -> list[str]:
+    """Draw ``path`` with :mod:`~damper_emulator.dyno.plots`' function ``name`` when
+    ``plot``: the names of the files written (plotting is imported only then)."""
+    if not plot:
+        return []
+    from damper_emulator.dyno import plots
+
+    getattr(plots, name)(path, *args, **kw)
     if progress:
         progress(path)
-    return path
+    return [path.name]
 
 
 def _out(out_dir: str | Path) -> Path:
@@ -98,8 +105,9 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
              cycles: int = Sine.cycles, rate: float = Sine.rate_hz,
              settle_cycles: int = Sine.settle_cycles,
              noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
-             engine: Engine = None) -> dict[str, Any]:
-    """Sine test ``x = A sin(2π f t)``: writes ``sine_<f>hz.csv`` and ``sine_<f>hz.png``.
+             engine: Engine = None, plot: bool = True) -> dict[str, Any]:
+    """Sine test ``x = A sin(2π f t)``: writes ``sine_<f>hz.csv`` and ``sine_<f>hz.png``
+    (the plot unless ``plot`` is false).
 
     ``settle_cycles`` lead-in periods are simulated but not recorded; the file's time
     starts at 0.  Summary: peak forces and velocities, dissipated energy per cycle
@@ -112,10 +120,10 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
     f = add_noise(f, noise_std, rng)
     name = sine_file_name(frequency)
     csv_path = _write(out, name, progress, t, x, v, f)
-    png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
+    png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
                 f"Sine {frequency:g} Hz, amplitude {amplitude * 1e3:g} mm "
                 f"({model.cfg.damper.name} damper, compressible model)", cfg=model.cfg)
-    return {"protocol": "sine", "files": [csv_path.name, png.name],
+    return {"protocol": "sine", "files": [csv_path.name, *png],
             "frequency_hz": float(frequency), "amplitude_m": float(amplitude),
             "cycles": cycles, "settle_cycles": settle_cycles, "rate_hz": float(rate),
             "samples": int(t.size), "duration_s": float(t[-1]),
@@ -129,9 +137,9 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path,
                      amplitude: float = QuasiStatic.amplitude_m,
                      cycles: int = QuasiStatic.cycles, rate: float = QuasiStatic.rate_hz,
                      noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
-                     engine: Engine = None) -> dict[str, Any]:
+                     engine: Engine = None, plot: bool = True) -> dict[str, Any]:
     """Quasi-static test (constant-velocity triangle, docs/model.md §3): writes
-    ``quasi_static.csv`` and ``quasi_static.png``.
+    ``quasi_static.csv`` and ``quasi_static.png`` (the plot unless ``plot`` is false).
 
     Summary adds ``friction_estimate_n``: half the difference between the mean forces
     while extending and while compressing (the gas force cancels over the symmetric
@@ -147,13 +155,13 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path,
     x, v = measured_motion(res, t, x, v)
     f = add_noise(res.force_n, noise_std, rng)
     csv_path = _write(out, "quasi_static.csv", progress, t, x, v, f)
-    png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
+    png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
                 f"Quasi-static test, {velocity * 1e3:g} mm/s, ±{amplitude * 1e3:g} mm "
                 f"({model.cfg.damper.name} damper)", cfg=model.cfg, time_series=True,
                 velocity_points=True)
     ext, com = v > 0, v < 0
     friction = 0.5 * (float(f[ext].mean()) - float(f[com].mean()))
-    return {"protocol": "quasi-static", "files": [csv_path.name, png.name],
+    return {"protocol": "quasi-static", "files": [csv_path.name, *png],
             "velocity_m_s": float(velocity), "amplitude_m": float(amplitude),
             "cycles": cycles, "rate_hz": float(rate), "samples": int(t.size),
             "duration_s": float(t[-1] - t[0]), **_force_summary(v, f),
@@ -165,9 +173,9 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_
               v_start: float = Chirp.v_start_m_s, v_end: float = Chirp.v_end_m_s,
               rate: float = Chirp.rate_hz, noise_std: float = 0.0,
               seed: int | None = 0, progress: Progress = None,
-              engine: Engine = None) -> dict[str, Any]:
+              engine: Engine = None, plot: bool = True) -> dict[str, Any]:
     """Exponential sine chirp with growing velocity amplitude (docs/model.md §3): writes
-    ``chirp.csv`` and ``chirp.png``."""
+    ``chirp.csv`` and ``chirp.png`` (the plot unless ``plot`` is false)."""
     rng = _rng(noise_std, seed)
     protocols.checked(Chirp, "dyno", f_start_hz=f_start, f_end_hz=f_end, duration_s=duration,
                       v_start_m_s=v_start, v_end_m_s=v_end, rate_hz=rate)
@@ -178,11 +186,11 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_
     x, v = measured_motion(res, t, x, v)
     f = add_noise(res.force_n, noise_std, rng)
     csv_path = _write(out, "chirp.csv", progress, t, x, v, f)
-    png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_loops, (t, x, v, f),
+    png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
                 f"Chirp {f_start:g}–{f_end:g} Hz in {duration:g} s, velocity amplitude "
                 f"{v_start:g}–{v_end:g} m/s ({model.cfg.damper.name} damper)", cfg=model.cfg,
                 time_series=True)
-    return {"protocol": "chirp", "files": [csv_path.name, png.name],
+    return {"protocol": "chirp", "files": [csv_path.name, *png],
             "f_start_hz": float(f_start), "f_end_hz": float(f_end),
             "duration_s": float(duration), "v_start_m_s": float(v_start),
             "v_end_m_s": float(v_end), "rate_hz": float(rate), "samples": int(t.size),
@@ -198,9 +206,9 @@ def run_fourteen_speed(model: DamperModel, out_dir: str | Path,
                        cycles: int = FourteenSpeed.cycles, rate: float = FourteenSpeed.rate_hz,
                        noise_std: float = 0.0,
                        seed: int | None = 0, progress: Progress = None,
-                       engine: Engine = None) -> dict[str, Any]:
+                       engine: Engine = None, plot: bool = True) -> dict[str, Any]:
     """N-speed test ('14-speed', docs/model.md §4): writes ``14speed.csv`` (columns
-    :data:`FOURTEEN_SPEED_COLUMNS`) and ``14speed.png``."""
+    :data:`FOURTEEN_SPEED_COLUMNS`) and ``14speed.png`` (the plot unless ``plot`` is false)."""
     rng = _rng(noise_std, seed)
     out = _out(out_dir)
     table, faults = fourteen_speed_table(model, points, amplitude, v_min, v_max, cycles, rate,
@@ -211,10 +219,10 @@ def run_fourteen_speed(model: DamperModel, out_dir: str | Path,
                comments="")
     if progress:
         progress(csv_path)
-    png = _plot(csv_path.with_suffix(".png"), progress, plots.plot_fourteen_speed, table,
+    png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_fourteen_speed", table,
                 model.cfg, title=f"{points}-speed test, amplitude {amplitude * 1e3:g} mm "
                 f"({model.cfg.damper.name} damper): peak force vs peak velocity")
-    return {"protocol": "14-speed", "files": [csv_path.name, png.name],
+    return {"protocol": "14-speed", "files": [csv_path.name, *png],
             "points": points, "amplitude_m": float(amplitude), "v_min_m_s": float(v_min),
             "v_max_m_s": float(v_max), "cycles": cycles, "rate_hz": float(rate),
             "table": {c: [float(a) for a in table[c]] for c in FOURTEEN_SPEED_COLUMNS},

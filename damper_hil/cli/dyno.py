@@ -96,6 +96,9 @@ def add_parser(sub) -> None:
                            "(default: 0, no noise)")
     dyno.add_argument("--seed", metavar="S", type=non_negative_int, default=0,
                       help="seed of the force-noise generator (default: 0)")
+    dyno.add_argument("--no-plot", dest="plot", action="store_false",
+                      help="write the CSV and dyno.json only, no PNG (faster: plotting is "
+                      "most of a short run's time)")
     _add_protocol_options(dyno.add_argument_group("protocol options (default: per protocol)"))
     c = dyno.add_argument_group(
         "loopback dyno over CAN (the protocol in real time against emulator + bridge)")
@@ -215,7 +218,8 @@ def _run_dyno(args: argparse.Namespace, opts: dict, model, params_file, engine=N
               extra: dict | None = None) -> int:
     from damper_emulator.dyno import runner
 
-    common = dict(noise_std=args.noise_std, seed=args.seed, progress=say_wrote, engine=engine)
+    common = dict(noise_std=args.noise_std, seed=args.seed, progress=say_wrote, engine=engine,
+                  plot=args.plot)
     out: Path = args.out
     if args.protocol == "sine":
         summary = runner.run_sine(model, out, opts["frequency"], opts["amplitude"],

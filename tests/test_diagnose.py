@@ -399,8 +399,8 @@ def test_cli_refuses_a_params_file_that_already_has_extensions(tmp_path, capsys)
 def test_a_runaway_simulation_counts_as_refused_and_the_fit_ends_cleanly(monkeypatch):
     """A model that runs away (forces of 1e299 N: found with a series spring and a nearly
     closed gas volume on a slow record's long sub-step) is a refused point of the fit, like
-    parameters the model rejects: trf's Jacobian used to overflow to inf there and end the
-    whole diagnosis with a traceback."""
+    parameters the model rejects, not a Jacobian overflowing to inf that ends the whole
+    diagnosis with a traceback."""
     from damper_emulator.diagnose.candidates import candidates
     from damper_emulator.diagnose.joint import (
         FAILED_COST,

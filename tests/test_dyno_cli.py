@@ -354,8 +354,8 @@ def test_the_plausible_file_of_those_tests_is_accepted(tmp_path):
 
 
 def test_validate_and_identify_refuse_an_absurd_file_with_one_line(tmp_path, cli):
-    """validate used to accept forces 10^12 times too large (r.m.s. 3.9e14 N, exit 0), and
-    identify blamed a spike on the sign convention."""
+    """Forces 10^12 times too large (r.m.s. 3.9e14 N) are refused by validate, not scored
+    with exit 0, and identify names the spike rather than the sign convention."""
     big = _sine_file(tmp_path / "big.csv", edit=lambda t, x, v, f, T: f.__imul__(1e12))
     res = cli("validate", "--params", "config/sport.yaml", big)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr

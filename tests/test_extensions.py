@@ -1021,11 +1021,11 @@ def test_series_compliance_with_a_nearly_closed_gas_volume_stays_quasi_steady(sp
                                                                              substep_s):
     """Regression: a gas volume only 5 % larger than the rod's stroke, behind
     a mount as stiff as the oil column, ramped slowly to 96 % of the gas column (the gas
-    ends stiffer than the mount).  The gas pressure used to follow the spring's force of
-    the sub-step before: here the force ended 19 % (0.5 ms sub-step) and 12× (the 5 ms
-    sub-step of a diagnosis fit) too large, and on the quasi-static test (±75 mm) it
-    reached 60 kN and 7.5 MN.  It must be the quasi-steady force at the damper's own
-    stroke (brentq, :func:`_mount_equilibrium`)."""
+    ends stiffer than the mount).  A gas pressure that follows the spring's force of the
+    sub-step before ends here 19 % (0.5 ms sub-step) and 12× (the 5 ms sub-step of a
+    diagnosis fit) too large, and on the quasi-static test (±75 mm) reaches 60 kN and
+    7.5 MN.  The force must be the quasi-steady force at the damper's own stroke (brentq,
+    :func:`_mount_equilibrium`)."""
     k = 2.2e6
     d = sport_cfg.damper
     stroke = 0.075

@@ -45,6 +45,7 @@ class ProtocolHost(RigHost):
     """
 
     RUN_PHASE = "test"
+    OWN_PHASES = ("approach",)
 
     def __init__(self, run: HybridRunParams, compensator: CompensatorParams,
                  safety: SafetyParams, stroke_m: Any, dt_s: float = HOST_CYCLE_S,

@@ -40,6 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from damper_emulator.dyno.measured import write_measured_csv
+from damper_emulator.errors import DamperHilError
 from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
 from ride_sim.hybrid.rig import Feedback
 from ride_sim.hybrid.safety import SafetyLayer
@@ -68,9 +69,10 @@ class Command(NamedTuple):
     enable: bool
 
 
-#: Phases of a run, in order (``stopped`` may follow any; ``run`` is the run proper's,
-#: :attr:`RigHost.RUN_PHASE`).
-PHASES = ("connect", "settle", "identify", "fit", "run", "return", "done", "stopped")
+#: The phases every run has, in order (``stopped`` may follow any); the run proper's
+#: (:attr:`RigHost.RUN_PHASE`) comes after ``fit``, and a subclass may add its own
+#: (:attr:`RigHost.OWN_PHASES`).
+PHASES = ("connect", "settle", "identify", "fit", "return", "done", "stopped")
 
 
 class _Immediate:
@@ -104,6 +106,8 @@ class RigHost:
 
     #: the name of the run proper's phase
     RUN_PHASE = "run"
+    #: the subclass's phases besides the run proper and :data:`PHASES`
+    OWN_PHASES: tuple[str, ...] = ()
 
     def __init__(self, run: HybridRunParams, compensator: CompensatorParams,
                  safety: SafetyParams, dt_s: float, samples: int,
@@ -169,6 +173,9 @@ class RigHost:
         return self.phase in ("done", "stopped")
 
     def _enter(self, phase: str, t_s: float) -> None:
+        phases = (*PHASES, self.RUN_PHASE, *self.OWN_PHASES)
+        if phase not in phases:          # a bug: each phase has its step method
+            raise DamperHilError(f"hybrid: no phase {phase!r} (phases: {', '.join(phases)})")
         self.phase = phase
         self._phase_start_s = t_s
 

@@ -31,7 +31,7 @@ from ride_sim.dampers import CompressiblePlugin
 from ride_sim.many import simulate_many
 from ride_sim.params import load_ride_config
 from ride_sim.quarter_car import simulate
-from ride_sim.road import random_road
+from ride_sim.road_synthesis import random_road
 
 KEYS = ("k_leak", "k_port", "k_spring", "preload_pa")
 

@@ -46,7 +46,7 @@ def main() -> None:
     from ride_sim import study
     from ride_sim.params import load_ride_config
     from ride_sim.quarter_car import simulate
-    from ride_sim.road import random_road
+    from ride_sim.road_synthesis import random_road
 
     cfg = load_ride_config()
     settings = study.StudySettings.from_config(cfg)

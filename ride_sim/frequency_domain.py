@@ -10,7 +10,7 @@ With a linear damper of rate ``C_s`` at the wheel, eq 38 in the frequency domain
 ``Z1/X0``, body ``Z2/X0``, suspension working space ``(Z1 − Z2)/X0`` [m/m], body
 acceleration ``s² Z2/X0`` [(m/s²)/m] and dynamic tyre load ``(K_t + C_t s)(X0 − Z1)/X0``
 [N/m].  For a stationary road of one-sided PSD ``S(f)`` [m²/Hz] (e.g. eq 39,
-``S = G V^(p−1)/f^p``, from :mod:`ride_sim.road`) an output has PSD ``|H|² S``
+``S = G V^(p−1)/f^p``, from :mod:`ride_sim.road_spectra`) an output has PSD ``|H|² S``
 (:func:`response_psd`) and r.m.s. ``√∫ |H|² S df`` (:func:`rms_from_psd`).
 """
 

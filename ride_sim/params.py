@@ -30,7 +30,7 @@ from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.params import build_group, node_parameters, read_yaml
 from damper_emulator.params import check_value as _check
 from damper_emulator.params import rule as _rule
-from ride_sim.road import AMPLITUDE_METHODS
+from ride_sim.road_synthesis import AMPLITUDE_METHODS
 
 #: Default parameter file: the paper's front quarter car.
 DEFAULT_QUARTER_CAR_FILE = Path(__file__).resolve().parent.parent / "config" / "quarter_car.yaml"
@@ -88,7 +88,8 @@ class RoadParams:
     the default band ``[0.01, 0.8]`` cycles/m is the one the paper's figure 10 implies (see
     ``docs/ride_study.md``).  The pothole is the project's own (the paper's MIRA pothole is
     not given): a sharp-edged rectangular hole seen through a rigid tyre of
-    ``tyre_radius_m`` (:func:`ride_sim.road.envelope`) averaged over ``contact_length_m``.
+    ``tyre_radius_m`` (:func:`ride_sim.road_envelope.envelope`) averaged over
+    ``contact_length_m``.
     """
 
     roughness: float = _rule("positive", "road roughness G of eq 39 [m^2 (cycles/m)^(p-1)]",
@@ -101,7 +102,7 @@ class RoadParams:
                               "'spatial' keeps it in cycles/m (one road at every speed)",
                               "temporal")
     amplitudes: str = _rule(("choices", AMPLITUDE_METHODS),
-                            "random-road synthesis (ride_sim.road.random_road)",
+                            "random-road synthesis (ride_sim.road_synthesis.random_road)",
                             "deterministic")
     speed_m_s: float = _rule("positive", "speed on the random road [m/s] (figure 10)", 20.0)
     length_m: float = _rule("positive", "length of random road evaluated [m]", 500.0)

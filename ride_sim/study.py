@@ -18,7 +18,7 @@ Representations (:data:`REPRESENTATIONS`, plus :data:`EXTRA_REPRESENTATIONS`)
 
 Random road (figures 10 and 11)
 -------------------------------
-Eq 39 synthesised by :func:`ride_sim.road.random_road` over the band
+Eq 39 synthesised by :func:`ride_sim.road_synthesis.random_road` over the band
 ``road.band_cycles_per_m`` with the sample spacing ``V · dt`` (one road sample per
 simulation step).  The synthesised road is exactly periodic with period ``length + V dt``;
 the car drives ``road.lead_in_s`` of it (the end of the same road, so the road is
@@ -32,9 +32,9 @@ single road had); :func:`linear_prediction` also returns that scatter analytical
 
 Pothole (figure 13)
 -------------------
-A sharp-edged rectangular pothole (:func:`ride_sim.road.pothole`) seen through a rigid
-tyre of radius ``road.tyre_radius_m`` (:func:`ride_sim.road.envelope`), averaged over
-``road.contact_length_m``; r.m.s. values over ``[t_edge − window_before_s,
+A sharp-edged rectangular pothole (:func:`ride_sim.road_features.pothole`) seen through a
+rigid tyre of radius ``road.tyre_radius_m`` (:func:`ride_sim.road_envelope.envelope`),
+averaged over ``road.contact_length_m``; r.m.s. values over ``[t_edge − window_before_s,
 t_edge + window_after_s)`` with ``t_edge`` the time the wheel centre passes the leading
 edge; peaks over the whole run.  The geometry and window were chosen so the linear column
 of the paper's figure 13 is roughly matched (``docs/ride_study.md``).
@@ -66,12 +66,16 @@ import numpy as np
 
 from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.errors import UserError
-from ride_sim import road as rd
 from ride_sim.dampers import TablePlugin, make_damper
 from ride_sim.frequency_domain import transfer_functions
 from ride_sim.iso2631 import frequency_weighting, weight_signal
 from ride_sim.params import QuarterCarParams, RideConfig, RoadParams
 from ride_sim.quarter_car import QuarterCar, RideResult, simulate
+from ride_sim.road import RoadProfile
+from ride_sim.road_envelope import envelope
+from ride_sim.road_features import DEFAULT_FEATURE_SPACING_M, pothole
+from ride_sim.road_speed import road_input
+from ride_sim.road_synthesis import random_road
 
 #: The paper's three representations, in its column order.
 REPRESENTATIONS = ("linear", "14speed", "nonlinear")
@@ -339,14 +343,14 @@ def random_road_input(road: RoadParams, speed_m_s: float, seed: int, dt_s: float
                       ) -> tuple[np.ndarray, int, int]:
     """Road height at the simulation samples: ``(heights, n_lead, n_eval)``.
 
-    The road (:func:`~ride_sim.road.random_road`, spacing ``V dt``) is one period of
-    ``n_eval`` samples; ``n_lead`` samples of its end are driven first (periodic wrap, so
+    The road (:func:`~ride_sim.road_synthesis.random_road`, spacing ``V dt``) is one period
+    of ``n_eval`` samples; ``n_lead`` samples of its end are driven first (periodic wrap, so
     the road is continuous) and discarded.
     """
     band = band_at_speed(road, speed_m_s) if band_cycles_per_m is None else band_cycles_per_m
-    profile = rd.random_road(road.roughness, road.waviness, road.length_m,
-                             band_cycles_per_m=band, spacing_m=speed_m_s * dt_s, seed=seed,
-                             amplitudes=road.amplitudes)
+    profile = random_road(road.roughness, road.waviness, road.length_m,
+                          band_cycles_per_m=band, spacing_m=speed_m_s * dt_s, seed=seed,
+                          amplitudes=road.amplitudes)
     h = profile.height_m
     n_eval = h.size
     n_lead = int(round(road.lead_in_s / dt_s))
@@ -357,9 +361,9 @@ def check_random_road(road: RoadParams, speed_m_s: float, dt_s: float) -> None:
     """Raise :class:`~ride_sim.road.RoadError` (one line) now if the random road at
     ``speed_m_s`` cannot be synthesised (band beyond Nyquist, road shorter than the band's
     longest wavelength), before any damper is built."""
-    rd.random_road(road.roughness, road.waviness, road.length_m,
-                   band_cycles_per_m=band_at_speed(road, speed_m_s),
-                   spacing_m=speed_m_s * dt_s, seed=0, amplitudes=road.amplitudes)
+    random_road(road.roughness, road.waviness, road.length_m,
+                band_cycles_per_m=band_at_speed(road, speed_m_s),
+                spacing_m=speed_m_s * dt_s, seed=0, amplitudes=road.amplitudes)
 
 
 def start_state(heights: np.ndarray, dt_s: float) -> tuple[float, float, float, float]:
@@ -585,21 +589,21 @@ def claim_check(hysteretic: list[dict[str, float]], table: list[dict[str, float]
 
 
 def pothole_input(road: RoadParams, speed_m_s: float, dt_s: float
-                  ) -> tuple[rd.RoadProfile, rd.RoadProfile, np.ndarray, float]:
+                  ) -> tuple[RoadProfile, RoadProfile, np.ndarray, float]:
     """``(raw profile, enveloped profile, heights at the samples, t_edge)`` of the
     study's pothole driven at ``speed_m_s``; ``t_edge`` [s] is when the wheel centre is
     over the leading edge."""
     length = road.pothole_length_m
-    spacing = length / max(2, math.ceil(length / rd.DEFAULT_FEATURE_SPACING_M - 1e-9))
-    raw = rd.pothole(road.pothole_depth_m, length, lead_in_m=road.pothole_lead_in_m,
-                     lead_out_m=road.pothole_lead_out_m, spacing_m=spacing)
+    spacing = length / max(2, math.ceil(length / DEFAULT_FEATURE_SPACING_M - 1e-9))
+    raw = pothole(road.pothole_depth_m, length, lead_in_m=road.pothole_lead_in_m,
+                  lead_out_m=road.pothole_lead_out_m, spacing_m=spacing)
     contact = road.contact_length_m if road.contact_length_m > 0 else None
-    env = rd.envelope(raw, road.tyre_radius_m, contact)
+    env = envelope(raw, road.tyre_radius_m, contact)
     inside = np.flatnonzero(raw.height_m < 0)
     edge_m = float(raw.distance_m[inside[0] - 1])
     n = int(math.floor(raw.end_m / (speed_m_s * dt_s) + 1e-9)) + 1
     t = np.arange(n) * dt_s
-    heights, _ = rd.road_input(env, speed_m_s, t)
+    heights, _ = road_input(env, speed_m_s, t)
     return raw, env, heights, edge_m / speed_m_s
 
 

@@ -47,9 +47,9 @@ from damper_emulator.params import (
     node_parameters,
     validate,
 )
-from ride_sim import road as rd
 from ride_sim.many import simulate_many
 from ride_sim.params import BYPASS_KEYS, QuarterCarParams, RoadParams, TuneBounds, TuneSettings
+from ride_sim.road_synthesis import iso8608_class
 from ride_sim.study import history_metrics, pothole_input, random_road_input, start_state
 
 #: the objectives, in order, with their units (all minimised)
@@ -98,7 +98,7 @@ def check_spec(spec: TuneSpec, where: str) -> None:
     if not classes:
         raise ParameterError(f"{where}: tune.road_classes names no class")
     for c in classes:
-        rd.iso8608_class(c)  # RoadError for an unknown class
+        iso8608_class(c)  # RoadError for an unknown class
     for v in spec.variables:
         lo, hi = getattr(spec.bounds, v)
         if not 0.0 < lo <= hi:
@@ -159,7 +159,7 @@ def roads(settings: TuneSettings, road: RoadParams, dt_s: float) -> list[Road]:
     """The random roads (one per class) and, with ``pothole``, the pothole."""
     out = []
     for k, c in enumerate(settings.classes()):
-        rough = rd.iso8608_class(c)
+        rough = iso8608_class(c)
         params = dataclasses.replace(road, roughness=rough.roughness,
                                      waviness=rough.waviness, length_m=settings.length_m,
                                      band_cycles_per_m=settings.band_cycles_per_m,

@@ -37,7 +37,7 @@ from ride_sim.dampers import CompressiblePlugin
 from ride_sim.many import MIN_BLOCK, _lane_designs, _stack_tables, simulate_many
 from ride_sim.params import load_ride_config
 from ride_sim.quarter_car import simulate
-from ride_sim.road import random_road
+from ride_sim.road_synthesis import random_road
 from ride_sim.study import start_state
 
 RTOL = 1e-9

@@ -34,7 +34,9 @@ CORES = ("damper_emulator.errors", "damper_emulator.outputs", "damper_emulator.p
          "damper_emulator.identify.quasi_static", "damper_emulator.identify.valves",
          "damper_emulator.identify.fitting", "damper_emulator.diagnose.joint",
          "damper_emulator.diagnose.candidates", "damper_emulator.diagnose.selection",
-         "ride_sim.quarter_car", "ride_sim.road", "ride_sim.iso2631", "ride_sim.params",
+         "ride_sim.quarter_car", "ride_sim.road", "ride_sim.road_spectra",
+         "ride_sim.road_synthesis", "ride_sim.road_features", "ride_sim.road_envelope",
+         "ride_sim.road_csv", "ride_sim.road_speed", "ride_sim.iso2631", "ride_sim.params",
          "ride_sim.frequency_domain", "ride_sim.metrics", "ride_sim.dampers",
          "ride_sim.many", "ride_sim.tuning", "ride_sim.loop_delay", "ride_sim.hybrid",
          "can_bridge.codec", "can_bridge.bus", "can_bridge.crc", "can_bridge.dbc")

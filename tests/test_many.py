@@ -18,7 +18,7 @@ from ride_sim.dampers import CompressiblePlugin
 from ride_sim.many import simulate_many
 from ride_sim.params import load_ride_config
 from ride_sim.quarter_car import simulate
-from ride_sim.road import random_road
+from ride_sim.road_synthesis import random_road
 from ride_sim.study import pothole_input, start_state
 
 #: the agreement the batch path must keep with the single path (relative)

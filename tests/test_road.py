@@ -1,4 +1,5 @@
-"""Tests of ride_sim.road: spectra, random roads, features, tyre enveloping, files, speed."""
+"""Tests of the road modules (ride_sim.road and its road_* siblings): spectra, random roads,
+features, tyre enveloping, files, speed."""
 
 import itertools
 import math
@@ -7,25 +8,13 @@ import numpy as np
 import pytest
 from scipy import integrate, signal
 
-from ride_sim import road
-from ride_sim.road import (
-    MINOR_ROAD,
-    RoadError,
-    RoadProfile,
-    RoadRoughness,
-    SpeedProfile,
-    bump,
-    envelope,
-    iso8608_class,
-    pothole,
-    random_road,
-    read_profile_csv,
-    road_input,
-    spatial_psd,
-    step,
-    temporal_psd,
-    write_profile_csv,
-)
+from ride_sim.road import RoadError, RoadProfile, resample
+from ride_sim.road_csv import read_profile_csv, write_profile_csv
+from ride_sim.road_envelope import envelope
+from ride_sim.road_features import DEFAULT_POTHOLE_DEPTH_M, bump, pothole, step
+from ride_sim.road_spectra import band_variance, spatial_psd, temporal_psd
+from ride_sim.road_speed import SpeedProfile, constant_speed, road_input
+from ride_sim.road_synthesis import MINOR_ROAD, RoadRoughness, iso8608_class, random_road
 
 G_MINOR = 5e-6
 P_MINOR = 2.5
@@ -66,8 +55,8 @@ def test_temporal_and_spatial_variance_agree():
     temporal, _ = integrate.quad(lambda f: temporal_psd(G_MINOR, P_MINOR, V_MINOR, f),
                                  band[0] * V_MINOR, band[1] * V_MINOR, limit=200)
     assert temporal == pytest.approx(spatial, rel=1e-8)
-    assert road.band_variance(G_MINOR, P_MINOR, band) == pytest.approx(spatial, rel=1e-8)
-    assert road.band_variance(G_MINOR, 1.0, band) == pytest.approx(
+    assert band_variance(G_MINOR, P_MINOR, band) == pytest.approx(spatial, rel=1e-8)
+    assert band_variance(G_MINOR, 1.0, band) == pytest.approx(
         G_MINOR * math.log(band[1] / band[0]), rel=1e-12)
 
 
@@ -261,7 +250,7 @@ def test_spacing_and_resample():
     p = RoadProfile([0.0, 1.0, 3.0], [0.0, 0.2, -0.2], "tri")
     with pytest.raises(RoadError, match="not uniformly sampled"):
         _ = p.spacing_m
-    q = road.resample(p, 0.5)
+    q = resample(p, 0.5)
     assert q.spacing_m == pytest.approx(0.5)
     np.testing.assert_allclose(q.height_at([1.0, 2.0]), [0.2, 0.0])
 
@@ -280,7 +269,7 @@ def test_pothole_geometry():
     below = p.distance_m[p.height_m < 0]
     assert below[0] == pytest.approx(2.005) and below[-1] == pytest.approx(2.495)
     d = pothole()
-    assert np.min(d.height_m) == -road.DEFAULT_POTHOLE_DEPTH_M
+    assert np.min(d.height_m) == -DEFAULT_POTHOLE_DEPTH_M
     with pytest.raises(RoadError, match="whole number"):
         pothole(0.05, 0.503, spacing_m=0.005)
     with pytest.raises(RoadError, match="depth_m"):
@@ -455,7 +444,7 @@ def test_distance_piecewise_matches_quadrature():
 def test_speed_profile_validation_and_constant():
     c = SpeedProfile.constant(20.0, 25.0)
     assert c.distance_at(25.0) == pytest.approx(500.0)
-    assert road.constant_speed(20.0, 25.0).total_distance_m == pytest.approx(500.0)
+    assert constant_speed(20.0, 25.0).total_distance_m == pytest.approx(500.0)
     with pytest.raises(RoadError, match="negative"):
         SpeedProfile(np.array([0.0, 1.0]), np.array([1.0, -1.0]))
     with pytest.raises(RoadError, match="not greater"):

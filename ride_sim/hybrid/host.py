@@ -32,7 +32,7 @@ __all__ = ["RECORD_COLUMNS", "RIDE_KEYS", "Command", "HybridHost", "HybridRoad",
 from ride_sim.hybrid.transfer import NOMINAL_ESTIMATE
 from ride_sim.params import QuarterCarParams, RoadParams
 from ride_sim.quarter_car import RideResult, simulate
-from ride_sim.road import iso8608_class
+from ride_sim.road_synthesis import iso8608_class
 from ride_sim.session import RideSession
 from ride_sim.study import metrics, random_road_input, start_state
 

@@ -43,15 +43,15 @@ def main() -> None:
     args = ap.parse_args()
 
     t0 = time.perf_counter()
-    from ride_sim import study
+    from ride_sim import study, study_runs, study_setup
     from ride_sim.params import load_ride_config
     from ride_sim.quarter_car import simulate
     from ride_sim.road_synthesis import random_road
 
     cfg = load_ride_config()
-    settings = study.StudySettings.from_config(cfg)
+    settings = study_setup.StudySettings.from_config(cfg)
     car, road, dt = settings.car, settings.road, settings.dt_s
-    damper = study.make_representation("nonlinear", car)
+    damper = study_setup.make_representation("nonlinear", car)
     heights = random_road(road.roughness, road.waviness, 500.0,
                           band_cycles_per_m=road.band_cycles_per_m, spacing_m=20.0 * dt,
                           seed=0).height_m
@@ -61,9 +61,9 @@ def main() -> None:
     sim_s = _median_time(lambda: simulate(car, damper, heights, dt), args.repeats)
 
     def whole_run():
-        h, n_lead, n_eval = study.random_road_input(road, 20.0, 1, dt)
-        res = study.run(car, damper, h, dt)
-        study.metrics(res, n_lead, n_lead + n_eval)
+        h, n_lead, n_eval = study_runs.random_road_input(road, 20.0, 1, dt)
+        res = study_runs.run(car, damper, h, dt)
+        study_runs.metrics(res, n_lead, n_lead + n_eval)
 
     whole_run()
     run_s = _median_time(whole_run, args.repeats)

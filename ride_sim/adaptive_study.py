@@ -1,7 +1,8 @@
 """The adaptive-damper ride study (docs/model.md §6): passive sport, passive comfort and
 the skyhook controller on the figure-10 road, several seeds (``damper-hil ride-study
---figure adaptive``).  Beside :mod:`ride_sim.study`, whose roads, settings and metrics it
-uses; it alone needs the closed-loop session (:mod:`ride_sim.session`)."""
+--figure adaptive``).  Beside :mod:`ride_sim.study`, whose settings
+(:mod:`ride_sim.study_setup`), roads and metrics (:mod:`ride_sim.study_runs`) it uses; it
+alone needs the closed-loop session (:mod:`ride_sim.session`)."""
 
 from __future__ import annotations
 
@@ -13,17 +14,9 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.errors import UserError
-from ride_sim.study import (
-    Progress,
-    StudyResult,
-    StudySettings,
-    band_at_speed,
-    check_random_road,
-    default_model,
-    quiet,
-    random_road_input,
-    seed_summary,
-)
+from ride_sim.study import Progress, StudyResult, quiet
+from ride_sim.study_runs import check_random_road, random_road_input, seed_summary
+from ride_sim.study_setup import StudySettings, band_at_speed, default_model
 
 #: Cases of :func:`adaptive_study`, in order, and their labels.
 ADAPTIVE_CASES = ("sport", "comfort", "skyhook")

@@ -17,14 +17,10 @@ from scipy import signal as sps
 from damper_emulator.dyno.plots import decorate, new_figure, save
 from ride_sim.frequency_domain import transfer_functions
 from ride_sim.iso2631 import frequency_weighting, weight_signal
-from ride_sim.study import (
-    LABELS,
-    PAPER_FIGURE_10,
-    StudyResult,
-    StudySettings,
-    band_at_speed,
-    band_sensitivity,
-)
+from ride_sim.study import StudyResult
+from ride_sim.study_linear import band_sensitivity
+from ride_sim.study_paper import LABELS, PAPER_FIGURE_10
+from ride_sim.study_setup import StudySettings, band_at_speed
 
 #: Resolution of the study figures [dpi] (modest PNGs for the docs).
 DPI = 100
@@ -204,7 +200,7 @@ def plot_speed_sweep(path: str | Path, doc: Mapping[str, Any],
     if settings is not None:
         import dataclasses
 
-        from ride_sim.study import linear_prediction
+        from ride_sim.study_linear import linear_prediction
         v = np.linspace(speeds.min(), speeds.max(), 61)
         for scaling, ls in (("temporal", "--"), ("spatial", ":")):
             road = dataclasses.replace(settings.road, band_scaling=scaling)

@@ -36,7 +36,7 @@ from ride_sim.quarter_car import (
     road_pair,
     simulate,
 )
-from ride_sim.study import metrics, random_road_input, start_state
+from ride_sim.study_runs import metrics, random_road_input, start_state
 
 
 def run_road(road: RoadParams, run: RideRunParams, dt_s: float
@@ -86,7 +86,7 @@ class RideSession:
     def on_road(cls, car: QuarterCarParams, heights: np.ndarray, n_lead: int, dt_s: float,
                 static_force_n: float) -> RideSession:
         """A session on given road heights (one per sample, e.g.
-        :func:`ride_sim.study.random_road_input`) whose first ``n_lead`` samples are the
+        :func:`ride_sim.study_runs.random_road_input`) whose first ``n_lead`` samples are the
         lead-in the metrics leave out."""
         heights = np.ascontiguousarray(heights, dtype=float)
         if heights.ndim != 1 or heights.size < 2 or not np.isfinite(heights).all():
@@ -154,7 +154,7 @@ class RideSession:
                        self.dt_s)
 
     def metrics(self) -> dict[str, float]:
-        """:func:`ride_sim.study.metrics` over the evaluated samples run so far."""
+        """:func:`ride_sim.study_runs.metrics` over the evaluated samples run so far."""
         if self.k <= self.n_lead + 1:
             raise UserError("the ride stopped before the evaluated part began")
         return metrics(self.result(), self.n_lead, self.k)

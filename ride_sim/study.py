@@ -6,13 +6,23 @@ and ``docs/ride_study.md`` reports the results.  Conventions as in
 :mod:`ride_sim.quarter_car`: ``SWS = z1 − z2`` (+ = suspension compressed), body
 acceleration up +, ``DTL`` the deviation from the static tyre load (+ = more load), all SI.
 
-Representations (:data:`REPRESENTATIONS`, plus :data:`EXTRA_REPRESENTATIONS`)
-------------------------------------------------------------------------------
+This module runs the figures (:func:`figure10`, :func:`figure11`, :func:`figure13`).  Beside
+it: :mod:`ride_sim.study_paper` (the representations, output keys and the paper's values),
+:mod:`ride_sim.study_setup` (the settings and the dampers), :mod:`ride_sim.study_runs` (the
+roads at the simulation samples, one run, the metrics), :mod:`ride_sim.study_linear` (the
+linear car's frequency-domain prediction) and :mod:`ride_sim.study_tables` (the text
+tables).
+
+Representations (:mod:`ride_sim.study_paper`)
+---------------------------------------------
+The paper's three (``REPRESENTATIONS``) and an extra column (``EXTRA_REPRESENTATIONS``),
+built by :func:`ride_sim.study_setup.make_representation`:
+
 - ``linear``: ``C_s = 2622 N s/m`` at the wheel (``C_s · MR² = 5899.5 N s/m`` at the
   damper), with the sport damper's gas preload as a constant force;
 - ``14speed``: the 14-speed test simulated on the hysteretic model
   (:func:`~damper_emulator.model.representations.fourteen_speed_damper`, cached per
-  process: :func:`fourteen_speed_table`);
+  process: :func:`~ride_sim.study_setup.fourteen_speed_table`);
 - ``nonlinear``: the compressible (hysteretic) model stepped inside the 1 kHz loop;
 - ``incompressible``: eqs 30–32 (an extra column).
 
@@ -28,7 +38,8 @@ every seed has exactly the target spectrum, so the linear car's r.m.s. values ar
 seed-independent and equal the frequency-domain prediction up to the damper's sampling;
 seeds differ in phase only (which moves peaks and non-linear results).
 ``"random"`` gives the scatter of a single measured-like realisation (as the paper's
-single road had); :func:`linear_prediction` also returns that scatter analytically.
+single road had); :func:`~ride_sim.study_linear.linear_prediction` also returns that
+scatter analytically.
 
 Pothole (figure 13)
 -------------------
@@ -46,401 +57,60 @@ figure-10 random road: passive sport (command 1), passive comfort (command 0) an
 continuous skyhook law (:mod:`ride_sim.skyhook`, ``config/skyhook.yaml``) updated at
 ``rate_hz`` with a zero-order hold, the solenoid lag in the model.  All three run through
 the same sampled loop (:func:`ride_sim.session.semi_active_run`; at a constant command it
-equals :func:`run` exactly) on the same seeds; SWS, Wk-weighted body acceleration and DTL
-r.m.s. per seed, their mean and spread, and per-seed ratios to passive sport.
+equals :func:`~ride_sim.study_runs.run` exactly) on the same seeds; SWS, Wk-weighted body
+acceleration and DTL r.m.s. per seed, their mean and spread, and per-seed ratios to
+passive sport.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
-import functools
 import math
 import os
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.errors import UserError
-from ride_sim.dampers import TablePlugin, make_damper
-from ride_sim.frequency_domain import transfer_functions
-from ride_sim.iso2631 import frequency_weighting, weight_signal
-from ride_sim.params import QuarterCarParams, RideConfig, RoadParams
-from ride_sim.quarter_car import QuarterCar, RideResult, simulate
-from ride_sim.road import RoadProfile
-from ride_sim.road_envelope import envelope
-from ride_sim.road_features import DEFAULT_FEATURE_SPACING_M, pothole
-from ride_sim.road_speed import road_input
-from ride_sim.road_synthesis import random_road
-
-#: The paper's three representations, in its column order.
-REPRESENTATIONS = ("linear", "14speed", "nonlinear")
-#: Extra columns of the report.
-EXTRA_REPRESENTATIONS = ("incompressible",)
-ALL_REPRESENTATIONS = REPRESENTATIONS + EXTRA_REPRESENTATIONS
-#: Labels for tables and plots.
-LABELS = {"linear": "linear", "14speed": "14-speed", "nonlinear": "non-linear",
-          "incompressible": "incompressible"}
-
-#: Output keys of docs/interfaces.md §3 (figures 10 and 13), SI units (m, m/s², N).
-CONTRACT_KEYS = ("sws_rms", "accel_w_rms", "dtl_rms",
-                 "sws_peak_pos", "sws_peak_neg", "accel_w_peak_pos", "accel_w_peak_neg",
-                 "dtl_peak_pos", "dtl_peak_neg")
-#: Further outputs: unweighted body acceleration; the mean SWS (suspension packing: an
-#: asymmetric damper settles the suspension away from its static position) and the SWS
-#: r.m.s. and peaks about that mean (``*_ac``).  The CONTRACT keys are about the static
-#: position.
-EXTRA_KEYS = ("accel_rms", "accel_peak_pos", "accel_peak_neg", "sws_mean", "sws_rms_ac",
-              "sws_peak_pos_ac", "sws_peak_neg_ac")
-OUTPUT_KEYS = CONTRACT_KEYS + EXTRA_KEYS
-#: Units of the outputs.
-UNITS = {"sws": "m", "accel_w": "m/s²", "accel": "m/s²", "dtl": "N"}
-
-#: Figure 10 (500 m minor road, 20 m/s), SI.  The paper's "peak body accel" row matches
-#: the *unweighted* peaks (ratios 0.9–1.05 against 0.7–0.9 for the weighted ones), so it
-#: is held under ``accel_peak_*``; ``accel_w_peak_*`` (CONTRACT) are the weighted peaks,
-#: which the paper does not give.  Its SWS values are also compared with the SWS about its
-#: mean (``*_ac``, see :data:`EXTRA_KEYS`).
-PAPER_FIGURE_10 = {
-    "linear": {"sws_rms": 0.026, "accel_w_rms": 2.26, "dtl_rms": 1630.0,
-               "sws_peak_pos": 0.078, "sws_peak_neg": -0.091,
-               "accel_peak_pos": 8.52, "accel_peak_neg": -10.50,
-               "dtl_peak_pos": 5180.0, "dtl_peak_neg": -5680.0},
-    "14speed": {"sws_rms": 0.028, "accel_w_rms": 2.29, "dtl_rms": 1690.0,
-                "sws_peak_pos": 0.091, "sws_peak_neg": -0.079,
-                "accel_peak_pos": 7.92, "accel_peak_neg": -9.72,
-                "dtl_peak_pos": 5860.0, "dtl_peak_neg": -5850.0},
-    "nonlinear": {"sws_rms": 0.028, "accel_w_rms": 2.33, "dtl_rms": 1590.0,
-                  "sws_peak_pos": 0.091, "sws_peak_neg": -0.079,
-                  "accel_peak_pos": 8.02, "accel_peak_neg": -9.67,
-                  "dtl_peak_pos": 5330.0, "dtl_peak_neg": -5470.0},
-}
-for _paper in PAPER_FIGURE_10.values():
-    _paper.update(sws_rms_ac=_paper["sws_rms"], sws_peak_pos_ac=_paper["sws_peak_pos"],
-                  sws_peak_neg_ac=_paper["sws_peak_neg"])
-#: Figure 13 (pothole, 10 m/s), SI.  The paper's "body accel" is compared with the
-#: unweighted acceleration (``accel_rms``, ``accel_peak_*``).
-PAPER_FIGURE_13 = {
-    "linear": {"sws_rms": 0.0325, "accel_rms": 8.21, "dtl_rms": 5510.0,
-               "sws_peak_pos": 0.0416, "sws_peak_neg": -0.0624,
-               "accel_peak_pos": 17.85, "accel_peak_neg": -14.41,
-               "dtl_peak_pos": 15310.0, "dtl_peak_neg": -11184.0},
-    "14speed": {"sws_rms": 0.04201, "accel_rms": 6.62, "dtl_rms": 6660.0,
-                "sws_peak_pos": 0.0670, "sws_peak_neg": -0.0715,
-                "accel_peak_pos": 11.37, "accel_peak_neg": -11.30,
-                "dtl_peak_pos": 14870.0, "dtl_peak_neg": -11255.0},
-    "nonlinear": {"sws_rms": 0.0430, "accel_rms": 6.52, "dtl_rms": 6550.0,
-                  "sws_peak_pos": 0.0683, "sws_peak_neg": -0.0733,
-                  "accel_peak_pos": 10.52, "accel_peak_neg": -11.094,
-                  "dtl_peak_pos": 14030.0, "dtl_peak_neg": -10977.0},
-}
-#: The paper's figure 11 statement: the linear curve crosses the non-linear near 20 m/s.
-PAPER_FIGURE_11_CROSSING_M_S = 20.0
-#: The paper's claim (hysteretic vs 14-speed, similar accel and SWS): r.m.s. DTL about 6 %
-#: lower, peak DTL about 10 % lower.
-PAPER_CLAIM = {"dtl_rms_reduction": 0.06, "dtl_peak_reduction": 0.10}
+from ride_sim.iso2631 import weight_signal
+from ride_sim.params import QuarterCarParams, RoadParams
+from ride_sim.quarter_car import simulate
+from ride_sim.study_linear import linear_prediction
+from ride_sim.study_paper import (
+    ALL_REPRESENTATIONS,
+    OUTPUT_KEYS,
+    PAPER_CLAIM,
+    PAPER_FIGURE_10,
+    PAPER_FIGURE_11_CROSSING_M_S,
+    PAPER_FIGURE_13,
+    REPRESENTATIONS,
+)
+from ride_sim.study_runs import (
+    check_random_road,
+    metrics,
+    pothole_input,
+    random_road_input,
+    run,
+    run_linear_exact,
+    seed_summary,
+)
+from ride_sim.study_setup import (
+    StudySettings,
+    band_at_speed,
+    default_model,
+    fourteen_speed_table,
+    make_representation,
+)
 
 Progress = Callable[[str], None]
 
 
 def quiet(_msg: str) -> None:
     pass
-
-
-# --------------------------------------------------------------------------------------
-# dampers
-
-
-@functools.cache
-def default_model():
-    """The sport damper (``config/sport.yaml``), built once per process."""
-    from damper_emulator.model.compressible import DamperModel
-
-    return DamperModel()
-
-
-@functools.lru_cache(maxsize=16)
-def fourteen_speed_table(model, points: int = FourteenSpeed.points):
-    """The N-speed table of ``model`` (a ``DamperModel``), built once per process and
-    model (the N-speed test is simulated on the hysteretic model)."""
-    from damper_emulator.model.representations import fourteen_speed_damper
-
-    return fourteen_speed_damper(model, points=points)
-
-
-def make_representation(kind: str, car: QuarterCarParams, model=None,
-                        points: int = FourteenSpeed.points, table=None):
-    """A damper plug-in for one of :data:`ALL_REPRESENTATIONS` (``table``: a prebuilt
-    14-speed :class:`~damper_emulator.model.representations.TableDamper`)."""
-    model = default_model() if model is None else model
-    if kind == "14speed":
-        table = fourteen_speed_table(model, points) if table is None else table
-        return TablePlugin(table, name=f"{points}-speed")
-    if kind not in ALL_REPRESENTATIONS:
-        raise UserError(f"representation {kind!r} must be one of "
-                         f"{', '.join(ALL_REPRESENTATIONS)}")
-    return make_damper(kind, model, car=car)
-
-
-# --------------------------------------------------------------------------------------
-# settings
-
-
-@dataclass(frozen=True)
-class StudySettings:
-    """What a study runs on: the car, the roads, the time step and the N of the N-speed
-    test (from a :class:`~ride_sim.params.RideConfig` and the command-line overrides)."""
-
-    car: QuarterCarParams
-    road: RoadParams
-    dt_s: float = 1e-3
-    points: int = FourteenSpeed.points
-    source: str = "<memory>"
-
-    @classmethod
-    def from_config(cls, cfg: RideConfig, **road_overrides: Any) -> StudySettings:
-        """Settings of ``cfg`` with some ``road`` fields replaced (``None`` = keep)."""
-        changes = {k: v for k, v in road_overrides.items() if v is not None}
-        road = dataclasses.replace(cfg.road, **changes)
-        check_road(road)
-        return cls(cfg.quarter_car, road, cfg.simulation.step_s,
-                   cfg.simulation.fourteen_speed_points, cfg.source)
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"config": self.source, "dt_s": self.dt_s, "fourteen_speed_points": self.points,
-                "road": {k: (list(v) if isinstance(v, tuple) else v)
-                         for k, v in dataclasses.asdict(self.road).items()},
-                "quarter_car": dataclasses.asdict(self.car)}
-
-
-def check_road(road: RoadParams) -> None:
-    """Raise ``ValueError`` (one line) for road settings a study cannot run."""
-    lo, hi = road.band_cycles_per_m
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise UserError(f"band [{lo:g}, {hi:g}] cycles/m must satisfy 0 < n_min < n_max")
-    for name in ("speed_m_s", "length_m", "pothole_speed_m_s"):
-        value = getattr(road, name)
-        if not (math.isfinite(value) and value > 0):
-            raise UserError(f"{name.replace('_m_s', '').replace('_m', '')} must be a "
-                             f"positive number, got {value!r}")
-    if not all(math.isfinite(v) and v > 0 for v in road.sweep_speeds_m_s):
-        raise UserError(f"sweep speeds must be positive, got {road.sweep_speeds_m_s!r}")
-    if isinstance(road.seeds, bool) or not isinstance(road.seeds, int) or road.seeds < 1:
-        raise UserError(f"seeds must be a positive integer, got {road.seeds!r}")
-
-
-def band_at_speed(road: RoadParams, speed_m_s: float) -> tuple[float, float]:
-    """The synthesised band [cycles/m] at ``speed_m_s``: ``band_cycles_per_m`` itself
-    (``band_scaling = "spatial"``), or the same band in Hz as at ``road.speed_m_s``
-    (``"temporal"``: ``n · road.speed_m_s / speed_m_s``)."""
-    lo, hi = road.band_cycles_per_m
-    if road.band_scaling == "temporal":
-        scale = road.speed_m_s / speed_m_s
-        return lo * scale, hi * scale
-    return lo, hi
-
-
-# --------------------------------------------------------------------------------------
-# frequency domain (linear car)
-
-
-def linear_prediction(car: QuarterCarParams, road: RoadParams, speed_m_s: float,
-                      band_cycles_per_m: Sequence[float] | None = None, *,
-                      damping_ns_m: float | None = None,
-                      points: int = 20000) -> dict[str, float]:
-    """Frequency-domain r.m.s. of the linear car on the band-limited eq-39 road.
-
-    ``√∫ |H(f)|² S(f) df`` over ``f ∈ V [n_min, n_max]`` with ``S(f) = G V^(p−1) f^(−p)``
-    and ``H`` from :func:`~ride_sim.frequency_domain.transfer_functions` (weighted
-    acceleration: ``H · Wk``).  Returns ``sws_rms``, ``accel_w_rms``, ``accel_rms``,
-    ``dtl_rms`` and, for a random-amplitude road of this length, the coefficient of
-    variation of each r.m.s. between realisations (``*_cv``): each FFT bin's power is
-    exponentially distributed, so the mean square has relative std
-    ``√Σ q_k² / Σ q_k`` (``q_k`` = bin powers of the output) and the r.m.s. about half that.
-    """
-    lo, hi = band_at_speed(road, speed_m_s) if band_cycles_per_m is None else \
-        band_cycles_per_m
-    v = float(speed_m_s)
-    f = np.geomspace(lo * v, hi * v, points)
-    s = road.roughness * v ** (road.waviness - 1.0) * f ** (-road.waviness)
-    h = transfer_functions(car, f, damping_ns_m)
-    w = frequency_weighting("Wk", f)
-    gains = {"sws_rms": h.sws, "accel_w_rms": h.body_accel * w, "accel_rms": h.body_accel,
-             "dtl_rms": h.dtl}
-    out = {k: float(np.sqrt(np.trapezoid(np.abs(g) ** 2 * s, f))) for k, g in gains.items()}
-    # bin powers of a road of this length (bins 1/P cycles/m wide, P = length)
-    dn = 1.0 / road.length_m
-    centres = np.arange(math.ceil(lo / dn - 0.5), math.floor(hi / dn + 0.5) + 1) * dn
-    centres = centres[centres > 0]
-    if centres.size:
-        edges_lo = np.clip(centres - dn / 2, lo, hi)
-        edges_hi = np.clip(centres + dn / 2, lo, hi)
-        p = road.waviness
-        power = road.roughness * (edges_lo ** (1 - p) - edges_hi ** (1 - p)) / (p - 1) \
-            if p != 1 else road.roughness * np.log(edges_hi / edges_lo)
-        hb = transfer_functions(car, centres * v, damping_ns_m)
-        wb = frequency_weighting("Wk", centres * v)
-        gb = {"sws_rms": hb.sws, "accel_w_rms": hb.body_accel * wb,
-              "accel_rms": hb.body_accel, "dtl_rms": hb.dtl}
-        for k, g in gb.items():
-            q = np.abs(g) ** 2 * power
-            out[k.replace("_rms", "_cv")] = float(0.5 * np.sqrt(np.sum(q ** 2)) / np.sum(q))
-    return out
-
-
-def band_sensitivity(car: QuarterCarParams, road: RoadParams, speed_m_s: float,
-                     n_min: Sequence[float], n_max: Sequence[float],
-                     points: int = 40000) -> dict[str, np.ndarray]:
-    """Linear frequency-domain r.m.s. on a grid of band edges (``len(n_min) × len(n_max)``
-    arrays per output; NaN where ``n_min >= n_max``), from cumulative integrals on one
-    log grid spanning all edges."""
-    n_min = np.asarray(n_min, dtype=float)
-    n_max = np.asarray(n_max, dtype=float)
-    v = float(speed_m_s)
-    f = np.geomspace(min(n_min.min(), n_max.min()) * v, max(n_min.max(), n_max.max()) * v,
-                     points)
-    s = road.roughness * v ** (road.waviness - 1.0) * f ** (-road.waviness)
-    h = transfer_functions(car, f)
-    w = frequency_weighting("Wk", f)
-    out: dict[str, np.ndarray] = {"n_min": n_min, "n_max": n_max}
-    for key, g in (("sws_rms", h.sws), ("accel_w_rms", h.body_accel * w),
-                   ("accel_rms", h.body_accel), ("dtl_rms", h.dtl)):
-        y = np.abs(g) ** 2 * s
-        cum = np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(f))])
-        c_lo = np.interp(n_min * v, f, cum)
-        c_hi = np.interp(n_max * v, f, cum)
-        grid = c_hi[None, :] - c_lo[:, None]
-        grid = np.where(n_min[:, None] < n_max[None, :], grid, np.nan)
-        out[key] = np.sqrt(np.maximum(grid, 0.0))
-    return out
-
-
-def best_band(car: QuarterCarParams, road: RoadParams, speed_m_s: float,
-              target: Mapping[str, float], n_min: Sequence[float],
-              n_max: Sequence[float]) -> dict[str, Any]:
-    """The band of the grid whose linear ``sws_rms``, ``accel_w_rms``, ``dtl_rms`` come
-    closest to ``target`` (smallest largest relative error)."""
-    grid = band_sensitivity(car, road, speed_m_s, n_min, n_max)
-    keys = ("sws_rms", "accel_w_rms", "dtl_rms")
-    err = np.max(np.stack([np.abs(grid[k] / target[k] - 1.0) for k in keys]), axis=0)
-    err = np.where(np.isnan(err), np.inf, err)
-    i, j = np.unravel_index(int(np.argmin(err)), err.shape)
-    return {"band_cycles_per_m": [float(grid["n_min"][i]), float(grid["n_max"][j])],
-            "max_relative_error": float(err[i, j]),
-            **{k: float(grid[k][i, j]) for k in keys}}
-
-
-# --------------------------------------------------------------------------------------
-# one run
-
-
-def random_road_input(road: RoadParams, speed_m_s: float, seed: int, dt_s: float,
-                      band_cycles_per_m: Sequence[float] | None = None
-                      ) -> tuple[np.ndarray, int, int]:
-    """Road height at the simulation samples: ``(heights, n_lead, n_eval)``.
-
-    The road (:func:`~ride_sim.road_synthesis.random_road`, spacing ``V dt``) is one period
-    of ``n_eval`` samples; ``n_lead`` samples of its end are driven first (periodic wrap, so
-    the road is continuous) and discarded.
-    """
-    band = band_at_speed(road, speed_m_s) if band_cycles_per_m is None else band_cycles_per_m
-    profile = random_road(road.roughness, road.waviness, road.length_m,
-                          band_cycles_per_m=band, spacing_m=speed_m_s * dt_s, seed=seed,
-                          amplitudes=road.amplitudes)
-    h = profile.height_m
-    n_eval = h.size
-    n_lead = int(round(road.lead_in_s / dt_s))
-    return h[np.arange(-n_lead, n_eval) % n_eval], n_lead, n_eval
-
-
-def check_random_road(road: RoadParams, speed_m_s: float, dt_s: float) -> None:
-    """Raise :class:`~ride_sim.road.RoadError` (one line) now if the random road at
-    ``speed_m_s`` cannot be synthesised (band beyond Nyquist, road shorter than the band's
-    longest wavelength), before any damper is built."""
-    random_road(road.roughness, road.waviness, road.length_m,
-                band_cycles_per_m=band_at_speed(road, speed_m_s),
-                spacing_m=speed_m_s * dt_s, seed=0, amplitudes=road.amplitudes)
-
-
-def start_state(heights: np.ndarray, dt_s: float) -> tuple[float, float, float, float]:
-    """Static equilibrium at the starting road height, moving with the road."""
-    h0 = float(heights[0])
-    v0 = float(heights[1] - heights[0]) / dt_s if heights.size > 1 else 0.0
-    return (h0, v0, h0, v0)
-
-
-def run(car: QuarterCarParams, damper, heights: np.ndarray, dt_s: float) -> RideResult:
-    """:func:`~ride_sim.quarter_car.simulate` from equilibrium at the starting height."""
-    return simulate(car, damper, heights, dt_s, initial_state=start_state(heights, dt_s))
-
-
-def run_linear_exact(car: QuarterCarParams, heights: np.ndarray, dt_s: float) -> RideResult:
-    """The linear car with ``C_s`` inside the exact update (no sampled damper): the
-    reference that isolates the damper's zero-order-hold sampling."""
-    qc = QuarterCar(car, dt_s, 0.0, car.linear_damping_ns_m)
-    qc.reset(start_state(heights, dt_s))
-    n = heights.size
-    out = np.empty((3, n))
-    h = heights.tolist()
-    for k in range(n):
-        u1 = h[k + 1] if k + 1 < n else 2.0 * h[k] - h[k - 1]
-        out[:, k] = qc.outputs(0.0, h[k], u1)
-        qc.advance(0.0, h[k], u1)
-    t = np.arange(n) * dt_s
-    z = np.zeros(n)
-    return RideResult(t, np.asarray(heights, float), out[0], out[1], out[2], z, z, z, z, z, z,
-                      z, np.zeros(n, dtype=np.int64), "linear (exact)", dt_s)
-
-
-def metrics(result: RideResult, start: int, stop: int) -> dict[str, float]:
-    """:data:`OUTPUT_KEYS` over samples ``[start, stop)``; the Wk filter runs over the
-    whole record (its start transient settles in the lead-in)."""
-    return history_metrics(result.sws_m, result.body_accel_m_s2, result.dtl_n, result.dt_s,
-                           start, stop)
-
-
-def history_metrics(sws_m: np.ndarray, body_accel_m_s2: np.ndarray, dtl_n: np.ndarray,
-                    dt_s: float, start: int, stop: int) -> dict[str, float]:
-    """:func:`metrics` of the histories of one run (e.g. one row of
-    :func:`ride_sim.many.simulate_many`'s result)."""
-    aw = weight_signal("Wk", body_accel_m_s2, 1.0 / dt_s)
-    sl = slice(start, stop)
-    out: dict[str, float] = {}
-    for key, x in (("sws", sws_m[sl]), ("accel_w", aw[sl]),
-                   ("accel", body_accel_m_s2[sl]), ("dtl", dtl_n[sl])):
-        out[f"{key}_rms"] = float(np.sqrt(np.mean(x * x)))
-        out[f"{key}_peak_pos"] = float(np.max(x))
-        out[f"{key}_peak_neg"] = float(np.min(x))
-    sws = sws_m[sl]
-    mean = float(np.mean(sws))
-    out["sws_mean"] = mean
-    out["sws_rms_ac"] = float(np.sqrt(np.mean((sws - mean) ** 2)))
-    out["sws_peak_pos_ac"] = float(np.max(sws)) - mean
-    out["sws_peak_neg_ac"] = float(np.min(sws)) - mean
-    return {k: out[k] for k in OUTPUT_KEYS}
-
-
-def seed_summary(per_seed: list[dict[str, float]], paper: Mapping[str, float] | None
-             ) -> dict[str, Any]:
-    """Means of each key, their spread over seeds, the paper's values and ratios."""
-    doc: dict[str, Any] = {}
-    spread: dict[str, Any] = {}
-    for key in OUTPUT_KEYS:
-        x = np.array([m[key] for m in per_seed])
-        doc[key] = float(x.mean())
-        spread[key] = {"std": float(x.std(ddof=1)) if x.size > 1 else 0.0,
-                       "min": float(x.min()), "max": float(x.max())}
-    doc["spread"] = spread
-    doc["seeds"] = len(per_seed)
-    doc["per_seed"] = per_seed
-    if paper:
-        doc["paper"] = dict(paper)
-        doc["ratio_to_paper"] = {k: doc[k] / v for k, v in paper.items()}
-    return doc
 
 
 # --------------------------------------------------------------------------------------
@@ -586,25 +256,6 @@ def claim_check(hysteretic: list[dict[str, float]], table: list[dict[str, float]
 
 # --------------------------------------------------------------------------------------
 # figure 13
-
-
-def pothole_input(road: RoadParams, speed_m_s: float, dt_s: float
-                  ) -> tuple[RoadProfile, RoadProfile, np.ndarray, float]:
-    """``(raw profile, enveloped profile, heights at the samples, t_edge)`` of the
-    study's pothole driven at ``speed_m_s``; ``t_edge`` [s] is when the wheel centre is
-    over the leading edge."""
-    length = road.pothole_length_m
-    spacing = length / max(2, math.ceil(length / DEFAULT_FEATURE_SPACING_M - 1e-9))
-    raw = pothole(road.pothole_depth_m, length, lead_in_m=road.pothole_lead_in_m,
-                  lead_out_m=road.pothole_lead_out_m, spacing_m=spacing)
-    contact = road.contact_length_m if road.contact_length_m > 0 else None
-    env = envelope(raw, road.tyre_radius_m, contact)
-    inside = np.flatnonzero(raw.height_m < 0)
-    edge_m = float(raw.distance_m[inside[0] - 1])
-    n = int(math.floor(raw.end_m / (speed_m_s * dt_s) + 1e-9)) + 1
-    t = np.arange(n) * dt_s
-    heights, _ = road_input(env, speed_m_s, t)
-    return raw, env, heights, edge_m / speed_m_s
 
 
 def figure13(settings: StudySettings, *, representations: Sequence[str] = ALL_REPRESENTATIONS,
@@ -794,78 +445,3 @@ def figure11(settings: StudySettings, *, representations: Sequence[str] = REPRES
     doc["cpu_s"] = round(sum(r["elapsed_s"] for r in results), 3)
     doc["elapsed_s"] = round(time.perf_counter() - started, 3)
     return StudyResult(doc, {})
-
-
-# --------------------------------------------------------------------------------------
-# text tables
-
-
-def _fmt(key: str, value: float) -> str:
-    if key.startswith("dtl"):
-        return f"{value / 1e3:.3f}"
-    if key.startswith("sws"):
-        return f"{value:.4f}"
-    return f"{value:.3f}"
-
-
-_ROW_LABELS = {"sws": ("SWS", "m"), "accel_w": ("accel Wk", "m/s2"),
-               "accel": ("accel unweighted", "m/s2"), "dtl": ("DTL", "kN")}
-
-
-def _row_label(key: str) -> str:
-    ac = key.endswith("_ac")
-    k = key[:-3] if ac else key
-    if k == "sws_mean":
-        return "SWS mean [m]"
-    base = k.split("_rms")[0] if "_rms" in k else k.split("_peak")[0]
-    what, unit = _ROW_LABELS[base]
-    what += " about mean" if ac else ""
-    if "_rms" in k:
-        return f"{what} rms [{unit}]"
-    return f"{what} peak {'+' if k.endswith('pos') else '-'} [{unit}]"
-
-
-#: Rows of :func:`comparison_table` (those present in the document are printed).
-TABLE_KEYS = ("sws_rms", "sws_rms_ac", "sws_mean", "accel_w_rms", "accel_rms", "dtl_rms",
-              "sws_peak_pos", "sws_peak_neg", "sws_peak_pos_ac", "sws_peak_neg_ac",
-              "accel_w_peak_pos", "accel_w_peak_neg", "accel_peak_pos", "accel_peak_neg",
-              "dtl_peak_pos", "dtl_peak_neg")
-
-
-def comparison_table(doc: Mapping[str, Any], keys: Iterable[str] = TABLE_KEYS) -> str:
-    """Plain-text table of a figure-10 or figure-13 document: per output and
-    representation the mean, its std over seeds (figure 10), the paper's value and the
-    ratio simulated / paper."""
-    reps = [r for r in doc["representations"] if r in doc]
-    seeds = any(doc[r].get("seeds", 1) > 1 for r in reps)
-    cols = ("sim", "±std", "paper", "ratio") if seeds else ("sim", "paper", "ratio")
-    width = 9 * len(cols)
-    lines = [f"{'output':<30}" + "".join(f"|{LABELS[r]:^{width}}" for r in reps),
-             f"{'':<30}" + "".join("|" + "".join(f"{c:>9}" for c in cols) for _ in reps)]
-    for key in keys:
-        if not any(key in doc[r] for r in reps):
-            continue
-        row = f"{_row_label(key):<30}"
-        for r in reps:
-            e = doc[r]
-            cells = [_fmt(key, e[key])] if key in e else ["-"]
-            if seeds:
-                std = e.get("spread", {}).get(key, {}).get("std")
-                cells.append(_fmt(key, std) if std is not None else "")
-            paper = e.get("paper", {}).get(key)
-            cells += ([_fmt(key, paper), f"{e[key] / paper:.2f}"] if paper is not None
-                      else ["", ""])
-            row += "|" + "".join(f"{c:>9}" for c in cells)
-        lines.append(row)
-    return "\n".join(lines)
-
-
-def sweep_table(doc: Mapping[str, Any]) -> str:
-    """Plain-text table of a figure-11 document (weighted acceleration r.m.s.)."""
-    reps = [r for r in doc["representations"] if r in doc]
-    lines = [f"{'speed [m/s]':>11}" + "".join(f"{LABELS[r] + ' aw [m/s2]':>26}" for r in reps)]
-    for i, v in enumerate(doc["speeds_m_s"]):
-        lines.append(f"{v:>11g}" + "".join(
-            f"{doc[r]['accel_w_rms'][i]:>18.3f} ±{doc[r]['accel_w_rms_std'][i]:<6.3f}"
-            for r in reps))
-    return "\n".join(lines)

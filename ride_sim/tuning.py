@@ -16,9 +16,9 @@ the unit hypercube (:func:`design_config` maps it to a damper).
 * ``sws_rms``: suspension working space r.m.s. [m] (packaging);
 
 each road driven after a lead-in of the same periodic road, as the ride studies do
-(:func:`ride_sim.study.random_road_input`).  **Constraint**: the peak SWS over every road
-and the pothole (the ride studies', :func:`ride_sim.study.pothole_input`) within the
-suspension's travel, bump and rebound.  A design whose damper raised a fault bit is
+(:func:`ride_sim.study_runs.random_road_input`).  **Constraint**: the peak SWS over every
+road and the pothole (the ride studies', :func:`ride_sim.study_runs.pothole_input`) within
+the suspension's travel, bump and rebound.  A design whose damper raised a fault bit is
 infeasible too.
 
 **Pareto front**: the feasible designs no other feasible design beats in every objective
@@ -50,7 +50,7 @@ from damper_emulator.params import (
 from ride_sim.many import simulate_many
 from ride_sim.params import BYPASS_KEYS, QuarterCarParams, RoadParams, TuneBounds, TuneSettings
 from ride_sim.road_synthesis import iso8608_class
-from ride_sim.study import history_metrics, pothole_input, random_road_input, start_state
+from ride_sim.study_runs import history_metrics, pothole_input, random_road_input, start_state
 
 #: the objectives, in order, with their units (all minimised)
 OBJECTIVES = (("accel_w_rms", "m/s²", "comfort: Wk-weighted body acceleration r.m.s."),

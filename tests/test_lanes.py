@@ -38,7 +38,7 @@ from ride_sim.many import MIN_BLOCK, _lane_designs, _stack_tables, simulate_many
 from ride_sim.params import load_ride_config
 from ride_sim.quarter_car import simulate
 from ride_sim.road_synthesis import random_road
-from ride_sim.study import start_state
+from ride_sim.study_runs import start_state
 
 RTOL = 1e-9
 DT = 1e-3

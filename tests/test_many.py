@@ -19,7 +19,7 @@ from ride_sim.many import simulate_many
 from ride_sim.params import load_ride_config
 from ride_sim.quarter_car import simulate
 from ride_sim.road_synthesis import random_road
-from ride_sim.study import pothole_input, start_state
+from ride_sim.study_runs import pothole_input, start_state
 
 #: the agreement the batch path must keep with the single path (relative)
 RTOL = 1e-9

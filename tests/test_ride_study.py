@@ -1,4 +1,5 @@
-"""Ride studies (ride_sim.study, ``damper-hil ride-study``): the paper's figures 10, 11, 13.
+"""Ride studies (ride_sim.study and its study_* modules, ``damper-hil ride-study``): the
+paper's figures 10, 11, 13.
 
 The time-domain quarter car is checked against the independent frequency-domain solution on
 the same band-limited road; the figure-10 acceptance (linear and non-linear r.m.s. within
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 
 from damper_hil.cli import main
-from ride_sim import adaptive_study, study
+from ride_sim import adaptive_study, study, study_linear, study_paper, study_runs, study_setup
 from ride_sim.params import load_ride_config
 
 RMS_KEYS = ("sws_rms", "accel_w_rms", "dtl_rms")
@@ -27,7 +28,7 @@ def cfg():
 
 
 def _settings(cfg, **road):
-    return study.StudySettings(cfg.quarter_car, dataclasses.replace(cfg.road, **road),
+    return study_setup.StudySettings(cfg.quarter_car, dataclasses.replace(cfg.road, **road),
                                cfg.simulation.step_s, cfg.simulation.fourteen_speed_points)
 
 
@@ -41,12 +42,12 @@ def test_linear_time_domain_matches_frequency_domain(cfg, band):
     √∫|H|²S df over the same band: exactly (C_s inside the exact update) within 1 %, and
     with the damper sampled at 1 kHz (zero-order hold) within 3 %."""
     s = _settings(cfg, band_cycles_per_m=band)
-    pred = study.linear_prediction(s.car, s.road, s.road.speed_m_s)
-    heights, n_lead, n_eval = study.random_road_input(s.road, s.road.speed_m_s, 3, s.dt_s)
+    pred = study_linear.linear_prediction(s.car, s.road, s.road.speed_m_s)
+    heights, n_lead, n_eval = study_runs.random_road_input(s.road, s.road.speed_m_s, 3, s.dt_s)
     window = (n_lead, n_lead + n_eval)
-    exact = study.metrics(study.run_linear_exact(s.car, heights, s.dt_s), *window)
-    damper = study.make_representation("linear", s.car)
-    sampled = study.metrics(study.run(s.car, damper, heights, s.dt_s), *window)
+    exact = study_runs.metrics(study_runs.run_linear_exact(s.car, heights, s.dt_s), *window)
+    damper = study_setup.make_representation("linear", s.car)
+    sampled = study_runs.metrics(study_runs.run(s.car, damper, heights, s.dt_s), *window)
     for key in (*RMS_KEYS, "accel_rms"):
         assert exact[key] == pytest.approx(pred[key], rel=0.01), key
         assert sampled[key] == pytest.approx(pred[key], rel=0.03), key
@@ -58,12 +59,13 @@ def test_random_amplitude_roads_scatter_as_predicted(cfg):
     """With random amplitudes the r.m.s. scatters between seeds about the prediction; the
     mean over 8 seeds is within 3 standard errors (the analytic coefficient of variation)."""
     s = _settings(cfg, amplitudes="random", length_m=200.0)
-    pred = study.linear_prediction(s.car, s.road, s.road.speed_m_s)
-    damper = study.make_representation("linear", s.car)
+    pred = study_linear.linear_prediction(s.car, s.road, s.road.speed_m_s)
+    damper = study_setup.make_representation("linear", s.car)
     values = {k: [] for k in RMS_KEYS}
     for seed in range(8):
-        heights, n_lead, n_eval = study.random_road_input(s.road, 20.0, seed, s.dt_s)
-        m = study.metrics(study.run(s.car, damper, heights, s.dt_s), n_lead, n_lead + n_eval)
+        heights, n_lead, n_eval = study_runs.random_road_input(s.road, 20.0, seed, s.dt_s)
+        m = study_runs.metrics(study_runs.run(s.car, damper, heights, s.dt_s), n_lead,
+                               n_lead + n_eval)
         for k in RMS_KEYS:
             values[k].append(m[k])
     for k in RMS_KEYS:
@@ -77,15 +79,15 @@ def test_band_choice_reproduces_the_papers_linear_column(cfg):
     """The documented band finding: with n_min <= 0.02 cycles/m and n_max near 0.8
     cycles/m all three linear r.m.s. values of figure 10 are matched within 2 %, while the
     wide band [0.01, 10] overestimates DTL by about 8 %."""
-    target = study.PAPER_FIGURE_10["linear"]
-    best = study.best_band(cfg.quarter_car, cfg.road, 20.0, target,
+    target = study_paper.PAPER_FIGURE_10["linear"]
+    best = study_linear.best_band(cfg.quarter_car, cfg.road, 20.0, target,
                            np.geomspace(0.005, 0.1, 14), np.geomspace(0.3, 20.0, 40))
     assert best["max_relative_error"] < 0.02
     assert best["band_cycles_per_m"][0] <= 0.03
     assert 0.6 < best["band_cycles_per_m"][1] < 1.0
-    wide = study.linear_prediction(cfg.quarter_car, cfg.road, 20.0, (0.01, 10.0))
+    wide = study_linear.linear_prediction(cfg.quarter_car, cfg.road, 20.0, (0.01, 10.0))
     assert 1.06 < wide["dtl_rms"] / target["dtl_rms"] < 1.10
-    chosen = study.linear_prediction(cfg.quarter_car, cfg.road, 20.0)
+    chosen = study_linear.linear_prediction(cfg.quarter_car, cfg.road, 20.0)
     for k in RMS_KEYS:
         assert chosen[k] == pytest.approx(target[k], rel=0.02), k
 
@@ -98,7 +100,7 @@ def test_band_choice_reproduces_the_papers_linear_column(cfg):
 def fig10(cfg):
     """Figure 10 on the full 500 m road, 2 seeds (deterministic amplitudes: the linear
     r.m.s. values do not depend on the seed)."""
-    return study.figure10(_settings(cfg, seeds=2), representations=study.REPRESENTATIONS,
+    return study.figure10(_settings(cfg, seeds=2), representations=study_paper.REPRESENTATIONS,
                           keep_traces=False).doc
 
 
@@ -160,8 +162,8 @@ def test_speed_sweep_pool_equals_serial_run(cfg):
 def test_pothole_linear_column_roughly_matched_and_others_follow(cfg):
     """The pothole was chosen to match the linear column; the 14-speed and non-linear
     columns then follow within 15 % without further tuning."""
-    doc = study.figure13(_settings(cfg), representations=study.REPRESENTATIONS).doc
-    for kind in study.REPRESENTATIONS:
+    doc = study.figure13(_settings(cfg), representations=study_paper.REPRESENTATIONS).doc
+    for kind in study_paper.REPRESENTATIONS:
         for key, ratio in doc[kind]["ratio_to_paper"].items():
             assert ratio == pytest.approx(1.0, abs=0.10 if kind == "linear" else 0.15), \
                 (kind, key)
@@ -186,8 +188,8 @@ def test_cli_figure10_and_13_json_has_contract_keys(tmp_path, capsys):
     assert "--seeds does not apply to --figure 13" in err
     for path, extra in ((out10, ()), (out13, ("accel_rms",))):
         doc = json.loads(path.read_text())
-        for kind in study.REPRESENTATIONS:
-            for key in study.CONTRACT_KEYS + extra:
+        for kind in study_paper.REPRESENTATIONS:
+            for key in study_paper.CONTRACT_KEYS + extra:
                 assert math.isfinite(doc[kind][key]), (path.name, kind, key)
             assert doc[kind]["sws_peak_pos"] > 0 > doc[kind]["sws_peak_neg"]
             assert doc[kind]["dtl_peak_pos"] > 1000.0          # newtons, not kN
@@ -259,9 +261,9 @@ def test_semi_active_loop_equals_the_compiled_loop_at_a_fixed_command(cfg, comma
     from ride_sim.session import semi_active_run
 
     s = _settings(cfg, length_m=120.0, lead_in_s=0.5)
-    heights, n_lead, _n_eval = study.random_road_input(s.road, 20.0, 0, s.dt_s)
-    model = study.default_model()
-    ref = study.run(s.car, CompressiblePlugin(model, valve_command=command), heights, s.dt_s)
+    heights, n_lead, _n_eval = study_runs.random_road_input(s.road, 20.0, 0, s.dt_s)
+    model = study_setup.default_model()
+    ref = study_runs.run(s.car, CompressiblePlugin(model, valve_command=command), heights, s.dt_s)
     out = semi_active_run(s.car, heights, n_lead, s.dt_s,
                           CompressiblePlugin(model, valve_command=command),
                           lambda vb, vd: command, 1)
@@ -276,7 +278,7 @@ def test_semi_active_run_holds_the_command_between_updates(cfg):
     from ride_sim.session import semi_active_run
 
     s = _settings(cfg, length_m=120.0, lead_in_s=0.2)
-    heights, n_lead, _ = study.random_road_input(s.road, 20.0, 1, s.dt_s)
+    heights, n_lead, _ = study_runs.random_road_input(s.road, 20.0, 1, s.dt_s)
     heights = heights[:2003]
     calls = []
 
@@ -285,7 +287,7 @@ def test_semi_active_run_holds_the_command_between_updates(cfg):
         return 0.0 if len(calls) % 2 else 1.0
 
     out = semi_active_run(s.car, heights, n_lead, s.dt_s,
-                          CompressiblePlugin(study.default_model()), controller, 5)
+                          CompressiblePlugin(study_setup.default_model()), controller, 5)
     n = heights.size
     assert len(calls) == math.ceil(n / 5)
     k = np.arange(n)

@@ -18,7 +18,7 @@ from ride_sim import tuning as tu
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.params import load_ride_config
 from ride_sim.quarter_car import simulate
-from ride_sim.study import metrics, start_state
+from ride_sim.study_runs import metrics, start_state
 
 
 def _cli(*args: object) -> subprocess.CompletedProcess:

@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"note: --{dest.replace('_', '-')} does not apply to --figure {fig}; "
                   "ignored", file=sys.stderr)
     from damper_emulator.outputs import Outputs
-    from ride_sim import adaptive_study, study
+    from ride_sim import adaptive_study, study, study_setup, study_tables
     from ride_sim.params import load_ride_config
 
     cfg = load_ride_config(args.config)
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
                          sweep_speeds_m_s=tuple(args.speed) if args.speed else None)
     elif args.speed is not None:
         overrides["pothole_speed_m_s" if fig == 13 else "speed_m_s"] = args.speed[0]
-    settings = study.StudySettings.from_config(cfg, **overrides)
+    settings = study_setup.StudySettings.from_config(cfg, **overrides)
     if fig == "adaptive":
         from ride_sim.skyhook import load_skyhook
 
@@ -157,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
         json_at.write_text(json_text(doc), encoding="utf-8")
     print(doc["title"])
     if fig == 11:
-        print(study.sweep_table(doc))
+        print(study_tables.sweep_table(doc))
         for key in ("crossing_linear_nonlinear_m_s", "crossing_linear_14speed_m_s"):
             if key in doc:
                 print(f"{key}: {', '.join(f'{v:.1f}' for v in doc[key]) or 'none'} "
@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
     elif fig == "adaptive":
         print(adaptive_study.adaptive_table(doc))
     else:
-        print(study.comparison_table(doc))
+        print(study_tables.comparison_table(doc))
         claim = doc.get("claim")
         if claim:
             print(f"claim (hysteretic vs 14-speed, {claim['seeds']} seeds): r.m.s. DTL "

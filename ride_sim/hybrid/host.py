@@ -34,7 +34,7 @@ from ride_sim.params import QuarterCarParams, RoadParams
 from ride_sim.quarter_car import RideResult, simulate
 from ride_sim.road_synthesis import iso8608_class
 from ride_sim.session import RideSession
-from ride_sim.study import metrics, random_road_input, start_state
+from ride_sim.study_runs import metrics, random_road_input, start_state
 
 #: The ride metrics ``hybrid.json`` reports (``ride`` and ``reference``).
 RIDE_KEYS = ("sws_rms", "accel_w_rms", "dtl_rms")

@@ -36,7 +36,6 @@ DEFAULT_POTHOLE_DEPTH_M = 0.05
 DEFAULT_POTHOLE_LENGTH_M = 0.5
 #: Shapes of :func:`bump`.
 BUMP_SHAPES = ("cosine", "half_sine")
-_TWO_PI = 2.0 * math.pi
 
 
 def _whole_samples(length_m: float, spacing_m: float, what: str) -> int:
@@ -139,7 +138,7 @@ def bump(height_m: float, length_m: float, *,
     distance, j, n_feature = _feature_grid(length_m, lead_in_m, lead_out_m, spacing_m)
     fraction = np.clip(j / n_feature, 0.0, 1.0)
     if shape == "cosine":
-        profile = 0.5 * (1.0 - np.cos(_TWO_PI * fraction))
+        profile = 0.5 * (1.0 - np.cos(math.tau * fraction))
     else:
         profile = np.sin(math.pi * fraction)
     height = np.where((j > 0) & (j < n_feature), peak * profile, 0.0)

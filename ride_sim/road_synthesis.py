@@ -67,7 +67,6 @@ DEFAULT_ROAD_SPACING_M = 0.01
 DEFAULT_SEED = 0
 #: Synthesis methods of :func:`random_road`.
 AMPLITUDE_METHODS = ("deterministic", "random")
-_TWO_PI = 2.0 * math.pi
 
 
 # --------------------------------------------------------------------------------------
@@ -255,7 +254,7 @@ def random_road(roughness: float, waviness: float, length_m: float, *,
 
     rng = np.random.default_rng(seed)
     if amplitudes == "deterministic":
-        phase = rng.uniform(0.0, _TWO_PI, bins.size)
+        phase = rng.uniform(0.0, math.tau, bins.size)
         coefficients = np.sqrt(2.0 * power_m2) * np.exp(1j * phase)
     else:
         gauss = rng.standard_normal((2, bins.size))

@@ -83,7 +83,8 @@ class StudySettings:
 
 
 def check_road(road: RoadParams) -> None:
-    """Raise ``ValueError`` (one line) for road settings a study cannot run."""
+    """Raise :class:`~damper_emulator.errors.UserError` (one line) for road settings a
+    study cannot run."""
     lo, hi = road.band_cycles_per_m
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
         raise UserError(f"band [{lo:g}, {hi:g}] cycles/m must satisfy 0 < n_min < n_max")

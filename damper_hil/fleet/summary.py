@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.ticker import LogLocator, NullFormatter
 
 from damper_emulator.dyno.plots import new_figure, save
 from damper_emulator.errors import ESCAPE, printable
@@ -69,6 +70,10 @@ def plot_parameters(run: FleetRun, path: Path) -> Path:
             ax.axvline(float(np.median(v)) * scale, color="0.5", lw=0.8, ls="--")
             if log and np.all(v > 0) and v.max() > LOG_SPAN * v.min():
                 ax.set_xscale("log")
+                # labels at 1, 2, 5 of each decade and none between: a span of a
+                # decade or two would otherwise label every minor tick, overlapping
+                ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+                ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_ylim(-1, 1)
         ax.set_yticks([])
         ax.set_title(f"{column}" + (f" [{unit}]" if unit else ""), fontsize=9)

@@ -1,7 +1,7 @@
 """Offline replay of a recorded bag through the damper emulator's model (``damper-hil replay``).
 
 Pure Python and numpy (no rclpy): the bag is read with :mod:`damper_emulator.bag.cdr_fast`,
-the model runs in the compiled batch loop of :mod:`damper_emulator.model.compressible`
+the model runs in the compiled batch loop of :mod:`damper_emulator.model.batch`
 (the kernel :class:`~damper_emulator.model.compressible.DamperStepper` and therefore
 :class:`~damper_emulator.realtime.core.EmulatorCore` use), and the output is a rosbag2 bag
 written by :class:`~damper_emulator.bag.BagWriter`.  Deterministic: the same bag and
@@ -69,7 +69,7 @@ Semantics
    recorded and replayed force against time, their difference, and a detail around the
    largest difference.
 
-The model runs in :func:`~damper_emulator.model.compressible.simulate_samples`, the batch loop
+The model runs in :func:`~damper_emulator.model.batch.simulate_samples`, the batch loop
 around the stepper's kernel, on times in seconds relative to the first sample: its time
 steps are float differences of those, equal to the node's ``Δns · 1e-9`` to about 1e-12
 (relative), so a replay of exactly the node's inputs gives its forces to about 1e-6 N,
@@ -113,13 +113,9 @@ from damper_emulator import force_message
 from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages
 from damper_emulator.bag.cdr_fast import JointStates, RawTopic
 from damper_emulator.errors import UserError
-from damper_emulator.model.compressible import (
-    DamperModel,
-    DamperStepper,
-    new_state,
-    simulate_commanded_samples,
-    simulate_samples,
-)
+from damper_emulator.model.batch import simulate_commanded_samples, simulate_samples
+from damper_emulator.model.compressible import DamperModel, DamperStepper
+from damper_emulator.model.layout import new_state
 from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.core import (
     FAULT_OUTPUT,

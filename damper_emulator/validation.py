@@ -34,7 +34,8 @@ from damper_emulator.acquisition.chain import model_record
 from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.errors import UserError
-from damper_emulator.model.compressible import DamperModel, Fault, simulate
+from damper_emulator.model.compressible import DamperModel, simulate
+from damper_emulator.model.layout import Fault
 
 #: polynomial order of the Savitzky–Golay derivative
 SAVGOL_POLYORDER = 3

@@ -44,9 +44,10 @@ from scipy.interpolate import PchipInterpolator
 
 from damper_emulator.dyno.protocols import FourteenSpeed
 from damper_emulator.errors import UserError
-from damper_emulator.model.compressible import DamperModel, DamperStepper, Fault
+from damper_emulator.model.compressible import DamperModel, DamperStepper
 from damper_emulator.model.incompressible import incompressible_force
 from damper_emulator.model.jit import kernel
+from damper_emulator.model.layout import Fault
 from damper_emulator.model.representations import LinearDamper, TableDamper, fourteen_speed_damper
 from damper_emulator.params import ModelConfig
 
@@ -318,7 +319,7 @@ class CompressiblePlugin:
 
     @property
     def fault_flags(self) -> Fault:
-        """:attr:`faults` as :class:`~damper_emulator.model.compressible.Fault`."""
+        """:attr:`faults` as :class:`~damper_emulator.model.layout.Fault`."""
         return Fault(self.faults)
 
     def __repr__(self) -> str:

@@ -14,7 +14,7 @@ discretisation matrix.  Two loops, chosen per design:
   vehicle update.
 * **One by one** (:func:`_loop_many`), the others: blocks of :data:`BLOCK` designs over
   the whole road, each design's sample the compiled one-design step
-  (:func:`damper_emulator.model.compressible.step`).
+  (:func:`damper_emulator.model.step.step`).
 
 Both use the same equations as :func:`ride_sim.quarter_car.simulate` (the damper step's
 formulas, the exact vehicle update and the output formulas of :mod:`ride_sim.quarter_car`);
@@ -35,7 +35,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from damper_emulator.model.compressible import DamperModel
-from damper_emulator.model.compressible import step as _compressible_step
 from damper_emulator.model.jit import inlined_kernel, kernel
 from damper_emulator.model.lanes import (
     L_FLAGS,
@@ -51,6 +50,7 @@ from damper_emulator.model.lanes import (
     step_lanes,
     store_lanes,
 )
+from damper_emulator.model.step import step as _compressible_step
 from damper_emulator.model.valve_table import TABLE_COLUMNS
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.params import QuarterCarParams

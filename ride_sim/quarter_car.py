@@ -46,8 +46,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm
 
 from damper_emulator.errors import UserError
-from damper_emulator.model.compressible import step as _compressible_step
 from damper_emulator.model.jit import inlined_kernel, kernel
+from damper_emulator.model.step import step as _compressible_step
 from ride_sim.dampers import CompressibleSpec, DamperPlugin, StatelessSpec, stateless_force
 from ride_sim.params import QuarterCarParams, validate_quarter_car
 

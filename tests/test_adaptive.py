@@ -28,10 +28,10 @@ from damper_emulator.model.adaptive import (
 from damper_emulator.model.compressible import (
     DamperModel,
     DamperStepper,
-    Fault,
     quasi_steady_force,
     simulate,
 )
+from damper_emulator.model.layout import Fault
 from damper_emulator.model.valve import form_code, pressure_drop
 from damper_emulator.params import (
     DEFAULT_PARAMS_FILE,

@@ -26,7 +26,7 @@ from damper_emulator.diagnose.truth import (
     with_extension,
 )
 from damper_emulator.dyno.protocols import chirp, quasi_static, sine
-from damper_emulator.model import compressible as cm
+from damper_emulator.model import layout
 from damper_emulator.model.compressible import (
     DamperModel,
     DamperStepper,
@@ -350,14 +350,14 @@ def test_heat_model_warms_at_the_dissipated_power(sport_cfg, sport_model):
     s = DamperStepper(m, x[0], v[0])
     for i in range(1, t.size):
         s.step(x[i], v[i], t[i] - t[i - 1])
-    rise = s.state[cm.S_HEAT_DT]
+    rise = s.state[layout.S_HEAT_DT]
     expected = p_mean * tau / cap * (1.0 - math.exp(-t[-1] / tau))
     assert rise == pytest.approx(expected, rel=5e-3)
     # and the hotter oil is thinner: the settled force at 0.3 m/s drops by s(ΔT)
     d = sport_cfg.damper
     for _ in range(400):
         f, _fault = s.step(x[-1], 0.3, 1e-3)
-    sc = math.exp(-THERMAL["temperature_coefficient_per_k"] * s.state[cm.S_HEAT_DT] / 4.0)
+    sc = math.exp(-THERMAL["temperature_coefficient_per_k"] * s.state[layout.S_HEAT_DT] / 4.0)
     ref = d.annulus_area_m2 * _dp_of_q(sport_cfg, 0.3 * d.annulus_area_m2, 1, sc)
     assert f + d.rod_area_m2 * float(_p_com(x[-1], d)) - d.friction_force_n == \
         pytest.approx(ref, rel=2e-3)
@@ -373,10 +373,10 @@ def test_heat_rise_cools_over_a_pause(sport_cfg):
     for i in range(1, t.size):
         s.step(x[i], v[i], t[i] - t[i - 1])
     s.step(x[-1], 0.0, 1e-3)
-    rise0 = s.state[cm.S_HEAT_DT]
+    rise0 = s.state[layout.S_HEAT_DT]
     assert rise0 > 1.0
     s.step(x[-1], 0.0, 30.0)   # a 30 s pause, at rest
-    assert s.state[cm.S_HEAT_DT] == pytest.approx(rise0 * math.exp(-30.0 / 60.0), rel=1e-6)
+    assert s.state[layout.S_HEAT_DT] == pytest.approx(rise0 * math.exp(-30.0 / 60.0), rel=1e-6)
 
 
 # --------------------------------------------------------------------------------------
@@ -670,7 +670,7 @@ def test_series_compliance_ode_holds_with_backward_euler_steps(stiff_mount):
         s = DamperStepper(stiff_mount, x[0], v[0])
         got = [s.force_n]
         for i in range(1, t.size):
-            s.state[cm.S_H_PREV] = 0.0
+            s.state[layout.S_H_PREV] = 0.0
             got.append(s.step(x[i], v[i], t[i] - t[i - 1])[0])
         kk = t >= 0
         assert _rms((np.array(got) - ref)[kk]) < 3e-3 * _rms(ref[kk])

@@ -1,9 +1,10 @@
 """The damper step in SIMD lanes (``damper_emulator.model.lanes``) against the one-design
-step (``compressible.step``), sample by sample: forces to 1e-9 of the largest, the same
-fault bits, the same final state; over designs that differ in valves, gas, friction, end
-stops, valve command (bypass open and closed) and table resolution, through the paths a
-lane leaves the lanes by (invalid input, a long gap, a moving valve command, a table too
-coarse for the polynomial, the velocity clamp).  And which designs the lanes take."""
+step (``damper_emulator.model.step.step``), sample by sample: forces to 1e-9 of the
+largest, the same fault bits, the same final state; over designs that differ in valves,
+gas, friction, end stops, valve command (bypass open and closed) and table resolution,
+through the paths a lane leaves the lanes by (invalid input, a long gap, a moving valve
+command, a table too coarse for the polynomial, the velocity clamp).  And which designs
+the lanes take."""
 
 from __future__ import annotations
 
@@ -13,9 +14,8 @@ import numpy as np
 import pytest
 
 from damper_emulator.diagnose.truth import EXAMPLE_EFFECTS, example_params
-from damper_emulator.model import compressible as comp
-from damper_emulator.model import lanes
-from damper_emulator.model.compressible import DamperModel, DamperStepper, step
+from damper_emulator.model import lanes, layout
+from damper_emulator.model.compressible import DamperModel, DamperStepper
 from damper_emulator.model.lanes import (
     L_CMD,
     L_FLAGS,
@@ -31,6 +31,7 @@ from damper_emulator.model.lanes import (
     step_lanes,
     store_lanes,
 )
+from damper_emulator.model.step import step
 from damper_emulator.model.valve_table import C_EXP, C_EXPM1, MAX_STEP, TABLE_COLUMNS
 from damper_emulator.params import EXTENSION_TYPES, with_extensions
 from ride_sim.dampers import CompressiblePlugin
@@ -126,7 +127,7 @@ def test_the_lanes_step_as_the_one_design_step(sport_cfg, max_iterations):
     for k in range(1, SAMPLES):
         dt = 0.3 if k == GAP_AT else DT
         if k == COMMAND_AT:  # design 9's command starts moving (the solenoid's lag)
-            ref_state[9][comp.S_CMD] = 0.0
+            ref_state[9][layout.S_CMD] = 0.0
             lv[9 // LANES, L_CMD * LANES + 9 % LANES] = 0.0
         for j, s in enumerate(steppers):
             f_ref[j, k], fl_ref[j, k] = step(s.model.prm, s.model.tables[0].coef,
@@ -148,18 +149,18 @@ def test_the_lanes_step_as_the_one_design_step(sport_cfg, max_iterations):
     np.testing.assert_allclose(dstate, np.stack(ref_state), rtol=1e-9, atol=1e-12)
     # every exit was taken: the invalid input, the velocity clamp, the solver's look-up
     # on the coarse table (no fault), and the moving command (the bypass's area changes)
-    assert fl_ref[2, NAN_AT] == int(comp.Fault.INVALID_INPUT)
-    assert np.any(fl_ref[6] & int(comp.Fault.VELOCITY_CLAMPED))
-    assert dstate[9, comp.S_CMD_EFF] < 0.01
-    assert steppers[5].model.prm[comp.P_STEP_R] > MAX_STEP
+    assert fl_ref[2, NAN_AT] == int(layout.Fault.INVALID_INPUT)
+    assert np.any(fl_ref[6] & int(layout.Fault.VELOCITY_CLAMPED))
+    assert dstate[9, layout.S_CMD_EFF] < 0.01
+    assert steppers[5].model.prm[layout.P_STEP_R] > MAX_STEP
     p7 = steppers[7].model.prm
-    ratio = p7[comp.V_GAS] / (p7[comp.V_GAS] + p7[comp.P_A_ROD] * np.nan_to_num(x[7]))
+    ratio = p7[layout.V_GAS] / (p7[layout.V_GAS] + p7[layout.P_A_ROD] * np.nan_to_num(x[7]))
     assert ratio.min() < 0.6 and ratio.max() > 5.0 / 3.0  # both sides of the series' domain
-    assert x[7].min() > p7[comp.P_X_MIN]
+    assert x[7].min() > p7[layout.P_X_MIN]
     # faults of solves the lanes ran (not the coarse table's, not the moving command's)
     in_lanes = [j for j in range(n) if j not in (5, 9)]
-    assert np.any(fl_ref[in_lanes] & int(comp.Fault.VALVE_EXTRAPOLATED))
-    assert bool(np.any(fl_ref[in_lanes] & int(comp.Fault.SOLVER))) is (max_iterations == 4)
+    assert np.any(fl_ref[in_lanes] & int(layout.Fault.VALVE_EXTRAPOLATED))
+    assert bool(np.any(fl_ref[in_lanes] & int(layout.Fault.SOLVER))) is (max_iterations == 4)
     # the designs differ
     assert np.std(f_ref[:, 1:], axis=0).max() > 0.1 * np.abs(f_ref).max()
 
@@ -250,7 +251,7 @@ def test_the_gather_clamps_each_lanes_row_into_the_table():
     lv = np.zeros(LANE_BUFFER)
     lv[lanes.L_IDX * LANES:(lanes.L_IDX + 1) * LANES] = idx
     lv[lanes.L_SIGN * LANES:(lanes.L_SIGN + 1) * LANES] = sign
-    prm = np.zeros((n, comp.P_SIZE))
+    prm = np.zeros((n, layout.P_SIZE))
     n_r = np.full(n, rows_r, dtype=np.int64)
     n_c = np.full(n, rows_c, dtype=np.int64)
     lanes._gather(prm, coef_r, n_r, coef_c, n_c, sides, 0, lv)
@@ -275,7 +276,7 @@ def test_the_extrapolated_bit_from_any_sub_step_of_the_sample():
     lv[lanes.L_SKIP * LANES:(lanes.L_SKIP + 1) * LANES] = 0.0
     lv[lanes.L_SKIP * LANES + 4] = 1.0  # took the one-design step this sample
     lv[lanes.L_FLAGS * LANES:(lanes.L_FLAGS + 1) * LANES] = 0.0
-    lv[lanes.L_FLAGS * LANES + 4] = float(comp.Fault.STROKE_CLAMPED)
+    lv[lanes.L_FLAGS * LANES + 4] = float(layout.Fault.STROKE_CLAMPED)
     lv[lanes.L_BEYOND * LANES + 3] = 1.0
     lv[lanes.L_BEYOND * LANES + 4] = 1.0
     lanes._substep_end(5e-4, lv)
@@ -283,6 +284,6 @@ def test_the_extrapolated_bit_from_any_sub_step_of_the_sample():
     lanes._substep_end(5e-4, lv)
     lanes._extrapolated(lv)
     flags = lv[lanes.L_FLAGS * LANES:(lanes.L_FLAGS + 1) * LANES].astype(np.int64)
-    assert flags[3] == int(comp.Fault.VALVE_EXTRAPOLATED)
-    assert flags[4] == int(comp.Fault.STROKE_CLAMPED)
+    assert flags[3] == int(layout.Fault.VALVE_EXTRAPOLATED)
+    assert flags[4] == int(layout.Fault.STROKE_CLAMPED)
     assert not np.delete(flags, [3, 4]).any()

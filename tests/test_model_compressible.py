@@ -12,8 +12,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from damper_emulator.dyno.protocols import chirp, sine
-from damper_emulator.model.compressible import DamperModel, DamperStepper, Fault, simulate
+from damper_emulator.model.compressible import DamperModel, DamperStepper, simulate
 from damper_emulator.model.incompressible import incompressible_force
+from damper_emulator.model.layout import Fault
 from damper_emulator.model.valve import pressure_drop_array
 
 
@@ -239,12 +240,14 @@ def test_newton_solve_of_eq2_converges_in_few_evaluations(sport_model, monkeypat
     bisection on the whole range: 30–40 evaluations in 5 % of solves.)
 
     Counted on the kernels' Python functions (the same source as the compiled ones)."""
-    import damper_emulator.model.compressible as comp
+    import damper_emulator.model.kernels as kernels
+    import damper_emulator.model.layout as layout
+    import damper_emulator.model.step as step_module
 
     counts: list[int] = []
     evaluations = [0]
-    valve_state = comp.valve_state
-    implicit_substep = comp._implicit_substep
+    valve_state = kernels.valve_state
+    implicit_substep = step_module.implicit_substep
 
     def _py(kernel):  # the Python function of a compiled kernel (itself without numba)
         return getattr(kernel, "py_func", kernel)
@@ -259,15 +262,15 @@ def test_newton_solve_of_eq2_converges_in_few_evaluations(sport_model, monkeypat
         counts.append(evaluations[0])
         return out
 
-    monkeypatch.setattr(comp, "valve_state", counting_valve_state)
-    monkeypatch.setattr(comp, "_implicit_substep", counting_substep)
+    monkeypatch.setattr(kernels, "valve_state", counting_valve_state)
+    monkeypatch.setattr(step_module, "implicit_substep", counting_substep)
     t, x, v = chirp(1.0, 12.0, duration_s=2.0, rate_hz=1000)
-    state = comp.new_state()
-    state[comp.S_CMD] = state[comp.S_CMD_EFF] = 1.0
+    state = layout.new_state()
+    state[layout.S_CMD] = state[layout.S_CMD_EFF] = 1.0
     prm, cr, cc = sport_model.prm, sport_model.tables[0].coef, sport_model.tables[1].coef
-    _py(comp.init_state)(prm, cr, cc, state, x[0], v[0])
+    _py(step_module.init_state)(prm, cr, cc, state, x[0], v[0])
     for xi, vi in zip(x[1:], v[1:]):
-        _py(comp.step)(prm, cr, cc, state, xi, vi, 1e-3)
+        _py(step_module.step)(prm, cr, cc, state, xi, vi, 1e-3)
     n = np.array(counts)
     assert n.size == 2 * (t.size - 1)       # two sub-steps per 1 ms sample
     assert n.mean() < 2.5, n.mean()

@@ -113,7 +113,7 @@ def test_cache_lives_outside_the_source_tree_and_is_keyed_by_the_sources(tmp_pat
             dest.parent.mkdir(parents=True, exist_ok=True)
             dest.write_bytes(f.read_bytes())
     assert jit.source_key(copy) == key
-    step_file = copy / "damper_emulator" / "model" / "compressible.py"
+    step_file = copy / "damper_emulator" / "model" / "step.py"
     step_file.write_text(step_file.read_text() + "\n# a change\n")
     assert jit.source_key(copy) != key
     # NUMBA_CACHE_DIR (numba's own variable) moves the base

@@ -15,7 +15,8 @@ import numpy as np
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.protocols import FourteenSpeed, Sine
 from damper_emulator.errors import UserError
-from damper_emulator.model.compressible import DamperModel, Fault, simulate
+from damper_emulator.model.compressible import DamperModel, simulate
+from damper_emulator.model.layout import Fault
 
 #: What produces the forces of a protocol: ``engine(model, t, x, v)`` → an object with
 #: ``force_n`` and ``faults`` arrays (default :func:`simulate`, the offline model; the

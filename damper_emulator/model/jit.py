@@ -15,7 +15,7 @@ kernels of one version of the sources live in ``kernels-<key>``, where ``key`` h
 Python source file of the packages that define or feed kernels (:data:`KEYED_PACKAGES`).
 numba's own index notices a change of the file that *defines* a kernel, but not of a kernel
 it calls from another file, nor of a module-level constant it froze in at compile time
-(e.g. the ride loop calling :func:`damper_emulator.model.compressible.step`): with the key,
+(e.g. the ride loop calling :func:`damper_emulator.model.step.step`): with the key,
 any change of those sources gives a new, empty cache directory, so a stale kernel is never
 loaded.  Directories of other keys unused for :data:`PRUNE_AFTER_DAYS` days are removed.
 

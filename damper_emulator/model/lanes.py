@@ -1,13 +1,13 @@
 """The compressible damper's step for many designs at once, in SIMD lanes.
 
 :func:`step_lanes` advances :data:`LANES` designs by one sample, as
-:func:`damper_emulator.model.compressible.step` advances one, out of the same equations:
-the sub-steps (:func:`~damper_emulator.model.compressible.substeps`), the BDF2 combination
-(:func:`~damper_emulator.model.compressible.bdf2_combination`), the gas law (eq 3), the
-residual of eq 2 (:func:`~damper_emulator.model.compressible.eq2_residual`), the valve table
+:func:`damper_emulator.model.step.step` advances one, out of the same equations:
+the sub-steps (:func:`~damper_emulator.model.kernels.substeps`), the BDF2 combination
+(:func:`~damper_emulator.model.kernels.bdf2_combination`), the gas law (eq 3), the
+residual of eq 2 (:func:`~damper_emulator.model.kernels.eq2_residual`), the valve table
 (:func:`~damper_emulator.model.valve_table.valve_row_point`), the bypass
 (:func:`~damper_emulator.model.adaptive.bypass_flow`), the safeguarded Newton update
-(:func:`~damper_emulator.model.compressible.newton_update`) and the force (eq 4).  What
+(:func:`~damper_emulator.model.kernels.newton_update`) and the force (eq 4).  What
 differs is only the order: each phase of the step runs for every lane before the next
 phase, and the Newton solves of the lanes run in lockstep until the last lane has
 converged (a converged lane's values are held by selects).  The phase that costs most, a
@@ -46,7 +46,27 @@ import numpy as np
 from numpy.typing import NDArray
 
 from damper_emulator.model.adaptive import bypass_flow
-from damper_emulator.model.compressible import (
+from damper_emulator.model.gas import (
+    compression_chamber_pressure_kernel,
+    exp_series,
+    gas_volume_ratio,
+    log_series,
+)
+from damper_emulator.model.jit import inlined_kernel, kernel, lane_kernel
+from damper_emulator.model.kernels import (
+    bdf2_combination,
+    bdf2_step,
+    bdf2_weight,
+    clamp_input,
+    coulomb_friction,
+    damper_force,
+    eq2_gain,
+    eq2_residual,
+    newton_update,
+    substeps,
+    valve_state,
+)
+from damper_emulator.model.layout import (
     FAULT_SOLVER,
     FAULT_VALVE_EXTRAPOLATED,
     P_A_ANNULUS,
@@ -97,27 +117,8 @@ from damper_emulator.model.compressible import (
     S_Z,
     S_Z_PREV,
     V_GAS,
-    bdf2_combination,
-    bdf2_step,
-    bdf2_weight,
-    bypass_area_of,
-    clamp_input,
-    coulomb_friction,
-    damper_force,
-    eq2_gain,
-    eq2_residual,
-    newton_update,
-    step,
-    substeps,
-    valve_state,
 )
-from damper_emulator.model.gas import (
-    compression_chamber_pressure_kernel,
-    exp_series,
-    gas_volume_ratio,
-    log_series,
-)
-from damper_emulator.model.jit import inlined_kernel, kernel, lane_kernel
+from damper_emulator.model.step import bypass_area_of, step
 from damper_emulator.model.valve_table import C_EXP, C_EXPM1, table_interval, valve_row_point
 
 _Vec = NDArray[np.float64]
@@ -363,7 +364,7 @@ def _gas_beyond(frac: float, lv: _Vec) -> None:
 @lane_kernel
 def _substep_begin(frac: float, h: float, lv: _Vec) -> None:
     """Phase 2c, per sub-step: the stroke and velocity there, the BDF2 combination and
-    the Newton solve's start (as in ``compressible.step``), vectorised.  Divisors: ``h_prev``
+    the Newton solve's start (as in ``model.step.step``), vectorised.  Divisors: ``h_prev``
     tested, ``1 + 2w >= 1``, and the chamber volume, positive inside the clamped travel;
     a skipped lane's values are not used."""
     for b in range(LANES):
@@ -673,7 +674,7 @@ def step_lanes(prm: _Vec, coef_r: _Vec, n_r: _Int, coef_c: _Vec, n_c: _Int, side
                dstate: _Vec, first: int, dt: float, lv: _Vec) -> None:
     """Advance designs ``first … first + LANES − 1``, loaded into ``lv`` by
     :func:`load_lanes`, to their next sample, ``dt`` [s] after the last, as
-    :func:`damper_emulator.model.compressible.step` advances one.
+    :func:`damper_emulator.model.step.step` advances one.
 
     Parameters
     ----------

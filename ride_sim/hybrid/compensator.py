@@ -34,8 +34,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from damper_emulator.model.compressible import DamperModel, DamperStepper
-from damper_emulator.model.compressible import step as damper_step
 from damper_emulator.model.jit import kernel
+from damper_emulator.model.step import step as damper_step
 from ride_sim.hybrid.actuator import frequency_response
 from ride_sim.hybrid.params import CompensatorParams
 from ride_sim.hybrid.transfer import TransferEstimate

@@ -24,7 +24,8 @@ from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.settings import default_emulator_mapping
 from damper_emulator.recording import read_recording
-from damper_emulator.replay import REPLAY_BAG, load_emulator_params, read_bag, run_replay
+from damper_emulator.replay import REPLAY_BAG, load_emulator_params, run_replay
+from damper_emulator.replay_input import read_bag
 from damper_hil.cli import main
 
 JS = "sensor_msgs/msg/JointState"
@@ -506,10 +507,10 @@ def test_recorded_valve_commands_drive_the_replay(tmp_path, sport_model):
     assert out.valve_command[1].tolist() == [0.0, 1.0, 0.5]
     assert out.valve_command[0].tolist() == [log_ns for log_ns, _ in commands]
     assert doc["rms_N"] < 1e-6 and doc["max_abs_N"] < 1e-5
-    from damper_emulator import replay as R
-    data = R.read_bag(bag)
-    blind = R.emulate(dataclasses.replace(data, valve=None), sport_model,
-                      R.load_emulator_params()[0])
+    from damper_emulator.replay_emulation import emulate
+    data = read_bag(bag)
+    blind = emulate(dataclasses.replace(data, valve=None), sport_model,
+                    load_emulator_params()[0])
     assert np.sqrt(np.mean((blind.force_n - expected) ** 2)) > 100.0
 
 

@@ -235,9 +235,9 @@ def test_newton_solve_of_eq2_converges_in_few_evaluations(sport_model, monkeypat
     """The safeguarded Newton solve of eq 2 stays quadratic to its tolerance: on a 1 kHz
     chirp no solve needs more than a handful of evaluations of the valve look-up, and on
     average about two: the extrapolated start and one Newton step, whose successor is
-    predicted within the tolerance (it was three when a last evaluation only confirmed it).
-    (A Newton step below z's last bit used to be taken as out of the bracket and restart
-    bisection on the whole range: 30–40 evaluations in 5 % of solves.)
+    predicted within the tolerance (three if a last evaluation only confirmed it).  A
+    Newton step below z's last bit is a converged step, not one out of the bracket that
+    restarts bisection on the whole range (30–40 evaluations in 5 % of solves).
 
     Counted on the kernels' Python functions (the same source as the compiled ones)."""
     import damper_emulator.model.kernels as kernels

@@ -13,6 +13,7 @@ import numpy as np
 
 from damper_emulator import force_message
 from damper_emulator.bag import BagError, cdr_fast, open_bag
+from damper_emulator.bag.raw_topics import read_raw
 from damper_emulator.topics import DIAGNOSTICS, FORCE, RIDE_STATE, STATE, VALVE_COMMAND
 
 
@@ -88,7 +89,7 @@ def read_valve_commands(path: str | Path) -> tuple[np.ndarray, np.ndarray] | Non
     """
     path = Path(path)
     try:
-        r = cdr_fast.read_raw(path, [VALVE_COMMAND])[VALVE_COMMAND]
+        r = read_raw(path, [VALVE_COMMAND])[VALVE_COMMAND]
     except BagError:
         return None
     if len(r) == 0:
@@ -127,7 +128,7 @@ def read_recording(path: str | Path) -> Recording:
                         last[node]["message"] = status.message
     valve = read_valve_commands(path) if counts.get(VALVE_COMMAND) else None
     present = [t for t in (STATE, FORCE, RIDE_STATE) if counts.get(t)]
-    raw = cdr_fast.read_raw(path, present) if present else {}
+    raw = read_raw(path, present) if present else {}
     js = {t: cdr_fast.decode_joint_states(r.buf, r.offsets, r.lengths,
                                           where=f"bag {path}: {t}")
           for t, r in raw.items()}

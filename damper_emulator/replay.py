@@ -1,8 +1,9 @@
 """Offline replay of a recorded bag through the damper emulator's model (``damper-hil replay``).
 
-Pure Python and numpy (no rclpy): the bag is read with :mod:`damper_emulator.bag.cdr_fast`,
-the model runs in the compiled batch loop of :mod:`damper_emulator.model.batch`
-(the kernel :class:`~damper_emulator.model.compressible.DamperStepper` and therefore
+Pure Python and numpy (no rclpy): the bag is read with
+:mod:`damper_emulator.bag.raw_topics` and :mod:`damper_emulator.bag.cdr_fast`, the model
+runs in the compiled batch loop of :mod:`damper_emulator.model.batch` (the kernel
+:class:`~damper_emulator.model.compressible.DamperStepper` and therefore
 :class:`~damper_emulator.realtime.core.EmulatorCore` use), and the output is a rosbag2 bag
 written by :class:`~damper_emulator.bag.BagWriter`.  Deterministic: the same bag and
 parameters give byte-identical output bags, and JSON files that differ only in the timing
@@ -113,9 +114,8 @@ from typing import Any
 
 import numpy as np
 
-from damper_emulator.bag import cdr_fast
+from damper_emulator.bag import raw_topics
 from damper_emulator.model.compressible import DamperModel, DamperStepper
-from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.settings import (
     DEFAULT_EMULATOR_FILE,
     EmulatorParams,
@@ -209,7 +209,7 @@ def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
     model = DamperModel(load_config(params_file))
     params, emulator_source = load_emulator_params(emulator_params_file)
     messages.type_hash(JOINT_STATE)   # the typestore, built once per process
-    cdr_fast.warm_up()                # compiled code from numba's cache
+    raw_topics.warm_up()              # compiled code from numba's cache
     run_model(model, np.array([0, 1_000_000], dtype=np.int64), np.zeros(2), np.zeros(2))
     DamperStepper(model).warm_up()    # the per-tick stepper of timer bags
     setup_s = time.perf_counter() - t_setup

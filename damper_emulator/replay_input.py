@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from damper_emulator.bag import BagError, cdr_fast
-from damper_emulator.bag.cdr_fast import JointStates, RawTopic
+from damper_emulator.bag.cdr_fast import JointStates
+from damper_emulator.bag.raw_topics import RawTopic, read_raw
 from damper_emulator.recording import read_valve_commands
 from damper_emulator.topics import FORCE, STATE
 
@@ -51,7 +52,7 @@ def read_bag(path: str | os.PathLike[str]) -> BagData:
         ``effort[0]``.
     """
     path = Path(path)
-    raw = cdr_fast.read_raw(path, [STATE, FORCE])
+    raw = read_raw(path, [STATE, FORCE])
     decoded = {}
     for topic in (STATE, FORCE):
         r = raw[topic]

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages, open_bag
+from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages, open_bag, raw_topics
 from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.settings import default_emulator_mapping
@@ -244,8 +244,8 @@ def test_decode_many_with_mixed_layouts_and_padding_garbage():
 def test_fast_bag_reader_equals_rosbags(tmp_path, sport_model):
     bag, _ = timer_trigger_bag(tmp_path / "bag", sport_model, n_ticks=300)
     topics = ["/damper/state", "/damper/force"]
-    fast = cdr_fast._fast(bag, topics)
-    slow = cdr_fast._slow(bag, topics)
+    fast = raw_topics._fast(bag, topics)
+    slow = raw_topics._slow(bag, topics)
     with open_bag(bag) as b:
         ref = {t: [] for t in topics}
         for topic, log_ns, data in b.raw_messages(topics):
@@ -269,7 +269,7 @@ def test_fast_reader_reads_an_unclosed_bag(tmp_path):
         for k in range(50):
             w.write(t, 1000 + k, messages.joint_state(k, ["damper"], [k * 1e-3], [0.0], []))
         w.flush()
-        raw = cdr_fast._fast(tmp_path / "open", ["/damper/state"])["/damper/state"]
+        raw = raw_topics._fast(tmp_path / "open", ["/damper/state"])["/damper/state"]
         assert len(raw) == 50 and raw.log_ns[-1] == 1049
         assert cdr_fast.decode_joint_states(raw.buf, raw.offsets, raw.lengths).position[
             -1, 0] == pytest.approx(0.049)

@@ -13,8 +13,9 @@ Pure Python (rosbags for message definitions, CDR and reading); no rclpy.
 
 from . import messages
 from .messages import BagError
+from .qos import Qos, Topic
 from .reader import Bag, TopicInfo, open_bag, read_messages, topic_counts
-from .writer import BagWriter, Qos, Topic
+from .writer import BagWriter
 
 __all__ = [
     "Bag",

@@ -18,7 +18,7 @@ from rosbags.rosbag2 import Reader
 from damper_emulator.errors import one_line
 
 from .messages import BagError, deserialize, typestore
-from .writer import Qos
+from .qos import Qos
 
 __all__ = ["Bag", "TopicInfo", "open_bag", "read_messages", "topic_counts"]
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from damper_emulator import force_message
 from damper_emulator.bag import BagError, cdr_fast
+from damper_emulator.bag.raw_topics import read_raw
 from damper_emulator.dyno.measured import (
     MeasuredData,
     MeasuredDataError,
@@ -51,7 +52,7 @@ def read_measured_bag(path: str | os.PathLike[str]) -> MeasuredData:
     path = Path(path)
     where = f"bag {path}"
     try:
-        raw = cdr_fast.read_raw(path, [FORCE_TOPIC])[FORCE_TOPIC]
+        raw = read_raw(path, [FORCE_TOPIC])[FORCE_TOPIC]
         if raw.msgtype and raw.msgtype != JOINT_STATE:
             raise BagError(f"{where}: {FORCE_TOPIC} is {raw.msgtype}, not {JOINT_STATE}")
         msgs = cdr_fast.decode_joint_states(raw.buf, raw.offsets, raw.lengths,

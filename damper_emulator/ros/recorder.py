@@ -20,6 +20,7 @@ from rclpy.node import Node
 
 from damper_emulator import topics
 from damper_emulator.bag import BagWriter, Qos
+from damper_emulator.bag.qos import INFINITE_NS
 from damper_emulator.errors import UserError
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
 from damper_emulator.ros.common import (
@@ -39,12 +40,11 @@ RECORDER_PRIORITY = 50
 #: thread.  Every Python thread of the process shares the GIL, and a flush thread at normal
 #: priority that a busy machine preempts while it holds the GIL stops the input thread too.
 FLUSH_PRIORITY = RECORDER_PRIORITY - 2
-_INFINITE_NS = 2 ** 63 - 1
 
 
 def _ns(duration: Duration) -> int:
     ns = int(duration.nanoseconds)
-    return _INFINITE_NS if ns <= 0 or ns >= _INFINITE_NS else ns
+    return INFINITE_NS if ns <= 0 or ns >= INFINITE_NS else ns
 
 
 def offered_qos(profile) -> Qos:

@@ -32,7 +32,6 @@ from can_bridge.settings import (
 )
 from damper_emulator import topics
 from damper_emulator.bag.cdr_fast import JointStateSample
-from damper_emulator.params import ParameterError
 from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros.common import (
@@ -47,6 +46,7 @@ from damper_emulator.ros.common import (
     wait_until_active,
 )
 from damper_emulator.ros.managed import ManagedNode
+from damper_emulator.schema import ParameterError
 
 #: The emulator's status bits that DAMPER_FORCE.Status carries as they are (1..8).
 EMULATOR_BITS = 0x0F

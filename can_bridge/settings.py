@@ -2,8 +2,8 @@
 
 Defaults live in ``config/bridge.yaml``.  The names are the node's own, without a group
 (docs/interfaces.md §5: ``can_interface``, ``can_channel``, ``mode``); every value is
-checked by the project's one rule checker (:func:`damper_emulator.params.check_value`) and
-a bad one gives a one-line :class:`~damper_emulator.params.ParameterError`.
+checked by the project's one rule checker (:func:`damper_emulator.schema.check_value`) and
+a bad one gives a one-line :class:`~damper_emulator.schema.ParameterError`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from damper_emulator.params import ParameterError, build_group, check_value, read_yaml, rule
+from damper_emulator.schema import ParameterError, build_group, check_value, read_yaml, rule
 
 #: Default bridge parameters.
 DEFAULT_BRIDGE_FILE = Path(__file__).resolve().parents[1] / "config" / "bridge.yaml"

@@ -125,6 +125,7 @@ from damper_emulator.realtime.settings import (
 from damper_emulator.replay_emulation import emulate, run_model
 from damper_emulator.replay_input import JOINT_STATE, read_bag
 from damper_emulator.replay_report import compare, plot_replay, write_replay_bag
+from damper_emulator.schema import node_parameters, read_yaml
 
 __all__ = [
     "load_emulator_params",
@@ -180,7 +181,7 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
     BagError
         Unreadable or malformed bag, output bag that cannot be written.
     ValueError
-        Bad parameter files (:class:`~damper_emulator.params.ParameterError`).
+        Bad parameter files (:class:`~damper_emulator.schema.ParameterError`).
     OutputError
         An output that cannot be written.
     """

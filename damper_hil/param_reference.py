@@ -1,7 +1,7 @@
 """The parameter reference, ``docs/parameters.md``, generated from the schema.
 
 Every parameter group is a dataclass whose fields declare their rule, description (with the
-unit) and whether a running node accepts a change (:func:`damper_emulator.params.rule`);
+unit) and whether a running node accepts a change (:func:`damper_emulator.schema.rule`);
 :func:`damper_emulator.params.field_specs` reads that back.  This module writes it as one
 table per group, with the value of the project's default params file.
 
@@ -19,7 +19,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from damper_emulator.params import FieldSpec, field_specs
+from damper_emulator.params import field_specs
+from damper_emulator.schema import FieldSpec
 
 REPO = Path(__file__).resolve().parents[1]
 OUTPUT = REPO / "docs" / "parameters.md"
@@ -112,7 +113,7 @@ def render() -> str:
         "Generated from the parameter schema by `python -m damper_hil.param_reference`;",
         "do not edit by hand (a test checks it is up to date). Each group is a dataclass",
         "whose fields declare their type, unit, rule and description",
-        "(`damper_emulator.params.rule`); the loaders, the checks, the ROS 2 parameter",
+        "(`damper_emulator.schema.rule`); the loaders, the checks, the ROS 2 parameter",
         "descriptors and this page all come from it. *Default* is the value in the",
         "project's params file (or the group's own default). *Run time*: a running node",
         "accepts a change with `ros2 param set` (the others need a restart). Units are SI;",

@@ -35,7 +35,6 @@ from sensor_msgs.msg import JointState
 from damper_emulator import force_message, topics
 from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.outputs import write_text
-from damper_emulator.params import node_parameters, read_yaml
 from damper_emulator.realtime.loop import PeriodicLoop
 from damper_emulator.realtime.rt import RealtimeRequest
 from damper_emulator.ros.common import (
@@ -48,6 +47,7 @@ from damper_emulator.ros.common import (
     wait_until_active,
 )
 from damper_emulator.ros.emulator import load_node_model
+from damper_emulator.schema import node_parameters, read_yaml
 from ride_sim import loop_delay
 from ride_sim import quarter_car as qc
 from ride_sim.params import (

@@ -16,7 +16,7 @@ damper tuning's settings and design bounds (:class:`TuneSettings`, :class:`TuneB
 (or the bare mapping inside ``ros__parameters``).  The quarter car is the two-mass model of
 Simms & Crolla eq 38 (``docs/model.md`` §5); its values are the paper's front corner
 (Figure 8).  Every value is checked; a bad file raises
-:class:`damper_emulator.params.ParameterError` whose message is one line naming the file,
+:class:`damper_emulator.schema.ParameterError` whose message is one line naming the file,
 the key and the rule that was broken.
 """
 
@@ -27,9 +27,9 @@ from pathlib import Path
 from typing import Any
 
 from damper_emulator.dyno.protocols import FourteenSpeed
-from damper_emulator.params import build_group, node_parameters, read_yaml
-from damper_emulator.params import check_value as _check
-from damper_emulator.params import rule as _rule
+from damper_emulator.schema import build_group, node_parameters, read_yaml
+from damper_emulator.schema import check_value as _check
+from damper_emulator.schema import rule as _rule
 from ride_sim.road_synthesis import AMPLITUDE_METHODS
 
 #: Default parameter file: the paper's front quarter car.

@@ -46,7 +46,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from damper_emulator.errors import UserError
-from damper_emulator.params import (
+from damper_emulator.schema import (
     ParameterError,
     build_group,
     check_value,
@@ -193,7 +193,7 @@ def skyhook_from_mapping(doc: Any, source: str = "<memory>") -> SkyhookParams:
 
 def load_skyhook(path: str | Path | None = None) -> SkyhookParams:
     """Load and validate a skyhook params file (default ``config/skyhook.yaml``); a bad
-    file raises :class:`~damper_emulator.params.ParameterError` (one line naming the file
+    file raises :class:`~damper_emulator.schema.ParameterError` (one line naming the file
     and the key)."""
     path = Path(path) if path is not None else DEFAULT_SKYHOOK_FILE
     params = skyhook_from_mapping(read_yaml(path), str(path))

@@ -38,15 +38,8 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.model.compressible import DamperModel
-from damper_emulator.params import (
-    AdaptiveParams,
-    ModelConfig,
-    ParameterError,
-    build_group,
-    check_value,
-    node_parameters,
-    validate,
-)
+from damper_emulator.params import AdaptiveParams, ModelConfig, validate
+from damper_emulator.schema import ParameterError, build_group, check_value, node_parameters
 from ride_sim.many import simulate_many
 from ride_sim.params import BYPASS_KEYS, QuarterCarParams, RoadParams, TuneBounds, TuneSettings
 from ride_sim.road_synthesis import iso8608_class

@@ -28,7 +28,8 @@ from damper_emulator.acquisition.rig import (
     rig_to_mapping,
 )
 from damper_emulator.dyno.measured import read_measured_csv, write_measured_csv
-from damper_emulator.params import DEFAULT_PARAMS_FILE, ParameterError
+from damper_emulator.params import DEFAULT_PARAMS_FILE
+from damper_emulator.schema import ParameterError
 
 
 def _steady_phasor(t: np.ndarray, y: np.ndarray, f: float, cycles: int) -> complex:

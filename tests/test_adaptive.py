@@ -35,13 +35,12 @@ from damper_emulator.model.layout import Fault
 from damper_emulator.model.valve import form_code, pressure_drop
 from damper_emulator.params import (
     DEFAULT_PARAMS_FILE,
-    ParameterError,
     config_from_mapping,
     config_to_mapping,
     load_config,
-    read_yaml,
     save_config,
 )
+from damper_emulator.schema import ParameterError, read_yaml
 
 RHO, CD, LENGTH, D_COMFORT, D_NORMAL, T63 = 870.0, 0.7, 3e-3, 3.3e-3, 2.6e-3, 12e-3
 

@@ -30,16 +30,15 @@ from diagnose_support import (
     truth_session,
 )
 
-from damper_emulator.diagnose.report import markdown, named_from, write_report
-from damper_emulator.diagnose.selection import (
+from damper_emulator.diagnose.outcome import (
     FLOOR_FORCE_FRACTION,
     MIN_SCORE,
     STRUCTURE_RATIO,
-    diagnose,
     noise_level,
     structure_ratio,
-    weigh_effects,
 )
+from damper_emulator.diagnose.report import markdown, named_from, write_report
+from damper_emulator.diagnose.selection import diagnose, weigh_effects
 from damper_emulator.diagnose.truth import (
     EXAMPLE_EFFECTS,
     REALISTIC,
@@ -144,7 +143,7 @@ def test_a_load_cell_filter_is_the_rigs_not_an_effect(tmp_path):
 
     from damper_emulator.acquisition import dc_group_delay, load_rig
     from damper_emulator.acquisition.rig import ForceChannel, RigParams
-    from damper_emulator.diagnose.joint import START_SKIP_S
+    from damper_emulator.diagnose.base import START_SKIP_S
     from damper_emulator.validation import validate_file
 
     rig = RigParams(force=ForceChannel(filter="butterworth", order=2, cutoff_hz=150.0,
@@ -252,8 +251,8 @@ def test_a_fit_task_runs_blas_on_one_thread_and_gives_the_caller_its_threads_bac
     depend on the machine's core count."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from damper_emulator.diagnose import selection
-    from damper_emulator.diagnose.selection import FIT_BLAS_THREADS, FitTask, run_fit_task
+    from damper_emulator.diagnose import tasks
+    from damper_emulator.diagnose.tasks import FIT_BLAS_THREADS, FitTask, run_fit_task
 
     def blas_threads() -> list[int]:
         return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
@@ -267,7 +266,7 @@ def test_a_fit_task_runs_blas_on_one_thread_and_gives_the_caller_its_threads_bac
         seen.append(blas_threads())
         raise Stop
 
-    monkeypatch.setattr(selection, "joint_fit", joint_fit)
+    monkeypatch.setattr(tasks, "joint_fit", joint_fit)
     _, data = truth_session("valve_lag")
     task = FitTask(load_config(), (data[0], data[1]), (data[2],), (1.0, 1.0), {}, (), None)
     with threadpool_limits(limits=2, user_api="blas"):
@@ -401,14 +400,9 @@ def test_a_runaway_simulation_counts_as_refused_and_the_fit_ends_cleanly(monkeyp
     closed gas volume on a slow record's long sub-step) is a refused point of the fit, like
     parameters the model rejects, not a Jacobian overflowing to inf that ends the whole
     diagnosis with a traceback."""
+    from damper_emulator.diagnose.base import Record, base_parameters, make_record
     from damper_emulator.diagnose.candidates import candidates
-    from damper_emulator.diagnose.joint import (
-        FAILED_COST,
-        Record,
-        Space,
-        base_parameters,
-        make_record,
-    )
+    from damper_emulator.diagnose.joint import FAILED_COST, Space
 
     sheet, data = truth_session(())
     records = [make_record(d, False) for d in data[:2]]
@@ -436,8 +430,9 @@ def test_a_runaway_simulation_counts_as_refused_and_the_fit_ends_cleanly(monkeyp
 def _lag_space(sheet, data, monkeypatch, refuse):
     """A joint-fit space over the identification files: two paper's parameters and a valve
     lag free; ``refuse(τ)``: the lag's time constants whose simulation runs away."""
+    from damper_emulator.diagnose.base import Record, base_parameters, make_record
     from damper_emulator.diagnose.candidates import candidates
-    from damper_emulator.diagnose.joint import Record, Space, base_parameters, make_record
+    from damper_emulator.diagnose.joint import Space
 
     records = [make_record(d, False) for d in data[:2]]
     lag = next(c for c in candidates(sheet, data[:2]) if c.effect == "valve_lag")
@@ -581,12 +576,12 @@ def test_the_slow_test_gets_its_own_friction_as_a_smooth_seal_gives_it():
     quasi-static test's constant 4 mm/s sees ``F tanh(4/5)`` = 0.66 F, the chirp mostly F.
     The refit's nuisance ratio (the slow files' friction over eq 4's) must come out at that
     closed form, eq 4's friction near F, and the model it reports keep one friction."""
-    from damper_emulator.diagnose.joint import (
+    from damper_emulator.diagnose.base import (
         QUASI_STATIC_FRICTION_RATIO,
         base_parameters,
-        joint_fit,
         make_record,
     )
+    from damper_emulator.diagnose.joint import joint_fit
 
     sheet, data = truth_session(())
     cfg = identify(data[0], data[1], sheet).config
@@ -658,7 +653,7 @@ def test_identify_takes_the_friction_at_speed_as_a_multiple_of_the_quasi_static_
     ``chirp_friction_factor`` = ``1/tanh(ẋ/v_f)`` (the closed form) the configuration's
     friction is F and both preloads move to the truth's (seeds 3–5: rebound
     within 0.2 % instead of 0.9 %, compression within 0.3 % instead of 2.7 %)."""
-    from damper_emulator.diagnose.joint import make_record
+    from damper_emulator.diagnose.base import make_record
     from damper_emulator.identify.quasi_static import IdentificationError
 
     sheet, data = truth_session(())
@@ -692,7 +687,7 @@ def test_the_delay_taken_on_a_step_keeps_the_steps_effect(sport_cfg):
     candidate wins the round after an effect) is still that effect's step: the report
     and the answer read the family from it."""
     from damper_emulator.diagnose.candidates import Candidate, Parameter
-    from damper_emulator.diagnose.selection import StepFit
+    from damper_emulator.diagnose.outcome import StepFit
 
     lag = Candidate("valve_lag", (Parameter("time_constant_s", 1e-4, 0.05, 1e-3, unit="s"),),
                     lambda v: dict(v))

@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
+from damper_emulator.diagnose.base import make_record
 from damper_emulator.diagnose.discovery import _features, motion, term_params
-from damper_emulator.diagnose.joint import make_record
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.dyno.protocols import chirp, sine
 from damper_emulator.model.compressible import DamperStepper, simulate
@@ -20,10 +20,10 @@ from damper_emulator.model.discovered import N_TERMS, lag_history
 from damper_emulator.params import (
     DiscoveredTermParams,
     ExtensionParams,
-    ParameterError,
     config_from_mapping,
     config_to_mapping,
 )
+from damper_emulator.schema import ParameterError
 
 
 def _with(model, **coefficients):

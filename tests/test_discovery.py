@@ -17,10 +17,11 @@ from damper_emulator.acquisition.chain import (
     estimated_rig,
 )
 from damper_emulator.acquisition.rig import ForceChannel, RigParams
+from damper_emulator.diagnose.base import ACQUISITION_DELAY, make_record
 from damper_emulator.diagnose.candidates import Parameter
 from damper_emulator.diagnose.discovery import discover
-from damper_emulator.diagnose.joint import ACQUISITION_DELAY, Space, make_record
-from damper_emulator.diagnose.selection import MAX_DELTA_BIC, MIN_SCORE
+from damper_emulator.diagnose.joint import Space
+from damper_emulator.diagnose.outcome import MAX_DELTA_BIC, MIN_SCORE
 from damper_emulator.diagnose.truth import Protocol, simulate_session
 from damper_emulator.dyno.protocols import Chirp, QuasiStatic
 from damper_emulator.model.compressible import DamperModel

@@ -38,13 +38,13 @@ from damper_emulator.model.valve import form_code, pressure_drop
 from damper_emulator.params import (
     EXTENSION_TYPES,
     ExtensionParams,
-    ParameterError,
     SeriesComplianceParams,
     config_from_mapping,
     config_to_mapping,
     load_config,
     save_config,
 )
+from damper_emulator.schema import ParameterError
 
 LUGRE = EXAMPLE_EFFECTS["lugre_friction"]["params"]
 LOW_GAS = {"gas_pressure_static_pa": 1.5e6}     # the cavitation example's gas charge

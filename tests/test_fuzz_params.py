@@ -27,13 +27,8 @@ from fuzz_support import junk_bytes, junk_text, mutated_bytes, time_limit
 from hypothesis import given
 from hypothesis import strategies as st
 
-from damper_emulator.params import (
-    DEFAULT_PARAMS_FILE,
-    ModelConfig,
-    ParameterError,
-    load_config,
-    read_yaml,
-)
+from damper_emulator.params import DEFAULT_PARAMS_FILE, ModelConfig, load_config
+from damper_emulator.schema import ParameterError, read_yaml
 
 SPORT_TEXT = DEFAULT_PARAMS_FILE.read_text(encoding="utf-8")
 SPORT_TREE = yaml.safe_load(SPORT_TEXT)

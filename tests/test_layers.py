@@ -27,6 +27,7 @@ import pytest
 PACKAGES = ("damper_emulator", "ride_sim", "can_bridge", "damper_hil")
 #: the cores: modules (and sub-packages) that must stay free of ROS, plots and the app
 CORES = ("damper_emulator.errors", "damper_emulator.outputs", "damper_emulator.params",
+         "damper_emulator.schema",
          "damper_emulator.model", "damper_emulator.realtime", "damper_emulator.bag",
          "damper_emulator.force_message", "damper_emulator.acquisition",
          "damper_emulator.dyno.measured", "damper_emulator.dyno.measured_bag",
@@ -34,6 +35,8 @@ CORES = ("damper_emulator.errors", "damper_emulator.outputs", "damper_emulator.p
          "damper_emulator.identify.quasi_static", "damper_emulator.identify.valves",
          "damper_emulator.identify.fitting", "damper_emulator.diagnose.joint",
          "damper_emulator.diagnose.candidates", "damper_emulator.diagnose.selection",
+         "damper_emulator.diagnose.base", "damper_emulator.diagnose.outcome",
+         "damper_emulator.diagnose.tasks",
          "ride_sim.quarter_car", "ride_sim.road", "ride_sim.road_spectra",
          "ride_sim.road_synthesis", "ride_sim.road_features", "ride_sim.road_envelope",
          "ride_sim.road_csv", "ride_sim.road_speed", "ride_sim.iso2631", "ride_sim.params",

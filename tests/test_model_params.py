@@ -7,12 +7,11 @@ import yaml
 
 from damper_emulator.params import (
     DEFAULT_PARAMS_FILE,
-    ParameterError,
     config_from_mapping,
     load_config,
-    read_yaml,
     save_config,
 )
+from damper_emulator.schema import ParameterError, read_yaml
 
 
 def test_sport_file_holds_the_papers_parameters(sport_cfg):

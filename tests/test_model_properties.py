@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 from damper_emulator.dyno.protocols import sine
 from damper_emulator.model.compressible import DamperModel, DamperStepper, simulate
 from damper_emulator.model.incompressible import incompressible_force
-from damper_emulator.params import ModelConfig, ParameterError, ValveParams, load_config, validate
+from damper_emulator.params import ModelConfig, ValveParams, load_config, validate
+from damper_emulator.schema import ParameterError
 
 SPORT = load_config()
 SETTINGS = settings(max_examples=40, deadline=None,

@@ -13,7 +13,7 @@ import pytest
 from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.model.incompressible import incompressible_force
 from damper_emulator.model.representations import LinearDamper
-from damper_emulator.params import ParameterError
+from damper_emulator.schema import ParameterError
 from ride_sim.dampers import (
     CompressiblePlugin,
     DamperPlugin,

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from damper_emulator.model.compressible import DamperStepper
-from damper_emulator.params import ParameterError
 from damper_emulator.realtime import rt
 from damper_emulator.realtime.core import EmulatorCore, Status
 from damper_emulator.realtime.loop import LoopStats, PeriodicLoop, load_record
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
 from damper_emulator.realtime.settings import default_emulator_mapping, emulator_params_from_mapping
+from damper_emulator.schema import ParameterError
 
 MS = 1_000_000
 

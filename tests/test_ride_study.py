@@ -228,7 +228,7 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, argv):
 
 
 def test_road_group_defaults_and_validation(tmp_path):
-    from damper_emulator.params import ParameterError
+    from damper_emulator.schema import ParameterError
     from ride_sim.params import DEFAULT_QUARTER_CAR_FILE, RoadParams
 
     assert load_ride_config().road == RoadParams()          # the file states the defaults

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from damper_emulator.model.compressible import DamperModel
-from damper_emulator.params import ParameterError, read_yaml
+from damper_emulator.schema import ParameterError, read_yaml
 from ride_sim.skyhook import (
     DEFAULT_SKYHOOK_FILE,
     SkyhookParams,

@@ -77,7 +77,7 @@ def test_design_config_scales_exactly_the_tuned_constants(sport_cfg):
 
 
 def test_the_settings_file_holds_the_schema_defaults():
-    from damper_emulator.params import read_yaml
+    from damper_emulator.schema import read_yaml
     from damper_hil.param_reference import REPO
 
     path = REPO / "config" / "tune.yaml"

@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 
 import yaml
 
-from damper_emulator.params import (
+from damper_emulator.schema import (
     ParameterError,
     build_group,
     check_value,

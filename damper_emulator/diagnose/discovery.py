@@ -6,7 +6,7 @@ Procedure (:func:`discover`), after the library's rounds (:func:`~damper_emulato
 diagnose.selection.diagnose`):
 
 1. **Gate.**  Only where structure remains: the final model's held-out residual above the
-   floor and above :data:`~damper_emulator.diagnose.selection.STRUCTURE_RATIO` × its
+   floor and above :data:`~damper_emulator.diagnose.outcome.STRUCTURE_RATIO` × its
    noise level.  An effect the library found and explained leaves nothing to discover.
 2. **Dictionary** (:func:`features`): per sample of every file, each feature of
    :data:`FEATURES` (acceleration; velocity, its powers and its smooth sign; stroke and its
@@ -52,17 +52,9 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.acquisition.rig import RigParams
+from damper_emulator.diagnose.base import TERM_PREFIX, Record, TermSource, delay_rig
 from damper_emulator.diagnose.candidates import Parameter
-from damper_emulator.diagnose.joint import (
-    JOINT_NFEV,
-    TERM_PREFIX,
-    Record,
-    TermSource,
-    delay_rig,
-    delta_bic,
-    joint_fit,
-    lag1,
-)
+from damper_emulator.diagnose.joint import JOINT_NFEV, delta_bic, joint_fit, lag1
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.model.discovered import (
     N_TERMS,
@@ -614,7 +606,7 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
 
 
 def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:
-    """The :data:`~damper_emulator.diagnose.joint.TermSource` of the features ``feats``
+    """The :data:`~damper_emulator.diagnose.base.TermSource` of the features ``feats``
     (their scales from the identification records ``fit``): what a joint fit adds."""
     x_ref, t_ref, _ = scales(fit)
 

@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.acquisition import save_rig
+from damper_emulator.diagnose.base import Record
+from damper_emulator.diagnose.outcome import Diagnosis
 from damper_emulator.diagnose.residual import plot_residual, residual_record
-from damper_emulator.diagnose.selection import Diagnosis, Record
 from damper_emulator.params import save_config
 from damper_emulator.validation import report_stem
 
@@ -97,7 +98,7 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
 
 def plot_ranking(path: Path, diag: Diagnosis) -> Path:
     """Held-out r.m.s. reduction and ΔBIC of every candidate."""
-    from damper_emulator.diagnose.selection import MAX_DELTA_BIC, MIN_SCORE
+    from damper_emulator.diagnose.outcome import MAX_DELTA_BIC, MIN_SCORE
     from damper_emulator.dyno.plots import new_figure, save
 
     ranking = diag.ranking[::-1]
@@ -150,7 +151,7 @@ def _fmt_sd(x: float | None) -> str:
 
 def _base_table(diag: Diagnosis) -> list[str]:
     """The paper's parameters: identified, after the diagnosis, ± 1σ."""
-    from damper_emulator.diagnose.joint import BASE_PARAMETERS, config_value
+    from damper_emulator.diagnose.base import BASE_PARAMETERS, config_value
 
     doc = diag.base_after_json()
     if doc is None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from damper_emulator.params import rule
+from damper_emulator.schema import rule
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from damper_emulator.errors import UserError
-from damper_emulator.params import ParameterError, build_group, check_value, rule
+from damper_emulator.schema import ParameterError, build_group, check_value, rule
 
 if TYPE_CHECKING:  # pragma: no cover
     from _typeshed import DataclassInstance
@@ -111,7 +111,7 @@ def checked(cls: type[_P], where: str, **values: Any) -> _P:
     """The protocol ``cls`` with ``values`` (the others at their defaults), every value
     checked by its rule and the protocol's own rules across values
     (:meth:`Chirp.cross_check`, ...); a broken rule raises a one-line
-    :class:`~damper_emulator.params.ParameterError` naming ``where`` and the setting."""
+    :class:`~damper_emulator.schema.ParameterError` naming ``where`` and the setting."""
     plain = {k: int(v) if isinstance(v, np.integer) else v for k, v in values.items()}
     name = next(n for n, c in PROTOCOLS.items() if c is cls)
     protocol: _P = build_group(cls, plain, name, where, check_value)

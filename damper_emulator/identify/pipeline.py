@@ -32,7 +32,8 @@ from damper_emulator.identify.valves import (
 from damper_emulator.model.compressible import DamperModel, simulate
 from damper_emulator.model.gas import compression_chamber_pressure
 from damper_emulator.model.incompressible import valve_pressure_drop
-from damper_emulator.params import ModelConfig, ParameterError, ValveParams, validate
+from damper_emulator.params import ModelConfig, ValveParams, validate
+from damper_emulator.schema import ParameterError
 
 #: At most this many quasi-static ↔ chirp rounds.
 MAX_ROUNDS = 6

@@ -2,8 +2,8 @@
 
 Defaults live in ``config/emulator.yaml``; a node started with ``--ros-args --params-file
 FILE`` takes them from there.  Every value is checked with the project's one rule checker
-(:func:`damper_emulator.params.check_value`); a bad value gives a one-line
-:class:`~damper_emulator.params.ParameterError`.
+(:func:`damper_emulator.schema.check_value`); a bad value gives a one-line
+:class:`~damper_emulator.schema.ParameterError`.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from damper_emulator.params import build_group, check_value, node_parameters, read_yaml, rule
 from damper_emulator.realtime.rt import RealtimeRequest
+from damper_emulator.schema import build_group, check_value, node_parameters, read_yaml, rule
 
 #: Default emulator node parameters.
 DEFAULT_EMULATOR_FILE = Path(__file__).resolve().parents[2] / "config" / "emulator.yaml"

@@ -21,8 +21,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from damper_emulator.bag import BagError
 from damper_emulator.bag.cdr_fast import JointStateCodec, JointStateDecoder, JointStateSample
 from damper_emulator.errors import DamperHilError
-from damper_emulator.params import FieldSpec, ParameterError, field_specs
+from damper_emulator.params import field_specs
 from damper_emulator.realtime.rt import RealtimeRequest, ThreadInheritance, apply_realtime
+from damper_emulator.schema import FieldSpec, ParameterError
 
 PROG = "damper-hil"
 #: Python's GIL switch interval in the node processes [s].
@@ -116,7 +117,7 @@ def unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-#: ROS 2 parameter type of each schema type (:attr:`damper_emulator.params.FieldSpec.type`)
+#: ROS 2 parameter type of each schema type (:attr:`damper_emulator.schema.FieldSpec.type`)
 _ROS_TYPES = {"double": ParameterType.PARAMETER_DOUBLE,
               "integer": ParameterType.PARAMETER_INTEGER,
               "bool": ParameterType.PARAMETER_BOOL,
@@ -147,7 +148,7 @@ def parameter_descriptor(spec: FieldSpec) -> ParameterDescriptor:
     brackets), the rule as ``additional_constraints``, the bounds as a
     ``floating_point_range`` / ``integer_range`` (an open bound, ``> 0``, is given as the
     closed one and refused by the rule), and ``read_only`` unless a running node accepts a
-    change (:func:`damper_emulator.params.rule`'s ``runtime``)."""
+    change (:func:`damper_emulator.schema.rule`'s ``runtime``)."""
     descriptor = ParameterDescriptor(type=_ROS_TYPES[spec.type], description=spec.description,
                                      additional_constraints=spec.constraint,
                                      read_only=not spec.runtime)
@@ -296,7 +297,7 @@ def check_params_file(path: str) -> None:
     """Refuse, in one line naming ``path``, a params file that cannot be read, is not
     YAML, is empty or holds no ``<node>: ros__parameters:`` mapping (rclpy would start
     the node on its defaults without a word)."""
-    from damper_emulator.params import read_yaml
+    from damper_emulator.schema import read_yaml
 
     doc = read_yaml(path)
     if not doc:
@@ -309,7 +310,7 @@ def check_params_file(path: str) -> None:
 
 
 def _file_keys(path: str) -> set[str]:
-    from damper_emulator.params import read_yaml
+    from damper_emulator.schema import read_yaml
 
     try:
         doc = read_yaml(path)

@@ -46,10 +46,7 @@ from damper_emulator.params import (
     DEFAULT_PARAMS_FILE,
     DamperParams,
     NumericsParams,
-    ParameterError,
     config_from_mapping,
-    node_parameters,
-    read_yaml,
 )
 from damper_emulator.realtime.core import EmulatorCore, Output, Status
 from damper_emulator.realtime.loop import LoopStats, PeriodicLoop
@@ -75,6 +72,7 @@ from damper_emulator.ros.common import (
 )
 from damper_emulator.ros.live import LiveServer, require_sdk
 from damper_emulator.ros.managed import ManagedNode
+from damper_emulator.schema import ParameterError, node_parameters, read_yaml
 
 NODE_NAME = "damper_emulator"
 #: how often the emulator's own live view (``live_port``) sends its latest output [Hz]

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from damper_emulator.errors import UserError
-from damper_emulator.params import ParameterError, check_value, field_spec
+from damper_emulator.schema import ParameterError, check_value, field_spec
 
 PROG = "damper-hil"
 
@@ -39,7 +39,7 @@ def number_type(kind: str, test: Callable[[float], bool], cast: Callable = float
 
 def schema_type(f: dataclasses.Field, option: str) -> Callable[[str], Any]:
     """The argparse ``type`` of an option that sets the schema field ``f`` (a number;
-    :func:`damper_emulator.params.rule`): the text as the field's type, checked by the
+    :func:`damper_emulator.schema.rule`): the text as the field's type, checked by the
     field's rule; a broken rule is argparse's usage error naming ``option``."""
     spec = field_spec(f, option)
     cast = int if spec.type == "integer" else float

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from damper_emulator.dyno.protocols import PROTOCOLS
-from damper_emulator.params import field_spec
+from damper_emulator.schema import field_spec
 from damper_hil.cli.common import (
     PROG,
     CliError,

@@ -74,7 +74,8 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from damper_emulator.outputs import Outputs
-    from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config, read_yaml
+    from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config
+    from damper_emulator.schema import read_yaml
     from damper_hil.engine import open_engine
     from damper_hil.tune.report import write_results
     from damper_hil.tune.runner import run_tune

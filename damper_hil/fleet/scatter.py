@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from damper_emulator.params import ModelConfig, rule, with_extensions
+from damper_emulator.params import ModelConfig, with_extensions
+from damper_emulator.schema import rule
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@
 to the stroke it achieves; ``virtual_rig`` (:class:`RigParams`): what the virtual dyno adds
 (sensor noise, its own travel); ``safety`` (:class:`SafetyParams`): what the host never
 lets the rig do.  Every value is checked on loading (:func:`build`); a bad one is a
-one-line :class:`~damper_emulator.params.ParameterError`.
+one-line :class:`~damper_emulator.schema.ParameterError`.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from damper_emulator.params import ParameterError, build_group, node_parameters, read_yaml
-from damper_emulator.params import check_value as _check
-from damper_emulator.params import rule as _rule
+from damper_emulator.schema import ParameterError, build_group, node_parameters, read_yaml
+from damper_emulator.schema import check_value as _check
+from damper_emulator.schema import rule as _rule
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -134,7 +134,7 @@ def build(cls: type[_G], data: Any, prefix: str, where: str = "<memory>") -> _G:
 
     Raises
     ------
-    damper_emulator.params.ParameterError
+    damper_emulator.schema.ParameterError
         One line naming ``prefix.key``, the rule and ``where``.
     """
     return build_group(cls, {} if data is None else data, prefix, where, _check)

@@ -1,0 +1,97 @@
+"""One independent fit of a diagnosis as a picklable task (:class:`FitTask`) and
+its runner (:func:`run_fit_task`), for any executor: a process pool, Dask workers.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from damper_emulator.acquisition.chain import ESTIMATED_DELAY_START_S
+from damper_emulator.diagnose.base import ACQUISITION_DELAY, delay_rig, make_record
+from damper_emulator.diagnose.candidates import candidates as make_candidates
+from damper_emulator.diagnose.joint import JOINT_NFEV, joint_fit, lag1
+from damper_emulator.dyno.measured import MeasuredData
+from damper_emulator.params import ModelConfig
+from damper_emulator.validation import rms
+
+
+@dataclass(frozen=True)
+class FitTask:
+    """One independent fit of a diagnosis, in plain picklable values: the identified
+    configuration, the files, the cost weights, the present model (its paper's parameters
+    and the effects ``accepted`` with their values) and the candidate ``effect`` to add
+    (``None``: refit the present model alone)."""
+
+    cfg: ModelConfig
+    fit: tuple[MeasuredData, ...]
+    held: tuple[MeasuredData, ...]
+    weights: tuple[float, ...]
+    base_values: Mapping[str, float]
+    accepted: tuple[tuple[str, Mapping[str, float]], ...]
+    effect: str | None
+    nfev: int = JOINT_NFEV
+    #: the first this many ``fit`` files are quasi-static tests, the others chirps
+    n_quasi_static: int = 1
+    #: the candidate's own fit of the round before (its paper's parameters, and its
+    #: effects' values by name): the start of the other order (``joint_fit``)
+    alternative: tuple[Mapping[str, float], Mapping[str, Mapping[str, float]]] | None = None
+    #: the chain candidate: the present model with the estimated chain's delay added
+    #: (``effect`` is ``None``)
+    chain: bool = False
+
+
+#: BLAS threads a fit task runs with (:func:`run_fit_task`).  The fits are the parallel
+#: work, one task per core; OpenBLAS would otherwise start a pool of one thread per core in
+#: every worker, and those threads (which spin before they sleep) compete with the other
+#: worker's fit: with two processes on two cores every task runs about 1.4× longer than
+#: alone; with one BLAS thread per task the diagnosis takes about a third less
+#: (benchmarks/diagnose_bench.py).  Dask's nanny sets the same for its workers
+#: (``OPENBLAS_NUM_THREADS=1``, ``distributed.nanny.pre-spawn-environ``).  It also keeps
+#: the fits' sums independent of the machine's core count (threaded BLAS splits them by
+#: thread, and a fit's path can follow the last bits: docs/diagnose.md).
+FIT_BLAS_THREADS = 1
+
+
+def run_fit_task(task: FitTask) -> dict[str, Any]:
+    """Run one :class:`FitTask` (in any process, with :data:`FIT_BLAS_THREADS` BLAS
+    threads): the joint fit and the plain figures the selection needs (per file: MSE,
+    lag-1 autocorrelation and samples of the fit files, SSE of the held-out files)."""
+    with threadpool_limits(limits=FIT_BLAS_THREADS, user_api="blas"):
+        return _run_fit_task(task)
+
+
+def _run_fit_task(task: FitTask) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    fit = [make_record(d, False) for d in task.fit]
+    held = [make_record(d, True) for d in task.held]
+    cands = {c.effect: c for c in make_candidates(task.cfg, task.fit)}
+    accepted = [(cands[e], v) for e, v in task.accepted]
+    cand = cands[task.effect] if task.effect is not None else None
+    base_values = dict(task.base_values)
+    if task.chain:
+        base_values.setdefault(ACQUISITION_DELAY, ESTIMATED_DELAY_START_S)
+    jf = joint_fit(task.cfg, fit, task.weights, base_values, accepted, cand, task.nfev,
+                   task.n_quasi_static, task.alternative)
+    order = [c for c, _ in accepted] + ([cand] if cand is not None else [])
+    model = jf.model(task.cfg, order)
+    rig = delay_rig(jf.base_values)
+    fit_res = [r.residual(model, rig=rig) for r in fit]
+    held_res = [r.residual(model, rig=rig) for r in held]
+    return {"effect": task.effect, "chain": task.chain,
+            "effects": [c.effect for c in order],
+            "base_values": {k: float(v) for k, v in jf.base_values.items()},
+            "base_std": {k: float(v) for k, v in jf.base_std.items()},
+            "values": [{k: float(v) for k, v in vals.items()} for vals in jf.values],
+            "std": [{k: float(v) for k, v in sd.items()} for sd in jf.std],
+            "fit": {r.name: {"mse": float(np.mean(x * x)), "rho": lag1(x), "n": int(x.size),
+                             "rms": rms(x)} for r, x in zip(fit, fit_res)},
+            "held": {r.name: {"sse": float(np.dot(x, x)), "rms": rms(x)}
+                     for r, x in zip(held, held_res)},
+            "reidentified": jf.reidentified, "friction_factor": jf.friction_factor,
+            "evaluations": jf.evaluations, "seconds": time.perf_counter() - t0}

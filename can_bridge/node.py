@@ -37,15 +37,14 @@ from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thr
 from damper_emulator.ros.common import (
     JointStateIn,
     JointStateOut,
-    NotReadyError,
     SubscriptionThread,
     control_qos,
-    declare_parameters,
     executor_priority,
     publish_diagnostics,
-    wait_until_active,
 )
 from damper_emulator.ros.managed import ManagedNode
+from damper_emulator.ros.parameters import declare_parameters
+from damper_emulator.ros.readiness import NotReadyError, wait_until_active
 from damper_emulator.schema import ParameterError
 
 #: The emulator's status bits that DAMPER_FORCE.Status carries as they are (1..8).

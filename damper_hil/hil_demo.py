@@ -60,8 +60,8 @@ def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
     exercised, its loop running) and, for each ``(topic, node)`` of ``subscribed``, that
     node subscribes to that topic (the live view, so that it sees the ride from its
     start), saying so; one line if a node dies or time runs out."""
-    from damper_emulator.ros.common import NotReadyError, ReadinessProbe
     from damper_emulator.ros.emulator import NODE_NAME
+    from damper_emulator.ros.readiness import NotReadyError, ReadinessProbe
 
     progress(f"      waiting for /{NODE_NAME} to become active (a first run compiles its "
              f"kernels)")

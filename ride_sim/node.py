@@ -40,13 +40,12 @@ from damper_emulator.realtime.rt import RealtimeRequest
 from damper_emulator.ros.common import (
     JointStateIn,
     JointStateOut,
-    NotReadyError,
     control_qos,
     executor_priority,
     take_all,
-    wait_until_active,
 )
 from damper_emulator.ros.emulator import load_node_model
+from damper_emulator.ros.readiness import NotReadyError, wait_until_active
 from damper_emulator.schema import node_parameters, read_yaml
 from ride_sim import loop_delay
 from ride_sim import quarter_car as qc

@@ -17,7 +17,7 @@ from damper_emulator.dyno.measured import MeasuredDataError
 from damper_emulator.errors import DamperHilError, UserError, one_line
 from damper_emulator.identify.quasi_static import IdentificationError
 from damper_emulator.model.valve_table import ValveTableError
-from damper_emulator.ros.common import NotReadyError
+from damper_emulator.ros.readiness import NotReadyError
 from damper_emulator.schema import ParameterError
 from damper_hil import cli
 from damper_hil.cli import validate as validate_cmd

@@ -142,7 +142,7 @@ def test_cold_emulate_is_active_before_its_first_force(tmp_path):
                                    lambda m: forces.append(time.monotonic()),
                                    control_qos(100))
     try:
-        from damper_emulator.ros.common import wait_until_active
+        from damper_emulator.ros.readiness import wait_until_active
 
         waited = wait_until_active(probe.node, "damper_emulator", 120.0,
                                    say=lambda _s: None, executor=probe.executor)

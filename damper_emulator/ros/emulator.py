@@ -62,16 +62,18 @@ from damper_emulator.ros.common import (
     JointStateOut,
     SubscriptionThread,
     control_qos,
-    declare_parameters,
     executor_priority,
-    parameter_overrides,
-    plain_value,
     publish_diagnostics,
     take_all,
-    unflatten,
 )
 from damper_emulator.ros.live import LiveServer, require_sdk
 from damper_emulator.ros.managed import ManagedNode
+from damper_emulator.ros.parameters import (
+    declare_parameters,
+    parameter_overrides,
+    plain_value,
+    unflatten,
+)
 from damper_emulator.schema import ParameterError, node_parameters, read_yaml
 
 NODE_NAME = "damper_emulator"
@@ -148,7 +150,7 @@ class EmulatorNode(ManagedNode):
     ``cleanup`` releases the publishers, the model's core and the loop's ``mlockall``
     (the latency request and SCHED_FIFO end with the loop).  ``active`` is the readiness
     the ride, the bridge and the demo wait for
-    (:func:`~damper_emulator.ros.common.wait_until_active`).  With ``autostart: true`` (the
+    (:func:`~damper_emulator.ros.readiness.wait_until_active`).  With ``autostart: true`` (the
     default) the node configures and activates itself at start.
     """
 
@@ -399,7 +401,7 @@ class EmulatorNode(ManagedNode):
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Accept a run-time change of the ``emulator`` group where its schema allows one
         (rclpy has already refused the read-only parameters, see
-        :func:`~damper_emulator.ros.common.parameter_descriptor`) and the group's rules
+        :func:`~damper_emulator.ros.parameters.parameter_descriptor`) and the group's rules
         hold; the loop takes the new values at its next tick."""
         changes = {}
         for p in params:

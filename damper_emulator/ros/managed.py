@@ -51,7 +51,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_i
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from damper_emulator import topics
-from damper_emulator.ros.common import StopSignals, latched_qos, lifecycle_state_topic
+from damper_emulator.ros.common import StopSignals
+from damper_emulator.ros.readiness import latched_qos, lifecycle_state_topic
 
 #: The managed nodes' own parameter: configure and activate at start.
 AUTOSTART = "autostart"
@@ -97,7 +98,7 @@ class ManagedNode(LifecycleNode):
       ...);
     * the latched ``/<name>/lifecycle_state`` topic, which :meth:`announce` publishes at
       every primary state the node reaches (what
-      :func:`~damper_emulator.ros.common.wait_until_active` reads);
+      :func:`~damper_emulator.ros.readiness.wait_until_active` reads);
     * :attr:`lifecycle_state`: the primary state last reached;
     * ``exit_status`` (0; 1 when a transition of the autostart failed, or a hook raised);
     * :meth:`run` ends on SIGINT or SIGTERM with a ``shutdown`` transition.

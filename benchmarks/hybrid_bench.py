@@ -192,8 +192,12 @@ def run(args: argparse.Namespace) -> None:
     tmp.mkdir()
     proc, doc, _, _ = run_pair(tmp, n, ["--delay-change-at", "12", "--delay-change-to-ms",
                                         "8"], dur)
-    if doc:
-        _starts, nrms = windows(tmp / "out")
+    _starts, nrms = windows(tmp / "out") if doc else (None, np.zeros(0))
+    if len(nrms) <= 4:
+        # a ride stopped (by the safety layer) before the change: say so, do not score it
+        print(f"| delay 4 → 8 ms mid-ride, adapted | {proc.returncode} | "
+              f"{doc.get('reason') or '–'} | stopped after {len(nrms)} windows of 0.5 s |")
+    else:
         # the change comes 12 s after the first command, some 8 s into the ride (settle,
         # identification and fit first): from the worst window on
         peak_i = int(np.argmax(nrms[: len(nrms) - 4]))

@@ -233,8 +233,7 @@ def build_group(cls: type[_G], data: Any, prefix: str, where: str,
 
 
 # --------------------------------------------------------------------------------------
-# Rule-checked parameter groups of the nodes and the ride simulation (one checker for
-# every group that is not the damper's own).
+# Checking a value against its field's rule (the one checker of every group)
 
 #: A value as an error message shows it: its repr, cut short (a few elements of a few
 #: levels, 60 characters of a scalar).  A YAML alias bomb, a few lines of anchors that

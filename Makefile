@@ -11,10 +11,14 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet uv
 
 # uv resolves and installs the same versions as pip, in a fraction of the time (the
-# dependencies' wheels, ROS 2's included, are most of a fresh `make test`); pip if uv fails
+# dependencies' wheels, ROS 2's included, are most of a fresh `make test`); pip if uv fails.
+# --compile-bytecode as pip does, and compileall for the packages here: where
+# PYTHONDONTWRITEBYTECODE is set, every process would otherwise compile each module it
+# imports again (a CLI start 1.1 -> 2.8 s)
 $(STAMP): $(BIN)/python pyproject.toml
-	$(BIN)/python -m uv pip install --quiet --python $(BIN)/python -e '.[test]' \
+	$(BIN)/python -m uv pip install --quiet --compile-bytecode --python $(BIN)/python -e '.[test]' \
 	    || $(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m compileall -q damper_emulator ride_sim can_bridge damper_hil
 	touch $(STAMP)
 
 demo: $(STAMP)

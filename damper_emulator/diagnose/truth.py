@@ -25,6 +25,7 @@ import numpy as np
 
 from damper_emulator.acquisition.chain import record_channel
 from damper_emulator.acquisition.rig import RigParams
+from damper_emulator.diagnose.truth_series import Series, series_starts
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.measured import MeasuredData, write_measured_csv
 from damper_emulator.dyno.simulated import sine_file_name
@@ -190,7 +191,8 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
                      noise_std_n: float = 5.0, seed: int = 0, temperature: bool = False,
                      extra_force: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
                      | None = None, form: ModelForm = ModelForm(),
-                     rig: RigParams | None = None) -> dict[str, MeasuredData]:
+                     rig: RigParams | None = None, series: Series | None = None
+                     ) -> dict[str, MeasuredData]:
     """Run ``cfg`` over the protocol: ``{file name: MeasuredData}``, identification files
     first.
 
@@ -217,6 +219,10 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
         skew, sampling, the noise, the converter; the velocity is not quantised, the
         dyno derives it).  The files do not carry the chain: a user gives it (``--rig``)
         or the diagnosis estimates it.
+    series : Series, optional
+        How the files follow each other (:mod:`damper_emulator.diagnose.truth_series`):
+        the rig's faults on the series clock, the damper's changes per file, the oil's
+        temperature per file.
     """
     protocol = protocol or Protocol()
     coarse = protocol.histories()
@@ -226,6 +232,7 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
         cfg = dataclasses.replace(cfg, numerics=dataclasses.replace(
             cfg.numerics,
             max_substep_s=cfg.numerics.max_substep_s / form.integrator_refinement))
+    series = series or Series()
     model = DamperModel(cfg)
     lugre = (cfg.damper.extensions is not None
              and cfg.damper.extensions.lugre_friction is not None)
@@ -234,17 +241,32 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
     rng = np.random.default_rng(seed)
     out: dict[str, MeasuredData] = {}
     sine_index = 0
-    for name, (t, x, v) in protocol.histories().items():
+    histories = protocol.histories()
+    starts = series_starts([t[-1] - (max(t[0], 0.0) if n.startswith("sine_") else t[0])
+                            for n, (t, _, _) in histories.items()], series.gap_s)
+    phases = rng.uniform(0.0, 2.0 * np.pi, len(series.faults.lines))
+    for index, (name, (t, x, v)) in enumerate(histories.items()):
         is_sine = name.startswith("sine_")
         temp = None
-        if temperature:
+        if series.oil_temperatures_c is not None:
+            temp = np.full_like(t, series.oil_temperatures_c[index])
+        elif temperature:
             temp = session_temperatures(name, t, sine_index if is_sine else None)
-        res = simulate(model, t, x, v, temperature_c=temp)
+        file_model = model
+        if series.changes is not None:
+            file_model = DamperModel(dataclasses.replace(cfg, damper=dataclasses.replace(
+                cfg.damper, **series.changes(index))))
+        res = simulate(file_model, t, x, v, temperature_c=temp)
         f = res.force_n
         if extra_force is not None:
             f = f + extra_force(t, x, v)
         if smooth > 0.0:  # the smooth friction in place of eq 4's switch
             f = f + f_fr * (np.tanh(v / smooth) - np.sign(v))
+        if not series.faults.does_nothing:  # the rig's amplifier, on the series clock
+            t_series = starts[index] + t - (0.0 if is_sine else t[0])
+            f = series.faults.apply(t_series, f, phases)
+        if not series.temperature_column:
+            temp = None
         if rig is not None:  # through the rig's channels, at the files' sample times
             tc = coarse[name][0]
             velocity_channel = dataclasses.replace(rig.displacement, adc_bits=0)

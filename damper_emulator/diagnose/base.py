@@ -135,13 +135,52 @@ def fit_substep(model: DamperModel, velocity: np.ndarray) -> float:
     return max(h, min(FIT_TRAVEL_PER_SUBSTEP_M / v_max, FIT_MAX_SUBSTEP_S))
 
 
+@dataclass(frozen=True)
+class PerFile:
+    """What a diagnosis fits per file beside the damper's model, eliminated in closed form
+    wherever the file's residual is taken (variable projection: the residual less its
+    least-squares fit on these columns): the rig's zero (an offset, a drift in time), its
+    gain, or a damper parameter that changes from file to file
+    (:mod:`damper_emulator.diagnose.series`).
+
+    ``columns``: fixed columns over the samples that count (``n × k``), named by
+    ``names``; ``gain``: the model's own force (as the record holds it) is a column too,
+    the last (named ``gain``)."""
+
+    columns: np.ndarray
+    gain: bool = False
+    names: tuple[str, ...] = ()
+
+    def design(self, force: np.ndarray) -> np.ndarray:
+        """The columns for the model's force ``force`` (the samples that count)."""
+        return (np.column_stack([self.columns, force]) if self.gain else self.columns)
+
+    def coefficients(self, residual: np.ndarray, force: np.ndarray) -> np.ndarray:
+        """The least-squares coefficients of ``residual`` on :meth:`design`."""
+        a = self.design(force)
+        if a.shape[1] == 0:
+            return np.zeros(0)
+        coef: np.ndarray = np.linalg.lstsq(a, residual, rcond=None)[0]
+        return coef
+
+    def project(self, residual: np.ndarray, force: np.ndarray) -> np.ndarray:
+        """``residual`` less its fit on :meth:`design`."""
+        a = self.design(force)
+        if a.shape[1] == 0:
+            return residual
+        out: np.ndarray = residual - a @ self.coefficients(residual, force)
+        return out
+
+
 @dataclass
 class Record:
-    """One file ready to simulate: samples, the velocity used, whether it is held out."""
+    """One file ready to simulate: samples, the velocity used, whether it is held out,
+    and what is fitted per file beside the model (:class:`PerFile`)."""
 
     data: MeasuredData
     velocity: np.ndarray
     held_out: bool
+    per_file: PerFile | None = None
 
     @property
     def name(self) -> str:
@@ -197,22 +236,29 @@ class Record:
         """``F_sim − F_meas`` [N] from :attr:`start` on of ``model`` with the discovered
         term ``Σ c_k column_k`` of ``source`` added (through the chain)."""
         total = self.with_term(*source(model, self), coefficients, rig)
+        return self.counted_residual(total)
+
+    def counted_residual(self, force: np.ndarray) -> np.ndarray:
+        """``F_sim − F_meas`` [N] of the model's force ``force`` as the record holds it
+        (every sample), from :attr:`start` on, less what is fitted per file
+        (:attr:`per_file`)."""
         k = self.start
-        out: np.ndarray = total[k:] - self.data.force[k:]
-        return out
+        residual: np.ndarray = force[k:] - self.data.force[k:]
+        if self.per_file is None:
+            return residual
+        return self.per_file.project(residual, force[k:])
 
     def residual(self, model: DamperModel, fast: bool = False,
                  rig: RigParams | None = None) -> np.ndarray:
         """``F_sim − F_meas`` [N] of ``model`` on this file, from :attr:`start` on
-        (``rig``: as :meth:`simulate`)."""
-        k = self.start
-        residual: np.ndarray = self.simulate(model, fast, rig)[k:] - self.data.force[k:]
-        return residual
+        (``rig``: as :meth:`simulate`), less what is fitted per file."""
+        return self.counted_residual(self.simulate(model, fast, rig))
 
 
-def make_record(data: MeasuredData, held_out: bool) -> Record:
+def make_record(data: MeasuredData, held_out: bool, per_file: PerFile | None = None
+                ) -> Record:
     """The record of ``data`` with the velocity ``validate`` uses."""
-    return Record(data, record_velocity(data)[0], held_out)
+    return Record(data, record_velocity(data)[0], held_out, per_file)
 
 
 def config_value(cfg: ModelConfig, path: str) -> float:

@@ -220,7 +220,7 @@ class Space:
         self.refused = True
         try:
             residuals: np.ndarray = np.concatenate(
-                [(force[rec.start:] - rec.data.force[rec.start:]) * w
+                [rec.counted_residual(force) * w
                  for rec, w, force in zip(self.records, self.weights, self._forces(s))])
         except (ParameterError, ValueError):
             residuals = np.full(self.n, FAILED_COST)
@@ -426,6 +426,23 @@ def lag1(r: np.ndarray) -> float:
     if r.size < 3 or den <= 0.0:
         return 0.0
     return min(max(float(np.dot(r[1:], r[:-1])) / den, 0.0), MAX_RHO)
+
+
+
+def fit_columns(a: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least squares of ``y`` on the columns of ``a``: ``(coefficients, their 1σ, the
+    residual y − a c)``, the σ from ``s² (AᵀA)⁻¹`` inflated by ``(1 + ρ)/(1 − ρ)`` for the
+    residual's lag-1 autocorrelation ρ (as the joint fits' are); infinite where ``AᵀA``
+    is singular."""
+    coef: np.ndarray = np.linalg.lstsq(a, y, rcond=None)[0]
+    r: np.ndarray = y - a @ coef
+    rho = lag1(r)
+    s2 = float(np.dot(r, r)) / max(r.size - a.shape[1], 1) * (1.0 + rho) / (1.0 - rho)
+    try:
+        sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(a.T @ a)) * s2, 0.0))
+    except np.linalg.LinAlgError:
+        sd = np.full(a.shape[1], np.inf)
+    return coef, sd, r
 
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from damper_emulator.acquisition.chain import ESTIMATED_DELAY_START_S
-from damper_emulator.diagnose.base import ACQUISITION_DELAY, delay_rig, make_record
+from damper_emulator.diagnose.base import ACQUISITION_DELAY, PerFile, delay_rig, make_record
 from damper_emulator.diagnose.candidates import candidates as make_candidates
 from damper_emulator.diagnose.joint import JOINT_NFEV, joint_fit, lag1
 from damper_emulator.dyno.measured import MeasuredData
@@ -44,6 +44,8 @@ class FitTask:
     #: the chain candidate: the present model with the estimated chain's delay added
     #: (``effect`` is ``None``)
     chain: bool = False
+    #: what is fitted per file beside the model, by file name (``base.PerFile``)
+    per_file: tuple[tuple[str, PerFile], ...] = ()
 
 
 #: BLAS threads a fit task runs with (:func:`run_fit_task`).  The fits are the parallel
@@ -68,8 +70,9 @@ def run_fit_task(task: FitTask) -> dict[str, Any]:
 
 def _run_fit_task(task: FitTask) -> dict[str, Any]:
     t0 = time.perf_counter()
-    fit = [make_record(d, False) for d in task.fit]
-    held = [make_record(d, True) for d in task.held]
+    per_file = dict(task.per_file)
+    fit = [make_record(d, False, per_file.get(d.name or d.path)) for d in task.fit]
+    held = [make_record(d, True, per_file.get(d.name or d.path)) for d in task.held]
     cands = {c.effect: c for c in make_candidates(task.cfg, task.fit)}
     accepted = [(cands[e], v) for e, v in task.accepted]
     cand = cands[task.effect] if task.effect is not None else None

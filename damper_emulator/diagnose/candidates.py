@@ -165,7 +165,9 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
 
     # thermal: with a measured temperature, β between 0 and 0.1 /K (oils: 0.02-0.04);
     # without, β held at a typical oil's and the lumped heat capacity fitted (100 J/K, a
-    # few grams of oil, .. 100 kJ/K, far more than any damper)
+    # few grams of oil, .. 100 kJ/K, far more than any damper).  A temperature column
+    # that does not move says the oil did not warm: no thermal candidate (a drifting
+    # load-cell zero was named thermal through the heat model)
     # and the temperature at which the identified valves hold within the measured range
     # (± 10 K): the identification averaged over whatever temperatures its files had
     temp = temperature_stats(fit_data)
@@ -177,8 +179,8 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
              Parameter("reference_temperature_c", t_lo - 10.0, t_hi + 10.0, temp[0], False,
                        "°C")),
             _with({}), note="driven by the measured temperature"))
-    else:
-        t_ref = temp[0] if temp is not None else 25.0
+    elif temp is None:
+        t_ref = 25.0
         out.append(Candidate(
             "viscosity_temperature",
             (Parameter("heat_capacity_j_per_k", 100.0, 1e5, 2000.0, True, "J/K"),),

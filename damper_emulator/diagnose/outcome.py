@@ -25,7 +25,9 @@ from damper_emulator.diagnose.base import (
 )
 from damper_emulator.diagnose.candidates import Candidate
 from damper_emulator.diagnose.discovery import Discovery
+from damper_emulator.diagnose.interference import Line
 from damper_emulator.diagnose.joint import delta_bic
+from damper_emulator.diagnose.series import SeriesResult
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import ModelConfig
 
@@ -304,6 +306,15 @@ class Diagnosis:
     records: list[Record] = field(default_factory=list)
     #: the term discovered in what the library left (:mod:`.discovery`), if it ran
     discovered: Discovery | None = None
+    #: the identified model's residual r.m.s. with the rig's findings taken out (lines,
+    #: per-file zero and gain) [N]; ``rms_before`` is on the files as recorded
+    rms_before_rig: dict[str, float] = field(default_factory=dict)
+    #: the lines of interference taken out of the records
+    lines: list[Line] = field(default_factory=list)
+    #: what moves from file to file over the series
+    series: SeriesResult | None = None
+    #: what the rig did (``measurement.Finding``), for the JSON's ``measurement``
+    measurement: list[Any] = field(default_factory=list)
 
     @property
     def chosen(self) -> StepFit | None:
@@ -422,6 +433,12 @@ class Diagnosis:
                        for rnd in self.rounds],
             "acquisition": self.acquisition_json(),
             "discovered": self.discovered.to_json() if self.discovered is not None else None,
+            "rms_before_without_rig": self.rms_before_rig,
+            "measurement": [f.to_json() for f in self.measurement],
+            "drift": ([d.to_json() for d in self.series.taken]
+                      if self.series is not None else []),
+            "series": ({"positions": self.series.positions, "tried": self.series.tried}
+                       if self.series is not None else None),
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "floor_N": self.floor_n, "noise_N": self.noise_n,

@@ -1,0 +1,324 @@
+"""The library's rounds: forward selection of the candidate effects, each fitted jointly
+with the paper's parameters, scored on the held-out files (module
+:mod:`damper_emulator.diagnose.selection`, steps 2–6), with the rig's delay as a
+competitor where the chain is estimated.
+
+:class:`LibraryRounds` holds a diagnosis's session and executor; :meth:`LibraryRounds.run`
+is one round (its fits as tasks), :meth:`LibraryRounds.select` the whole selection, which
+returns :class:`RoundsOutcome`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+from typing import Any, cast
+
+from damper_emulator.acquisition.chain import ESTIMATED_DELAY_START_S
+from damper_emulator.diagnose.base import ACQUISITION_DELAY
+from damper_emulator.diagnose.outcome import (
+    CHAIN_RUNNERS,
+    MAX_DELTA_BIC,
+    MIN_GAIN_OVER_LEADER,
+    MIN_T_RATIO,
+    STRUCTURE_RATIO,
+    StepFit,
+    floor_level,
+    pooled_rms,
+    structure_ratio,
+)
+from damper_emulator.diagnose.pool import LocalPool, unordered
+from damper_emulator.diagnose.session import Session
+from damper_emulator.diagnose.tasks import FitTask, run_fit_task
+
+__all__ = ["CHAIN", "LibraryRounds", "RoundsOutcome"]
+
+#: the chain candidate's place in a round's list of effects
+CHAIN = "(the rig's delay)"
+
+
+@dataclass
+class RoundsOutcome:
+    """What the library's rounds found: the refitted paper's model (the first round's
+    reference), the effects added (each fitted with all before it), every round's fits,
+    and the pair's gain where two effects were found together."""
+
+    refit: StepFit
+    steps: list[StepFit] = field(default_factory=list)
+    rounds: list[list[StepFit]] = field(default_factory=list)
+    pair_gain: float | None = None
+
+
+class LibraryRounds:
+    """The rounds of one diagnosis on ``session``'s records, the fits on ``executor`` or
+    in ``jobs`` local processes; at most ``max_effects`` effects."""
+
+    def __init__(self, session: Session, local: LocalPool, executor: Executor | None,
+                 max_effects: int):
+        self.s = session
+        self.local = local
+        self.executor = executor
+        self.max_effects = max_effects
+        self.rounds: list[list[StepFit]] = []
+        self.steps: list[StepFit] = []
+        self.pair_gain: float | None = None
+
+    # -- one round ---------------------------------------------------------------------
+    def task(self, present: StepFit | None, effect: str | None,
+             before: StepFit | None = None) -> FitTask:
+        """The task that fits ``effect`` (``None``: the present model alone; ``CHAIN``:
+        the rig's delay) on top of ``present`` (``None``: the identified model)."""
+        s = self.s
+        acc: tuple[tuple[str, Mapping[str, float]], ...]
+        if present is None:
+            bv, acc = s.base_values, ()
+        else:
+            bv = present.out["base_values"]
+            acc = tuple(zip(present.effects, present.out["values"]))
+        # an effect that replaces a paper's parameter leaves it at the identified value
+        bv = {**s.base_values, **bv}
+        alt = (None if before is None else
+               (before.out["base_values"], dict(zip(before.effects, before.out["values"]))))
+        chain = effect == CHAIN
+        return FitTask(s.cfg, tuple(r.data for r in s.fit), tuple(r.data for r in s.held),
+                       tuple(s.weights), bv, acc, None if chain else effect, s.nfev,
+                       s.n_quasi_static, alt, chain, tuple(s.per_file.items()))
+
+    def step_fit(self, present: StepFit | None, out: dict[str, Any]) -> StepFit:
+        order = [] if present is None else list(present.candidates)
+        if out["effect"] is not None:
+            order.append(self.s.candidates[out["effect"]])
+        return StepFit(self.s.cfg, order, out)
+
+    def run(self, present: StepFit | None, effects: Sequence[str | None], label: str,
+            before: Mapping[str, StepFit] | None = None) -> list[StepFit]:
+        """One round: each of ``effects`` fitted on top of ``present`` (each also from its
+        fit ``before``, the other order), in ``effects``' order."""
+        by_effect = self.s.candidates
+        # the longest fits first (a round ends with its last fit: better several short
+        # ones than one long one alone on a worker)
+        order = sorted(range(len(effects)), key=lambda i: -(
+            by_effect[e].relative_cost if (e := effects[i]) in by_effect else 0))
+        tasks = [self.task(present, e, (before or {}).get(e) if e in by_effect else None)
+                 for e in (effects[i] for i in order)]
+        out: list[StepFit | None] = [None] * len(tasks)
+        it = (unordered(self.executor, run_fit_task, tasks) if self.executor is not None
+              else self.local.map_unordered(run_fit_task, tasks))
+        for n_done, (i, res) in enumerate(it, 1):
+            out[order[i]] = self.step_fit(present, res)
+            e = res["effect"] or ("the rig's delay" if res["chain"]
+                                  else "present model alone")
+            self.s.say(f"{label} [{n_done}/{len(tasks)}] {e}: held-out r.m.s. "
+                       + ", ".join(f"{v['rms']:.1f}" for v in res["held"].values())
+                       + f" N ({res['evaluations']} simulations, {res['seconds']:.1f} s; "
+                       f"{self.s.elapsed():.0f} s into the diagnosis)")
+        return cast("list[StepFit]", out)  # every task has filled its slot
+
+    def within_floor(self, f: StepFit) -> bool:
+        """``f``'s held-out residual is within the floor."""
+        res = f.residuals(self.s.held)
+        return pooled_rms(res) <= floor_level(self.s.held, res)[0]
+
+    # -- the pair and the runners-up ---------------------------------------------------
+    def pair_search(self, ref: StepFit, fits: list[StepFit]) -> list[StepFit] | None:
+        """Step 6's pair: the fit with the most evidence on the identification files
+        (the lowest ΔBIC, at most ``MAX_DELTA_BIC``) fitted with each other candidate,
+        each pair scored against ``ref``; ``[lead, partner]`` (the partner scored
+        against the lead, as a second step is) or ``None``."""
+        say = self.s.say
+        if len(fits) < 2:
+            return None
+        lead = min(fits, key=lambda f: f.delta_bic)
+        if lead.delta_bic > MAX_DELTA_BIC:
+            return None
+        name = lead._added.effect
+        say(f"round 2: nothing significant alone; {name} (ΔBIC {lead.delta_bic:.0f}, "
+            f"gain {100 * lead.score:+.1f} %) fitted with each other candidate")
+        pairs = self.run(lead, [f._added.effect for f in fits if f is not lead],
+                         "round 2 (pairs)", {f._added.effect: f for f in fits})
+        for f in pairs:
+            f.score_against(ref, False)
+        self.rounds.append(sorted(pairs, key=lambda f: (-f.significant, -f.score)))
+        for f in self.rounds[-1][:3]:
+            say(f"round 2: {name} + {f._added.effect} gain {100 * f.score:+.1f} %, "
+                f"ΔBIC {f.delta_bic:.0f}{' (significant)' if f.significant else ''}")
+        sig = [f for f in pairs if f.significant]
+        if not sig:
+            return None
+        partner = max(sig, key=lambda f: f.score)
+        self.pair_gain = partner.score
+        say(f"added {name} and {partner._added.effect} together: held-out gain "
+            f"{100 * self.pair_gain:.1f} % against the refitted model")
+        partner.score_against(lead, False)
+        return [lead, partner]
+
+    def runners_with_delay(self, present: StepFit, small: bool,
+                           sig: list[StepFit]) -> StepFit | None:
+        """The runners-up with the rig's delay: the rig's delay is significant,
+        an effect (the leader) gains more but leaves structure.  The rig may hold
+        another effect and a delay (a recorded cavity: the delay alone cannot follow
+        the cavity, the cavity alone not the delay, and free air half follows each and
+        leads).  The next ``CHAIN_RUNNERS`` significant effects are fitted again with
+        the delay free, from ``present`` with the delay at its neutral start (the
+        chain candidate's own delay is biased by the effect it stood in for).  One is
+        returned (the largest gain) where the delay is significant on top of that
+        effect alone and beyond ``MIN_T_RATIO`` σ of zero, and the two together are
+        significant against the leader and cut its held-out r.m.s. by at least
+        ``MIN_GAIN_OVER_LEADER``: the leader is not fitted with the delay,
+        as a delay also follows part of an effect of the same shape (free air, a
+        compliance), and is tried again on top of the leader in the next round."""
+        ranked = sorted(sig, key=lambda f: -f.score)
+        leader, runners = ranked[0], ranked[1:1 + CHAIN_RUNNERS]
+        if not runners:
+            return None
+        start = StepFit(self.s.cfg, list(present.candidates), {
+            **present.out, "base_values": {**present.out["base_values"],
+                                           ACQUISITION_DELAY: ESTIMATED_DELAY_START_S}})
+        label = f"round {len(self.rounds) + 1} (the runners-up with the rig's delay)"
+        both = self.run(start, [f._added.effect for f in runners], label,
+                        {f._added.effect: f for f in runners})
+        taken: StepFit | None = None
+        for b, alone in zip(both, runners):
+            b.score_against(alone, self.within_floor(alone))
+            on_top = b.significant
+            b.score_against(leader, self.within_floor(leader))
+            over_leader = b.significant and b.score >= MIN_GAIN_OVER_LEADER
+            b.score_against(present, small)
+            tau = b.out["base_values"][ACQUISITION_DELAY]
+            sd = b.out["base_std"].get(ACQUISITION_DELAY, math.inf)
+            self.s.say(f"{label}: {alone._added.effect} with the delay {1e3 * tau:.3f} ± "
+                       f"{1e3 * sd:.3g} ms: gain {100 * b.score:+.1f} %; the delay "
+                       f"{'' if on_top else 'not '}significant on top of it; "
+                       f"{'' if over_leader else 'not '}enough over {leader._added.effect}")
+            if (on_top and over_leader and b.significant and tau > MIN_T_RATIO * sd
+                    and (taken is None or b.score > taken.score)):
+                taken = b
+        if taken is not None:
+            self.s.say(f"{label}: the rig's delay taken with {taken._added.effect}: every "
+                       "later fit frees it")
+        return taken
+
+    # -- the selection -----------------------------------------------------------------
+    def select(self) -> RoundsOutcome:
+        """Forward selection (module :mod:`~damper_emulator.diagnose.selection`, steps
+        2–6), the rig's delay competing where it is estimated."""
+        s, say = self.s, self.s.say
+        by_effect = s.candidates
+        jobs = self.local.jobs
+        say(f"round 1: the paper's model refitted and {len(by_effect)} candidates fitted "
+            f"with it ({min(jobs, len(by_effect) + 1) if self.executor is None else 'executor'}"
+            " processes)" + (", and the rig's delay (the chain candidate)" if s.estimate
+                             else ""))
+        chain_slot = [CHAIN] if s.estimate else []
+        first = self.run(None, [None, *chain_slot, *by_effect], "round 1")
+        refit, fits = first[0], first[1:]
+        chain_fit = fits.pop(0) if s.estimate else None
+        present = refit
+        remaining = list(by_effect)
+        steps = self.steps
+        while True:
+            held_res = present.residuals(s.held)
+            floor, _noise = floor_level(s.held, held_res)
+            small = pooled_rms(held_res) <= floor
+            for f in fits:
+                f.score_against(present, small)
+            sig = [f for f in fits if f.significant]
+            if chain_fit is not None:
+                chain_fit.score_against(present, small)
+                say(f"round {len(self.rounds) + 1}: the rig's delay "
+                    f"{1e3 * chain_fit.out['base_values'][ACQUISITION_DELAY]:.3f} ms gain "
+                    f"{100 * chain_fit.score:+.1f} %, ΔBIC {chain_fit.delta_bic:.0f}"
+                    f"{' (significant)' if chain_fit.significant else ''}")
+                if chain_fit.significant and all(chain_fit.score >= f.score for f in sig):
+                    # the rig explains more than any effect: taken (not an effect), and
+                    # the round again on top of it, every fit with the delay free
+                    say(f"round {len(self.rounds) + 1}: the rig's delay taken: "
+                        "every later fit frees it")
+                    chain_taken = chain_fit
+                    if steps:  # the last step's model, with the delay
+                        steps[-1] = chain_fit.replaces(steps[-1])
+                    if self.within_floor(chain_taken):
+                        # nothing left to explain, no round again: this round's fits,
+                        # scored against the model with the delay, are the record (none
+                        # can be significant)
+                        for f in fits:
+                            f.score_against(chain_taken, True)
+                        self.rounds.append(sorted(fits, key=lambda f: -f.score))
+                        say(f"round {len(self.rounds)}: with the rig's delay the held-out "
+                            "r.m.s. is within the floor: nothing more to explain")
+                        present = chain_taken  # (steps[-1], where there are steps)
+                        if not steps:
+                            refit = present
+                        break
+                    nxt = self.run(chain_fit, [None, *remaining],
+                                   f"round {len(self.rounds) + 1} (with the rig's delay)",
+                                   {f._added.effect: f for f in fits})
+                    present, fits, chain_fit = nxt[0], nxt[1:], None
+                    if present.sse_held > chain_taken.sse_held:
+                        present = chain_taken
+                    if not steps:
+                        refit = present
+                    continue
+                if (chain_fit.significant and sig
+                        and not self.within_floor(max(sig, key=lambda f: f.score))):
+                    with_delay = self.runners_with_delay(present, small, sig)
+                    if with_delay is not None:
+                        fits = [f for f in fits if f._added.effect
+                                != with_delay._added.effect] + [with_delay]
+                        sig, chain_fit = [with_delay], None
+            self.rounds.append(sorted(fits, key=lambda f: (-f.significant, -f.score)))
+            for f in self.rounds[-1][:3]:
+                say(f"round {len(self.rounds)}: {f._added.effect} gain "
+                    f"{100 * f.score:+.1f} %, ΔBIC {f.delta_bic:.0f}"
+                    f"{' (significant)' if f.significant else ''}")
+            if small:
+                say(f"round {len(self.rounds)}: held-out r.m.s. {pooled_rms(held_res):.2f} N "
+                    f"is within the floor {floor:.2f} N: nothing more to explain")
+            if (not sig and not steps and not small and self.max_effects >= 2
+                    and structure_ratio(held_res) > STRUCTURE_RATIO):
+                pair = self.pair_search(present, fits)
+                if pair is not None:
+                    steps += pair
+                break
+            if not sig:
+                break
+            best = max(sig, key=lambda f: f.score)
+            steps.append(best)
+            remaining.remove(best._added.effect)
+            say(f"added {best._added.effect} ({best._added.family}): held-out gain "
+                f"{100 * best.score:.1f} %")
+            if len(steps) >= self.max_effects or not remaining or self.within_floor(best):
+                break
+            # the next round: the present model refitted once more (the reference: a
+            # candidate must beat the present model's own further convergence, not only
+            # its last fit) and every remaining candidate on top of it
+            # (each candidate also from its own fit of this round: joint_fit, the other
+            # order); the chain candidate again while it has not been taken
+            with_chain = [CHAIN] if chain_fit is not None else []
+            nxt = self.run(best, [None, *with_chain, *remaining],
+                           f"round {len(self.rounds) + 1}",
+                           {f._added.effect: f for f in fits})
+            present, fits = nxt[0], nxt[1:]
+            if with_chain:
+                chain_fit = fits.pop(0)
+            if present.sse_held > best.sse_held:
+                present = best
+        self.delay_on_effects()
+        return RoundsOutcome(refit, steps, self.rounds, self.pair_gain)
+
+    def delay_on_effects(self) -> None:
+        """The effects are in: the rig's delay on top of them, taken if significant
+        (where it is estimated and was not taken before)."""
+        steps = self.steps
+        if not (self.s.estimate and steps
+                and ACQUISITION_DELAY not in steps[-1].out["base_values"]):
+            return
+        (last,) = self.run(steps[-1], [CHAIN], "the rig's delay on the effects")
+        last.score_against(steps[-1], self.within_floor(steps[-1]))
+        self.s.say(f"the rig's delay {1e3 * last.out['base_values'][ACQUISITION_DELAY]:.3f}"
+                   f" ms on the effects: gain {100 * last.score:+.1f} %, ΔBIC "
+                   f"{last.delta_bic:.0f}{' (taken)' if last.significant else ''}")
+        if last.significant:
+            steps[-1] = last.replaces(steps[-1])

@@ -366,6 +366,8 @@ def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
 @pytest.mark.parametrize(("extra", "message"), [
     (["--effects", "lugre_friction,warp_drive"], "unknown effect 'warp_drive'"),
     (["--quasi-static", "/nonexistent/qs.csv"], "qs.csv"),
+    (["--series", "chirp.csv", "quasi_static.csv"],
+     "the series order misses 'sine_1hz.csv': it must name every data file once"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, extra, message):
     data = simulate_session(load_config(), PROTOCOL, noise_std_n=NOISE_N, seed=1)

@@ -21,7 +21,8 @@ of amplitude ``A`` in noise ``σ`` over ``n`` samples stands about ``n A² / (4 
 noise's mean (a 3 N line in 4 N of noise over 12 s at 1 kHz: 1,700, less where the
 damper's residual is broadband around it).  A peak at a harmonic of a periodic file's
 excitation is the damper's force there and is not counted in that file (a 1 Hz sine's
-residual has a harmonic at every hertz).  A peak must lie :data:`MIN_FIT_CYCLES` of its
+residual has a harmonic at every hertz); nor are those harmonics part of its background,
+which bridges them in log power.  A peak must lie :data:`MIN_FIT_CYCLES` of its
 periods inside the file.
 
 **Stationary** (:func:`find_lines`): a peak is a line when two files show it at the same
@@ -60,7 +61,7 @@ LINE_PROMINENCE = 100.0
 #: a line's harmonics are searched up to this order ...
 MAX_HARMONIC_SEARCH = 10
 #: ... and count where one file shows them this many times above their background
-HARMONIC_PROMINENCE = 10.0
+HARMONIC_PROMINENCE = 20.0
 #: half-width of the running median that is a peak's background [Hz] (at least
 #: :data:`MIN_BACKGROUND_BINS` bins)
 BACKGROUND_HALF_WIDTH_HZ = 2.0
@@ -188,15 +189,22 @@ def _spectrum(t: np.ndarray, residual: np.ndarray, x: np.ndarray
     p = np.abs(np.fft.rfft(r * np.hanning(n))) ** 2
     f = np.fft.rfftfreq(n, 1.0 / fs)
     df = float(f[1])
-    half = max(MIN_BACKGROUND_BINS, math.ceil(BACKGROUND_HALF_WIDTH_HZ / df))
-    bg = median_filter(p, size=2 * half + 1, mode="nearest")
-    ratio = p / np.maximum(bg, np.finfo(float).tiny)
     counted = ((f >= max(MIN_LINE_HZ, MIN_FIT_CYCLES / (t[-1] - t[0])))
                & (f <= MAX_LINE_FRACTION * fs))
     f0 = _periodic_fundamental(t, x)
-    if f0 is not None:  # the excitation's harmonics are the damper's
+    level = p
+    if f0 is not None:
+        # the excitation's harmonics are the damper's: no peak there, and no part of the
+        # background either (the spectrum between them, bridged in log power)
         h = np.rint(f / f0)
-        counted &= ~((h >= 1) & (np.abs(f - h * f0) <= SAME_LINE_BINS * df))
+        harmonic = (h >= 1) & (np.abs(f - h * f0) <= SAME_LINE_BINS * df)
+        counted &= ~harmonic
+        clear = np.flatnonzero(~harmonic & (p > 0))
+        if clear.size >= 2:
+            level = np.exp(np.interp(np.arange(p.size), clear, np.log(p[clear])))
+    half = max(MIN_BACKGROUND_BINS, math.ceil(BACKGROUND_HALF_WIDTH_HZ / df))
+    bg = median_filter(level, size=2 * half + 1, mode="nearest")
+    ratio = p / np.maximum(bg, np.finfo(float).tiny)
     return f, ratio, counted
 
 

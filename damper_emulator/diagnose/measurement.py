@@ -113,9 +113,8 @@ def drift_findings(drifts: Sequence[Drift]) -> list[Finding]:
                          "data do not tell them apart)")
         if d.kind.name == "gain":
             value = max(values.values(), key=lambda v: abs(v - 1.0))
-            out.append(Finding("gain", value, "-", "force",
-                               "the force channel's gain against the first file: "
-                               + evidence, values))
+            out.append(Finding("gain", value, "-", "force", f"{d.kind.doc}: {evidence}",
+                               values))
             continue
         out.append(Finding("zero_offset", max(values.values(), key=abs), "N", "force",
                            "the load cell's zero against the first file, at rest too: "

@@ -210,6 +210,10 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                   "Model written to `params_with_effect.yaml`: the paper's parameters and "
                   "the term refitted together, the term as the extension "
                   "`discovered_term`, which the emulator, the ride and replay run.", ""]
+    elif diag.effect == "drift":
+        lines += [f"No library effect is added; a parameter of the damper moves over the "
+                  f"test series (section The series): the family `{diag.family}` is its.",
+                  ""]
     elif diag.family == "other" and diag.closest is not None:
         c = diag.closest
         # (two effects where they were only significant together: the pair search)
@@ -231,22 +235,27 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                   f"and {doc['thresholds']['floor_noise_factor']:g}× the noise level "
                   f"{diag.noise_n:.2f} N) or without structure, and no candidate is "
                   "significant.", ""]
-    lines += _chain_lines(doc["acquisition"]) + _discovery_lines(diag)
+    lines += (_rig_lines(doc) + _series_lines(diag) + _chain_lines(doc["acquisition"])
+              + _discovery_lines(diag))
     lines += ["## The paper's parameters", "",
               "Identified (`identify`'s staged fits) and after the joint fit of the "
               "diagnosis (simulated over the identification files, with the effects above):",
               "", *_base_table(diag), "",
               "## Residual r.m.s. per file [N]", "",
-              "| file | role | identified | refitted | after | change |",
-              "|---|---|---|---|---|---|"]
+              "| file | role | identified | rig taken out | refitted | after | change |",
+              "|---|---|---|---|---|---|---|"]
     refit = doc["refit"]["rms"] if doc["refit"] else {}
     for r in diag.records:
         b, a = diag.rms_before[r.name], diag.rms_after[r.name]
         ch = f"{100 * (a / b - 1):+.1f} %" if b > 0 else "–"
         lines.append(f"| {r.name} | {'held out' if r.held_out else 'fit'} | {b:.2f} | "
+                     f"{_fmt(diag.rms_before_rig.get(r.name))} | "
                      f"{_fmt(refit.get(r.name))} | {a:.2f} | {ch} |")
-    lines += ["", "*refitted*: the paper's model alone, re-identified jointly (the "
-                  "reference of the first round).", "",
+    lines += ["", "*identified*: `identify`'s model on the files as recorded; *rig taken "
+                  "out*: the same model, the lines of interference taken out of the files "
+                  "(the zero and gain that move over the series are taken out of the "
+                  "refitted model and after); *refitted*: the paper's model alone, "
+                  "re-identified jointly (the reference of the first round).", "",
               f"Structure ratio of the held-out residual (r.m.s. / noise level): "
               f"{diag.structure_before:.2f} identified, {diag.structure_after:.2f} after.  "
               f"Floor {diag.floor_n:.2f} N, noise level {diag.noise_n:.2f} N.", ""]
@@ -270,6 +279,57 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
               "each file are not counted (start-up from equilibrium).", "",
               f"Diagnosis took {diag.seconds:.1f} s.", ""]
     return "\n".join(lines)
+
+
+def _rig_lines(doc: dict[str, Any]) -> list[str]:
+    """The report's section on what the rig did (the JSON's ``measurement``)."""
+    found = doc["measurement"]
+    lines = ["## What the rig did", ""]
+    if not found:
+        return [*lines, "Nothing beyond the measurement chain below: no interference on the "
+                        "force channel, no zero or gain that moves over the series.", ""]
+    lines += ["Left out of every fit and score before any effect was weighed: the rig's, "
+              "not the damper's.", "", "| kind | value | unit | channel | evidence |",
+              "|---|---|---|---|---|"]
+    for f in found:
+        lines.append(f"| {f['kind']} | {_fmt(f['value'])} | {f['unit']} | {f['channel']} | "
+                     f"{f['evidence']} |")
+    return [*lines, ""]
+
+
+def _series_lines(diag: Diagnosis) -> list[str]:
+    """The report's section on what moves from file to file (the JSON's ``drift``)."""
+    series = diag.series
+    if series is None:
+        return []
+    lines = ["## The series", ""]
+    if not series.taken:
+        return [*lines, "Nothing moves from file to file beyond the noise (the zero, a gain, "
+                        "the gas charge, the friction and the valves were each fitted per "
+                        "file; none was significant).", ""]
+    order = sorted(series.positions, key=lambda n: series.positions[n])
+    lines += ["Fitted per file beside the damper's model, every file of the series (the "
+              "first is the reference); a damper's parameter must also follow the series.",
+              "", "| file | " + " | ".join(f"{d.kind.parameter} [{d.kind.unit}]"
+                                           for d in series.taken) + " |",
+              "|---|" + "---|" * len(series.taken)]
+    for name in order:
+        cells = []
+        for d in series.taken:
+            v = d.values().get(name)
+            cells.append("reference" if v is None else
+                         f"{_fmt(v)} ± {_fmt_sd(d.std.get(name))}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines.append("")
+    for d in series.taken:
+        cause = ("the rig's" if d.kind.cause == "rig"
+                 else f"the damper's (family `{d.kind.family}`)")
+        lines.append(f"- **{d.kind.name}**: {d.kind.doc}; {cause}.  ΔBIC {d.delta_bic:.0f}, "
+                     f"explains {100 * d.explained:.0f} % of the series' structured "
+                     f"residual; its line over the series R² {d.r2:.2f}."
+                     + (f"  A change of the {d.ambiguous_with} fits nearly as well: the data "
+                        "do not tell them apart." if d.ambiguous_with else ""))
+    return [*lines, ""]
 
 
 def _chain_lines(acq: dict[str, Any]) -> list[str]:

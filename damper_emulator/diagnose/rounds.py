@@ -103,11 +103,20 @@ class LibraryRounds:
             by_effect[e].relative_cost if (e := effects[i]) in by_effect else 0))
         tasks = [self.task(present, e, (before or {}).get(e) if e in by_effect else None)
                  for e in (effects[i] for i in order)]
+        done = self.execute(present, tasks, label)
+        out: list[StepFit | None] = [None] * len(tasks)
+        for i, fit in enumerate(done):
+            out[order[i]] = fit
+        return cast("list[StepFit]", out)  # every task has filled its slot
+
+    def execute(self, present: StepFit | None, tasks: Sequence[FitTask], label: str
+                ) -> list[StepFit]:
+        """The fits of ``tasks`` (on top of ``present``), in the tasks' order."""
         out: list[StepFit | None] = [None] * len(tasks)
         it = (unordered(self.executor, run_fit_task, tasks) if self.executor is not None
               else self.local.map_unordered(run_fit_task, tasks))
         for n_done, (i, res) in enumerate(it, 1):
-            out[order[i]] = self.step_fit(present, res)
+            out[i] = self.step_fit(present, res)
             e = res["effect"] or ("the rig's delay" if res["chain"]
                                   else "present model alone")
             self.s.say(f"{label} [{n_done}/{len(tasks)}] {e}: held-out r.m.s. "

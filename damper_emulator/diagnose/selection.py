@@ -129,9 +129,14 @@ from damper_emulator.diagnose.pool import LocalPool
 from damper_emulator.diagnose.rounds import LibraryRounds, RoundsOutcome
 from damper_emulator.diagnose.series import (
     KINDS,
+    MIN_SERIES_EXPLAINED,
+    SERIES_MAX_DELTA_BIC,
     SeriesResult,
+    alone,
+    contender,
     file_columns,
     refined,
+    refit_evidence,
     select,
     series_positions,
 )
@@ -140,7 +145,8 @@ from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.validation import rms
 
-__all__ = ["answer", "diagnose", "discover_term", "follow_series", "weigh_effects"]
+__all__ = ["answer", "check_series", "diagnose", "discover_term", "follow_series",
+           "weigh_effects"]
 
 Progress = Callable[[str], None] | None
 
@@ -172,23 +178,54 @@ def weigh_effects(refit: StepFit, ref_held: Sequence[np.ndarray], steps: list[St
     return [], closest, explained, None
 
 
-def follow_series(session: Session, order: Sequence[str] | None) -> SeriesResult:
+def follow_series(session: Session, order: Sequence[str] | None,
+                  rounds: LibraryRounds) -> SeriesResult:
     """Stage 2: what moves from file to file over the series, on the identified model's
     residual of every file (:func:`~damper_emulator.diagnose.series.select`); what it
     takes is fitted per file beside every later fit and score (``session.per_file``).
-    The oil's valve scale is not tried where the files carry a temperature column: a
-    column that moves is the library's thermal candidate's, one that does not says the
-    oil did not warm."""
+    Where the best kind fails only because the identification absorbed it
+    (:func:`~damper_emulator.diagnose.series.contender`), the paper's model is refitted
+    with it per file (``rounds``' pool) and the series weighed again on that model, whose
+    parameters the later fits then start from.  The oil's valve scale is not tried where
+    the files carry a temperature column: a column that moves is the library's thermal
+    candidate's, one that does not says the oil did not warm."""
     say = session.say
     records = session.records
     positions = series_positions(records, order)
     reference = min(positions, key=lambda n: positions[n])
     sigmas = {r.name: noise_level(session.base_res[r.name]) for r in records}
-    files = file_columns(session.base, None, records, reference, sigmas)
     temps = temperature_stats([r.data for r in records])
     kinds = [k.name for k in KINDS if not (k.name == "valve_scale" and temps is not None)]
-    result = select(files, positions, kinds, session.base)
-    refined(session.base, None, records, files, result)
+    model = session.base
+    files = file_columns(model, None, records, reference, sigmas)
+    result = select(files, positions, kinds, model)
+    name = contender(result)
+    if name is not None:
+        best = next(t for t in result.tried if t["kind"] == name and t["round"] == 1)
+        say(f"series: {name} moves over the files (ΔBIC {best['delta_bic']:.0f}) but "
+            f"explains {100 * best['explained']:.0f} % of what the identified model "
+            "misses: the paper's model refitted with it per file and without")
+        per_file = alone(name, files)
+        without = rounds.task(None, None)
+        session.with_per_file(per_file)
+        with_kind = rounds.task(None, None)
+        plain, refit = rounds.execute(None, [without, with_kind],
+                                      f"series (the paper's model with and without {name})")
+        res_with = refit.residuals(records)
+        session.with_per_file({})
+        res_without = plain.residuals(records)
+        k = sum(p.columns.shape[1] + p.gain for p in per_file.values())
+        dbic, explained = refit_evidence([sigmas[r.name] for r in records], res_without,
+                                         res_with, k)
+        say(f"series: with {name} per file the refit leaves {100 * (1 - explained):.0f} % "
+            f"of the structure it leaves without (ΔBIC {dbic:.0f})")
+        if dbic <= SERIES_MAX_DELTA_BIC and explained >= MIN_SERIES_EXPLAINED:
+            model = refit.model()
+            files = file_columns(model, refit.rig, records, reference, sigmas)
+            result = select(files, positions, kinds, model, first=name,
+                            evidence=(dbic, explained))
+            session.base_values.update(refit.out["base_values"])
+    refined(model, None, records, files, result)
     for d in result.taken:
         say(f"series: {d.kind.doc} moves over the files (ΔBIC {d.delta_bic:.0f}, "
             f"{d.kind.cause}): " + ", ".join(f"{k} {v:.4g}" for k, v in d.values().items())
@@ -323,20 +360,21 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     if session.estimate:
         say("no measurement chain given (--rig): the rig's delay of the force against the "
             "displacement competes with the effects (the chain candidate)")
-    drift = follow_series(session, series)
     jobs_ = max(1, int(jobs or 1))
     with LocalPool(jobs_ if executor is None else 1) as local:
-        found = LibraryRounds(session, local, executor, max_effects).select()
+        rounds = LibraryRounds(session, local, executor, max_effects)
+        drift = follow_series(session, series, rounds)
+        found = rounds.select()
     diag = answer(session, found, drift)
     diag.rms_before = rms_recorded
     diag.rms_before_rig = dict(session.rms_before)
     diag.lines = lines
-    diag.measurement = [*line_findings(lines), *drift_findings(drift.taken),
-                        *chain_findings(diag.acquisition_json(),
-                                        recorded[0].data.acquisition)]
     if discovery:
         discover_term(diag, session)
     drift.refresh(session.records, diag.model_after(), diag.rig_after())
+    diag.measurement = [*line_findings(lines), *drift_findings(drift.taken),
+                        *chain_findings(diag.acquisition_json(),
+                                        recorded[0].data.acquisition)]
     diag.seconds = time.perf_counter() - t_start
     say(f"diagnosis: {diag.family}" + (f" ({', '.join(s._added.effect for s in diag.steps)})"
                                        if diag.steps else "") + f" in {diag.seconds:.1f} s")
@@ -354,4 +392,4 @@ def check_series(order: Sequence[str] | None, names: Sequence[str]) -> None:
         extra = sorted(set(order) - set(names))
         what = (f"misses {missing[0]!r}" if missing else f"names {extra[0]!r}, which is no "
                 "file of the diagnosis" if extra else "names a file twice")
-        raise UserError(f"the series order {what}: it must name every file once")
+        raise UserError(f"the series order {what}: it must name every data file once")

@@ -34,39 +34,118 @@ from damper_emulator.params import ModelConfig, load_config, with_extensions
 
 
 @dataclass(frozen=True)
+class RandomDrive:
+    """A random road as a dyno replays it: the damper's stroke as a sum of
+    :attr:`components` sines at frequencies spaced logarithmically from :attr:`f_low_hz`
+    to :attr:`f_high_hz`, each of the same velocity amplitude (a velocity spectrum flat
+    over the band, as between a car's body and wheel-hop modes) and a random phase, scaled
+    to the velocity r.m.s. :attr:`velocity_rms_m_s`; the velocity is the stroke's exact
+    derivative."""
+
+    duration_s: float = 20.0
+    rate_hz: float = 1000.0
+    f_low_hz: float = 1.0
+    f_high_hz: float = 15.0
+    velocity_rms_m_s: float = 0.25
+    components: int = 200
+    seed: int = 7
+
+    def history(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(t, x, v)`` of the drive."""
+        rng = np.random.default_rng(self.seed)
+        f = np.geomspace(self.f_low_hz, self.f_high_hz, self.components)
+        phase = rng.uniform(0.0, 2.0 * np.pi, f.size)
+        t = np.arange(int(round(self.duration_s * self.rate_hz)) + 1) / self.rate_hz
+        # equal velocity amplitudes a·2πf: r.m.s. a·2π·sqrt(N/2)
+        a = self.velocity_rms_m_s / (2.0 * np.pi * np.sqrt(f.size / 2.0))
+        arg = 2.0 * np.pi * np.outer(t, f) + phase
+        x = (np.sin(arg) * (a / f)).sum(axis=1)
+        v = (np.cos(arg) * (2.0 * np.pi * a)).sum(axis=1)
+        return t, x - x[0], v
+
+
+#: the name of the random road's file
+ROAD_FILE = "road.csv"
+
+
+@dataclass(frozen=True)
 class Protocol:
-    """The dyno protocol of a diagnosis: identification files (fit) and validation sines
-    (held out).  Defaults: the paper's (docs/model.md §3) as the virtual dyno runs them
+    """The dyno protocol of a diagnosis: identification files (fit) and held-out files.
+    Defaults: the paper's (docs/model.md §3) as the virtual dyno runs them
     (:mod:`damper_emulator.dyno.protocols`: quasi-static 4 mm/s over ±75 mm twice, 150 s;
-    chirp 0.5–16 Hz in 60 s at 0.05–1.5 m/s; the three validation sines)."""
+    chirp 0.5–16 Hz in 60 s at 0.05–1.5 m/s; the three validation sines held out).
+
+    The other programme (:data:`SPEED_PROGRAMME`): the quasi-static test and a
+    peak-velocity series of sines (:attr:`speeds`, one file each) identified together, a
+    random road (:attr:`road`) held out."""
 
     quasi_static: protocols.QuasiStatic = protocols.QuasiStatic()
-    chirp: protocols.Chirp = protocols.Chirp()
+    #: the chirp (``None``: none)
+    chirp: protocols.Chirp | None = protocols.Chirp()
+    #: a peak-velocity series of sines, one identification file per speed (``None``: none)
+    speeds: protocols.FourteenSpeed | None = None
     #: validation sines: (frequency [Hz], amplitude [m])
     sines: tuple[tuple[float, float], ...] = protocols.PAPER_SINES
-    #: recorded cycles, sample rate and lead-in of each validation sine
+    #: recorded cycles, sample rate and lead-in of each validation sine (and speed sine)
     sine: protocols.Sine = protocols.Sine()
+    #: a random road held out (``None``: none)
+    road: RandomDrive | None = None
+
+    @property
+    def n_fit(self) -> int:
+        """How many of :meth:`histories`' files are identification files (the first)."""
+        return (1 + (self.chirp is not None)
+                + (self.speeds.points if self.speeds is not None else 0))
 
     def oversampled(self, factor: int) -> Protocol:
         """The same tests sampled ``factor`` times faster (the truth's grid under a rig's
         analog filters: :func:`simulate_session`)."""
-        q, c, s = self.quasi_static, self.chirp, self.sine
+        q, c, s, p, r = self.quasi_static, self.chirp, self.sine, self.speeds, self.road
         return dataclasses.replace(
             self, quasi_static=dataclasses.replace(q, rate_hz=q.rate_hz * factor),
-            chirp=dataclasses.replace(c, rate_hz=c.rate_hz * factor),
-            sine=dataclasses.replace(s, rate_hz=s.rate_hz * factor))
+            chirp=dataclasses.replace(c, rate_hz=c.rate_hz * factor) if c else None,
+            speeds=dataclasses.replace(p, rate_hz=p.rate_hz * factor) if p else None,
+            sine=dataclasses.replace(s, rate_hz=s.rate_hz * factor),
+            road=dataclasses.replace(r, rate_hz=r.rate_hz * factor) if r else None)
 
     def histories(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """``{file name: (t, x, v)}`` of every test, identification files first."""
-        q, c, s = self.quasi_static, self.chirp, self.sine
+        q, c, s, p = self.quasi_static, self.chirp, self.sine, self.speeds
         out = {"quasi_static.csv": protocols.quasi_static(
-                   q.velocity_m_s, q.amplitude_m, q.cycles, q.rate_hz),
-               "chirp.csv": protocols.chirp(c.f_start_hz, c.f_end_hz, c.duration_s,
-                                            c.v_start_m_s, c.v_end_m_s, c.rate_hz)}
+                   q.velocity_m_s, q.amplitude_m, q.cycles, q.rate_hz)}
+        if c is not None:
+            out["chirp.csv"] = protocols.chirp(c.f_start_hz, c.f_end_hz, c.duration_s,
+                                               c.v_start_m_s, c.v_end_m_s, c.rate_hz)
+        if p is not None:
+            freqs = protocols.fourteen_speed_frequencies(p.points, p.amplitude_m,
+                                                         p.v_min_m_s, p.v_max_m_s)
+            for k, f in enumerate(freqs, 1):
+                out[speed_file_name(k)] = protocols.sine(
+                    float(f), p.amplitude_m, p.cycles, p.rate_hz,
+                    start_cycles=s.settle_cycles)
         for f, a in self.sines:
             out[sine_file_name(f)] = protocols.sine(f, a, s.cycles, s.rate_hz,
                                                     start_cycles=s.settle_cycles)
+        if self.road is not None:
+            out[ROAD_FILE] = self.road.history()
         return out
+
+
+def speed_file_name(k: int) -> str:
+    """The file of the ``k``-th (from 1) speed of a peak-velocity series."""
+    return f"speed_{k:02d}.csv"
+
+
+def has_lead_in(name: str) -> bool:
+    """Whether the file ``name`` is a sine recorded after a lead-in (dropped)."""
+    return name.startswith(("sine_", "speed_"))
+
+
+#: The other test programme: the quasi-static test and ten peak-velocity sines of
+#: ±25 mm from 0.05 to 1.2 m/s (two cycles each) identified together, a random road of
+#: 20 s held out.
+SPEED_PROGRAMME = Protocol(chirp=None, speeds=protocols.FourteenSpeed(
+    points=10, v_min_m_s=0.05, v_max_m_s=1.2), sines=(), road=RandomDrive())
 
 
 #: Temperature [°C] the thermal example's thermocouple reads: per file, a function of the
@@ -147,9 +226,16 @@ def example_base_changes(names: Sequence[str]) -> dict[str, Any]:
 
 
 def session_temperatures(name: str, t: np.ndarray, sine_index: int | None) -> np.ndarray:
-    """The thermocouple reading of the thermal example session in file ``name``."""
+    """The thermocouple reading of the thermal example session in file ``name`` (a
+    speed series warms as the chirp does, by its speed; the road is as warm as the
+    warmest sine)."""
     if name in THERMAL_SESSION_C:
         return THERMAL_SESSION_C[name](t)
+    if name.startswith("speed_"):
+        k = int(name[len("speed_"):].split(".")[0])
+        return np.full_like(t, 25.0 + 2.5 * (k - 1))
+    if name == ROAD_FILE:
+        return np.full_like(t, max(THERMAL_SINE_TEMPERATURES_C))
     temps = THERMAL_SINE_TEMPERATURES_C
     return np.full_like(t, temps[(sine_index or 0) % len(temps)])
 
@@ -242,11 +328,12 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
     out: dict[str, MeasuredData] = {}
     sine_index = 0
     histories = protocol.histories()
-    starts = series_starts([t[-1] - (max(t[0], 0.0) if n.startswith("sine_") else t[0])
+    starts = series_starts([t[-1] - (max(t[0], 0.0) if has_lead_in(n) else t[0])
                             for n, (t, _, _) in histories.items()], series.gap_s)
     phases = rng.uniform(0.0, 2.0 * np.pi, len(series.faults.lines))
     for index, (name, (t, x, v)) in enumerate(histories.items()):
         is_sine = name.startswith("sine_")
+        lead_in = has_lead_in(name)
         temp = None
         if series.oil_temperatures_c is not None:
             temp = np.full_like(t, series.oil_temperatures_c[index])
@@ -263,7 +350,7 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
         if smooth > 0.0:  # the smooth friction in place of eq 4's switch
             f = f + f_fr * (np.tanh(v / smooth) - np.sign(v))
         if not series.faults.does_nothing:  # the rig's amplifier, on the series clock
-            t_series = starts[index] + t - (0.0 if is_sine else t[0])
+            t_series = starts[index] + t - (0.0 if lead_in else t[0])
             f = series.faults.apply(t_series, f, phases)
         if not series.temperature_column:
             temp = None
@@ -275,11 +362,11 @@ def simulate_session(cfg: ModelConfig, protocol: Protocol | None = None,
                     record_channel(t, v, velocity_channel, tc))
             temp = np.interp(tc, t, temp) if temp is not None else None
             t = tc
-        if is_sine:  # drop the lead-in: the record starts at t = 0
+        if lead_in:  # drop the lead-in: the record starts at t = 0
             k = int(np.searchsorted(t, 0.0))
             t, x, v, f = t[k:], x[k:], v[k:], f[k:]
             temp = temp[k:] if temp is not None else None
-            sine_index += 1
+            sine_index += is_sine
         if rig is None and noise_std_n > 0:
             f = f + rng.normal(0.0, noise_std_n, f.size)
         if form.displacement_noise_m > 0:

@@ -74,6 +74,11 @@ def add_parser(sub) -> None:
     diag.add_argument("--jobs", metavar="N", type=positive_int, default=None,
                       help="fit the candidates in N processes (default: the CPU count, at "
                            "most 4)")
+    diag.add_argument("--series", metavar="DATA.csv", type=Path, nargs="+", default=None,
+                      help="every data file once, in the order the dyno recorded them (what "
+                           "moves over the series is weighed in this order; default: the "
+                           "files' own time columns where they are one clock, else the "
+                           "quasi-static, chirp and held-out files as given)")
     add_rig_option(diag)
     diag.set_defaults(handler=run)
 
@@ -114,7 +119,7 @@ def _diagnose(args: argparse.Namespace, effects: list[str] | None, json_at: Path
     returns the result."""
     import os
 
-    from damper_emulator.diagnose.selection import diagnose
+    from damper_emulator.diagnose.selection import check_series, diagnose
 
     model, params_file = load_model(args.params)
     if model.cfg.damper.extensions is not None:
@@ -123,11 +128,14 @@ def _diagnose(args: argparse.Namespace, effects: list[str] | None, json_at: Path
                        "the identified model without them")
     fit = read_data([*args.quasi_static, *args.chirp], args.rig)
     held = read_data(args.validate, args.rig)
+    # by file name, as the records are named
+    series = [p.name for p in args.series] if args.series else None
+    check_series(series, [d.name for d in (*fit, *held)])
     say(f"diagnosing {params_file}: fit on {', '.join(d.name for d in fit)}, held out "
         f"{', '.join(d.name for d in held)}")
     jobs = args.jobs if args.jobs is not None else min(os.cpu_count() or 1, 4)
     result = diagnose(model, fit, held, effects, jobs=jobs,
-                      n_quasi_static=len(args.quasi_static), progress=say)
+                      n_quasi_static=len(args.quasi_static), progress=say, series=series)
     doc = {"params_file": params_file, **result.to_json()}
     if report_at is not None:
         from damper_emulator.diagnose.report import write_report
@@ -137,3 +145,4 @@ def _diagnose(args: argparse.Namespace, effects: list[str] | None, json_at: Path
         doc["report_files"] = [p.name for p in files]
     json_at.write_text(json_text(doc), encoding="utf-8")
     return result
+

@@ -148,13 +148,30 @@ class SeriesComplianceParams:
 
 @dataclass(frozen=True)
 class EndStopParams:
-    """Elastomer end stops, progressive: ``k δ²`` for a penetration ``δ`` past either stop."""
+    """End stops past a penetration ``δ`` of either stop: ``k₁ δ + k δ² + c δ ẋ`` (an
+    elastomer's linear and progressive stiffness, a hydraulic stop's or an elastomer's
+    damping growing with the penetration), the compression stop's times ``s``; without the
+    optional terms the progressive ``k δ²`` of both stops alike."""
 
     rebound_position_m: float = rule(("closed", -1.0, 1.0),
                                      "stroke at which the rebound stop engages [m, ext +]")
     compression_position_m: float = rule(
         ("closed", -1.0, 1.0), "stroke at which the compression (bump) stop engages [m]")
     stiffness_n_m2: float = rule("positive", "stop coefficient k of k δ² [N/m²]")
+    linear_stiffness_n_m: float = rule("non-negative",
+                                       "linear stiffness k₁ of k₁ δ [N/m]", 0.0)
+    damping_n_s_m2: float = rule("non-negative",
+                                 "damping c of c δ ẋ, growing with the penetration "
+                                 "[N·s/m²]", 0.0)
+    compression_scale: float = rule("positive",
+                                    "the compression stop's force over the rebound stop's "
+                                    "at the same penetration and speed [-]", 1.0)
+
+    @property
+    def plain(self) -> bool:
+        """Whether only the progressive ``k δ²`` of both stops alike is in use."""
+        return (self.linear_stiffness_n_m == 0.0 and self.damping_n_s_m2 == 0.0
+                and self.compression_scale == 1.0)
 
 
 @dataclass(frozen=True)

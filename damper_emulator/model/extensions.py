@@ -39,7 +39,10 @@ off, the step's arithmetic is the paper's model's.  Families as in the ``diagnos
     stiffer than the spring (a nearly closed gas volume) ran away.  The start is the static
     deflection.
 ``end_stop`` — progressive elastomer stops, ``F += k (x − x_r)²`` past the rebound stop and
-    ``− k (x_c − x)²`` past the compression stop (:func:`end_stop_force`).
+    ``− k (x_c − x)²`` past the compression stop (:func:`end_stop_force`); or stops of
+    their own form, ``k₁ δ + k δ² + c δ ẋ`` past either stop, the compression stop's
+    scaled (:func:`end_stop_form_force`): an elastomer's linear and progressive stiffness
+    and its hysteresis, a hydraulic stop's damping.
 ``air_entrainment`` — free air in the rebound chamber, isothermal, volume fraction ``ε`` at
     ``P_ATM``: the chamber's compliance becomes ``V (α + ε P_ATM / p²)``; the air term is
     integrated exactly in ``p`` (``∫ ε P_ATM / p² dp``), so the implicit residual stays
@@ -120,6 +123,22 @@ def end_stop_force(x: float, x_reb: float, x_com: float, k: float) -> float:
     if x < x_com:
         d = x_com - x
         return -k * d * d
+    return 0.0
+
+
+@inlined_kernel
+def end_stop_form_force(x: float, v: float, x_reb: float, x_com: float, k1: float,
+                        k2: float, c: float, scale: float) -> float:
+    """Force of end stops of their own form [N, rebound +] at stroke ``x`` and velocity
+    ``v``: past the rebound stop (``δ = x − x_r``) ``k₁ δ + k₂ δ² + c δ ẋ``, past the
+    compression stop (``δ = x_c − x``) ``scale (−k₁ δ − k₂ δ² + c δ ẋ)``: a spring that
+    pushes back towards the middle of the stroke, a damping that resists the motion."""
+    if x > x_reb:
+        d = x - x_reb
+        return k1 * d + k2 * d * d + c * d * v
+    if x < x_com:
+        d = x_com - x
+        return scale * (-k1 * d - k2 * d * d + c * d * v)
     return 0.0
 
 

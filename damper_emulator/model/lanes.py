@@ -18,12 +18,12 @@ scalar loop before it.  The forces agree with the one-design step to rounding
 
 **Which designs.**  The paper's damper with any valves, gas and friction, end stops and
 the adaptive bypass at a settled command (:func:`lane_eligible`).  The model extensions
-(LuGre friction, viscosity–temperature, cavitation, valve lag, series compliance, air,
-groove, gas heat transfer) are not in the lanes: a design with one runs the one-design
-step.  So does any lane at a sample the lanes do not handle: invalid input, a gap longer
-than ``numerics.settle_time_s``, or a valve command still moving through the solenoid's lag;
-and an evaluation beyond the table, or past the iteration cap, takes the one-design
-valve look-up for that lane.
+(LuGre friction, viscosity–temperature, cavitation, valve lag, series compliance, end
+stops of their own form, air, groove, gas heat transfer) are not in the lanes: a design
+with one runs the one-design step.  So does any lane at a sample the lanes do not handle:
+invalid input, a gap longer than ``numerics.settle_time_s``, or a valve command still
+moving through the solenoid's lag; and an evaluation beyond the table, or past the
+iteration cap, takes the one-design valve look-up for that lane.
 
 **What makes it fast** (each measured, docs/tune.md):  numba's compiler vectorises a loop
 over the lanes only when its trip count is a constant, the lanes' values sit at constant
@@ -78,6 +78,7 @@ from damper_emulator.model.layout import (
     P_BP_TURBULENT,
     P_CAV_ON,
     P_DT_ON,
+    P_ES_FORM_K,
     P_ES_K,
     P_ES_XC,
     P_ES_XR,
@@ -149,8 +150,8 @@ LANE_BUFFER = L_SIZE * LANES
 
 #: Packed parameters of the model extensions the lanes leave to the one-design step (each
 #: off at 0).
-_EXTENSIONS = (P_LG_S0, P_TH_BETA, P_CAV_ON, P_VL_TAU, P_MOUNT_K, P_AIR_EPS, P_GR_AREA,
-               P_GT_TAU, P_DT_ON)
+_EXTENSIONS = (P_LG_S0, P_TH_BETA, P_CAV_ON, P_VL_TAU, P_MOUNT_K, P_ES_FORM_K, P_AIR_EPS,
+               P_GR_AREA, P_GT_TAU, P_DT_ON)
 
 
 def lane_eligible(prm: np.ndarray) -> np.ndarray:

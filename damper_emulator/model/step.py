@@ -22,6 +22,7 @@ from damper_emulator.model.adaptive import bypass_area, solenoid_lag
 from damper_emulator.model.discovered import N_TERMS, advance, features
 from damper_emulator.model.extensions import (
     AIR_PRESSURE_FLOOR,
+    end_stop_form_force,
     gas_temperature,
     groove_window,
     heat_rise,
@@ -63,7 +64,11 @@ from damper_emulator.model.layout import (
     P_DT_TREF,
     P_DT_VSIGN,
     P_DT_WIDTH,
+    P_ES_C,
+    P_ES_FORM_K,
     P_ES_K,
+    P_ES_K1,
+    P_ES_SCALE,
     P_ES_XC,
     P_ES_XR,
     P_FRICTION,
@@ -146,11 +151,17 @@ def _friction(prm: _Vec, state: _Vec, v: float, dt: float) -> float:
 
 
 @kernel
-def _force(prm: _Vec, p_reb: float, p_com: float, friction: float, x: float) -> float:
+def _force(prm: _Vec, p_reb: float, p_com: float, friction: float, x: float, v: float
+           ) -> float:
     """Damper force [N, rebound +], eq 4 (``friction`` its last term), plus the end stops'
-    force at stroke ``x`` when they are in use."""
-    return damper_force(prm[P_A_ANNULUS], prm[P_A_PISTON], p_reb, p_com, friction, x,
-                        prm[P_ES_XR], prm[P_ES_XC], prm[P_ES_K])
+    force at stroke ``x`` and velocity ``v`` when they are in use (progressive, or of
+    their own form)."""
+    force: float = damper_force(prm[P_A_ANNULUS], prm[P_A_PISTON], p_reb, p_com, friction,
+                                x, prm[P_ES_XR], prm[P_ES_XC], prm[P_ES_K])
+    if prm[P_ES_FORM_K] > 0.0:
+        force += end_stop_form_force(x, v, prm[P_ES_XR], prm[P_ES_XC], prm[P_ES_K1],
+                                     prm[P_ES_FORM_K], prm[P_ES_C], prm[P_ES_SCALE])
+    return force
 
 
 @kernel
@@ -275,7 +286,7 @@ def init_state(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: 
             # sits at it (the cavity opens on the first step)
             p = prm[P_CAV_P]
             z = z_of(prm, p - p_com, visc)
-        force = _force(prm, p, p_com, fr, x)
+        force = _force(prm, p, p_com, fr, x, v)
         if prm[P_MOUNT_K] > 0.0:
             xd = min(max(x - force / prm[P_MOUNT_K], prm[P_X_MIN]), prm[P_X_MAX])
     state[S_P_REB] = p
@@ -434,7 +445,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
             mount_f = prm[P_A_ANNULUS] * p - prm[P_A_PISTON] * p_com + fr
     state[S_P_PREV] = p_prev
     state[S_H_PREV] = h_prev
-    force = _force(prm, p, p_com, fr, x)
+    force = _force(prm, p, p_com, fr, x, v)
     if prm[P_TH_BETA] > 0.0 and prm[P_TH_CAP] > 0.0:
         power = (prm[P_A_ANNULUS] * (p - p_com) + fr) * v
         state[S_HEAT_DT] = heat_rise(state[S_HEAT_DT], power, dt, prm[P_TH_CAP],

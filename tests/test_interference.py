@@ -122,3 +122,30 @@ def test_taking_the_lines_out_leaves_the_force_without_them():
     data = MeasuredData(time=t, displacement=x, force=r_clean + hum, name="chirp.csv")
     left = without_lines(data, fitted["chirp.csv"]).force - r_clean
     assert np.sqrt(np.mean(left ** 2)) < 3.0 * NOISE_N * math.sqrt(2.0 * len(MAINS) / t.size)
+
+
+def multisine_file(rng, lines=(), duration=20.0, fs=FS):
+    """A random road replayed as a multisine (200 components of one velocity amplitude,
+    1–15 Hz, as truth.RandomDrive): an inertia's residual ``m ẍ`` is a line at every
+    component, largest at the band's top, where the spectrum above is the noise's."""
+    t = np.arange(int(duration * fs)) / fs
+    f = np.geomspace(1.0, 15.0, 200)
+    phase = rng.uniform(0, 2 * np.pi, f.size)
+    arg = 2 * np.pi * np.outer(t, f) + phase
+    x = (0.25 / (2 * np.pi * 10.0) / f * np.sin(arg)).sum(axis=1)
+    r = (5.0 * 0.25 / 10.0 * 2 * np.pi * f * -np.sin(arg)).sum(axis=1)  # 5 kg · ẍ
+    r += rng.normal(0, NOISE_N, t.size)
+    for fl, a, phi in lines:
+        r += a * np.sin(2 * math.pi * fl * t + phi)
+    return t, r, x
+
+
+def test_the_damper_answering_a_multisine_at_its_own_frequencies_is_no_line():
+    """The residual's lines at the motion's own components are the damper's; the mains
+    beside them is a line, found in that one file."""
+    rng = np.random.default_rng(5)
+    assert find_lines({"road.csv": multisine_file(rng)}) == []
+    (line, third) = find_lines({"road.csv": multisine_file(rng, lines=((50.0, 4.0, 0.3),
+                                                                       (150.0, 2.0, 0.0)))})
+    assert line.frequency_hz == pytest.approx(50.0, abs=0.02) and line.mains
+    assert third.harmonic_of == pytest.approx(line.frequency_hz)

@@ -22,8 +22,9 @@ noise's mean (a 3 N line in 4 N of noise over 12 s at 1 kHz: 1,700, less where t
 damper's residual is broadband around it).  A peak at a harmonic of a periodic file's
 excitation is the damper's force there and is not counted in that file (a 1 Hz sine's
 residual has a harmonic at every hertz); nor are those harmonics part of its background,
-which bridges them in log power.  A peak must lie :data:`MIN_FIT_CYCLES` of its
-periods inside the file.
+which bridges them in log power.  Nor does a peak count where the displacement itself has a
+line (a multisine's components): the damper answers at the motion's own frequencies.  A
+peak must lie :data:`MIN_FIT_CYCLES` of its periods inside the file.
 
 **Stationary** (:func:`find_lines`): a peak is a line when two files show it at the same
 frequency (within two of the coarser file's bins), or one file shows it
@@ -205,6 +206,15 @@ def _spectrum(t: np.ndarray, residual: np.ndarray, x: np.ndarray
     half = max(MIN_BACKGROUND_BINS, math.ceil(BACKGROUND_HALF_WIDTH_HZ / df))
     bg = median_filter(level, size=2 * half + 1, mode="nearest")
     ratio = p / np.maximum(bg, np.finfo(float).tiny)
+    # where the motion itself has a line (a multisine's components, a slider-crank's
+    # harmonics), the damper answers with one: not interference
+    y = x - np.polyval(np.polyfit(k, x, 1), k)
+    px = np.abs(np.fft.rfft(y * np.hanning(n))) ** 2
+    moving = px / np.maximum(median_filter(px, size=2 * half + 1, mode="nearest"),
+                             np.finfo(float).tiny) >= PEAK_PROMINENCE
+    near = int(math.ceil(SAME_LINE_BINS))
+    for sh in range(-near, near + 1):
+        counted &= ~np.roll(moving, sh)
     return f, ratio, counted
 
 

@@ -156,3 +156,29 @@ def test_noise_alone_gives_no_significant_term(sport_cfg):
     gated = discover(DamperModel(sport_cfg), None, fit, held, _weights(fit), 0.0, 1.0,
                      1.5, MIN_SCORE, MAX_DELTA_BIC)
     assert not gated.ran and "nothing to discover" in gated.reason
+
+
+@pytest.mark.parametrize(("per_file", "pooled", "stable", "why"), [
+    ({"a": (6.0, 0.1), "b": (5.8, 0.2), "c": (6.3, 0.3)}, 6.0, True, ""),
+    # 5.0 … 8.5: more than half the value
+    ({"a": (5.0, 0.1), "b": (8.5, 0.2)}, 6.0, False, "spans 58 %"),
+    ({"a": (6.0, 0.1), "b": (-2.0, 0.2)}, 6.0, False, "sign changes"),
+    # one file determines it (the other's σ is more than half its value)
+    ({"a": (6.0, 0.1), "b": (6.0, 4.0)}, 6.0, False, "1 file(s) only"),
+])
+def test_a_term_is_stable_when_every_file_that_determines_it_agrees(per_file, pooled,
+                                                                    stable, why):
+    from damper_emulator.diagnose.discovery import stable_over
+
+    ok, reason = stable_over(per_file, pooled)
+    assert ok is stable and why in reason
+
+
+def test_a_known_form_of_the_wrong_sign_is_not_that_physics(sport_cfg):
+    """A force ``−4 kg · ẍ`` (a negative mass: no inertia does that) is not discovered as a
+    mass, though the acceleration would fit it; an effect outside the library that is a
+    positive mass is (the test above)."""
+    fit, held = _records(sport_cfg, extra=lambda t, x, v: -4.0 * np.gradient(v, t))
+    found = discover(DamperModel(sport_cfg), None, fit, held, _weights(fit), 0.0, 10.0,
+                     1.5, MIN_SCORE, MAX_DELTA_BIC)
+    assert all(f.symbol != "ẍ" for f in found.features), found.expression

@@ -166,6 +166,10 @@ class Feature:
     #: the parameters of a profile refined after selection (centre, width) [m]
     profile: tuple[float, float] | None = None
     lag_s: float | None = None
+    #: a known physical form whose coefficient is positive (a mass of ẍ, a damping of ẋ,
+    #: a friction of the sign, a stiffness of x): fitted within that bound, and not
+    #: taken where the data want it negative (it would not be that physics)
+    positive: bool = False
 
     def text(self, c: float) -> str:
         return f"{c:+.4g} {self.unit} · {self.symbol}"
@@ -185,18 +189,18 @@ class Feature:
 def profile_feature(centre: float, width: float) -> Feature:
     """The Gaussian profile feature at ``centre`` and ``width`` [m]."""
     return Feature(f"exp(−(x − {1e3 * centre:.3g} mm)² / (2 · ({1e3 * width:.3g} mm)²)) · ẋ",
-                   "N·s/m", "stroke·velocity", TERM_PROFILE, (centre, width))
+                   "N·s/m", "stroke·velocity", TERM_PROFILE, (centre, width), positive=True)
 
 
 def _features(x_ref: float) -> list[Feature]:
     vs = f"{1e3 * V_SIGN_M_S:g} mm/s"
     out = [
-        Feature("ẍ", "kg", "acceleration", TERM_ACCELERATION),
-        Feature("ẋ", "N·s/m", "velocity", TERM_VELOCITY),
-        Feature("ẋ|ẋ|", "N·s²/m²", "velocity", TERM_VELOCITY_SQ),
-        Feature("ẋ³", "N·s³/m³", "velocity", TERM_VELOCITY_CUBE),
-        Feature(f"tanh(ẋ / {vs})", "N", "friction", TERM_SIGN),
-        Feature("x", "N/m", "stroke (linear)", TERM_STROKE),
+        Feature("ẍ", "kg", "acceleration", TERM_ACCELERATION, positive=True),
+        Feature("ẋ", "N·s/m", "velocity", TERM_VELOCITY, positive=True),
+        Feature("ẋ|ẋ|", "N·s²/m²", "velocity", TERM_VELOCITY_SQ, positive=True),
+        Feature("ẋ³", "N·s³/m³", "velocity", TERM_VELOCITY_CUBE, positive=True),
+        Feature(f"tanh(ẋ / {vs})", "N", "friction", TERM_SIGN, positive=True),
+        Feature("x", "N/m", "stroke (linear)", TERM_STROKE, positive=True),
         Feature("x²", "N/m²", "stroke (even)", TERM_STROKE_SQ),
         Feature("x³", "N/m³", "stroke", TERM_STROKE_CUBE),
         Feature("x · ẋ", "N·s/m²", "stroke·velocity", TERM_STROKE_VEL),
@@ -322,6 +326,34 @@ class Discovery:
     #: after the joint refit: the model with the term as its ``discovered_term``
     #: extension (what ``params_with_effect.yaml`` holds)
     model: DamperModel | None = None
+    #: after the joint refit: each part's coefficient fitted on each file alone (the
+    #: model held), with its 1σ, by file name
+    per_file: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+
+    def stability(self) -> tuple[bool, str]:
+        """Whether every part's coefficient is one over the files (:func:`stable_over`),
+        and why not."""
+        if not self.per_file:
+            return False, "not fitted per file"
+        for k, f in enumerate(self.features):
+            ok, why = stable_over({n: v[k] for n, v in self.per_file.items()},
+                                  float(self.coefficients[k]))
+            if not ok:
+                return False, f"{f.symbol}: {why}"
+        return True, "every part's coefficient is one over the files"
+
+    def trust(self) -> str:
+        """Whether the term is ready to trust, in words: significant on the held-out
+        files and the same in every file."""
+        if not self.features:
+            return "no term"
+        stable, why = self.stability()
+        if not self.significant:
+            return (f"not ready: its held-out gain {100 * self.held_out_gain:+.1f} % is not "
+                    "significant")
+        if not stable:
+            return f"not ready: it is not the same in every file ({why})"
+        return (f"ready: held-out gain {100 * self.held_out_gain:+.1f} %, and {why}")
 
     def extension(self) -> DiscoveredTermParams:
         """The term as the ``damper.extensions.discovered_term`` group."""
@@ -354,6 +386,10 @@ class Discovery:
             "rms_held_out_before": self.rms_held_out_before,
             "rms_held_out_after": self.rms_held_out_after,
             "refitted_with_model": self.refitted,
+            "per_file": {n: [{"value": float(c), "std": float(sd) if math.isfinite(sd)
+                              else None} for c, sd in v] for n, v in self.per_file.items()},
+            "stable": self.stability()[0] if self.features else None,
+            "trust": self.trust(),
             "seconds": round(self.seconds, 2)}
 
 
@@ -550,6 +586,16 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
                     mat[:, j] = rec.through_chain(feats[j].fn(m), rig)[rec.start:]
         # what the refined profile now explains, the others no longer need to
         chosen = prune(chosen)
+        # a known form of the wrong sign (a negative mass) is not that physics: it goes,
+        # and what is left is pruned again
+        while chosen:
+            beta = solve(chosen)
+            wrong = [j for j, b in zip(chosen, beta) if feats[j].positive and b < 0.0]
+            if not wrong:
+                break
+            say("discovery: " + ", ".join(feats[j].symbol for j in wrong)
+                + " of the wrong sign for its physics: left out")
+            chosen = prune([j for j in chosen if j not in wrong])
         if not chosen:
             return Discovery(True, "no feature is significant", frequency=frequency,
                              rms_held_out_before=before, seconds=time.perf_counter() - t0)
@@ -621,6 +667,59 @@ def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:
 #: a part of a term whose coefficient after the joint refit is within this many σ of 0
 #: is dropped (and the refit repeated without it)
 MIN_T_RATIO = 3.0
+#: a part's coefficient is one over the files when those that determine it (their 1σ
+#: within half the coefficient) agree in sign and span at most this fraction of the
+#: pooled value: an inertia is one mass in every test; a term that takes the model's
+#: error at each file's speeds is not
+STABLE_SPREAD = 0.5
+
+
+def stable_over(per_file: Mapping[str, tuple[float, float]], pooled: float
+                ) -> tuple[bool, str]:
+    """Whether a coefficient fitted per file ``{file: (value, σ)}`` is one over the
+    files (:data:`STABLE_SPREAD`), and why not."""
+    determined = [c for c, sd in per_file.values()
+                  if math.isfinite(sd) and sd <= 0.5 * abs(c)]
+    if len(determined) < 2:
+        return False, f"determined in {len(determined)} file(s) only"
+    if any(c * pooled <= 0.0 for c in determined):
+        return False, "its sign changes from file to file"
+    spread = (max(determined) - min(determined)) / abs(pooled)
+    if spread > STABLE_SPREAD:
+        return False, (f"it spans {100 * spread:.0f} % of its value over the files "
+                       f"({min(determined):.4g} … {max(determined):.4g})")
+    return True, ""
+
+
+def _spread(per_file: Mapping[str, tuple[float, float]], pooled: float) -> float:
+    """How far a coefficient is from one over the files: the span of the values over the
+    pooled value's magnitude (infinite where the sign changes)."""
+    values = [c for c, _ in per_file.values()]
+    if not values or any(c * pooled <= 0.0 for c in values):
+        return math.inf
+    return (max(values) - min(values)) / abs(pooled)
+
+
+def per_file_coefficients(model: DamperModel, source: TermSource,
+                          fit: Sequence[Record], held: Sequence[Record],
+                          rig: RigParams | None) -> dict[str, list[tuple[float, float]]]:
+    """Each part's coefficient fitted on each file alone (the model and what is fitted per
+    file held), with its 1σ: what the term is in every test."""
+    from damper_emulator.diagnose.joint import fit_columns
+
+    out = {}
+    for rec in [*fit, *held]:
+        raw, cols = source(model, rec)
+        k = rec.start
+        force = rec.recorded(raw, rig)[k:]
+        x = np.column_stack([rec.through_chain(cols[:, j], rig)[k:]
+                             for j in range(cols.shape[1])])
+        n_term = x.shape[1]
+        if rec.per_file is not None:
+            x = np.column_stack([x, rec.per_file.design(force)])
+        c, sd, _ = fit_columns(x, rec.data.force[k:] - force)
+        out[rec.name] = [(float(c[j]), float(sd[j])) for j in range(n_term)]
+    return out
 
 
 def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float],
@@ -645,8 +744,9 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
         values = dict(base_values)
         for k, (f, c) in enumerate(zip(feats, coef)):
             span = max(10.0 * abs(c), 1e-12)
-            params.append(Parameter(f"{TERM_PREFIX}{k}", -span, span, float(c), False,
-                                    f.unit))
+            # a known form within its physical bound (a mass is positive)
+            params.append(Parameter(f"{TERM_PREFIX}{k}", 0.0 if f.positive else -span, span,
+                                    float(c), False, f.unit))
             values[f"{TERM_PREFIX}{k}"] = float(c)
         jf = joint_fit(cfg, fit, weights, values, accepted, None, nfev, n_quasi_static,
                        terms=source, term_parameters=params)
@@ -654,11 +754,26 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
         std = [jf.base_std.get(f"{TERM_PREFIX}{k}", math.inf) for k in range(len(feats))]
         weak = [k for k, (c, s) in enumerate(zip(coef, std))
                 if not abs(c) > MIN_T_RATIO * s]
-        if not weak or len(feats) == 1:
+        if len(feats) == 1:
             break
-        drop = min(weak, key=lambda k: abs(coef[k]) / std[k] if std[k] > 0 else 0.0)
-        say(f"discovery: {feats[drop].symbol} dropped after the joint refit "
-            f"({coef[drop]:.4g} ± {std[drop]:.2g} {feats[drop].unit})")
+        if weak:
+            drop = min(weak, key=lambda k: abs(coef[k]) / std[k] if std[k] > 0 else 0.0)
+            say(f"discovery: {feats[drop].symbol} dropped after the joint refit "
+                f"({coef[drop]:.4g} ± {std[drop]:.2g} {feats[drop].unit})")
+            del feats[drop], coef[drop]
+            continue
+        # a part that is not one over the files is not a property of the damper (it
+        # takes the model's error at each file's speeds): the least stable goes
+        model = jf.model(cfg, [c for c, _ in accepted])
+        per_file = per_file_coefficients(model, source, fit, held, delay_rig(jf.base_values))
+        unstable = [k for k in range(len(feats))
+                    if not stable_over({n: v[k] for n, v in per_file.items()}, coef[k])[0]]
+        if not unstable or len(unstable) == len(feats):
+            break
+        drop = max(unstable, key=lambda k: _spread({n: v[k] for n, v in per_file.items()},
+                                                   coef[k]))
+        say(f"discovery: {feats[drop].symbol} dropped after the joint refit: "
+            f"{stable_over({n: v[drop] for n, v in per_file.items()}, coef[drop])[1]}")
         del feats[drop], coef[drop]
     model = jf.model(cfg, [c for c, _ in accepted])
     rig = delay_rig(jf.base_values)
@@ -699,6 +814,8 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
     ext = model.cfg.damper.extensions or ExtensionParams()
     out.model = model.with_extensions(dataclasses.replace(ext,
                                                           discovered_term=out.extension()))
+    out.per_file = per_file_coefficients(model, source, fit, held, rig)
     say(f"discovery, refitted with the model: {out.expression}: held-out gain "
-        f"{100 * gain:+.1f} %, ΔBIC {dbic:.0f}{' (significant)' if out.significant else ''}")
+        f"{100 * gain:+.1f} %, ΔBIC {dbic:.0f}{' (significant)' if out.significant else ''}"
+        f"; {out.trust()}")
     return out

@@ -378,6 +378,15 @@ def _discovery_lines(diag: Diagnosis) -> list[str]:
     lines += ["", "| held-out file | before [N] | with the term [N] |", "|---|---|---|"]
     for name, b in found.rms_held_out_before.items():
         lines.append(f"| {name} | {b:.2f} | {found.rms_held_out_after.get(name, b):.2f} |")
+    if found.per_file:
+        lines += ["", "Each part fitted on each file alone, the model held (a term that reads "
+                      "as physics is one in every test):", "",
+                  "| file | " + " | ".join(f"`{f.symbol}` [{f.unit}]" for f in found.features)
+                  + " |", "|---|" + "---|" * len(found.features)]
+        for name, parts in found.per_file.items():
+            lines.append(f"| {name} | " + " | ".join(f"{_fmt(c)} ± {_fmt_sd(sd)}"
+                                                   for c, sd in parts) + " |")
+    lines += ["", f"**Ready to trust?** {found.trust()}."]
     return [*lines, ""]
 
 

@@ -212,6 +212,10 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia(tmp_pat
     assert terms["ẍ"]["unit"] == "kg" and found["family_hint"] == "inertia"
     assert max(found["rms_held_out_after"].values()) < 2 * NOISE_N
     assert found["held_out_gain"] >= MIN_SCORE and found["significant"]
+    # one mass in every test: fitted on each file alone, the model held
+    assert found["stable"] and found["trust"].startswith("ready"), found["trust"]
+    masses = [parts[0]["value"] for parts in found["per_file"].values()]
+    assert len(masses) == len(diag.records)
     # the rig's delay competed, and was not taken: a mass leads, a filter lags
     assert doc["acquisition"]["source"] == "none"
     # the report shows the term against its variable

@@ -233,17 +233,29 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
     def outer_half(data: MeasuredData) -> np.ndarray:
         return np.abs(data.displacement - mid_stroke) > OUTER_STROKE_FRACTION * span
 
+    # The stops' own form: a linear stiffness (an elastomer's first millimetres) up to
+    # what the progressive term gives at a tenth of the stroke, a damping growing with the
+    # penetration (a hydraulic stop, an elastomer's hysteresis) up to what makes the
+    # progressive force at the chirp's speeds, and the compression stop 1/30 .. 30 times
+    # the rebound stop (a bump stop and a top-out stop are different parts).  Scales in
+    # log space: their low ends are no force at all within the tested stroke.
+    k_lin_hi = 1e10 * 0.1 * span
+    v_max = max(float(np.max(np.abs(np.gradient(r.displacement, r.time)))) for r in fit_data)
+    c_hi = 1e10 / max(v_max, 1e-3)
     out.append(Candidate(
         "end_stops",
         (Parameter("rebound_position_m", x_lo + 0.5 * span, x_hi, x_hi - 0.15 * span, False,
                    "m"),
          Parameter("compression_position_m", x_lo, x_hi - 0.5 * span, x_lo + 0.15 * span,
                    False, "m"),
-         Parameter("stiffness_n_m2", 1e3, 1e10, 1e6, True, "N/m²")),
+         Parameter("stiffness_n_m2", 1e3, 1e10, 1e6, True, "N/m²"),
+         Parameter("linear_stiffness_n_m", 1.0, k_lin_hi, 1e3, True, "N/m"),
+         Parameter("damping_n_s_m2", 1.0, c_hi, 1e3, True, "N·s/m²"),
+         Parameter("compression_scale", 1.0 / 30.0, 30.0, 1.0, True, "-")),
         _with({}), may_act=outer_half,
-        extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, 1e6),
-                      (x_hi - 0.05 * span, x_lo + 0.05 * span, 1e7),
-                      (x_hi, x_lo, 1e4))))  # (almost) not engaged
+        extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, 1e6, 1e3, 1e3, 1.0),
+                      (x_hi - 0.05 * span, x_lo + 0.05 * span, 1e7, 1e3, 1e3, 1.0),
+                      (x_hi, x_lo, 1e4, 1.0, 1.0, 1.0))))  # (almost) not engaged
 
     # air entrainment: 0.001 % .. 20 % free air at 1 atm
     out.append(Candidate(

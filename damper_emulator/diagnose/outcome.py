@@ -7,6 +7,7 @@ its JSON report and parameter file).  The selection itself is
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -40,12 +41,24 @@ STRUCTURE_RATIO = 1.5
 #: effects that together remove less than this fraction of the held-out residual's
 #: structured power while structure remains give ``other``
 MIN_EXPLAINED = 0.75
-#: the floor: this fraction of the held-out force r.m.s. ...
-FLOOR_FORCE_FRACTION = 0.01
-#: ... or this multiple of the held-out noise level, whichever is larger
-FLOOR_NOISE_FACTOR = 2.0
+#: the floor: this fraction of the held-out force r.m.s. (the better end of a load cell's
+#: and amplifier's 0.5–1 % of reading) ...
+FLOOR_FORCE_FRACTION = 0.005
+#: ... or this multiple of the held-out noise level, whichever is larger (a residual
+#: within it is "within 3× the noise"; a floor of 1 % of the force would hide a 1.5 kg
+#: mass on the sport damper's speed series, 3.5× the noise)
+FLOOR_NOISE_FACTOR = 3.0
 #: forward selection adds at most this many effects
-MAX_EFFECTS = 2
+MAX_EFFECTS = 4
+#: once an effect is added the search goes on while the held-out residual exceeds this
+#: multiple of its noise level (and something is significant): a large first effect
+#: must not end the search for the effects it masked, even where what is left is within
+#: 1 % of the force
+SEARCH_NOISE_FACTOR = 3.0
+#: from the third round on, only this many candidates are fitted again: those that
+#: gained most on the held-out files in the round before (a round is a fit per
+#: candidate, and the diagnosis has three minutes on two cores)
+LATER_ROUND_CANDIDATES = 4
 #: where the rig's delay is significant but an effect gains more without reaching the
 #: floor, this many of the runners-up are fitted again with the delay free
 CHAIN_RUNNERS = 2
@@ -393,6 +406,16 @@ class Diagnosis:
                         "held_out_gain": st.score, "delta_bic": st.delta_bic,
                         "significant": st.significant,
                         "rms_held_out": st.rms_held_out})
+        term = self.term
+        if term is not None and self.steps:
+            # the library explained part, the discovered term the rest: both reported
+            out.append({"effect": "discovered_term", "family": term.family_hint,
+                        "expression": term.expression,
+                        "parameters": {k: v for k, v in dataclasses.asdict(
+                            term.extension()).items() if v},
+                        "held_out_gain": term.held_out_gain, "delta_bic": term.delta_bic,
+                        "significant": term.significant, "trust": term.trust(),
+                        "rms_held_out": dict(term.rms_held_out_after)})
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -447,6 +470,7 @@ class Diagnosis:
                            "min_explained": MIN_EXPLAINED,
                            "floor_force_fraction": FLOOR_FORCE_FRACTION,
                            "floor_noise_factor": FLOOR_NOISE_FACTOR,
-                           "max_effects": MAX_EFFECTS},
+                           "max_effects": MAX_EFFECTS,
+                           "search_noise_factor": SEARCH_NOISE_FACTOR},
             "seconds": round(self.seconds, 2)}
         return doc

@@ -20,9 +20,11 @@ from damper_emulator.acquisition.chain import ESTIMATED_DELAY_START_S
 from damper_emulator.diagnose.base import ACQUISITION_DELAY
 from damper_emulator.diagnose.outcome import (
     CHAIN_RUNNERS,
+    LATER_ROUND_CANDIDATES,
     MAX_DELTA_BIC,
     MIN_GAIN_OVER_LEADER,
     MIN_T_RATIO,
+    SEARCH_NOISE_FACTOR,
     STRUCTURE_RATIO,
     StepFit,
     floor_level,
@@ -67,9 +69,11 @@ class LibraryRounds:
 
     # -- one round ---------------------------------------------------------------------
     def task(self, present: StepFit | None, effect: str | None,
-             before: StepFit | None = None) -> FitTask:
+             before: StepFit | None = None, start: Mapping[str, float] | None = None
+             ) -> FitTask:
         """The task that fits ``effect`` (``None``: the present model alone; ``CHAIN``:
-        the rig's delay) on top of ``present`` (``None``: the identified model)."""
+        the rig's delay) on top of ``present`` (``None``: the identified model), from
+        ``start`` where given (pseudo-parameters too: a delay there is freed)."""
         s = self.s
         acc: tuple[tuple[str, Mapping[str, float]], ...]
         if present is None:
@@ -78,7 +82,7 @@ class LibraryRounds:
             bv = present.out["base_values"]
             acc = tuple(zip(present.effects, present.out["values"]))
         # an effect that replaces a paper's parameter leaves it at the identified value
-        bv = {**s.base_values, **bv}
+        bv = {**s.base_values, **bv, **(start or {})}
         alt = (None if before is None else
                (before.out["base_values"], dict(zip(before.effects, before.out["values"]))))
         chain = effect == CHAIN
@@ -129,6 +133,12 @@ class LibraryRounds:
         """``f``'s held-out residual is within the floor."""
         res = f.residuals(self.s.held)
         return pooled_rms(res) <= floor_level(self.s.held, res)[0]
+
+    def settled(self, f: StepFit) -> bool:
+        """Whether the search ends on ``f``, a model with an effect: its held-out residual
+        within :data:`SEARCH_NOISE_FACTOR` times its noise level."""
+        res = f.residuals(self.s.held)
+        return pooled_rms(res) <= SEARCH_NOISE_FACTOR * floor_level(self.s.held, res)[1]
 
     # -- the pair and the runners-up ---------------------------------------------------
     def pair_search(self, ref: StepFit, fits: list[StepFit]) -> list[StepFit] | None:
@@ -210,9 +220,10 @@ class LibraryRounds:
         return taken
 
     # -- the selection -----------------------------------------------------------------
-    def select(self) -> RoundsOutcome:
+    def select(self, chain_first: StepFit | None = None) -> RoundsOutcome:
         """Forward selection (module :mod:`~damper_emulator.diagnose.selection`, steps
-        2–6), the rig's delay competing where it is estimated."""
+        2–6), the rig's delay competing where it is estimated (``chain_first``: its fit,
+        made before the round, on the same per-file terms)."""
         s, say = self.s, self.s.say
         by_effect = s.candidates
         jobs = self.local.jobs
@@ -220,16 +231,19 @@ class LibraryRounds:
             f"with it ({min(jobs, len(by_effect) + 1) if self.executor is None else 'executor'}"
             " processes)" + (", and the rig's delay (the chain candidate)" if s.estimate
                              else ""))
-        chain_slot = [CHAIN] if s.estimate else []
+        chain_slot = [CHAIN] if s.estimate and chain_first is None else []
         first = self.run(None, [None, *chain_slot, *by_effect], "round 1")
         refit, fits = first[0], first[1:]
-        chain_fit = fits.pop(0) if s.estimate else None
+        chain_fit = (chain_first if chain_first is not None
+                     else fits.pop(0) if s.estimate else None)
         present = refit
         remaining = list(by_effect)
         steps = self.steps
         while True:
             held_res = present.residuals(s.held)
-            floor, _noise = floor_level(s.held, held_res)
+            floor, noise = floor_level(s.held, held_res)
+            if steps:  # an effect is in: the search goes on while structure remains
+                floor = SEARCH_NOISE_FACTOR * noise
             small = pooled_rms(held_res) <= floor
             for f in fits:
                 f.score_against(present, small)
@@ -298,15 +312,21 @@ class LibraryRounds:
             remaining.remove(best._added.effect)
             say(f"added {best._added.effect} ({best._added.family}): held-out gain "
                 f"{100 * best.score:.1f} %")
-            if len(steps) >= self.max_effects or not remaining or self.within_floor(best):
+            if len(steps) >= self.max_effects or not remaining or self.settled(best):
                 break
             # the next round: the present model refitted once more (the reference: a
             # candidate must beat the present model's own further convergence, not only
-            # its last fit) and every remaining candidate on top of it
-            # (each candidate also from its own fit of this round: joint_fit, the other
-            # order); the chain candidate again while it has not been taken
+            # its last fit) and every remaining candidate on top of it (from the third
+            # round, those that gained most in this one), each also from its own fit of
+            # this round (joint_fit, the other order); the chain candidate again while it
+            # has not been taken
             with_chain = [CHAIN] if chain_fit is not None else []
-            nxt = self.run(best, [None, *with_chain, *remaining],
+            following = self.next_candidates(remaining, fits)
+            if not following and not with_chain:
+                say(f"round {len(self.rounds)}: no remaining candidate gained on top of "
+                    "the effects: the search ends")
+                break
+            nxt = self.run(best, [None, *with_chain, *following],
                            f"round {len(self.rounds) + 1}",
                            {f._added.effect: f for f in fits})
             present, fits = nxt[0], nxt[1:]
@@ -316,6 +336,18 @@ class LibraryRounds:
                 present = best
         self.delay_on_effects()
         return RoundsOutcome(refit, steps, self.rounds, self.pair_gain)
+
+    def next_candidates(self, remaining: Sequence[str], fits: Sequence[StepFit]
+                        ) -> list[str]:
+        """The candidates of the next round: every remaining one for the second effect;
+        from the third on, the :data:`LATER_ROUND_CANDIDATES` of them that gained most on
+        the held-out files in this round (a candidate that gained nothing on top of two
+        effects is not where a third is)."""
+        if len(self.steps) < 2:
+            return list(remaining)
+        gained = {f._added.effect: f.score for f in fits if f.candidate is not None}
+        ranked = sorted(remaining, key=lambda e: -gained.get(e, -math.inf))
+        return [e for e in ranked[:LATER_ROUND_CANDIDATES] if gained.get(e, -1.0) > 0.0]
 
     def delay_on_effects(self) -> None:
         """The effects are in: the rig's delay on top of them, taken if significant

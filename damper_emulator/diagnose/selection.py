@@ -47,8 +47,9 @@ The library's rounds and the answer (steps 1–7):
    residual is above the engineering floor (below), its gain is at least
    :data:`MIN_SCORE` and ``ΔBIC ≤`` :data:`MAX_DELTA_BIC`.  The one with the largest gain
    is added, its joint fit becomes the present model, and the remaining candidates are
-   fitted again on top of it (step 3); this repeats until none is significant, the floor
-   is reached, or :data:`MAX_EFFECTS` are in.
+   fitted again on top of it (step 3); this repeats until none is significant, the
+   held-out residual is within :data:`SEARCH_NOISE_FACTOR` × its noise level (the floor
+   before the first effect), or :data:`MAX_EFFECTS` are in.
    **A pair** when nothing is significant alone but structure above the floor remains:
    the candidate with the most evidence on the identification files (the lowest ΔBIC,
    at most ``MAX_DELTA_BIC``) is fitted with each other candidate, and a pair that is
@@ -73,12 +74,12 @@ once more on top of the effects added.
 
 **The floor** ("small in engineering terms") is the larger of :data:`FLOOR_FORCE_FRACTION`
 of the held-out force r.m.s. and :data:`FLOOR_NOISE_FACTOR` × the held-out noise level.
-1 % of the force is the accuracy of a dyno's force channel (load cells and their
-amplifiers are specified to 0.5–1 % of reading) and the spread between repeated runs; a
-model within it has nothing left to explain that the instrument could vouch for.  A
-residual within twice its white-noise level carries at most 3/4 of its power in structure
-of r.m.s. ≤ √3 σ, below anything a fit of one more effect can separate from the noise on
-a few sine cycles.
+0.5 % of the force is the accuracy of a good dyno's force channel (load cells and their
+amplifiers are specified to 0.5–1 % of reading); a model within it has nothing left to
+explain that the instrument could vouch for.  A residual within three times its
+white-noise level is "within 3× the noise": at most √8 σ of structure.  Once an effect is
+in, the search goes on while the residual exceeds :data:`SEARCH_NOISE_FACTOR` × its noise
+level, whatever the force.
 
 Other thresholds: ``MIN_SCORE`` = 5 %: on data without an extra effect (noise only) the
 best candidate's held-out gain stayed below 0.5 % (``docs/diagnose.md``);
@@ -96,12 +97,15 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor
+from dataclasses import dataclass
 
 import numpy as np
 
-from damper_emulator.diagnose.base import Record
+from damper_emulator.acquisition.chain import relative_delay
+from damper_emulator.acquisition.rig import RigParams
+from damper_emulator.diagnose.base import ACQUISITION_DELAY, PerFile, Record
 from damper_emulator.diagnose.candidates import temperature_stats
 from damper_emulator.diagnose.discovery import Discovery, discover, refit_with_term
 from damper_emulator.diagnose.joint import JOINT_NFEV
@@ -109,6 +113,7 @@ from damper_emulator.diagnose.measurement import (
     chain_findings,
     drift_findings,
     line_findings,
+    screen_delay,
     take_out_lines,
 )
 from damper_emulator.diagnose.outcome import (
@@ -126,15 +131,18 @@ from damper_emulator.diagnose.outcome import (
     structure_ratio,
 )
 from damper_emulator.diagnose.pool import LocalPool
-from damper_emulator.diagnose.rounds import LibraryRounds, RoundsOutcome
+from damper_emulator.diagnose.rounds import CHAIN, LibraryRounds, RoundsOutcome
 from damper_emulator.diagnose.series import (
     KINDS,
     MIN_SERIES_EXPLAINED,
+    RIG_OR_DAMPER_BIC,
     SERIES_MAX_DELTA_BIC,
+    FileColumns,
     SeriesResult,
     alone,
     contender,
     file_columns,
+    follows_series,
     refined,
     refit_evidence,
     select,
@@ -178,62 +186,153 @@ def weigh_effects(refit: StepFit, ref_held: Sequence[np.ndarray], steps: list[St
     return [], closest, explained, None
 
 
+@dataclass
+class _Series:
+    """What the series stage works with: the records' places, the reference file, each
+    file's noise level and the kinds tried."""
+
+    session: Session
+    positions: dict[str, float]
+    reference: str
+    sigmas: dict[str, float]
+    kinds: list[str]
+    #: the first look's delay of the force [s] where the chain is estimated, else None
+    delay: float | None = None
+
+    def columns(self, model: DamperModel, rig: RigParams | None) -> list[FileColumns]:
+        return file_columns(model, rig, self.session.records, self.reference, self.sigmas)
+
+    def residuals(self, fit: StepFit, per_file: Mapping[str, PerFile]) -> list[np.ndarray]:
+        """``fit``'s residual on every file, ``per_file`` projected out."""
+        self.session.with_per_file(per_file)
+        out = fit.residuals(self.session.records)
+        self.session.with_per_file({})
+        return out
+
+
 def follow_series(session: Session, order: Sequence[str] | None,
-                  rounds: LibraryRounds) -> SeriesResult:
+                  rounds: LibraryRounds, rig: RigParams | None = None,
+                  start: StepFit | None = None) -> SeriesResult:
     """Stage 2: what moves from file to file over the series, on the identified model's
     residual of every file (:func:`~damper_emulator.diagnose.series.select`); what it
     takes is fitted per file beside every later fit and score (``session.per_file``).
-    Where the best kind fails only because the identification absorbed it
-    (:func:`~damper_emulator.diagnose.series.contender`), the paper's model is refitted
-    with it per file (``rounds``' pool) and the series weighed again on that model, whose
-    parameters the later fits then start from.  The oil's valve scale is not tried where
-    the files carry a temperature column: a column that moves is the library's thermal
-    candidate's, one that does not says the oil did not warm."""
-    say = session.say
+    A zero or a gas charge, or a kind that fails only because the identification
+    absorbed it (:func:`~damper_emulator.diagnose.series.contender`), is weighed on the
+    paper's model refitted with it per file (:func:`_refitted_series`), whose parameters
+    the later fits then start from.  The oil's valve scale is not tried where the files
+    carry a temperature column: a column that moves is the library's thermal candidate's,
+    one that does not says the oil did not warm.  ``rig``: a first look at the chain
+    (:func:`~damper_emulator.diagnose.measurement.screen_delay`) the identified model's
+    residual is taken through; ``start``: a fit to weigh the series on in the identified
+    model's place (the paper's model refitted with the rig's delay)."""
     records = session.records
     positions = series_positions(records, order)
-    reference = min(positions, key=lambda n: positions[n])
-    sigmas = {r.name: noise_level(session.base_res[r.name]) for r in records}
     temps = temperature_stats([r.data for r in records])
-    kinds = [k.name for k in KINDS if not (k.name == "valve_scale" and temps is not None)]
+    ctx = _Series(session, positions, min(positions, key=lambda n: positions[n]),
+                  {r.name: noise_level(session.base_res[r.name]) for r in records},
+                  [k.name for k in KINDS if not (k.name == "valve_scale" and temps is not None)],
+                  relative_delay(rig) if rig is not None and session.estimate else None)
     model = session.base
-    files = file_columns(model, None, records, reference, sigmas)
-    result = select(files, positions, kinds, model)
-    name = contender(result)
-    if name is not None:
-        best = next(t for t in result.tried if t["kind"] == name and t["round"] == 1)
-        say(f"series: {name} moves over the files (ΔBIC {best['delta_bic']:.0f}) but "
-            f"explains {100 * best['explained']:.0f} % of what the identified model "
-            "misses: the paper's model refitted with it per file and without")
-        per_file = alone(name, files)
-        without = rounds.task(None, None)
-        session.with_per_file(per_file)
-        with_kind = rounds.task(None, None)
-        plain, refit = rounds.execute(None, [without, with_kind],
-                                      f"series (the paper's model with and without {name})")
-        res_with = refit.residuals(records)
-        session.with_per_file({})
-        res_without = plain.residuals(records)
-        k = sum(p.columns.shape[1] + p.gain for p in per_file.values())
-        dbic, explained = refit_evidence([sigmas[r.name] for r in records], res_without,
-                                         res_with, k)
-        say(f"series: with {name} per file the refit leaves {100 * (1 - explained):.0f} % "
-            f"of the structure it leaves without (ΔBIC {dbic:.0f})")
-        if dbic <= SERIES_MAX_DELTA_BIC and explained >= MIN_SERIES_EXPLAINED:
-            model = refit.model()
-            files = file_columns(model, refit.rig, records, reference, sigmas)
-            result = select(files, positions, kinds, model, first=name,
-                            evidence=(dbic, explained))
-            session.base_values.update(refit.out["base_values"])
-    refined(model, None, records, files, result)
+    if start is not None:
+        model, rig = start.model(), start.rig
+        if rig is not None:
+            ctx.delay = relative_delay(rig)
+    files = ctx.columns(model, rig)
+    result = select(files, positions, ctx.kinds, model)
+    lead = result.taken[0].kind.name if result.taken else contender(result)
+    if lead is not None and (not result.taken or lead in ("zero", "gas")):
+        again = _refitted_series(ctx, rounds, files, result, lead)
+        if again is not None:
+            result, files, model, rig = again
+        elif not result.taken:
+            session.say("series: nothing moves from file to file beyond the noise")
+    refined(model, rig, records, files, result)
     for d in result.taken:
-        say(f"series: {d.kind.doc} moves over the files (ΔBIC {d.delta_bic:.0f}, "
-            f"{d.kind.cause}): " + ", ".join(f"{k} {v:.4g}" for k, v in d.values().items())
-            + f" {d.kind.unit}")
-    if not result.taken:
-        say("series: nothing moves from file to file beyond the noise")
+        session.say(f"series: {d.kind.doc} moves over the files (ΔBIC {d.delta_bic:.0f}, "
+                    f"{d.kind.cause}): " + ", ".join(f"{k} {v:.4g}"
+                                                     for k, v in d.values().items())
+                    + f" {d.kind.unit}" + (f"; a change of the {d.ambiguous_with} fits "
+                                           "nearly as well" if d.ambiguous_with else ""))
+    if not result.taken and lead is None:
+        session.say("series: nothing moves from file to file beyond the noise")
     session.with_per_file(result.per_file(files))
     return result
+
+
+def _refitted_series(ctx: _Series, rounds: LibraryRounds, files: list[FileColumns],
+                     screened: SeriesResult, lead: str
+                     ) -> tuple[SeriesResult, list[FileColumns], DamperModel,
+                                RigParams | None] | None:
+    """The series weighed again on the paper's model refitted with ``lead`` per file:
+    where the screen did not take it (a contender), it must explain
+    :data:`~damper_emulator.diagnose.series.MIN_SERIES_EXPLAINED` of what the refit
+    without it leaves (:func:`~damper_emulator.diagnose.series.refit_evidence`); a zero
+    and a gas charge are each refitted, and the one of the lower BIC taken (within
+    ``RIG_OR_DAMPER_BIC``: the gas where it follows the series).  Returns the series at
+    the refit, its files' columns, the refitted model and its chain; ``None``: not
+    taken."""
+    say = ctx.session.say
+    partner = {"zero": "gas", "gas": "zero"}.get(lead)
+    if partner is not None and partner not in ctx.kinds:
+        partner = None
+    names = [lead, *([partner] if partner else [])]
+    per_files = {n: alone(n, files) for n in names}
+    # behind an estimated chain, the refits free its delay from the first look's
+    start = ({ACQUISITION_DELAY: float(ctx.delay)} if ctx.delay is not None else None)
+    tasks = [rounds.task(None, None, start=start)] if not screened.taken else []
+    for n in names:
+        ctx.session.with_per_file(per_files[n])
+        tasks.append(rounds.task(None, None, start=start))
+    ctx.session.with_per_file({})
+    say(f"series: the paper's model refitted with {' and with '.join(names)} per file"
+        + (" and without" if not screened.taken else ""))
+    fits = rounds.execute(None, tasks, "series (the paper's model refitted)")
+    refits = dict(zip(names, fits[len(fits) - len(names):]))
+    res = {n: ctx.residuals(refits[n], per_files[n]) for n in names}
+    sigmas = [ctx.sigmas[r.name] for r in ctx.session.records]
+
+    def columns_of(n: str) -> int:
+        return sum(p.columns.shape[1] + p.gain for p in per_files[n].values())
+    evidence = {}
+    if not screened.taken:
+        without = ctx.residuals(fits[0], {})
+        for n in names:
+            evidence[n] = refit_evidence(sigmas, without, res[n], columns_of(n))
+            say(f"series: with {n} per file the refit leaves "
+                f"{100 * (1 - evidence[n][1]):.0f} % of the structure it leaves without "
+                f"(ΔBIC {evidence[n][0]:.0f})")
+        names = [n for n in names if evidence[n][0] <= SERIES_MAX_DELTA_BIC
+                 and evidence[n][1] >= MIN_SERIES_EXPLAINED]
+        if not names:
+            return None
+    chosen, ambiguous = names[0], None
+    if len(names) == 2:
+        dbic = refit_evidence(sigmas, res[names[0]], res[names[1]],
+                              columns_of(names[1]) - columns_of(names[0]))[0]
+        say(f"series: {names[1]} against {names[0]} per file, both refitted: "
+            f"ΔBIC {dbic:.0f}")
+        if abs(dbic) < RIG_OR_DAMPER_BIC:
+            gas_model = refits["gas"].model()
+            gas = select(ctx.columns(gas_model, refits["gas"].rig), ctx.positions,
+                         ctx.kinds, gas_model, first="gas").taken[0]
+            chosen = "gas" if follows_series(gas, len(files)) else "zero"
+            ambiguous = "zero" if chosen == "gas" else "gas"
+        elif dbic < 0.0:
+            chosen = names[1]
+    refit = refits[chosen]
+    model = refit.model()
+    files = ctx.columns(model, refit.rig)
+    taken = next((d for d in screened.taken if d.kind.name == chosen), None)
+    first_evidence = (evidence.get(chosen) or
+                      ((taken.delta_bic, taken.explained) if taken else (0.0, 0.0)))
+    result = select(files, ctx.positions, ctx.kinds, model, first=chosen,
+                    evidence=first_evidence)
+    result.taken[0].ambiguous_with = ambiguous
+    # the later fits start from the refit's paper's parameters (the delay competes in
+    # the rounds as ever)
+    ctx.session.base_values.update({k: v for k, v in refit.out["base_values"].items()
+                                    if k != ACQUISITION_DELAY})
+    return result, files, model, refit.rig
 
 
 def answer(session: Session, found: RoundsOutcome, drift: SeriesResult) -> Diagnosis:
@@ -351,7 +450,8 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     recorded = records_of(fit_data, held_out_data)
     check_series(series, [r.name for r in recorded])
     rms_recorded = {r.name: rms(r.residual(base)) for r in recorded}
-    lines, cleaned = take_out_lines(base, recorded, say)
+    first_look = screen_delay(base, recorded)
+    lines, cleaned = take_out_lines(base, recorded, say, first_look)
     session = prepare(base, [cleaned[r.name] for r in recorded if not r.held_out],
                       [cleaned[r.name] for r in recorded if r.held_out], effects,
                       n_quasi_static, nfev, say, t_start)
@@ -363,8 +463,14 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     jobs_ = max(1, int(jobs or 1))
     with LocalPool(jobs_ if executor is None else 1) as local:
         rounds = LibraryRounds(session, local, executor, max_effects)
-        drift = follow_series(session, series, rounds)
-        found = rounds.select()
+        chain_first = None
+        if session.estimate:
+            # the rig's delay first (the chain candidate of round 1): what moves over the
+            # series is weighed on the paper's model refitted with it, not on an
+            # identification that took a load-cell filter's lag into its valves
+            (chain_first,) = rounds.run(None, [CHAIN], "the rig's delay, first")
+        drift = follow_series(session, series, rounds, first_look, chain_first)
+        found = rounds.select(chain_first if not drift.taken else None)
     diag = answer(session, found, drift)
     diag.rms_before = rms_recorded
     diag.rms_before_rig = dict(session.rms_before)

@@ -15,12 +15,15 @@ fitted per file by least squares on the model's residual ``F_meas − F_model``:
 =================  ==============================================  ======  ==========
 kind               columns (per file)                              cause   names
 =================  ==============================================  ======  ==========
-``zero``           1 (the offset), ``t − t̄`` (the drift in time)   rig     —
+``zero``           1 (the offset), ``t − t̄`` (its drift in time¹)   rig     —
 ``gain``           ``F_model``                                     rig     —
 ``gas``            ``∂F/∂p_gas``                                    damper  gas_spring
 ``friction``       ``∂F/∂F_friction``                               damper  friction
 ``valve_scale``    ``∂F/∂s``, the valves' Δp scaled by ``s``        damper  thermal
 =================  ==============================================  ======  ==========
+
+¹ In files whose excitation is stationary in time (:func:`stationary`): not in a chirp,
+whose speed, and the model's error with it, grows with time.
 
 The first file of the series is the reference (the rig was zeroed and calibrated before
 it, the model's parameters are its): it has no column but the zero's drift in time.  The
@@ -43,12 +46,14 @@ files fit.  A hypothesis is significant on top of those already taken when
   AR(1) residual, ``joint.delta_bic``) by at least 10 for its columns,
 * what it fits moves one file's force by at least :data:`MIN_NOISE_FRACTION` of its noise,
 * the first one taken explains at least :data:`MIN_SERIES_EXPLAINED` of the series'
-  structured cost (each file's mean square above its noise's): a per-file column also
-  takes a share of an effect the model lacks (a per-file friction or gain took half of a
-  6 kg mass's residual, its values four to seven times the seal's), and the library's
-  rounds are the place for that;
-* a damper's parameter follows the series: its per-file values lie on a line over the
-  files' places in the series (R² ≥ :data:`MIN_TREND_R2`, the slope beyond
+  structured residual (each file's mean square above its noise's) where it acts, each
+  file weighted by how much it moves it (:func:`explained_where_it_acts`): a per-file
+  column also takes a share of an effect the model lacks (a per-file friction or gain
+  took half of a 6 kg mass's residual, its values four to seven times the seal's), and
+  the library's rounds are the place for that;
+* a gain follows the series or is one of the whole series (its values within
+  :data:`GAIN_SPREAD`), and a damper's parameter follows the series: its per-file values
+  lie on a line over the files' places in the series (R² ≥ :data:`MIN_TREND_R2`, the slope beyond
   :data:`MIN_TREND_T` σ, at least :data:`MIN_TREND_FILES` files).  A gas that leaks or an
   oil that warms moves one way; a per-file value that jumps about is the model's own
   error at that file's speeds, which a per-file scale of the damping would otherwise take.
@@ -89,7 +94,8 @@ from damper_emulator.diagnose.joint import delta_bic, fit_columns, lag1
 from damper_emulator.model.compressible import DamperModel
 
 __all__ = ["EXCLUSIVE", "KINDS", "Drift", "FileColumns", "Kind", "SeriesResult", "alone",
-           "contender", "file_columns", "refined", "refit_evidence", "select",
+           "contender", "explained_where_it_acts", "file_columns", "refined", "refit_evidence",
+           "select",
            "series_positions", "trend"]
 
 #: relative step of the damper parameters' forward differences
@@ -100,8 +106,9 @@ SERIES_MAX_DELTA_BIC = -10.0
 #: what it fits there: significant but smaller, it is nothing a user sees) ...
 MIN_NOISE_FRACTION = 0.5
 #: ... and the first one taken explains at least this fraction of the series' structured
-#: cost: as the library's effects must of the held-out residual's structured power
-#: (``outcome.MIN_EXPLAINED``), or the answer is ``other``
+#: residual where it acts (:func:`explained_where_it_acts`): as the library's effects must
+#: of the held-out residual's structured power (``outcome.MIN_EXPLAINED``), or the answer
+#: is ``other``
 MIN_SERIES_EXPLAINED = 0.75
 #: a damper parameter's per-file values follow the series: R² of their line at least ...
 MIN_TREND_R2 = 0.75
@@ -114,6 +121,14 @@ MIN_TREND_FILES = 3
 RIG_OR_DAMPER_BIC = 10.0
 #: most hypotheses taken
 MAX_KINDS = 3
+#: a gain of the whole series: its per-file values lie within this of each other (a load
+#: cell's gain does not jump from file to file; a per-file gain that does takes a share of
+#: an effect the model lacks: 1.03–1.08 over four files of a 6 kg mass)
+GAIN_SPREAD = 0.01
+#: the zero's drift in time is fitted in files whose speed correlates with time less
+#: than this (:func:`stationary`): a quasi-static triangle, a sine, a random road; not a
+#: chirp, whose speed grows over it
+STATIONARY_CORRELATION = 0.3
 #: secant passes of a damper parameter's per-file column (:func:`refined`)
 SECANT_PASSES = 2
 
@@ -197,6 +212,18 @@ def series_positions(records: Sequence[Record], order: Sequence[str] | None = No
     return {n: float(k) for k, n in enumerate(names)}
 
 
+def stationary(t: np.ndarray, v: np.ndarray) -> bool:
+    """Whether a file's excitation is stationary in time: its speed does not grow or fall
+    over the file (``|corr(t, |v|)|`` below :data:`STATIONARY_CORRELATION`).  Only there is
+    a drift in time the zero's: in a chirp, time is the sweep's frequency and speed, and a
+    model error that grows with the speed grows with time too (it took a leaking gas's
+    comparison from the zero's offsets)."""
+    speed = np.abs(v)
+    if t.size < 3 or np.ptp(speed) == 0.0:
+        return True
+    return abs(float(np.corrcoef(t, speed)[0, 1])) < STATIONARY_CORRELATION
+
+
 def _stepped(model: DamperModel, kind: Kind, value: float) -> DamperModel:
     """``model`` with ``kind``'s parameter at ``value`` (the valve scale: its valves'
     pressure drop scaled by ``value``, the library's thermal extension at a typical oil's
@@ -242,7 +269,9 @@ def file_columns(model: DamperModel, rig: RigParams | None, records: Sequence[Re
         k = rec.start
         counted = rec.simulate(model, fast=True, rig=rig)[k:]
         t = rec.data.time[k:]
-        cols: dict[str, np.ndarray] = {"zero_drift": t - t.mean()}
+        cols: dict[str, np.ndarray] = {}
+        if stationary(t, rec.velocity[k:]):
+            cols["zero_drift"] = t - t.mean()
         if rec.name != reference:
             cols["zero"] = np.ones_like(t)
             cols["gain"] = counted
@@ -382,10 +411,28 @@ def _cost(files: Sequence[FileColumns], res: Sequence[np.ndarray]) -> float:
     return sum(float(np.mean(r * r)) / fc.sigma ** 2 for fc, r in zip(files, res))
 
 
-def _structured(files: Sequence[FileColumns], res: Sequence[np.ndarray]) -> float:
-    """``Σ_f max(mean(r_f²)/σ_f² − 1, 0)``: the cost less the noise's."""
-    return sum(max(float(np.mean(r * r)) / fc.sigma ** 2 - 1.0, 0.0)
-               for fc, r in zip(files, res))
+def explained_where_it_acts(sigmas: Sequence[float], before: Sequence[np.ndarray],
+                            after: Sequence[np.ndarray]) -> float:
+    """The fraction of the structured residual (each file's mean square above its noise
+    level's square, in units of that square) that a change from ``before`` to ``after``
+    removes, each file weighted by how much the change moves it there (the mean square of
+    ``before − after``): what a kind explains where it acts.  A per-file column that takes
+    a share of an effect the model lacks explains a share of each file it moves (half of
+    a 6 kg mass's residual), a drift of the rig or the damper nearly all of it, also where
+    the model's own form error dominates other files (a van's chirp beside a drifting
+    zero)."""
+    num = den = 0.0
+    for sg, r0, r1 in zip(sigmas, before, after):
+        if r0.size == 0:
+            continue
+        s0 = max(float(np.mean(r0 * r0)) / sg ** 2 - 1.0, 0.0)
+        if s0 <= 0.0:
+            continue
+        s1 = max(float(np.mean(r1 * r1)) / sg ** 2 - 1.0, 0.0)
+        moved = float(np.mean((r0 - r1) ** 2)) / sg ** 2
+        num += moved * (1.0 - min(s1 / s0, 1.0))
+        den += moved
+    return num / den if den > 0 else 0.0
 
 
 def _material(files: Sequence[FileColumns], before: Sequence[np.ndarray],
@@ -419,14 +466,17 @@ def trend(positions: Sequence[float], values: Sequence[float], std: Sequence[flo
 def _drift(kind: Kind, files: Sequence[FileColumns],
            coefs: Sequence[Mapping[str, tuple[float, float]]],
            positions: Mapping[str, float], model: DamperModel | None) -> Drift:
-    """The kind's per-file values and their trend over the series (the reference file
-    at no change, weighted as the best determined file)."""
+    """The kind's per-file values and their trend over the series.  The rig's reference
+    file is at no change by definition (weighted as the best determined file); a damper
+    parameter's is the model's, which every identification file set, not it alone: its
+    trend is over the files that have a value."""
     per = {fc.name: c[kind.name][0] for fc, c in zip(files, coefs) if kind.name in c}
     sd = {fc.name: c[kind.name][1] for fc, c in zip(files, coefs) if kind.name in c}
     best = min((v for v in sd.values() if v > 0), default=math.inf)
-    pos = [positions[fc.name] for fc in files]
-    vals = [per.get(fc.name, 0.0) for fc in files]
-    sds = [sd.get(fc.name, best) for fc in files]
+    on_line = [fc for fc in files if fc.name in per or kind.cause == "rig"]
+    pos = [positions[fc.name] for fc in on_line]
+    vals = [per.get(fc.name, 0.0) for fc in on_line]
+    sds = [sd.get(fc.name, best) for fc in on_line]
     slope, slope_sd, r2 = trend(pos, vals, sds)
     out = Drift(kind, per, sd, slope, slope_sd, r2,
                 reference_value=(reference_value(model, kind)
@@ -444,6 +494,20 @@ def follows_series(d: Drift, n_files: int) -> bool:
     docstring)."""
     return (n_files >= MIN_TREND_FILES and d.r2 >= MIN_TREND_R2
             and abs(d.slope) >= MIN_TREND_T * d.slope_std)
+
+
+def consistent(d: Drift, n_files: int) -> bool:
+    """Whether a kind's per-file values are what its cause can do: a damper's parameter
+    follows the series; a gain follows it too (an amplifier warming up) or is one gain of
+    the whole series (its values within :data:`GAIN_SPREAD` of each other); a zero may
+    move as it likes (a load cell zeroed again between files)."""
+    if d.kind.cause == "damper":
+        return follows_series(d, n_files)
+    if d.kind.name == "gain":
+        values = list(d.values().values())
+        return (follows_series(d, n_files)
+                or (bool(values) and max(values) - min(values) <= GAIN_SPREAD))
+    return True
 
 
 def select(files: Sequence[FileColumns], positions: Mapping[str, float],
@@ -471,7 +535,8 @@ def select(files: Sequence[FileColumns], positions: Mapping[str, float],
         excluded = {k for pair in EXCLUSIVE if pair & {d.kind.name for d in taken}
                     for k in pair}
         cur_res, _ = _fit(files, names)
-        cost0, structured0 = _cost(files, cur_res), _structured(files, cur_res)
+        cost0 = _cost(files, cur_res)
+        sigmas = [fc.sigma for fc in files]
         scored: dict[str, tuple[Drift, bool]] = {}
         for kind in allowed:
             if kind.name in excluded or any(d.kind is kind for d in taken):
@@ -485,17 +550,16 @@ def select(files: Sequence[FileColumns], positions: Mapping[str, float],
                                       float(np.mean(r0 * r0)))
                                      for r, r0 in zip(res, cur_res)), k)
             d.gain = 1.0 - math.sqrt(_cost(files, res) / cost0) if cost0 > 0 else 0.0
-            d.explained = (1.0 - _structured(files, res) / structured0
-                           if structured0 > 0 else 0.0)
+            d.explained = explained_where_it_acts(sigmas, cur_res, res)
             size = _material(files, cur_res, res)
             ok = (d.delta_bic <= SERIES_MAX_DELTA_BIC and size >= MIN_NOISE_FRACTION
                   and (bool(taken) or d.explained >= MIN_SERIES_EXPLAINED))
-            follows = kind.cause == "rig" or follows_series(d, len(files))
+            follows = consistent(d, len(files))
             tried.append({"round": len(taken) + 1, "kind": kind.name,
                           "parameter": kind.parameter, "delta_bic": d.delta_bic,
                           "gain": d.gain, "explained": d.explained,
                           "size_in_noise": size, "trend_r2": d.r2,
-                          "follows_series": follows, "significant": ok and follows,
+                          "consistent": follows, "significant": ok and follows,
                           "all_but_explained": (d.delta_bic <= SERIES_MAX_DELTA_BIC
                                                 and size >= MIN_NOISE_FRACTION
                                                 and follows)})
@@ -530,11 +594,7 @@ def refit_evidence(sigmas: Sequence[float], without: Sequence[np.ndarray],
     refit without it leaves."""
     dbic = delta_bic(((r.size, lag1(r), float(np.mean(r * r)), float(np.mean(r0 * r0)))
                       for r, r0 in zip(with_kind, without)), k)
-    s0 = sum(max(float(np.mean(r * r)) / sg ** 2 - 1.0, 0.0)
-             for r, sg in zip(without, sigmas))
-    s1 = sum(max(float(np.mean(r * r)) / sg ** 2 - 1.0, 0.0)
-             for r, sg in zip(with_kind, sigmas))
-    return dbic, (1.0 - s1 / s0 if s0 > 0 else 0.0)
+    return dbic, explained_where_it_acts(sigmas, without, with_kind)
 
 
 def alone(kind: str, files: Sequence[FileColumns]) -> dict[str, PerFile]:

@@ -83,7 +83,9 @@ PAIRS = (("lugre_friction", "valve_lag"), ("end_stops", "series_compliance"),
 
 
 #: the effects outside the library (the term discovery's): their expected family
-OUTSIDE = {"inertia": "inertia", "zone": "position_dependent", "seal": "friction"}
+OUTSIDE = {"inertia": "inertia", "zone": "position_dependent", "seal": "friction",
+           **{f"stops_{form}": "end_stop" for form in ("elastomer", "exponential",
+                                                       "hydraulic")}}
 #: the damper of an outside effect, where not the data sheet's: the seal's gas volume is
 #: small enough for the gas pressure to change with the stroke (±25 % over ±50 mm; the
 #: sport damper's ±7 % would make the seal a Coulomb friction the paper's model has)
@@ -98,6 +100,13 @@ EFFECT_FILTER_HZ = 150.0
 PROGRAMMES = ("paper", "speeds")
 #: the masses of the inertia series, one per damper [kg]
 INERTIA_SIZES_KG = (1.5, 5.0, 10.0)
+#: end stops outside the library's form, at both ends (rebound, compression) [m] for
+#: each programme: the paper's sines reach ±50 mm, the speed series ±25 mm
+STOP_POSITIONS = {"paper": (0.035, -0.038), "speeds": (0.018, -0.02)}
+STOP_FORMS = ("elastomer", "exponential", "hydraulic")
+#: pairs of library effects in which the first dominates the second
+DOMINANT_PAIRS = (("cavitation", "lugre_friction"), ("end_stops", "viscosity_temperature"),
+                  ("valve_lag", "gas_heat_transfer"), ("series_compliance", "bypass_groove"))
 
 
 @dataclass(frozen=True)
@@ -191,13 +200,43 @@ def scenarios() -> list[Scenario]:
     for d, m in zip(DAMPERS, INERTIA_SIZES_KG):
         out.append(Scenario(f"{d}:inertia{m:g}kg/speeds", d, ("inertia",),
                             programme="speeds", mass_kg=m))
+    for k, form in enumerate(STOP_FORMS):
+        for j, prog in enumerate(PROGRAMMES):
+            d = DAMPERS[(k + j) % len(DAMPERS)]
+            out.append(Scenario(f"{d}:stops_{form}/{prog}", d, (f"stops_{form}",),
+                                programme=prog))
+    out += [Scenario(f"sport:{a}>{b}", "sport", (a, b)) for a, b in DOMINANT_PAIRS]
     return out
 
 
-def outside_force(name: str, cfg, mass_kg: float = INERTIA_KG):
+def stop_force(form: str, programme: str):
+    """``f(t, x, v)`` of end stops outside the library's form, at both ends of the
+    programme's stroke (:data:`STOP_POSITIONS`; the compression stop 1.5 times as stiff):
+    an elastomer (``k₁ δ + k₃ δ³``, 20 % hysteresis with the direction), an exponential
+    stiffening (``a (e^(δ/δ₀) − 1)``), a hydraulic stop (``c ẋ|ẋ|`` growing in over 3 mm,
+    and a soft spring)."""
+    x_r, x_c = STOP_POSITIONS[programme]
+
+    def one(d, v_in):
+        """The force [N] of one stop at penetration ``d`` ≥ 0 and speed into it."""
+        if form == "elastomer":
+            return (5e4 * d + 5e7 * d ** 3) * (1.0 + 0.2 * np.tanh(v_in / 0.01))
+        if form == "exponential":
+            return 300.0 * (np.exp(d / 0.015) - 1.0)
+        return 3e3 * v_in * np.abs(v_in) * np.minimum(d / 0.003, 1.0) + 5e4 * d
+
+    def force(t, x, v):
+        dr, dc = np.maximum(x - x_r, 0.0), np.maximum(x_c - x, 0.0)
+        return np.where(dr > 0, one(dr, v), 0.0) - np.where(dc > 0, 1.5 * one(dc, -v), 0.0)
+    return force
+
+
+def outside_force(name: str, cfg, mass_kg: float = INERTIA_KG, programme: str = "paper"):
     """``f(t, x, v)`` of an effect outside the library (:data:`OUTSIDE`) on ``cfg``."""
     from damper_emulator.model.compressible import simulate
 
+    if name.startswith("stops_"):
+        return stop_force(name[len("stops_"):], programme)
     if name == "inertia":
         return lambda t, x, v: mass_kg * np.gradient(v, t)
     if name == "zone":
@@ -247,7 +286,7 @@ def session(sc: Scenario, seed: int):
     extra = None
     if len(effects) == 1 and effects[0] in OUTSIDE:
         truth = example_config(None, sheet)
-        extra = outside_force(effects[0], truth, sc.mass_kg)
+        extra = outside_force(effects[0], truth, sc.mass_kg, sc.programme)
     else:
         truth = example_config(effects, sheet)
     series = series_of(sc.series, sheet)

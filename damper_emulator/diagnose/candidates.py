@@ -135,23 +135,53 @@ def isothermal_gas(cfg: ModelConfig) -> ModelConfig:
     return dataclasses.replace(cfg, damper=dataclasses.replace(cfg.damper, gas_gamma=1.0))
 
 
-def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
-               effects: Sequence[str] | None = None) -> list[Candidate]:
-    """The candidate effects for a base model ``cfg`` identified on ``fit_data`` (only
-    ``effects`` when given, in library order)."""
-    d = cfg.damper
-    x_lo = min(float(np.min(r.displacement)) for r in fit_data)
-    x_hi = max(float(np.max(r.displacement)) for r in fit_data)
-    span = max(x_hi - x_lo, 1e-3)
-    f0 = max(d.friction_force_n, MIN_FRICTION_SCALE_N)
-    # oil stiffness of the rebound chamber at rest, A²/(V α): the scale of any compliance
-    k_oil = d.annulus_area_m2 / (d.max_extension_m * d.oil_compressibility_per_pa)
-    out: list[Candidate] = []
+@dataclass(frozen=True)
+class Scales:
+    """What the candidates' bounds and starts are derived from: the identified damper
+    ``cfg`` and the identification files."""
 
-    # friction: Coulomb level around the identified friction; break-away up to 4× it;
-    # Stribeck velocity 0.1 mm/s .. 0.1 m/s; bristle stiffness so that the pre-sliding
-    # travel F/σ0 lies between 1 µm and 10 mm
-    out.append(Candidate(
+    cfg: ModelConfig
+    fit_data: Sequence[MeasuredData]
+
+    @property
+    def x_lo(self) -> float:
+        return min(float(np.min(r.displacement)) for r in self.fit_data)
+
+    @property
+    def x_hi(self) -> float:
+        return max(float(np.max(r.displacement)) for r in self.fit_data)
+
+    @property
+    def span(self) -> float:
+        """The tested stroke [m]."""
+        return max(self.x_hi - self.x_lo, 1e-3)
+
+    @property
+    def friction(self) -> float:
+        """The friction's scale: the identified friction, at least
+        :data:`MIN_FRICTION_SCALE_N` [N]."""
+        return max(self.cfg.damper.friction_force_n, MIN_FRICTION_SCALE_N)
+
+    @property
+    def oil_stiffness(self) -> float:
+        """The rebound chamber's oil stiffness at rest, ``A²/(V α)`` [N/m]: the scale of
+        any compliance."""
+        d = self.cfg.damper
+        return d.annulus_area_m2 / (d.max_extension_m * d.oil_compressibility_per_pa)
+
+    @property
+    def v_max(self) -> float:
+        """The files' largest speed [m/s]."""
+        return max(float(np.max(np.abs(np.gradient(r.displacement, r.time))))
+                   for r in self.fit_data)
+
+
+def _friction(s: Scales) -> Candidate:
+    """Friction: Coulomb level around the identified friction; break-away up to 4× it;
+    Stribeck velocity 0.1 mm/s .. 0.1 m/s; bristle stiffness so that the pre-sliding
+    travel F/σ0 lies between 1 µm and 10 mm."""
+    f0 = s.friction
+    return Candidate(
         "lugre_friction",
         (Parameter("coulomb_n", 0.2 * f0, 3.0 * f0 + 20.0, f0, False, "N"),
          Parameter("static_ratio", 1.0, 4.0, 1.5, False, "-"),
@@ -161,44 +191,48 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
                    "stribeck_velocity_m_s": v["stribeck_velocity_m_s"],
                    "bristle_stiffness_n_m": v["bristle_stiffness_n_m"]},
         # second start: close to the identified Coulomb friction (no Stribeck, stiff)
-        extra_starts=((f0, 1.0, 0.01, f0 / 2e-6),)))
+        extra_starts=((f0, 1.0, 0.01, f0 / 2e-6),))
 
-    # thermal: with a measured temperature, β between 0 and 0.1 /K (oils: 0.02-0.04);
-    # without, β held at a typical oil's and the lumped heat capacity fitted (100 J/K, a
-    # few grams of oil, .. 100 kJ/K, far more than any damper).  A temperature column
-    # that does not move says the oil did not warm: no thermal candidate (a drifting
-    # load-cell zero was named thermal through the heat model)
-    # and the temperature at which the identified valves hold within the measured range
-    # (± 10 K): the identification averaged over whatever temperatures its files had
-    temp = temperature_stats(fit_data)
+
+def _thermal(s: Scales) -> Candidate | None:
+    """Thermal: with a measured temperature, β between 0 and 0.1 /K (oils: 0.02-0.04) and
+    the temperature at which the identified valves hold within the measured range
+    (± 10 K: the identification averaged over whatever temperatures its files had);
+    without, β held at a typical oil's and the lumped heat capacity fitted (100 J/K, a
+    few grams of oil, .. 100 kJ/K, far more than any damper).  A temperature column that
+    does not move says the oil did not warm: no thermal candidate (a drifting load-cell
+    zero was named thermal through the heat model)."""
+    temp = temperature_stats(s.fit_data)
     if temp is not None and temp[2] - temp[1] >= MIN_TEMPERATURE_SPAN_K:
         t_lo, t_hi = temp[1], temp[2]
-        out.append(Candidate(
+        return Candidate(
             "viscosity_temperature",
             (Parameter("temperature_coefficient_per_k", 1e-4, 0.1, 0.02, True, "1/K"),
              Parameter("reference_temperature_c", t_lo - 10.0, t_hi + 10.0, temp[0], False,
                        "°C")),
-            _with({}), note="driven by the measured temperature"))
-    elif temp is None:
-        t_ref = 25.0
-        out.append(Candidate(
-            "viscosity_temperature",
-            (Parameter("heat_capacity_j_per_k", 100.0, 1e5, 2000.0, True, "J/K"),),
-            _with({"reference_temperature_c": t_ref,
-                   "temperature_coefficient_per_k": TYPICAL_VISCOSITY_COEFFICIENT_PER_K,
-                   "cooling_time_constant_s": TYPICAL_COOLING_TIME_S}),
-            note="no measured temperature: heated by the dissipated power, β held at "
-                 f"{TYPICAL_VISCOSITY_COEFFICIENT_PER_K:.4f} /K"))
+            _with({}), note="driven by the measured temperature")
+    if temp is not None:
+        return None
+    return Candidate(
+        "viscosity_temperature",
+        (Parameter("heat_capacity_j_per_k", 100.0, 1e5, 2000.0, True, "J/K"),),
+        _with({"reference_temperature_c": 25.0,
+               "temperature_coefficient_per_k": TYPICAL_VISCOSITY_COEFFICIENT_PER_K,
+               "cooling_time_constant_s": TYPICAL_COOLING_TIME_S}),
+        note="no measured temperature: heated by the dissipated power, β held at "
+             f"{TYPICAL_VISCOSITY_COEFFICIENT_PER_K:.4f} /K")
 
-    # cavitation: vapour pressure (~2 kPa) up to gas-release pressures near 1 bar and a
-    # little beyond; several starts because below the lowest pressure reached it does
-    # nothing
-    # A cavity opens only when the compression valve's drop exceeds p_gas − p_cav, i.e.
-    # (eq 1, rebound chamber at p_cav ≤ p_hi) where the damper pushes out with more than
-    # p_gas A_rod + (p_gas − p_hi) A_annulus; an open cavity then holds the force on a
-    # plateau (p_gas A_piston − p_cav A_annulus) whatever the speed.  The
-    # re-identification fits the valves without the samples that are both (on the plateau
-    # the identified compression valve would otherwise go soft to follow it).
+
+def _cavitation(s: Scales) -> Candidate:
+    """Cavitation: vapour pressure (~2 kPa) up to gas-release pressures near 1 bar and a
+    little beyond; several starts because below the lowest pressure reached it does
+    nothing.  A cavity opens only when the compression valve's drop exceeds
+    ``p_gas − p_cav``, i.e. (eq 1, rebound chamber at ``p_cav ≤ p_hi``) where the damper
+    pushes out with more than ``p_gas A_rod + (p_gas − p_hi) A_annulus``; an open cavity
+    then holds the force on a plateau (``p_gas A_piston − p_cav A_annulus``) whatever the
+    speed.  The re-identification fits the valves without the samples that are both (on
+    the plateau the identified compression valve would otherwise go soft to follow it)."""
+    d = s.cfg.damper
     p_hi = 0.5 * d.gas_pressure_static_pa
     f_cavity = (d.gas_pressure_static_pa * d.rod_area_m2
                 + (d.gas_pressure_static_pa - p_hi) * d.annulus_area_m2)
@@ -207,75 +241,84 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
         push = -data.force
         return (push >= f_cavity) & (push >= CAVITY_PLATEAU_FRACTION * float(np.max(push)))
 
-    out.append(Candidate(
+    return Candidate(
         "cavitation", (Parameter("cavitation_pressure_pa", 1e3, p_hi, 2e4, True, "Pa"),),
         _with({}), extra_starts=((1e5,), (min(4e5, 0.5 * p_hi),)), may_act=may_cavitate,
-        friction_coupled=True))
+        friction_coupled=True)
 
-    # valve dynamics: opening time constants from 10 µs to 50 ms
-    out.append(Candidate(
+
+def _valve_lag(s: Scales) -> Candidate:
+    """Valve dynamics: opening time constants from 10 µs to 50 ms."""
+    return Candidate(
         "valve_lag", (Parameter("time_constant_s", 1e-5, 0.05, 2e-3, True, "s"),), _with({}),
-        extra_starts=((2e-4,),)))
+        extra_starts=((2e-4,),))
 
-    # compliance: a series spring from 1/100 to 1000 × the oil column's stiffness
-    out.append(Candidate(
+
+def _compliance(s: Scales) -> Candidate:
+    """Compliance: a series spring from 1/100 to 1000 × the oil column's stiffness."""
+    k_oil = s.oil_stiffness
+    return Candidate(
         "series_compliance",
         (Parameter("stiffness_n_m", k_oil / 100.0, k_oil * 1000.0, k_oil, True, "N/m"),),
-        _with({}), extra_starts=((k_oil * 10.0,),)))
+        _with({}), extra_starts=((k_oil * 10.0,),))
 
-    # end stops: engagement within the tested stroke (outside it they cannot be seen);
-    # progressive elastomer coefficient 1e3 .. 1e10 N/m².  A stop fitted on top of an
-    # identification has to undo a gas spring that absorbed it; the re-identification
-    # leaves out the outer half of the tested stroke, where a stop may engage (the
-    # quasi-static fit then sees the gas spring alone).
+
+def _end_stops(s: Scales) -> Candidate:
+    """End stops: engagement within the tested stroke (outside it they cannot be seen);
+    progressive elastomer coefficient 1e3 .. 1e10 N/m².  The stops' own form: a linear
+    stiffness (an elastomer's first millimetres) up to what the progressive term gives at
+    a tenth of the stroke, a damping growing with the penetration (a hydraulic stop, an
+    elastomer's hysteresis) up to what makes the progressive force at the files' speeds,
+    and the compression stop 1/30 .. 30 times the rebound stop (a bump stop and a top-out
+    stop are different parts); scales in log space, their low ends no force at all within
+    the tested stroke.  A stop fitted on top of an identification has to undo a gas spring
+    that absorbed it; the re-identification leaves out the outer half of the tested
+    stroke, where a stop may engage (the quasi-static fit then sees the gas spring
+    alone)."""
+    x_lo, x_hi, span = s.x_lo, s.x_hi, s.span
     mid_stroke = 0.5 * (x_lo + x_hi)
 
     def outer_half(data: MeasuredData) -> np.ndarray:
         return np.abs(data.displacement - mid_stroke) > OUTER_STROKE_FRACTION * span
 
-    # The stops' own form: a linear stiffness (an elastomer's first millimetres) up to
-    # what the progressive term gives at a tenth of the stroke, a damping growing with the
-    # penetration (a hydraulic stop, an elastomer's hysteresis) up to what makes the
-    # progressive force at the chirp's speeds, and the compression stop 1/30 .. 30 times
-    # the rebound stop (a bump stop and a top-out stop are different parts).  Scales in
-    # log space: their low ends are no force at all within the tested stroke.
-    k_lin_hi = 1e10 * 0.1 * span
-    v_max = max(float(np.max(np.abs(np.gradient(r.displacement, r.time)))) for r in fit_data)
-    c_hi = 1e10 / max(v_max, 1e-3)
-    out.append(Candidate(
+    return Candidate(
         "end_stops",
         (Parameter("rebound_position_m", x_lo + 0.5 * span, x_hi, x_hi - 0.15 * span, False,
                    "m"),
          Parameter("compression_position_m", x_lo, x_hi - 0.5 * span, x_lo + 0.15 * span,
                    False, "m"),
          Parameter("stiffness_n_m2", 1e3, 1e10, 1e6, True, "N/m²"),
-         Parameter("linear_stiffness_n_m", 1.0, k_lin_hi, 1e3, True, "N/m"),
-         Parameter("damping_n_s_m2", 1.0, c_hi, 1e3, True, "N·s/m²"),
+         Parameter("linear_stiffness_n_m", 1.0, 1e10 * 0.1 * span, 1e3, True, "N/m"),
+         Parameter("damping_n_s_m2", 1.0, 1e10 / max(s.v_max, 1e-3), 1e3, True, "N·s/m²"),
          Parameter("compression_scale", 1.0 / 30.0, 30.0, 1.0, True, "-")),
         _with({}), may_act=outer_half,
         extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, 1e6, 1e3, 1e3, 1.0),
                       (x_hi - 0.05 * span, x_lo + 0.05 * span, 1e7, 1e3, 1e3, 1.0),
-                      (x_hi, x_lo, 1e4, 1.0, 1.0, 1.0))))  # (almost) not engaged
+                      (x_hi, x_lo, 1e4, 1.0, 1.0, 1.0)))  # (almost) not engaged
 
-    # air entrainment: 0.001 % .. 20 % free air at 1 atm
-    out.append(Candidate(
+
+def _air(s: Scales) -> Candidate:
+    """Air entrainment: 0.001 % .. 20 % free air at 1 atm."""
+    return Candidate(
         "air_entrainment", (Parameter("air_volume_fraction", 1e-5, 0.2, 3e-3, True, "-"),),
-        _with({})))
+        _with({}))
 
-    # position-dependent damping: a groove of 0.1 .. 5 mm equivalent diameter anywhere in
-    # the tested stroke, 1 mm to the whole stroke long
-    # A groove is seen where the valves work hard: within the dynamic test's (narrowest
-    # file's) stroke, so more starts lie there, a quarter of that stroke long, in each
-    # half of it and in its middle.
+
+def _groove(s: Scales) -> Candidate:
+    """Position-dependent damping: a groove of 0.1 .. 5 mm equivalent diameter anywhere in
+    the tested stroke, 1 mm to the whole stroke long.  A groove is seen where the valves
+    work hard: within the dynamic test's (narrowest file's) stroke, so more starts lie
+    there, a quarter of that stroke long, in each half of it and in its middle."""
+    x_lo, x_hi, span = s.x_lo, s.x_hi, s.span
     a_lo, a_hi = math.pi / 4 * 1e-4 ** 2, math.pi / 4 * 5e-3 ** 2
     a_mm = math.pi / 4 * 1e-3 ** 2
     mid = 0.5 * (x_lo + x_hi)
-    narrow = min(fit_data, key=lambda r: float(np.ptp(r.displacement)))
+    narrow = min(s.fit_data, key=lambda r: float(np.ptp(r.displacement)))
     n_lo, n_hi = float(np.min(narrow.displacement)), float(np.max(narrow.displacement))
     n_span, n_mid = max(n_hi - n_lo, 1e-3), 0.5 * (n_lo + n_hi)
     narrow_starts = tuple((a_mm, c, 0.25 * n_span) for c in
                           (n_mid - 0.25 * n_span, n_mid, n_mid + 0.25 * n_span))
-    out.append(Candidate(
+    return Candidate(
         "bypass_groove",
         (Parameter("area_m2", a_lo, a_hi, a_mm, True, "m²"),
          Parameter("center_m", x_lo, x_hi, mid, False, "m"),
@@ -284,22 +327,41 @@ def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
         extra_starts=((a_mm, x_lo + 0.25 * span, 0.1 * span),
                       (a_mm, x_hi - 0.25 * span, 0.1 * span),
                       *narrow_starts,
-                      (4.0 * a_lo, mid, 0.25 * span))))  # (almost) closed
+                      (4.0 * a_lo, mid, 0.25 * span)))  # (almost) closed
 
-    # gas spring: thermal time constants from 10 ms (isothermal at every test speed) to
-    # 100 s (adiabatic at all but the quasi-static test).  The quasi-static fit (eq 37)
-    # assumes the data sheet's γ; a gas that exchanges heat is isothermal over a test that
-    # slow, so the re-identification fits eq 37 with γ = 1 (and the joint fit starts from
-    # the gas charge and volume that gives).
-    out.append(Candidate(
+
+def _gas(s: Scales) -> Candidate:
+    """Gas spring: thermal time constants from 10 ms (isothermal at every test speed) to
+    100 s (adiabatic at all but the quasi-static test).  The quasi-static fit (eq 37)
+    assumes the data sheet's γ; a gas that exchanges heat is isothermal over a test that
+    slow, so the re-identification fits eq 37 with γ = 1 (and the joint fit starts from
+    the gas charge and volume that gives)."""
+    return Candidate(
         "gas_heat_transfer",
         (Parameter("thermal_time_constant_s", 0.01, 100.0, 1.0, True, "s"),), _with({}),
-        extra_starts=((0.1,),), identify_as=isothermal_gas))
+        extra_starts=((0.1,),), identify_as=isothermal_gas)
 
+
+#: the library's candidates, one builder per family, in library order (a builder gives
+#: ``None`` where its effect cannot be told from these files)
+BUILDERS: tuple[Callable[[Scales], Candidate | None], ...] = (
+    _friction, _thermal, _cavitation, _valve_lag, _compliance, _end_stops, _air, _groove,
+    _gas)
+#: the effects the library holds, in its order
+LIBRARY = ("lugre_friction", "viscosity_temperature", "cavitation", "valve_lag",
+           "series_compliance", "end_stops", "air_entrainment", "bypass_groove",
+           "gas_heat_transfer")
+
+
+def candidates(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
+               effects: Sequence[str] | None = None) -> list[Candidate]:
+    """The candidate effects for a base model ``cfg`` identified on ``fit_data`` (only
+    ``effects`` when given, in library order; each builder states its bounds and starts
+    with their reasons)."""
     if effects is not None:
-        known = {c.effect for c in out}
-        unknown = [e for e in effects if e not in known]
+        unknown = [e for e in effects if e not in LIBRARY]
         if unknown:
-            raise UserError(f"unknown effect {unknown[0]!r} (one of {', '.join(known)})")
-        out = [c for c in out if c.effect in effects]
-    return out
+            raise UserError(f"unknown effect {unknown[0]!r} (one of {', '.join(LIBRARY)})")
+    scales = Scales(cfg, fit_data)
+    out = [c for build in BUILDERS if (c := build(scales)) is not None]
+    return [c for c in out if effects is None or c.effect in effects]

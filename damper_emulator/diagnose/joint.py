@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
@@ -610,137 +610,205 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     The cost weights are fixed by the caller for a whole diagnosis, so the costs of
     different candidates compare.
     """
-    cands = [c for c, _ in accepted] + ([candidate] if candidate is not None else [])
-    values = [dict(v) for _, v in accepted]
-    fit_data = [r.data for r in records]
-    evaluations = 0
-    reidentified = False
-    friction_factor: float | None = None
-    other_start: tuple[Mapping[str, float], list[Mapping[str, float]]] | None = None
+    j = _JointFit(cfg, records, weights, n_quasi_static, nfev, terms, term_parameters,
+                  [c for c, _ in accepted] + ([candidate] if candidate is not None else []))
+    start = _Start(dict(base_values), [dict(v) for _, v in accepted])
     if candidate is not None:
-        def prefit(bv: Mapping[str, float], vals: Sequence[Mapping[str, float]], free: int,
-                   starts_values: Sequence[Mapping[str, float]]
-                   ) -> tuple[dict[str, float], float, int]:
-            """Effect ``free`` of ``cands`` fitted alone on the model ``bv``, ``vals``
-            from each of ``starts_values``: its values, the cost, the simulations."""
-            def with_start(sv: Mapping[str, float]) -> list[Mapping[str, float]]:
-                return [sv if k == free else v for k, v in enumerate(vals)]
-
-            pre = Space(cfg, [], bv, cands, with_start(starts_values[0]),
-                        [k == free for k in range(len(cands))], records, weights,
-                        n_quasi_static)
-            starts = [pre.encode(bv, with_start(sv)) for sv in starts_values]
-            if len(starts) > 1:
-                starts = [min((pre.solve(s0, SCREEN_NFEV) for s0 in starts),
-                              key=lambda r: r.cost).x]
-            sol = pre.solve(starts[0], PREFIT_NFEV)
-            return pre.decode(sol.x)[1][free], float(sol.cost), pre.evaluations
-
-        def own_starts(c: Candidate) -> list[dict[str, float]]:
-            names = [p.name for p in c.parameters]
-            return [dict(zip(names, (p.from_internal(u) for p, u in zip(c.parameters, u0))))
-                    for u0 in c.starts()]
-
-        start_values = own_starts(candidate)
-        last = len(accepted)  # the candidate's index in cands
-        pre_values, pre_cost, n = prefit(base_values, [*values, start_values[0]], last,
-                                         start_values)
-        evaluations += n
+        j.prefitted(start, candidate)
         if accepted and alternative is not None and candidate.effect in alternative[1]:
-            alt_base, alt_effects = alternative
-            newest = accepted[-1][0]
-            alt_vals = [alt_effects.get(c.effect, v) for c, v in zip(cands, [*values, {}])]
-            alt_new, alt_cost, n = prefit({**base_values, **alt_base}, alt_vals, last - 1,
-                                          [*own_starts(newest), values[-1]])
-            evaluations += n
-            if alt_cost < pre_cost:
-                base_values = {**base_values, **alt_base}
-                values = [*(dict(v) for v in alt_vals[:-2]), alt_new]
-                pre_values, pre_cost = dict(alt_vals[-1]), alt_cost
+            j.other_order(start, accepted[-1][0], alternative)
+        j.reidentified(start, candidate, bool(accepted))
+        start.values.append(start.candidate_values)
+    return j.result(start)
 
-        def restart(factor: float, masks: Sequence[np.ndarray] | None,
-                    as_cfg: ModelConfig = cfg, screen: bool = True) -> _Restart | None:
-            """Re-identified base (``friction_factor``), the candidate pre-fitted on it
-            (from its own starts and the first pre-fit's values, or with ``screen``
-            false from the latter only): ``(cost, base, candidate's values,
-            simulations, factor)``; ``None`` if the re-identification failed."""
-            nb = reidentify(as_cfg, records, n_quasi_static, masks, factor,
-                            delay_rig(base_values))
-            if nb is None:
-                return None
-            nb = {**base_values, **nb}
-            vals, cost, n = prefit(nb, [*values, pre_values], last,
-                                   [*start_values, pre_values] if screen else [pre_values])
-            return cost, nb, vals, n, factor
 
+@dataclass
+class _Start:
+    """Where a joint fit starts (:func:`joint_fit`'s steps 1–3 move it): the paper's
+    parameters, the accepted effects' values and the candidate's pre-fitted values and
+    cost, with what the steps cost and found."""
+
+    base_values: dict[str, float]
+    values: list[dict[str, float]]
+    candidate_values: dict[str, float] = field(default_factory=dict)
+    cost: float = math.inf
+    evaluations: int = 0
+    reidentified: bool = False
+    friction_factor: float | None = None
+    #: a second start that goes to step 4 too (a re-identification under the candidate's
+    #: configuration of a present model fitted jointly with the rig's delay)
+    other: tuple[dict[str, float], list[dict[str, float]]] | None = None
+
+
+class _JointFit:
+    """The stages of one :func:`joint_fit`: what they share, and each step."""
+
+    def __init__(self, cfg: ModelConfig, records: Sequence[Record],
+                 weights: Sequence[float], n_quasi_static: int, nfev: int,
+                 terms: TermSource | None, term_parameters: Sequence[Parameter],
+                 cands: list[Candidate]):
+        self.cfg, self.records, self.weights = cfg, records, weights
+        self.n_quasi_static, self.nfev = n_quasi_static, nfev
+        self.terms, self.term_parameters = terms, term_parameters
+        #: the accepted effects, then the candidate
+        self.cands = cands
+
+    def prefit(self, bv: Mapping[str, float], vals: Sequence[Mapping[str, float]],
+               free: int, starts_values: Sequence[Mapping[str, float]]
+               ) -> tuple[dict[str, float], float, int]:
+        """Effect ``free`` of the candidates fitted alone on the model ``bv``, ``vals``
+        from each of ``starts_values``: its values, the cost, the simulations."""
+        def with_start(sv: Mapping[str, float]) -> list[Mapping[str, float]]:
+            return [sv if k == free else v for k, v in enumerate(vals)]
+
+        pre = Space(self.cfg, [], bv, self.cands, with_start(starts_values[0]),
+                    [k == free for k in range(len(self.cands))], self.records,
+                    self.weights, self.n_quasi_static)
+        starts = [pre.encode(bv, with_start(sv)) for sv in starts_values]
+        if len(starts) > 1:
+            starts = [min((pre.solve(s0, SCREEN_NFEV) for s0 in starts),
+                          key=lambda r: r.cost).x]
+        sol = pre.solve(starts[0], PREFIT_NFEV)
+        return pre.decode(sol.x)[1][free], float(sol.cost), pre.evaluations
+
+    @staticmethod
+    def own_starts(c: Candidate) -> list[dict[str, float]]:
+        """The candidate's start vectors, by parameter name."""
+        names = [p.name for p in c.parameters]
+        return [dict(zip(names, (p.from_internal(u) for p, u in zip(c.parameters, u0))))
+                for u0 in c.starts()]
+
+    def prefitted(self, start: _Start, candidate: Candidate) -> None:
+        """Step 1: the candidate alone on top of the present model, from its own
+        starts."""
+        starts = self.own_starts(candidate)
+        last = len(self.cands) - 1
+        values, cost, n = self.prefit(start.base_values, [*start.values, starts[0]], last,
+                                      starts)
+        start.candidate_values, start.cost = values, cost
+        start.evaluations += n
+
+    def other_order(self, start: _Start, newest: Candidate,
+                    alternative: tuple[Mapping[str, float], Mapping[str, Mapping[str, float]]]
+                    ) -> None:
+        """Step 3: the candidate's own fit of the round before with the newest accepted
+        effect pre-fitted on top of it, taken where it fits the records better."""
+        alt_base, alt_effects = alternative
+        last = len(self.cands) - 1
+        alt_vals = [alt_effects.get(c.effect, v)
+                    for c, v in zip(self.cands, [*start.values, {}])]
+        alt_new, alt_cost, n = self.prefit({**start.base_values, **alt_base}, alt_vals,
+                                           last - 1, [*self.own_starts(newest),
+                                                      start.values[-1]])
+        start.evaluations += n
+        if alt_cost < start.cost:
+            start.base_values = {**start.base_values, **alt_base}
+            start.values = [*(dict(v) for v in alt_vals[:-2]), alt_new]
+            start.candidate_values, start.cost = dict(alt_vals[-1]), alt_cost
+
+    def restart(self, start: _Start, candidate: Candidate, factor: float,
+                masks: Sequence[np.ndarray] | None, as_cfg: ModelConfig | None = None,
+                screen: bool = True) -> _Restart | None:
+        """Re-identified base (``friction_factor``), the candidate pre-fitted on it
+        (from its own starts and the first pre-fit's values, or with ``screen`` false
+        from the latter only): ``(cost, base, candidate's values, simulations,
+        factor)``; ``None`` if the re-identification failed."""
+        nb = reidentify(as_cfg or self.cfg, self.records, self.n_quasi_static, masks,
+                        factor, delay_rig(start.base_values))
+        if nb is None:
+            return None
+        nb = {**start.base_values, **nb}
+        pre = start.candidate_values
+        starts = [*self.own_starts(candidate), pre] if screen else [pre]
+        vals, cost, n = self.prefit(nb, [*start.values, pre], len(self.cands) - 1, starts)
+        return cost, nb, vals, n, factor
+
+    def masks(self, start: _Start, candidate: Candidate) -> list[np.ndarray] | None:
+        """Where the local effects of the model act (the accepted ones and the
+        candidate), by record; ``None`` where none is local."""
+        plain = model_of(self.cfg, start.base_values, [])
+        masks = None
+        for c, v in [*zip(self.cands[:-1], start.values),
+                     (candidate, start.candidate_values)]:
+            m = ([c.may_act(r.data) for r in self.records] if c.may_act is not None
+                 else active_samples(self.records, plain,
+                                     model_of(self.cfg, start.base_values, [(c, v)])))
+            if m is not None:
+                masks = m if masks is None else [a | b for a, b in zip(masks, m)]
+        return masks
+
+    def reidentified(self, start: _Start, candidate: Candidate, accepted: bool) -> None:
+        """Step 2: the staged identification again without the samples where the local
+        effects act, or under the candidate's own configuration for a first effect, with
+        the friction at speed searched for a friction-coupled candidate; the pre-fit on
+        it taken where it fits the records better."""
         tried: list[_Restart | None] = []
         search = False  # the friction at speed searched (search_friction)
         if not accepted and candidate.identify_as is not None:
-            tried.append(restart(1.0, None, candidate.identify_as(cfg)))
+            tried.append(self.restart(start, candidate, 1.0, None,
+                                      candidate.identify_as(self.cfg)))
         else:
-            plain = model_of(cfg, base_values, [])
-            masks = None
-            for c, v in [*zip(cands[:-1], values), (candidate, pre_values)]:
-                m = ([c.may_act(r.data) for r in records] if c.may_act is not None
-                     else active_samples(records, plain, model_of(cfg, base_values,
-                                                                   [(c, v)])))
-                if m is not None:
-                    masks = m if masks is None else [a | b for a, b in zip(masks, m)]
+            masks = self.masks(start, candidate)
             search = masks is not None and candidate.friction_coupled
             if search:
                 # the present model without the candidate
-                evaluations += 1
-                search = pre_cost < (1.0 - FRICTION_SEARCH_MIN_GAIN) * Space(
-                    cfg, [], base_values, cands[:-1], values, [False] * len(values),
-                    records, weights, n_quasi_static).cost()
+                start.evaluations += 1
+                search = start.cost < (1.0 - FRICTION_SEARCH_MIN_GAIN) * Space(
+                    self.cfg, [], start.base_values, self.cands[:-1], start.values,
+                    [False] * len(start.values), self.records, self.weights,
+                    self.n_quasi_static).cost()
             if search:
                 # a search of four, the pre-fits from the first one's values only
-                tried = search_friction(lambda f: restart(f, masks, screen=False))
+                tried = search_friction(lambda f: self.restart(start, candidate, f, masks,
+                                                               screen=False))
             elif masks is not None:
-                tried.append(restart(1.0, masks))
-        evaluations += sum(t[3] for t in tried if t is not None)
+                tried.append(self.restart(start, candidate, 1.0, masks))
+        start.evaluations += sum(t[3] for t in tried if t is not None)
         done = [t for t in tried if t is not None]
-        if done:
-            alt_cost, new_base, alt_values, _, factor = min(done, key=lambda t: t[0])
-            if alt_cost < pre_cost:
-                base_values, pre_values, reidentified = new_base, alt_values, True
-                if search:
-                    friction_factor = factor
-            elif (not accepted and candidate.identify_as is not None
-                  and ACQUISITION_DELAY in base_values):
-                # the present model was fitted jointly with the rig's delay (no effect
-                # accepted yet), its re-identification under the candidate's
-                # configuration not: both go to step 4
-                other_start = (new_base, [*values, alt_values])
-        values.append(pre_values)
+        if not done:
+            return
+        alt_cost, new_base, alt_values, _, factor = min(done, key=lambda t: t[0])
+        if alt_cost < start.cost:
+            start.base_values, start.candidate_values = new_base, alt_values
+            start.reidentified = True
+            if search:
+                start.friction_factor = factor
+        elif (not accepted and candidate.identify_as is not None
+              and ACQUISITION_DELAY in start.base_values):
+            # the present model was fitted jointly with the rig's delay (no effect
+            # accepted yet), its re-identification under the candidate's configuration
+            # not: both go to step 4
+            start.other = (new_base, [*start.values, alt_values])
 
-    def fit_from(bv: Mapping[str, float], vals: Sequence[Mapping[str, float]]
+    def fit_from(self, bv: Mapping[str, float], vals: Sequence[Mapping[str, float]]
                  ) -> tuple[Space, OptimizeResult]:
         """Step 4 from ``bv``, ``vals``: bounds around the start (the identified values,
         or the re-identified ones)."""
-        free = base_parameters(config_with(cfg, bv), fit_data, [c.effect for c in cands],
-                               ACQUISITION_DELAY in bv)
-        free += term_parameters
-        space = Space(cfg, free, bv, cands, vals, [True] * len(cands), records, weights,
-                      n_quasi_static, terms)
-        return space, space.solve(space.encode(bv, vals), nfev, JOINT_MIN_BIC_STEP)
+        free = base_parameters(config_with(self.cfg, bv), [r.data for r in self.records],
+                               [c.effect for c in self.cands], ACQUISITION_DELAY in bv)
+        free += self.term_parameters
+        space = Space(self.cfg, free, bv, self.cands, vals, [True] * len(self.cands),
+                      self.records, self.weights, self.n_quasi_static, self.terms)
+        return space, space.solve(space.encode(bv, vals), self.nfev, JOINT_MIN_BIC_STEP)
 
-    ends = [fit_from(base_values, values)]
-    if other_start is not None:
-        ends.append(fit_from(*other_start))
-    space, sol = min(ends, key=lambda e: float(e[1].cost))
-    reidentified = reidentified or space is not ends[0][0]
-    base, vals = space.decode(sol.x)
-    # the residuals the fit minimised (each quasi-static record at its own friction)
-    # (lag1 is scale-free: the weighted pieces of the solution's residual vector)
-    rho = max(lag1(piece) for piece in np.split(np.asarray(sol.fun), space._ends))
-    std = space.std(sol, rho)
-    return JointFit(base_values=base,
-                    base_std={p.name: std[(i, p.name)] for i, p in space.slots if i < 0},
-                    values=vals,
-                    std=[{p.name: std.get((k, p.name), 0.0) for p in c.parameters}
-                         for k, c in enumerate(cands)],
-                    cost=float(sol.cost),
-                    evaluations=evaluations + sum(e[0].evaluations for e in ends),
-                    reidentified=reidentified, friction_factor=friction_factor)
-
+    def result(self, start: _Start) -> JointFit:
+        """Step 4 from the start (and the other start, where there is one), the better
+        end kept, with its σ."""
+        ends = [self.fit_from(start.base_values, start.values)]
+        if start.other is not None:
+            ends.append(self.fit_from(*start.other))
+        space, sol = min(ends, key=lambda e: float(e[1].cost))
+        reidentified = start.reidentified or space is not ends[0][0]
+        base, vals = space.decode(sol.x)
+        # the residuals the fit minimised (each quasi-static record at its own friction)
+        # (lag1 is scale-free: the weighted pieces of the solution's residual vector)
+        rho = max(lag1(piece) for piece in np.split(np.asarray(sol.fun), space._ends))
+        std = space.std(sol, rho)
+        return JointFit(base_values=base,
+                        base_std={p.name: std[(i, p.name)] for i, p in space.slots if i < 0},
+                        values=vals,
+                        std=[{p.name: std.get((k, p.name), 0.0) for p in c.parameters}
+                             for k, c in enumerate(self.cands)],
+                        cost=float(sol.cost),
+                        evaluations=start.evaluations + sum(e[0].evaluations for e in ends),
+                        reidentified=reidentified, friction_factor=start.friction_factor)

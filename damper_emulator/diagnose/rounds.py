@@ -16,6 +16,8 @@ from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import Any, cast
 
+import numpy as np
+
 from damper_emulator.acquisition.chain import ESTIMATED_DELAY_START_S
 from damper_emulator.diagnose.base import ACQUISITION_DELAY
 from damper_emulator.diagnose.outcome import (
@@ -39,6 +41,21 @@ __all__ = ["CHAIN", "LibraryRounds", "RoundsOutcome"]
 
 #: the chain candidate's place in a round's list of effects
 CHAIN = "(the rig's delay)"
+
+
+@dataclass
+class _Round:
+    """The selection's state between rounds: the reference of the first round (the
+    refitted paper's model, or with the rig's delay), the present model, this round's
+    fits and the significant ones, the rig's delay while it competes, and the
+    candidates not yet added."""
+
+    refit: StepFit
+    present: StepFit
+    fits: list[StepFit]
+    chain_fit: StepFit | None
+    remaining: list[str]
+    sig: list[StepFit] = field(default_factory=list)
 
 
 @dataclass
@@ -223,119 +240,158 @@ class LibraryRounds:
     def select(self, chain_first: StepFit | None = None) -> RoundsOutcome:
         """Forward selection (module :mod:`~damper_emulator.diagnose.selection`, steps
         2–6), the rig's delay competing where it is estimated (``chain_first``: its fit,
-        made before the round, on the same per-file terms)."""
-        s, say = self.s, self.s.say
+        made before the round, on the same per-file terms): each round scored, the
+        rig's turn, the round recorded, then an effect added and the next round run,
+        until nothing is significant or the search is settled."""
+        st = self.first_round(chain_first)
+        while True:
+            held_res, floor, small = self.score_round(st)
+            if st.chain_fit is not None:
+                turn = self.chain_turn(st, small)
+                if turn == "settled":
+                    break
+                if turn == "again":
+                    continue
+            self.record_round(st, held_res, floor, small)
+            if (not st.sig and not self.steps and not small and self.max_effects >= 2
+                    and structure_ratio(held_res) > STRUCTURE_RATIO):
+                pair = self.pair_search(st.present, st.fits)
+                if pair is not None:
+                    self.steps += pair
+                break
+            if not st.sig or not self.next_round(st):
+                break
+        self.delay_on_effects()
+        return RoundsOutcome(st.refit, self.steps, self.rounds, self.pair_gain)
+
+    def first_round(self, chain_first: StepFit | None) -> _Round:
+        """Round 1: the paper's model refitted and every candidate fitted with it (and the
+        rig's delay, where estimated and not fitted before)."""
+        s = self.s
         by_effect = s.candidates
-        jobs = self.local.jobs
-        say(f"round 1: the paper's model refitted and {len(by_effect)} candidates fitted "
-            f"with it ({min(jobs, len(by_effect) + 1) if self.executor is None else 'executor'}"
-            " processes)" + (", and the rig's delay (the chain candidate)" if s.estimate
-                             else ""))
+        workers = (min(self.local.jobs, len(by_effect) + 1) if self.executor is None
+                   else "executor")
+        s.say(f"round 1: the paper's model refitted and {len(by_effect)} candidates fitted "
+              f"with it ({workers} processes)"
+              + (", and the rig's delay (the chain candidate)" if s.estimate else ""))
         chain_slot = [CHAIN] if s.estimate and chain_first is None else []
         first = self.run(None, [None, *chain_slot, *by_effect], "round 1")
         refit, fits = first[0], first[1:]
         chain_fit = (chain_first if chain_first is not None
                      else fits.pop(0) if s.estimate else None)
-        present = refit
-        remaining = list(by_effect)
-        steps = self.steps
-        while True:
-            held_res = present.residuals(s.held)
-            floor, noise = floor_level(s.held, held_res)
-            if steps:  # an effect is in: the search goes on while structure remains
-                floor = SEARCH_NOISE_FACTOR * noise
-            small = pooled_rms(held_res) <= floor
-            for f in fits:
-                f.score_against(present, small)
-            sig = [f for f in fits if f.significant]
-            if chain_fit is not None:
-                chain_fit.score_against(present, small)
-                say(f"round {len(self.rounds) + 1}: the rig's delay "
-                    f"{1e3 * chain_fit.out['base_values'][ACQUISITION_DELAY]:.3f} ms gain "
-                    f"{100 * chain_fit.score:+.1f} %, ΔBIC {chain_fit.delta_bic:.0f}"
-                    f"{' (significant)' if chain_fit.significant else ''}")
-                if chain_fit.significant and all(chain_fit.score >= f.score for f in sig):
-                    # the rig explains more than any effect: taken (not an effect), and
-                    # the round again on top of it, every fit with the delay free
-                    say(f"round {len(self.rounds) + 1}: the rig's delay taken: "
-                        "every later fit frees it")
-                    chain_taken = chain_fit
-                    if steps:  # the last step's model, with the delay
-                        steps[-1] = chain_fit.replaces(steps[-1])
-                    if self.within_floor(chain_taken):
-                        # nothing left to explain, no round again: this round's fits,
-                        # scored against the model with the delay, are the record (none
-                        # can be significant)
-                        for f in fits:
-                            f.score_against(chain_taken, True)
-                        self.rounds.append(sorted(fits, key=lambda f: -f.score))
-                        say(f"round {len(self.rounds)}: with the rig's delay the held-out "
-                            "r.m.s. is within the floor: nothing more to explain")
-                        present = chain_taken  # (steps[-1], where there are steps)
-                        if not steps:
-                            refit = present
-                        break
-                    nxt = self.run(chain_fit, [None, *remaining],
-                                   f"round {len(self.rounds) + 1} (with the rig's delay)",
-                                   {f._added.effect: f for f in fits})
-                    present, fits, chain_fit = nxt[0], nxt[1:], None
-                    if present.sse_held > chain_taken.sse_held:
-                        present = chain_taken
-                    if not steps:
-                        refit = present
-                    continue
-                if (chain_fit.significant and sig
-                        and not self.within_floor(max(sig, key=lambda f: f.score))):
-                    with_delay = self.runners_with_delay(present, small, sig)
-                    if with_delay is not None:
-                        fits = [f for f in fits if f._added.effect
-                                != with_delay._added.effect] + [with_delay]
-                        sig, chain_fit = [with_delay], None
-            self.rounds.append(sorted(fits, key=lambda f: (-f.significant, -f.score)))
-            for f in self.rounds[-1][:3]:
-                say(f"round {len(self.rounds)}: {f._added.effect} gain "
-                    f"{100 * f.score:+.1f} %, ΔBIC {f.delta_bic:.0f}"
-                    f"{' (significant)' if f.significant else ''}")
-            if small:
-                say(f"round {len(self.rounds)}: held-out r.m.s. {pooled_rms(held_res):.2f} N "
-                    f"is within the floor {floor:.2f} N: nothing more to explain")
-            if (not sig and not steps and not small and self.max_effects >= 2
-                    and structure_ratio(held_res) > STRUCTURE_RATIO):
-                pair = self.pair_search(present, fits)
-                if pair is not None:
-                    steps += pair
-                break
-            if not sig:
-                break
-            best = max(sig, key=lambda f: f.score)
-            steps.append(best)
-            remaining.remove(best._added.effect)
-            say(f"added {best._added.effect} ({best._added.family}): held-out gain "
-                f"{100 * best.score:.1f} %")
-            if len(steps) >= self.max_effects or not remaining or self.settled(best):
-                break
-            # the next round: the present model refitted once more (the reference: a
-            # candidate must beat the present model's own further convergence, not only
-            # its last fit) and every remaining candidate on top of it (from the third
-            # round, those that gained most in this one), each also from its own fit of
-            # this round (joint_fit, the other order); the chain candidate again while it
-            # has not been taken
-            with_chain = [CHAIN] if chain_fit is not None else []
-            following = self.next_candidates(remaining, fits)
-            if not following and not with_chain:
-                say(f"round {len(self.rounds)}: no remaining candidate gained on top of "
-                    "the effects: the search ends")
-                break
-            nxt = self.run(best, [None, *with_chain, *following],
-                           f"round {len(self.rounds) + 1}",
-                           {f._added.effect: f for f in fits})
-            present, fits = nxt[0], nxt[1:]
-            if with_chain:
-                chain_fit = fits.pop(0)
-            if present.sse_held > best.sse_held:
-                present = best
-        self.delay_on_effects()
-        return RoundsOutcome(refit, steps, self.rounds, self.pair_gain)
+        return _Round(refit, refit, fits, chain_fit, list(by_effect))
+
+    def score_round(self, st: _Round) -> tuple[list[np.ndarray], float, bool]:
+        """Every fit of the round scored against the present model: the held-out
+        residual, the floor (once an effect is in, ``SEARCH_NOISE_FACTOR`` × its noise)
+        and whether the residual is within it; ``st.sig`` the significant fits."""
+        held_res = st.present.residuals(self.s.held)
+        floor, noise = floor_level(self.s.held, held_res)
+        if self.steps:  # an effect is in: the search goes on while structure remains
+            floor = SEARCH_NOISE_FACTOR * noise
+        small = pooled_rms(held_res) <= floor
+        for f in st.fits:
+            f.score_against(st.present, small)
+        st.sig = [f for f in st.fits if f.significant]
+        return held_res, floor, small
+
+    def chain_turn(self, st: _Round, small: bool) -> str:
+        """The rig's delay weighed against the round's effects: taken where it explains
+        more than any (``settled`` where the model with it is within the floor, else
+        ``again``: the round run again on top of it), or fitted with the runners-up where
+        an effect gains more but leaves structure; ``on`` otherwise."""
+        say, chain_fit = self.s.say, st.chain_fit
+        assert chain_fit is not None  # (the caller's test)
+        chain_fit.score_against(st.present, small)
+        say(f"round {len(self.rounds) + 1}: the rig's delay "
+            f"{1e3 * chain_fit.out['base_values'][ACQUISITION_DELAY]:.3f} ms gain "
+            f"{100 * chain_fit.score:+.1f} %, ΔBIC {chain_fit.delta_bic:.0f}"
+            f"{' (significant)' if chain_fit.significant else ''}")
+        if chain_fit.significant and all(chain_fit.score >= f.score for f in st.sig):
+            # the rig explains more than any effect: taken (not an effect), and the round
+            # again on top of it, every fit with the delay free
+            say(f"round {len(self.rounds) + 1}: the rig's delay taken: "
+                "every later fit frees it")
+            if self.steps:  # the last step's model, with the delay
+                self.steps[-1] = chain_fit.replaces(self.steps[-1])
+            if self.within_floor(chain_fit):
+                # nothing left to explain, no round again: this round's fits, scored
+                # against the model with the delay, are the record (none can be
+                # significant)
+                for f in st.fits:
+                    f.score_against(chain_fit, True)
+                self.rounds.append(sorted(st.fits, key=lambda f: -f.score))
+                say(f"round {len(self.rounds)}: with the rig's delay the held-out "
+                    "r.m.s. is within the floor: nothing more to explain")
+                st.present = chain_fit  # (steps[-1], where there are steps)
+                if not self.steps:
+                    st.refit = st.present
+                return "settled"
+            nxt = self.run(chain_fit, [None, *st.remaining],
+                           f"round {len(self.rounds) + 1} (with the rig's delay)",
+                           {f._added.effect: f for f in st.fits})
+            st.present, st.fits, st.chain_fit = nxt[0], nxt[1:], None
+            if st.present.sse_held > chain_fit.sse_held:
+                st.present = chain_fit
+            if not self.steps:
+                st.refit = st.present
+            return "again"
+        if (chain_fit.significant and st.sig
+                and not self.within_floor(max(st.sig, key=lambda f: f.score))):
+            with_delay = self.runners_with_delay(st.present, small, st.sig)
+            if with_delay is not None:
+                st.fits = [f for f in st.fits if f._added.effect
+                           != with_delay._added.effect] + [with_delay]
+                st.sig, st.chain_fit = [with_delay], None
+        return "on"
+
+    def record_round(self, st: _Round, held_res: list[np.ndarray], floor: float,
+                     small: bool) -> None:
+        """The round's fits, significant first, into :attr:`rounds` (and the best three
+        said)."""
+        say = self.s.say
+        self.rounds.append(sorted(st.fits, key=lambda f: (-f.significant, -f.score)))
+        for f in self.rounds[-1][:3]:
+            say(f"round {len(self.rounds)}: {f._added.effect} gain "
+                f"{100 * f.score:+.1f} %, ΔBIC {f.delta_bic:.0f}"
+                f"{' (significant)' if f.significant else ''}")
+        if small:
+            say(f"round {len(self.rounds)}: held-out r.m.s. {pooled_rms(held_res):.2f} N "
+                f"is within the floor {floor:.2f} N: nothing more to explain")
+
+    def next_round(self, st: _Round) -> bool:
+        """The significant fit of the largest gain added, and the next round run on top
+        of it; ``False`` where the search ends instead (four effects, none remaining, the
+        residual within ``SEARCH_NOISE_FACTOR`` × the noise, or no candidate that gained).
+
+        The next round: the present model refitted once more (the reference: a candidate
+        must beat the present model's own further convergence, not only its last fit)
+        and every remaining candidate on top of it (from the third round, those that
+        gained most in this one), each also from its own fit of this round (joint_fit,
+        the other order); the chain candidate again while it has not been taken."""
+        say = self.s.say
+        best = max(st.sig, key=lambda f: f.score)
+        self.steps.append(best)
+        st.remaining.remove(best._added.effect)
+        say(f"added {best._added.effect} ({best._added.family}): held-out gain "
+            f"{100 * best.score:.1f} %")
+        if len(self.steps) >= self.max_effects or not st.remaining or self.settled(best):
+            return False
+        with_chain = [CHAIN] if st.chain_fit is not None else []
+        following = self.next_candidates(st.remaining, st.fits)
+        if not following and not with_chain:
+            say(f"round {len(self.rounds)}: no remaining candidate gained on top of "
+                "the effects: the search ends")
+            return False
+        nxt = self.run(best, [None, *with_chain, *following],
+                       f"round {len(self.rounds) + 1}",
+                       {f._added.effect: f for f in st.fits})
+        st.present, st.fits = nxt[0], nxt[1:]
+        if with_chain:
+            st.chain_fit = st.fits.pop(0)
+        if st.present.sse_held > best.sse_held:
+            st.present = best
+        return True
 
     def next_candidates(self, remaining: Sequence[str], fits: Sequence[StepFit]
                         ) -> list[str]:

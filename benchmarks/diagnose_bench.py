@@ -26,19 +26,32 @@ shorter sub-steps (``REALISTIC_FINE``).  Scenarios:
 * through a rig (``@N Hz``: the force recorded through a 2nd-order Butterworth load-cell
   filter at N Hz into a 12-bit converter of ±10 kN; ``+rig``: the chain given to both
   commands, else estimated): no effect on the three dampers at 100–300 Hz, and the
-  library's effects at 150 Hz, each with and without the chain given.
+  library's effects at 150 Hz, each with and without the chain given;
+* a test series (``/paper`` or ``/speeds``: the paper's programme, or the quasi-static
+  test and a peak-velocity series identified together with a random road held out,
+  ``truth.SPEED_PROGRAMME``), each kind of :data:`SERIES` in two sizes on the three
+  dampers in turn: mains hum, a drifting zero behind a flat thermometer, a gain, a gas
+  leak, an oil that warms from file to file with and without its column; and a humming,
+  drifting rig behind a 150 Hz filter;
+* inertia of 1.5, 5 and 10 kg (the speed programme);
+* end stops outside the library's form at both ends (:func:`stop_force`: elastomer,
+  exponential, hydraulic), on both programmes;
+* four pairs in which the first effect dominates (``a>b``).
 
 Targets: every single effect named with the held-out r.m.s. within 2×
 the noise afterwards, and through a filter named with the held-out r.m.s. at least
 halved; ``none`` on all three dampers, raw and through a filter with and
 without the chain given; ``inertia`` for the mass (held-out within 2× the noise);
-``position_dependent`` for the zone and ``friction`` for the seal, each halving the
-held-out r.m.s. at least; both effects named in at least 4 of the 5 pairs; each diagnosis
-≤ 3 minutes.
+``position_dependent`` for the zone, ``friction`` for the seal and ``end_stop`` for the
+stops, each halving the held-out r.m.s. at least; both effects named in the pairs; for a
+series, the family expected (``none`` for the rig's) with the rig's findings and the
+drifting parameter; each diagnosis ≤ 3 minutes.  Each row also says whether the held-out
+r.m.s. after is within 3× the noise.
 
 Usage: ``python benchmarks/diagnose_bench.py [--jobs N] [--only NAME ...]``
 (``NAME`` a scenario label as printed, e.g. ``sport:valve_lag``,
-``sport:lugre_friction+valve_lag`` or ``touring:none@100Hz+rig``).
+``sport:lugre_friction+valve_lag`` or ``touring:none@100Hz+rig``, or a label's start
+followed by ``*``).
 """
 
 from __future__ import annotations

@@ -122,10 +122,10 @@ def test_a_gain_that_jumps_from_file_to_file_is_not_taken():
 def test_the_trend_is_weighted_least_squares():
     """A line through exact points: the slope, and R² = 1; a value off the line lowers
     R² by its share of the weighted sum of squares."""
-    slope, sd, r2 = trend([0, 1, 2, 3], [1.0, 3.0, 5.0, 7.0], [0.1] * 4)
+    slope, sd, r2, _, _ = trend([0, 1, 2, 3], [1.0, 3.0, 5.0, 7.0], [0.1] * 4)
     assert slope == pytest.approx(2.0) and r2 == pytest.approx(1.0)
     assert sd == pytest.approx(math.sqrt(1.0 / (5.0 / 0.01)))
-    _, _, r2 = trend([0, 1, 2, 3], [1.0, 3.0, 5.0, 9.0], [1.0] * 4)
+    r2 = trend([0, 1, 2, 3], [1.0, 3.0, 5.0, 9.0], [1.0] * 4).r2
     y = np.array([1.0, 3.0, 5.0, 9.0])
     fitted = np.polyval(np.polyfit([0, 1, 2, 3], y, 1), [0, 1, 2, 3])
     assert r2 == pytest.approx(1 - np.sum((y - fitted) ** 2) / np.sum((y - y.mean()) ** 2))

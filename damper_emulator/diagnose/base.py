@@ -248,6 +248,20 @@ class Record:
             return residual
         return self.per_file.project(residual, force[k:])
 
+    def as_recorded(self, model: DamperModel, rig: RigParams | None = None) -> np.ndarray:
+        """``model``'s force over the whole file as the record holds it, with what is
+        fitted per file (the rig's zero and gain, a damper parameter's change) added where
+        it counts: the force the residual is taken against."""
+        force = self.simulate(model, rig=rig)
+        if self.per_file is None:
+            return force
+        k = self.start
+        counted = force[k:]
+        a = self.per_file.design(counted)
+        out = force.copy()
+        out[k:] += a @ self.per_file.coefficients(self.data.force[k:] - counted, counted)
+        return out
+
     def residual(self, model: DamperModel, fast: bool = False,
                  rig: RigParams | None = None) -> np.ndarray:
         """``F_sim − F_meas`` [N] of ``model`` on this file, from :attr:`start` on

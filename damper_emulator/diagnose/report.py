@@ -55,7 +55,8 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
 
     d = rec.data
     before = rec.simulate(diag.base_model)
-    after = rec.simulate(diag.model_after(), rig=diag.rig_after())
+    # as the rig recorded it in this file: with what is fitted per file
+    after = rec.as_recorded(diag.model_after(), rig=diag.rig_after())
     k = rec.start
     label_after = "+ " + " + ".join(_added(diag)) if _added(diag) else "refitted"
     fig = new_figure(13.0, 8.0)
@@ -93,6 +94,46 @@ def plot_overlay(path: Path, diag: Diagnosis, rec: Record) -> Path:
     role = "held out" if rec.held_out else "identification file"
     fig.suptitle(f"{rec.name} ({role}): diagnosis {diag.family}"
                  + (f" / {diag.effect}" if diag.effect else ""))
+    return save(fig, path)
+
+
+def plot_series(path: Path, diag: Diagnosis) -> Path:
+    """What moves over the series: each kind taken, its per-file values (± 1σ) over the
+    files' places in the series, and its line."""
+    from damper_emulator.dyno.plots import new_figure, save
+
+    series = diag.series
+    assert series is not None and series.taken  # (the caller's test)
+    fig = new_figure(7.0 * len(series.taken), 4.5)
+    axes = np.atleast_1d(fig.subplots(1, len(series.taken)))
+    order = sorted(series.positions, key=lambda n: series.positions[n])
+    for ax, d in zip(axes, series.taken):
+        values = d.values()
+        # the values less the coefficients: the reference's value (0 for the zero)
+        base = (1.0 if d.kind.name == "gain" else d.reference_value or 0.0)
+        names = [n for n in order if n in values]
+        x = np.array([series.positions[n] for n in names])
+        y = np.array([values[n] for n in names])
+        e = np.array([d.std.get(n, 0.0) for n in names])
+        ax.errorbar(x, y, yerr=np.where(np.isfinite(e), e, 0.0), fmt="o", color="tab:blue",
+                    capsize=3, label="per file ± 1σ")
+        ax.plot([series.positions[order[0]]], [base], "s", color="0.3",
+                label=f"{order[0]} (the reference)")
+        if x.size >= 2 and math.isfinite(d.line.slope_std):
+            xs = np.array([min(series.positions.values()), max(series.positions.values())])
+            ax.plot(xs, base + d.line.y0 + d.line.slope * (xs - d.line.x0), color="0.4",
+                    lw=1.0, label=f"line, R² {d.line.r2:.2f}")
+        for xi, n in zip(x, names):
+            ax.annotate(n, (xi, 0.0), xycoords=("data", "axes fraction"), rotation=60,
+                        fontsize=6, ha="left", va="bottom")
+        ax.set_xlabel("place in the series" + (" [s]" if x.size and np.ptp(x) > len(x)
+                                               else " (file)"))
+        ax.set_ylabel(f"{d.kind.parameter} [{d.kind.unit}]")
+        ax.set_title(f"{d.kind.name} ({'the rig' if d.kind.cause == 'rig' else 'the damper'})",
+                     fontsize=9)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("What moves from file to file (the first file is the reference)")
     return save(fig, path)
 
 
@@ -234,7 +275,10 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                   f"{100 * doc['thresholds']['floor_force_fraction']:g} % of the force r.m.s. "
                   f"and {doc['thresholds']['floor_noise_factor']:g}× the noise level "
                   f"{diag.noise_n:.2f} N) or without structure, and no candidate is "
-                  "significant.", ""]
+                  "significant."
+                  + ("  What the identified model missed was the rig's (section What the "
+                     "rig did)." if any(f["kind"] not in ("filter", "skew", "delay")
+                                        for f in doc["measurement"]) else ""), ""]
     lines += (_rig_lines(doc) + _series_lines(diag) + _chain_lines(doc["acquisition"])
               + _discovery_lines(diag))
     lines += ["## The paper's parameters", "",
@@ -472,6 +516,9 @@ def write_report(diag: Diagnosis, out_dir: str | Path, params_file: str = "",
         say(f"wrote {files[-1]}")
     files.append(plot_ranking(out / "ranking.png", diag))
     say(f"wrote {files[-1]}")
+    if diag.series is not None and diag.series.taken:
+        files.append(plot_series(out / "series.png", diag))
+        say(f"wrote {files[-1]}")
     if with_effect:
         path = out / "params_with_effect.yaml"
         save_config(diag.model_after().cfg, path)

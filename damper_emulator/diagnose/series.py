@@ -84,7 +84,7 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -93,10 +93,24 @@ from damper_emulator.diagnose.base import PerFile, Record, config_value, config_
 from damper_emulator.diagnose.joint import delta_bic, fit_columns, lag1
 from damper_emulator.model.compressible import DamperModel
 
-__all__ = ["EXCLUSIVE", "KINDS", "Drift", "FileColumns", "Kind", "SeriesResult", "alone",
-           "contender", "explained_where_it_acts", "file_columns", "refined", "refit_evidence",
-           "select",
-           "series_positions", "trend"]
+__all__ = [
+    "EXCLUSIVE",
+    "KINDS",
+    "Drift",
+    "FileColumns",
+    "Kind",
+    "Line",
+    "SeriesResult",
+    "alone",
+    "contender",
+    "explained_where_it_acts",
+    "file_columns",
+    "refined",
+    "refit_evidence",
+    "select",
+    "series_positions",
+    "trend",
+]
 
 #: relative step of the damper parameters' forward differences
 SENSITIVITY_STEP = 0.01
@@ -286,6 +300,21 @@ def file_columns(model: DamperModel, rig: RigParams | None, records: Sequence[Re
     return out
 
 
+class Line(NamedTuple):
+    """A weighted straight line: its slope and the slope's σ, R², and the weighted mean
+    point it passes through."""
+
+    slope: float
+    slope_std: float
+    r2: float
+    x0: float = 0.0
+    y0: float = 0.0
+
+
+#: no line (fewer than two determined values)
+NO_LINE = Line(0.0, math.inf, 0.0)
+
+
 @dataclass
 class Drift:
     """A kind taken: its per-file coefficients (the parameter's change, the offset, the
@@ -311,6 +340,8 @@ class Drift:
     ambiguous_with: str | None = None
     #: a damper parameter's value in the reference file (the model's)
     reference_value: float | None = None
+    #: the per-file values' line (of the coefficients: the values less the reference)
+    line: Line = NO_LINE
 
     def values(self) -> dict[str, float]:
         """The per-file values in the parameter's unit: the model's value plus the
@@ -385,7 +416,7 @@ class SeriesResult:
             d.reference_value = new.reference_value
             d.per_file, d.std, d.rates, d.rates_std = (new.per_file, new.std, new.rates,
                                                        new.rates_std)
-            d.slope, d.slope_std, d.r2 = new.slope, new.slope_std, new.r2
+            d.slope, d.slope_std, d.r2, d.line = new.slope, new.slope_std, new.r2, new.line
 
 
 def _fit(files: Sequence[FileColumns], names: Sequence[str]
@@ -444,15 +475,14 @@ def _material(files: Sequence[FileColumns], before: Sequence[np.ndarray],
 
 
 def trend(positions: Sequence[float], values: Sequence[float], std: Sequence[float]
-          ) -> tuple[float, float, float]:
-    """``(slope, its σ, R²)`` of the weighted straight line through ``values`` (1σ
-    ``std``) over ``positions``; the slope's σ from the values' own, inflated where they
-    scatter beyond them."""
+          ) -> Line:
+    """The weighted straight line through ``values`` (1σ ``std``) over ``positions``; the
+    slope's σ from the values' own, inflated where they scatter beyond them."""
     x, y = np.asarray(positions, float), np.asarray(values, float)
     s = np.asarray(std, float)
     w = np.where(np.isfinite(s) & (s > 0), 1.0 / np.where(s > 0, s, 1.0) ** 2, 0.0)
     if np.count_nonzero(w) < 2 or np.ptp(x[w > 0]) == 0.0:
-        return 0.0, math.inf, 0.0
+        return NO_LINE
     xm, ym = np.average(x, weights=w), np.average(y, weights=w)
     sxx = float(np.sum(w * (x - xm) ** 2))
     slope = float(np.sum(w * (x - xm) * (y - ym)) / sxx)
@@ -460,7 +490,7 @@ def trend(positions: Sequence[float], values: Sequence[float], std: Sequence[flo
     ss_tot = float(np.sum(w * (y - ym) ** 2))
     r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0
     chi2 = ss_res / max(int(np.count_nonzero(w)) - 2, 1)
-    return slope, math.sqrt(max(chi2, 1.0) / sxx), r2
+    return Line(slope, math.sqrt(max(chi2, 1.0) / sxx), r2, float(xm), float(ym))
 
 
 def _drift(kind: Kind, files: Sequence[FileColumns],
@@ -477,8 +507,8 @@ def _drift(kind: Kind, files: Sequence[FileColumns],
     pos = [positions[fc.name] for fc in on_line]
     vals = [per.get(fc.name, 0.0) for fc in on_line]
     sds = [sd.get(fc.name, best) for fc in on_line]
-    slope, slope_sd, r2 = trend(pos, vals, sds)
-    out = Drift(kind, per, sd, slope, slope_sd, r2,
+    line = trend(pos, vals, sds)
+    out = Drift(kind, per, sd, line.slope, line.slope_std, line.r2, line=line,
                 reference_value=(reference_value(model, kind)
                                  if model is not None and kind.cause == "damper" else None))
     if "zero_drift" in kind.columns:
@@ -651,4 +681,4 @@ def refined(model: DamperModel, rig: RigParams | None, records: Sequence[Record]
             _, coefs = _fit(files, names)
             new = _drift(kind, files, coefs, result.positions, model)
             d.per_file, d.std = new.per_file, new.std
-            d.slope, d.slope_std, d.r2 = new.slope, new.slope_std, new.r2
+            d.slope, d.slope_std, d.r2, d.line = new.slope, new.slope_std, new.r2, new.line

@@ -162,6 +162,33 @@ def test_model_record_delays_by_the_force_channel_against_the_displacement_chann
     assert relative_delay(rig) == pytest.approx(tau)
 
 
+def test_a_force_channels_gain_and_zero_are_applied_after_its_filter():
+    """``gain · F + zero + drift · (t − t₀)`` on the (filtered, delayed) force, ``t₀`` the
+    file's first sample; identify's staged fits take them out again."""
+    import dataclasses
+
+    from damper_emulator.acquisition.chain import unscaled
+    from damper_emulator.dyno.measured import MeasuredData
+    from damper_emulator.identify.pipeline import aligned
+
+    ch = ForceChannel(gain=1.05, zero_offset_n=12.0, zero_drift_n_per_s=0.5)
+    t = np.arange(2.0, 5.0, 1e-3)
+    f = 800.0 * np.sin(2 * math.pi * 3 * t)
+    np.testing.assert_allclose(model_record(t, f, RigParams(force=ch)),
+                               1.05 * f + 12.0 + 0.5 * (t - 2.0))
+    filtered = RigParams(force=dataclasses.replace(ch, filter="butterworth", order=2,
+                                                   cutoff_hz=200.0))
+    plain = RigParams(force=ForceChannel(filter="butterworth", order=2, cutoff_hz=200.0))
+    np.testing.assert_allclose(model_record(t, f, filtered),
+                               1.05 * model_record(t, f, plain) + 12.0 + 0.5 * (t - 2.0))
+    np.testing.assert_allclose(unscaled(t, 1.05 * f + 12.0 + 0.5 * (t - 2.0), ch), f,
+                               atol=1e-9)
+    assert not RigParams(force=ForceChannel(gain=1.02)).does_nothing
+    data = MeasuredData(t, np.zeros_like(t), 1.05 * f + 12.0 + 0.5 * (t - 2.0),
+                        acquisition=RigParams(force=ch))
+    np.testing.assert_allclose(aligned(data).force, f, atol=1e-9)
+
+
 # --------------------------------------------------------------------------------------
 # The rig file
 
@@ -170,7 +197,9 @@ def test_rig_file_round_trip_and_defaults(tmp_path):
     import yaml
 
     rig = RigParams(force=ForceChannel(filter="bessel", order=4, cutoff_hz=300.0,
-                                       adc_bits=16, full_scale_n=5000.0, skew_s=1e-4))
+                                       adc_bits=16, full_scale_n=5000.0, skew_s=1e-4,
+                                       gain=0.98, zero_offset_n=-3.5,
+                                       zero_drift_n_per_s=0.01))
     p = tmp_path / "rig.yaml"
     p.write_text(yaml.safe_dump(rig_to_mapping(rig)))
     assert load_rig(p) == rig

@@ -35,7 +35,7 @@ from damper_emulator.errors import UserError
 __all__ = ["ESTIMATED_DELAY_BOUND_S", "ESTIMATED_DELAY_START_S", "AcquisitionError",
            "analog_lowpass", "chain_json", "dc_group_delay", "delayed", "estimated_rig",
            "filter_samples", "force_delay", "model_record", "quantise", "record_channel",
-           "relative_delay"]
+           "relative_delay", "scaled", "unscaled"]
 
 #: a time column whose steps differ from their median by less than this fraction is
 #: filtered as uniform; otherwise it is resampled to its median step and back
@@ -183,12 +183,31 @@ def record_channel(t_fine: np.ndarray, y_fine: np.ndarray, ch: Channel,
     """
     y = filter_samples(t_fine, y_fine, ch)
     y = delayed(t_fine, y, ch.skew_s)
-    out = np.interp(t_samples, t_fine, y)
+    out = scaled(t_samples, np.interp(t_samples, t_fine, y), ch)
     if noise_std > 0.0:
         if rng is None:
             raise ValueError("record_channel: noise needs a generator")
         out = out + rng.normal(0.0, noise_std, out.size)
     return quantise(out, ch)
+
+
+def scaled(t: np.ndarray, y: np.ndarray, ch: Channel) -> np.ndarray:
+    """A force channel's gain and zero on the signal ``y`` at its sample times ``t``:
+    ``gain · y + zero + drift · (t − t₀)`` (``t₀`` the file's first sample); other
+    channels and a calibrated force channel pass it as is."""
+    if not isinstance(ch, ForceChannel) or not ch.scales:
+        return y
+    out: np.ndarray = (ch.gain * y + ch.zero_offset_n
+                       + ch.zero_drift_n_per_s * (t - t[0]))
+    return out
+
+
+def unscaled(t: np.ndarray, y: np.ndarray, ch: ForceChannel) -> np.ndarray:
+    """The inverse of :func:`scaled`: the force a recording ``y`` holds."""
+    if not ch.scales:
+        return y
+    out: np.ndarray = (y - ch.zero_offset_n - ch.zero_drift_n_per_s * (t - t[0])) / ch.gain
+    return out
 
 
 def force_delay(rig: RigParams) -> float:
@@ -244,13 +263,12 @@ def model_record(t: np.ndarray, force: np.ndarray, rig: RigParams) -> np.ndarray
     tau = force_delay(rig)
     scale = abs(tau) + dc_group_delay(rig.force)
     if scale == 0.0 or force.size < 2:
-        return np.asarray(force, dtype=float)
+        return scaled(t, np.asarray(force, dtype=float), rig.force)
     dt = float(np.median(np.diff(t)))
     n = int(math.ceil(SETTLE_TIME_CONSTANTS * scale / dt))
     te, fe, keep = _extended(t, np.asarray(force, dtype=float), n)
     out = delayed(te, filter_samples(te, fe, rig.force), tau)
-    recorded: np.ndarray = out[keep]
-    return recorded
+    return scaled(t, out[keep], rig.force)
 
 
 def chain_json(rig: RigParams | None) -> dict[str, Any]:

@@ -46,6 +46,8 @@ MAX_FILTER_ORDER = 8
 MAX_ADC_BITS = 24
 #: the largest skew between a channel and the DAQ's clock [s]
 MAX_SKEW_S = 0.1
+#: the largest zero offset [N] (and drift [N/s]) of a force channel's schema
+MAX_ZERO_N = 1e6
 
 
 @dataclass(frozen=True)
@@ -89,10 +91,23 @@ class ForceChannel(Channel):
     full_scale_n: float = rule("positive",
                                "the converter's range, ± this [N] (with adc_bits: one "
                                "step is 2 full_scale / 2^bits)", 20_000.0)
+    gain: float = rule("positive", "the channel's gain against its calibration: it records "
+                                   "gain × the force [-]", 1.0)
+    zero_offset_n: float = rule(("closed", -MAX_ZERO_N, MAX_ZERO_N),
+                                "the load cell's zero: what it records at no force, at "
+                                "each file's first sample [N]", 0.0)
+    zero_drift_n_per_s: float = rule(("closed", -MAX_ZERO_N, MAX_ZERO_N),
+                                     "the zero's drift within each file [N/s]", 0.0)
 
     @property
     def full_scale(self) -> float:
         return self.full_scale_n
+
+    @property
+    def scales(self) -> bool:
+        """Whether the channel's gain or zero is off its calibration."""
+        return (self.gain != 1.0 or self.zero_offset_n != 0.0
+                or self.zero_drift_n_per_s != 0.0)
 
 
 @dataclass(frozen=True)
@@ -119,9 +134,10 @@ class RigParams:
 
     @property
     def does_nothing(self) -> bool:
-        """No filter, no skew: the model's force is compared as it is."""
-        return not any(ch.filtered or ch.skew_s != 0.0
-                       for ch in (self.force, self.displacement))
+        """No filter, no skew, the force's gain and zero calibrated: the model's force is
+        compared as it is."""
+        return not (any(ch.filtered or ch.skew_s != 0.0
+                        for ch in (self.force, self.displacement)) or self.force.scales)
 
 
 _C = TypeVar("_C", bound=Channel)

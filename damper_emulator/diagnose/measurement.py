@@ -180,6 +180,15 @@ def chain_findings(acquisition: Mapping[str, Any], given: RigParams | None) -> l
                                    f"given (--rig): {ch.filter} of order {ch.order}"))
             if ch.skew_s:
                 out.append(Finding("skew", ch.skew_s, "s", name, "given (--rig)"))
+        force = given.force
+        if force.gain != 1.0:
+            out.append(Finding("gain", force.gain, "-", "force", "given (--rig)"))
+        if force.zero_offset_n:
+            out.append(Finding("zero_offset", force.zero_offset_n, "N", "force",
+                               "given (--rig), at each file's first sample"))
+        if force.zero_drift_n_per_s:
+            out.append(Finding("zero_drift", force.zero_drift_n_per_s, "N/s", "force",
+                               "given (--rig), within each file"))
         return out
     if acquisition.get("source") == "estimated":
         out.append(Finding("delay", float(acquisition["force_delay_s"]), "s", "force",

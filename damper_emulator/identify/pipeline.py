@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.signal import savgol_coeffs, savgol_filter
 
-from damper_emulator.acquisition.chain import delayed, relative_delay
+from damper_emulator.acquisition.chain import delayed, relative_delay, unscaled
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.identify.fitting import FitResult
 from damper_emulator.identify.quasi_static import IdentificationError, fit_quasi_static
@@ -238,13 +238,15 @@ def thin_selection(mask: np.ndarray, max_samples: int = MAX_VALVE_FIT_SAMPLES
 def aligned(data: MeasuredData) -> MeasuredData:
     """``data`` with its force moved earlier by its measurement chain's delay of the force
     against the displacement (:func:`damper_emulator.acquisition.chain.relative_delay`;
-    a 2nd-order Butterworth load-cell filter at 200 Hz: 1.1 ms, 5° of phase at 12 Hz),
-    the pairs of force and motion the staged fits take; ``data`` itself without a chain."""
+    a 2nd-order Butterworth load-cell filter at 200 Hz: 1.1 ms, 5° of phase at 12 Hz) and
+    its force channel's gain and zero taken out, the pairs of force and motion the staged
+    fits take; ``data`` itself without a chain."""
     rig = data.acquisition
     if rig is None or rig.does_nothing:
         return data
     tau = relative_delay(rig)
-    return dataclasses.replace(data, force=delayed(data.time, data.force, -tau))
+    force = unscaled(data.time, data.force, rig.force)  # the channel's gain and zero
+    return dataclasses.replace(data, force=delayed(data.time, force, -tau))
 
 
 def aligned_tests(tests: Tests) -> Tests:

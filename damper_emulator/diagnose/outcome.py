@@ -174,6 +174,8 @@ class StepFit:
     score: float = 0.0
     delta_bic: float = 0.0
     significant: bool = False
+    #: the reference's held-out r.m.s. per file [N] (the model before this fit)
+    rms_held_out_before: dict[str, float] = field(default_factory=dict)
 
     @property
     def candidate(self) -> Candidate | None:
@@ -243,7 +245,7 @@ class StepFit:
         """This fit (``step``'s model with the rig's delay freed) in the place of
         ``step``: its effects, and its score (the delay is the rig's, not a gain of an
         effect)."""
-        for attr in ("score", "delta_bic", "significant"):
+        for attr in ("score", "delta_bic", "significant", "rms_held_out_before"):
             setattr(self, attr, getattr(step, attr))
         self.candidates = list(step.candidates)
         # the step's added effect stays its: the chain fit itself added none
@@ -252,6 +254,7 @@ class StepFit:
 
     def score_against(self, ref: StepFit, floor_reached: bool) -> None:
         """Held-out gain and ΔBIC against ``ref`` (module docstring, steps 4–6)."""
+        self.rms_held_out_before = ref.rms_held_out
         sse0 = ref.sse_held
         self.score = 1.0 - math.sqrt(self.sse_held / sse0) if sse0 > 0 else 0.0
         k = (sum(len(c.parameters) for c in self.candidates)
@@ -405,6 +408,7 @@ class Diagnosis:
                                    for p in c.parameters},
                         "held_out_gain": st.score, "delta_bic": st.delta_bic,
                         "significant": st.significant,
+                        "rms_held_out_before": st.rms_held_out_before,
                         "rms_held_out": st.rms_held_out})
         term = self.term
         if term is not None and self.steps:

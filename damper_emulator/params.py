@@ -148,20 +148,28 @@ class SeriesComplianceParams:
 
 @dataclass(frozen=True)
 class EndStopParams:
-    """End stops past a penetration ``δ`` of either stop: ``k₁ δ + k δ² + c δ ẋ`` (an
-    elastomer's linear and progressive stiffness, a hydraulic stop's or an elastomer's
-    damping growing with the penetration), the compression stop's times ``s``; without the
-    optional terms the progressive ``k δ²`` of both stops alike."""
+    """End stops past a penetration ``δ`` of either stop, moving into it at ``v``:
+    ``(k₁ δ + k δⁿ)(1 + η tanh(v / v_h)) + c δ v`` pushing back towards the middle (an
+    elastomer's linear and progressive stiffness and its hysteresis, which hardly depends
+    on the speed, ``v_h`` = 5 mm/s; a hydraulic stop's damping growing with the
+    penetration), the compression stop's times ``s``; without the optional terms the
+    progressive ``k δ²`` of both stops alike."""
 
     rebound_position_m: float = rule(("closed", -1.0, 1.0),
                                      "stroke at which the rebound stop engages [m, ext +]")
     compression_position_m: float = rule(
         ("closed", -1.0, 1.0), "stroke at which the compression (bump) stop engages [m]")
-    stiffness_n_m2: float = rule("positive", "stop coefficient k of k δ² [N/m²]")
+    stiffness_n_m2: float = rule("positive", "stop coefficient k of k δⁿ [N/mⁿ; N/m² for "
+                                             "the default n = 2]")
     linear_stiffness_n_m: float = rule("non-negative",
                                        "linear stiffness k₁ of k₁ δ [N/m]", 0.0)
+    progressive_exponent: float = rule(("closed", 1.0, 6.0),
+                                       "the exponent n of the progressive k δⁿ [-]", 2.0)
+    hysteresis: float = rule(("closed", 0.0, 1.0),
+                             "the elastomer's hysteresis η: its force rises by η into the "
+                             "stop and falls by η out of it [-]", 0.0)
     damping_n_s_m2: float = rule("non-negative",
-                                 "damping c of c δ ẋ, growing with the penetration "
+                                 "damping c of c δ v, growing with the penetration "
                                  "[N·s/m²]", 0.0)
     compression_scale: float = rule("positive",
                                     "the compression stop's force over the rebound stop's "
@@ -171,7 +179,8 @@ class EndStopParams:
     def plain(self) -> bool:
         """Whether only the progressive ``k δ²`` of both stops alike is in use."""
         return (self.linear_stiffness_n_m == 0.0 and self.damping_n_s_m2 == 0.0
-                and self.compression_scale == 1.0)
+                and self.compression_scale == 1.0 and self.progressive_exponent == 2.0
+                and self.hysteresis == 0.0)
 
 
 @dataclass(frozen=True)

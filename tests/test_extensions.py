@@ -692,22 +692,27 @@ def test_end_stop_force_is_the_quadratic_closed_form(sport_cfg, sport_model):
 
 
 def test_end_stops_of_their_own_form_are_the_closed_form(sport_cfg, sport_model):
-    """``k₁ δ + k δ² + c δ ẋ`` past the rebound stop, ``s (−k₁ δ − k δ² + c δ ẋ)`` past
-    the compression stop (δ the penetration), on a sine through both; the model's force
-    without them is the paper's."""
+    """``(k₁ δ + k δⁿ)(1 + η tanh(u/v_h)) + c δ u`` past either stop pushing back, ``u``
+    the speed into it (``ẋ`` past the rebound stop, ``−ẋ`` past the compression stop),
+    the compression stop's times ``s``, on a sine through both; the model's force without
+    them is the paper's."""
     p = {"rebound_position_m": 0.04, "compression_position_m": -0.035,
-         "stiffness_n_m2": 2e6, "linear_stiffness_n_m": 3e4, "damping_n_s_m2": 5e4,
-         "compression_scale": 2.5}
+         "stiffness_n_m2": 2e7, "linear_stiffness_n_m": 3e4, "progressive_exponent": 2.5,
+         "hysteresis": 0.2, "damping_n_s_m2": 5e4, "compression_scale": 2.5}
     m = _ext(sport_cfg, "end_stops", p)
     t, x, v = sine(2.0, 0.06, cycles=2, rate_hz=2000)
     dr, dc = x - p["rebound_position_m"], p["compression_position_m"] - x
-    k1, k2, c, s = (p["linear_stiffness_n_m"], p["stiffness_n_m2"], p["damping_n_s_m2"],
-                    p["compression_scale"])
-    expected = np.where(dr > 0, k1 * dr + k2 * dr ** 2 + c * dr * v,
-                        np.where(dc > 0, s * (-k1 * dc - k2 * dc ** 2 + c * dc * v), 0.0))
+    k1, k, n, eta, c, s = (p["linear_stiffness_n_m"], p["stiffness_n_m2"],
+                           p["progressive_exponent"], p["hysteresis"],
+                           p["damping_n_s_m2"], p["compression_scale"])
+
+    def stop(d, u):
+        return (k1 * d + k * d ** n) * (1 + eta * np.tanh(u / 0.005)) + c * d * u
+    expected = np.where(dr > 0, stop(np.maximum(dr, 0), v),
+                        np.where(dc > 0, -s * stop(np.maximum(dc, 0), -v), 0.0))
     diff = simulate(m, t, x, v).force_n - simulate(sport_model, t, x, v).force_n
     np.testing.assert_allclose(diff, expected, rtol=1e-9, atol=1e-9)
-    # the damping's hysteresis: into the rebound stop and out of it at the same stroke
+    # the hysteresis and damping: into the rebound stop and out of it at the same stroke
     into, out_of = (dr > 0.01) & (v > 0), (dr > 0.01) & (v < 0)
     assert expected[into].max() > expected[out_of].max()
 

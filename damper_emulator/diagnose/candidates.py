@@ -263,38 +263,104 @@ def _compliance(s: Scales) -> Candidate:
         _with({}), extra_starts=((k_oil * 10.0,),))
 
 
+#: an end stop's progressive force is fitted as the force at this fraction of the tested
+#: stroke into the stop and its exponent (``k δⁿ = F_ref (δ/δ_ref)ⁿ``): ``k`` and ``n``
+#: alone trade against each other over orders of magnitude
+STOP_REFERENCE_FRACTION = 0.1
+
+
 def _end_stops(s: Scales) -> Candidate:
-    """End stops: engagement within the tested stroke (outside it they cannot be seen);
-    progressive elastomer coefficient 1e3 .. 1e10 N/m².  The stops' own form: a linear
-    stiffness (an elastomer's first millimetres) up to what the progressive term gives at
-    a tenth of the stroke, a damping growing with the penetration (a hydraulic stop, an
-    elastomer's hysteresis) up to what makes the progressive force at the files' speeds,
-    and the compression stop 1/30 .. 30 times the rebound stop (a bump stop and a top-out
-    stop are different parts); scales in log space, their low ends no force at all within
-    the tested stroke.  A stop fitted on top of an identification has to undo a gas spring
-    that absorbed it; the re-identification leaves out the outer half of the tested
-    stroke, where a stop may engage (the quasi-static fit then sees the gas spring
-    alone)."""
+    """End stops: engagement within the tested stroke (outside it they cannot be seen), a
+    progressive force ``F_ref (δ/δ_ref)ⁿ`` of 1 N .. 100 kN at a tenth of the stroke into
+    the stop with ``n`` 1 .. 5 (linear to steeply progressive) beside a linear stiffness up
+    to that force's scale (an elastomer's first millimetres), an elastomer's hysteresis
+    η 0 .. 0.8, a damping growing with the penetration (a hydraulic stop) up to what makes
+    the progressive force at the files' speeds, and the compression stop 1/30 .. 30 times
+    the rebound stop (a bump stop and a top-out stop are different parts); scales in log
+    space, their low ends no force at all within the tested stroke.  A stop fitted on top
+    of an identification has to undo a gas spring that absorbed it; the
+    re-identification leaves out the outer half of the tested stroke, where a stop may
+    engage (the quasi-static fit then sees the gas spring alone)."""
     x_lo, x_hi, span = s.x_lo, s.x_hi, s.span
     mid_stroke = 0.5 * (x_lo + x_hi)
+    d_ref = STOP_REFERENCE_FRACTION * span
 
     def outer_half(data: MeasuredData) -> np.ndarray:
         return np.abs(data.displacement - mid_stroke) > OUTER_STROKE_FRACTION * span
 
+    def fields(v: Mapping[str, float]) -> dict[str, float]:
+        return {"rebound_position_m": v["rebound_position_m"],
+                "compression_position_m": v["compression_position_m"],
+                "stiffness_n_m2": v["reference_force_n"] / d_ref ** v["progressive_exponent"],
+                "progressive_exponent": v["progressive_exponent"],
+                "linear_stiffness_n_m": v["linear_stiffness_n_m"],
+                "hysteresis": v["hysteresis"], "damping_n_s_m2": v["damping_n_s_m2"],
+                "compression_scale": v["compression_scale"]}
+
+    # the plain stops' starts: the force of 1e6 N/m² δ² (1e7, 1e4) at δ_ref; and where
+    # the identified model's slowest file starts to miss at each end of the stroke
+    f6, f7, f4 = (k * d_ref ** 2 for k in (1e6, 1e7, 1e4))
+    knees = stroke_knees(s)
+    at_knees = (((*knees, f6, 2.0, 1e3, 0.1, 1e3, 1.0),) if knees is not None else ())
     return Candidate(
         "end_stops",
         (Parameter("rebound_position_m", x_lo + 0.5 * span, x_hi, x_hi - 0.15 * span, False,
                    "m"),
          Parameter("compression_position_m", x_lo, x_hi - 0.5 * span, x_lo + 0.15 * span,
                    False, "m"),
-         Parameter("stiffness_n_m2", 1e3, 1e10, 1e6, True, "N/m²"),
-         Parameter("linear_stiffness_n_m", 1.0, 1e10 * 0.1 * span, 1e3, True, "N/m"),
+         Parameter("reference_force_n", 1.0, 1e5, f6, True, "N"),
+         Parameter("progressive_exponent", 1.0, 5.0, 2.0, False, "-"),
+         Parameter("linear_stiffness_n_m", 1.0, 1e5 / d_ref, 1e3, True, "N/m"),
+         Parameter("hysteresis", 0.0, 0.8, 0.1, False, "-"),
          Parameter("damping_n_s_m2", 1.0, 1e10 / max(s.v_max, 1e-3), 1e3, True, "N·s/m²"),
          Parameter("compression_scale", 1.0 / 30.0, 30.0, 1.0, True, "-")),
-        _with({}), may_act=outer_half,
-        extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, 1e6, 1e3, 1e3, 1.0),
-                      (x_hi - 0.05 * span, x_lo + 0.05 * span, 1e7, 1e3, 1e3, 1.0),
-                      (x_hi, x_lo, 1e4, 1.0, 1.0, 1.0)))  # (almost) not engaged
+        fields, may_act=outer_half,
+        note=f"the progressive force fitted at {1e3 * d_ref:.3g} mm into the stop",
+        extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, f6, 2.0, 1e3, 0.1, 1e3, 1.0),
+                      (x_hi - 0.05 * span, x_lo + 0.05 * span, f7, 3.0, 1e3, 0.1, 1e3,
+                       1.0),
+                      (x_hi, x_lo, f4, 2.0, 1.0, 0.0, 1.0, 1.0),  # (almost) not engaged
+                      *at_knees))
+
+
+#: the stroke's knees: the identified model's residual on the slowest file, in this many
+#: bins of stroke ...
+KNEE_BINS = 40
+#: ... misses beyond this multiple of its middle half's median from a bin to the end
+KNEE_FACTOR = 3.0
+
+
+def stroke_knees(s: Scales) -> tuple[float, float] | None:
+    """Where the identified model starts to miss towards each end of the stroke on the
+    slowest identification file (the quasi-static test: gas spring and friction only,
+    where a stop's engagement shows as a knee): the bin of stroke beyond which the median
+    of ``|residual|`` stays above :data:`KNEE_FACTOR` × its median over the middle half of
+    the stroke, at the rebound end and at the compression end; ``None`` where there is
+    none at either end."""
+    from damper_emulator.model.compressible import DamperModel, simulate
+
+    slow = min(s.fit_data, key=lambda r: float(np.max(np.abs(np.gradient(r.displacement,
+                                                                          r.time)))))
+    try:
+        res = simulate(DamperModel(s.cfg), slow.time, slow.displacement, slow.velocity)
+    except (ValueError, UserError):
+        return None
+    r = np.abs(slow.force - res.force_n)
+    x = slow.displacement
+    edges = np.linspace(float(np.min(x)), float(np.max(x)), KNEE_BINS + 1)
+    idx = np.clip(np.searchsorted(edges, x) - 1, 0, KNEE_BINS - 1)
+    med = np.array([float(np.median(r[idx == k])) if np.any(idx == k) else 0.0
+                    for k in range(KNEE_BINS)])
+    quarter = KNEE_BINS // 4
+    thr = KNEE_FACTOR * max(float(np.median(med[quarter:KNEE_BINS - quarter])), 1e-9)
+    above = med > thr
+    top = next((k for k in range(KNEE_BINS // 2, KNEE_BINS) if above[k:].all()), None)
+    bottom = next((k for k in range(KNEE_BINS // 2, -1, -1) if above[:k + 1].all()), None)
+    if top is None and bottom is None:
+        return None
+    x_r = float(edges[top]) if top is not None else float(edges[-1])
+    x_c = float(edges[bottom + 1]) if bottom is not None else float(edges[0])
+    return x_r, x_c
 
 
 def _air(s: Scales) -> Candidate:

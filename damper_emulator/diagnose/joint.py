@@ -572,7 +572,8 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
 
     1. **Pre-fit** the candidate alone on top of the present model (``base_values`` and
        ``accepted`` held), ``SCREEN_NFEV`` evaluations from each of its start vectors, then
-       ``PREFIT_NFEV`` from the best: a start for step 3 that already has the effect.
+       ``PREFIT_NFEV`` from the best (the ``Candidate.prefit_keep`` best, the better end
+       kept): a start for step 3 that already has the effect.
     2. **Re-identify** when a local effect is in the model (the candidate or an accepted
        one, :func:`active_samples`, or where it says it may act, ``Candidate.may_act``):
        the staged identification again without the samples where those effects act (an
@@ -666,9 +667,10 @@ class _JointFit:
                     self.weights, self.n_quasi_static)
         starts = [pre.encode(bv, with_start(sv)) for sv in starts_values]
         if len(starts) > 1:
-            starts = [min((pre.solve(s0, SCREEN_NFEV) for s0 in starts),
-                          key=lambda r: r.cost).x]
-        sol = pre.solve(starts[0], PREFIT_NFEV)
+            screened = sorted((pre.solve(s0, SCREEN_NFEV) for s0 in starts),
+                              key=lambda r: r.cost)
+            starts = [r.x for r in screened[:self.cands[free].prefit_keep]]
+        sol = min((pre.solve(s0, PREFIT_NFEV) for s0 in starts), key=lambda r: r.cost)
         return pre.decode(sol.x)[1][free], float(sol.cost), pre.evaluations
 
     @staticmethod

@@ -207,7 +207,7 @@ def scenarios() -> list[Scenario]:
     out = [Scenario(f"{d}:none", d) for d in DAMPERS]
     out += [Scenario(f"sport:{e}", "sport", (e,)) for e in EXAMPLE_EFFECTS]
     out += [Scenario(f"{d}:{e}", d, (e,)) for d, e in zip(DAMPERS[1:], OTHER_DAMPER_EFFECTS)]
-    out += [Scenario(f"sport:{e}", "sport", (e,)) for e in OUTSIDE]
+    out += [Scenario(f"sport:{e}", "sport", (e,)) for e in ("inertia", "zone", "seal")]
     out += [Scenario(f"sport:{a}+{b}", "sport", (a, b)) for a, b in PAIRS]
     for d, fc in zip(DAMPERS, NONE_FILTERS_HZ):
         out += [Scenario(f"{d}:none@{fc:g}Hz{'+rig' if given else ''}", d, (), fc, given)

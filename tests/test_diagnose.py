@@ -517,7 +517,7 @@ def test_the_effective_sample_count_is_that_of_the_mean_of_an_ar1_series():
     """``n (1 − ρ)/(1 + ρ)`` independent samples: the variance of the mean of an AR(1)
     series of n samples is σ²/n_eff (large n), checked on 400 simulated series, with ρ
     estimated by :func:`lag1` as the fit does."""
-    from damper_emulator.diagnose.joint import effective_samples, lag1
+    from damper_emulator.diagnose.statistics import effective_samples, lag1
 
     rng = np.random.default_rng(7)
     n, rho = 4000, 0.9

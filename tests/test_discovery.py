@@ -168,7 +168,7 @@ def test_noise_alone_gives_no_significant_term(sport_cfg):
 ])
 def test_a_term_is_stable_when_every_file_that_determines_it_agrees(per_file, pooled,
                                                                     stable, why):
-    from damper_emulator.diagnose.discovery import stable_over
+    from damper_emulator.diagnose.term_trust import stable_over
 
     ok, reason = stable_over(per_file, pooled)
     assert ok is stable and why in reason

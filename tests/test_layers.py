@@ -39,6 +39,8 @@ CORES = ("damper_emulator.errors", "damper_emulator.outputs", "damper_emulator.p
          "damper_emulator.diagnose.tasks", "damper_emulator.diagnose.session",
          "damper_emulator.diagnose.pool", "damper_emulator.diagnose.rounds",
          "damper_emulator.diagnose.interference", "damper_emulator.diagnose.series",
+         "damper_emulator.diagnose.series_stage", "damper_emulator.diagnose.statistics",
+         "damper_emulator.diagnose.term_trust",
          "damper_emulator.diagnose.measurement", "damper_emulator.diagnose.truth_series",
          "ride_sim.quarter_car", "ride_sim.road", "ride_sim.road_spectra",
          "ride_sim.road_synthesis", "ride_sim.road_features", "ride_sim.road_envelope",

@@ -27,8 +27,8 @@ from damper_emulator.diagnose.base import (
 from damper_emulator.diagnose.candidates import Candidate
 from damper_emulator.diagnose.discovery import Discovery
 from damper_emulator.diagnose.interference import Line
-from damper_emulator.diagnose.joint import delta_bic
 from damper_emulator.diagnose.series import SeriesResult
+from damper_emulator.diagnose.statistics import delta_bic
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import ModelConfig
 

@@ -90,7 +90,7 @@ import numpy as np
 
 from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.diagnose.base import PerFile, Record, config_value, config_with
-from damper_emulator.diagnose.joint import delta_bic, fit_columns, lag1
+from damper_emulator.diagnose.statistics import delta_bic, fit_columns, lag1
 from damper_emulator.model.compressible import DamperModel
 
 __all__ = [

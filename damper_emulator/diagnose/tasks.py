@@ -15,7 +15,8 @@ from threadpoolctl import threadpool_limits
 from damper_emulator.acquisition.chain import ESTIMATED_DELAY_START_S
 from damper_emulator.diagnose.base import ACQUISITION_DELAY, PerFile, delay_rig, make_record
 from damper_emulator.diagnose.candidates import candidates as make_candidates
-from damper_emulator.diagnose.joint import JOINT_NFEV, joint_fit, lag1
+from damper_emulator.diagnose.joint import JOINT_NFEV, joint_fit
+from damper_emulator.diagnose.statistics import lag1
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.params import ModelConfig
 from damper_emulator.validation import rms

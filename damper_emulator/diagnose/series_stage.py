@@ -176,9 +176,12 @@ def _refitted_series(ctx: _Series, rounds: LibraryRounds, files: list[FileColumn
     refit = refits[chosen]
     model = refit.model()
     files = ctx.columns(model, refit.rig)
-    taken = next((d for d in screened.taken if d.kind.name == chosen), None)
-    first_evidence = (evidence.get(chosen) or
-                      ((taken.delta_bic, taken.explained) if taken else (0.0, 0.0)))
+    # its evidence: against the refit without it, or as the screen weighed it
+    screen = next((t for t in screened.tried if t["round"] == 1 and t["kind"] == chosen),
+                  None)
+    first_evidence = (evidence.get(chosen)
+                      or ((screen["delta_bic"], screen["explained"]) if screen is not None
+                          else (0.0, 0.0)))
     result = select(files, ctx.positions, ctx.kinds, model, first=chosen,
                     evidence=first_evidence)
     result.taken[0].ambiguous_with = ambiguous

@@ -462,7 +462,7 @@ class Diagnosis:
             "discovered": self.discovered.to_json() if self.discovered is not None else None,
             "rms_before_without_rig": self.rms_before_rig,
             "measurement": [f.to_json() for f in self.measurement],
-            "drift": ([d.to_json() for d in self.series.taken]
+            "drift": ([d.to_json(self.series.reference) for d in self.series.taken]
                       if self.series is not None else []),
             "series": ({"positions": self.series.positions, "tried": self.series.tried}
                        if self.series is not None else None),

@@ -110,7 +110,7 @@ def plot_series(path: Path, diag: Diagnosis) -> Path:
     for ax, d in zip(axes, series.taken):
         values = d.values()
         # the values less the coefficients: the reference's value (0 for the zero)
-        base = (1.0 if d.kind.name == "gain" else d.reference_value or 0.0)
+        base = d.reference_level()
         names = [n for n in order if n in values]
         x = np.array([series.positions[n] for n in names])
         y = np.array([values[n] for n in names])

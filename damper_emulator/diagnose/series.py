@@ -352,13 +352,26 @@ class Drift:
         base = self.reference_value or 0.0
         return {k: base + v for k, v in self.per_file.items()}
 
-    def to_json(self) -> dict[str, Any]:
+    def reference_level(self) -> float:
+        """The reference file's value: the model's for a damper parameter, 1 for a gain,
+        no offset for the zero."""
+        if self.kind.name == "gain":
+            return 1.0
+        return self.reference_value or 0.0
+
+    def to_json(self, reference: str | None = None) -> dict[str, Any]:
+        """The JSON's ``drift`` entry; ``per_file`` with the ``reference`` file first (at
+        :meth:`reference_level`) where named."""
         def finite(d: Mapping[str, float]) -> dict[str, float | None]:
             return {k: (v if math.isfinite(v) else None) for k, v in d.items()}
 
+        per_file = ({reference: self.reference_level()} if reference is not None
+                    and reference not in self.per_file else {})
+        per_file.update(self.values())
         doc = {"parameter": self.kind.parameter, "unit": self.kind.unit,
                "kind": self.kind.name, "cause": self.kind.cause,
-               "family": self.kind.family, "per_file": self.values(),
+               "family": self.kind.family, "per_file": per_file,
+               "reference_file": reference,
                "std": finite(self.std), "reference_value": self.reference_value,
                "trend": {"slope": self.slope,
                          "slope_std": self.slope_std if math.isfinite(self.slope_std)
@@ -378,6 +391,11 @@ class SeriesResult:
     taken: list[Drift]
     tried: list[dict[str, Any]]
     positions: dict[str, float]
+
+    @property
+    def reference(self) -> str | None:
+        """The series' first file (the reference of every kind)."""
+        return min(self.positions, key=lambda n: self.positions[n]) if self.positions else None
 
     def per_file(self, files: Sequence[FileColumns]) -> dict[str, PerFile]:
         """What the fits take per file for the kinds taken (:class:`PerFile`)."""

@@ -135,3 +135,20 @@ def test_the_kinds_name_their_parameters_and_causes():
     assert KIND_BY_NAME["zero"].cause == "rig" and KIND_BY_NAME["gain"].cause == "rig"
     assert {KIND_BY_NAME[k].family for k in ("gas", "friction", "valve_scale")} == {
         "gas_spring", "friction", "thermal"}
+
+
+def test_a_series_run_slowest_first_is_ordered_by_speed():
+    """A peak-velocity series run slowest first: what changes over it changes with the
+    speed too; the same files in another order are not."""
+    from damper_emulator.diagnose.base import make_record
+    from damper_emulator.diagnose.series import speed_ordered
+    from damper_emulator.dyno.measured import MeasuredData
+
+    t = np.linspace(0.0, 2.0, 2001)
+    recs = [make_record(MeasuredData(t, 0.025 * np.sin(2 * np.pi * f * t),
+                                     np.zeros_like(t), name=f"speed_{k}.csv"), False)
+            for k, f in enumerate((0.5, 1.0, 2.0, 4.0, 8.0))]
+    by_index = {r.name: float(k) for k, r in enumerate(recs)}
+    assert speed_ordered(recs, by_index)
+    mixed = dict(zip([r.name for r in recs], (2.0, 0.0, 4.0, 1.0, 3.0)))
+    assert not speed_ordered(recs, mixed)

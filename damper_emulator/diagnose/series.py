@@ -53,7 +53,10 @@ files fit.  A hypothesis is significant on top of those already taken when
   the library's rounds are the place for that;
 * a gain follows the series or is one of the whole series (its values within
   :data:`GAIN_SPREAD`), and a damper's parameter follows the series: its per-file values
-  lie on a line over the files' places in the series (R² ≥ :data:`MIN_TREND_R2`, the slope beyond
+  lie on a line over the files' places in the series (where the series' order is the
+  files' speeds, :func:`speed_ordered`, a friction and a valve scale are not tried and a
+  gain must be one of the series: a change over such a series is a change with the
+  speed as much) (R² ≥ :data:`MIN_TREND_R2`, the slope beyond
   :data:`MIN_TREND_T` σ, at least :data:`MIN_TREND_FILES` files).  A gas that leaks or an
   oil that warms moves one way; a per-file value that jumps about is the model's own
   error at that file's speeds, which a per-file scale of the damping would otherwise take.
@@ -109,6 +112,7 @@ __all__ = [
     "refit_evidence",
     "select",
     "series_positions",
+    "speed_ordered",
     "trend",
 ]
 
@@ -544,31 +548,56 @@ def follows_series(d: Drift, n_files: int) -> bool:
             and abs(d.slope) >= MIN_TREND_T * d.slope_std)
 
 
-def consistent(d: Drift, n_files: int) -> bool:
+def consistent(d: Drift, n_files: int, speed_ordered: bool = False) -> bool:
     """Whether a kind's per-file values are what its cause can do: a damper's parameter
-    follows the series; a gain follows it too (an amplifier warming up) or is one gain of
-    the whole series (its values within :data:`GAIN_SPREAD` of each other); a zero may
-    move as it likes (a load cell zeroed again between files)."""
+    follows the series; a gain follows it too (an amplifier warming up; not where the
+    series' order is its speeds', :func:`speed_ordered`) or is one gain of the whole series
+    (its values within :data:`GAIN_SPREAD` of each other); a zero may move as it likes (a
+    load cell zeroed again between files)."""
     if d.kind.cause == "damper":
         return follows_series(d, n_files)
     if d.kind.name == "gain":
         values = list(d.values().values())
-        return (follows_series(d, n_files)
+        return ((follows_series(d, n_files) and not speed_ordered)
                 or (bool(values) and max(values) - min(values) <= GAIN_SPREAD))
     return True
 
 
+#: the files' order over the series follows their speeds when the rank correlation of
+#: their places and their speeds (each file's 99th percentile of |ẋ|) is at least this
+SPEED_ORDER_CORRELATION = 0.8
+#: the kinds whose change over such a series cannot be told from a change with the speed
+SPEED_CONFOUNDED = ("friction", "valve_scale")
+
+
+def speed_ordered(records: Sequence[Record], positions: Mapping[str, float]) -> bool:
+    """Whether the series' order follows the files' speeds (a peak-velocity series run
+    slowest first): then what changes over the series and what changes with the speed are
+    one, and a friction or a valve scale that grows file by file is as much the damper's
+    speed dependence as a drift (a 5 % gain on a van's speed series came back as a
+    friction growing file by file)."""
+    from scipy.stats import spearmanr
+
+    if len(records) < MIN_TREND_FILES:
+        return False
+    speeds = [float(np.percentile(np.abs(r.velocity), 99.0)) for r in records]
+    places = [positions[r.name] for r in records]
+    rho = spearmanr(places, speeds).statistic
+    return bool(np.isfinite(rho) and rho >= SPEED_ORDER_CORRELATION)
+
+
 def select(files: Sequence[FileColumns], positions: Mapping[str, float],
            kinds: Sequence[str] | None = None, model: DamperModel | None = None,
-           first: str | None = None, evidence: tuple[float, float] = (0.0, 0.0)
-           ) -> SeriesResult:
+           first: str | None = None, evidence: tuple[float, float] = (0.0, 0.0),
+           by_speed: bool = False) -> SeriesResult:
     """Forward selection of what moves over the series (module docstring): each round,
     every kind not yet taken (nor excluded by one taken, :data:`EXCLUSIVE`) is fitted
     with those taken; the significant one with the lowest ΔBIC is taken.  ``model``: the
     model the columns were made at (its parameters' values, for the report).  ``first``:
     a kind already shown to move (:func:`refit_evidence`), taken first without the
     explained structure's test (at a model refitted with it, it explains all), with
-    ``evidence``, its ``(ΔBIC, explained)`` of that test."""
+    ``evidence``, its ``(ΔBIC, explained)`` of that test.  ``by_speed``: the series' order
+    follows the files' speeds (:func:`speed_ordered`)."""
     allowed = [KIND_BY_NAME[k] for k in (kinds or [k.name for k in KINDS])]
     taken: list[Drift] = []
     tried: list[dict[str, Any]] = []
@@ -602,7 +631,7 @@ def select(files: Sequence[FileColumns], positions: Mapping[str, float],
             size = _material(files, cur_res, res)
             ok = (d.delta_bic <= SERIES_MAX_DELTA_BIC and size >= MIN_NOISE_FRACTION
                   and (bool(taken) or d.explained >= MIN_SERIES_EXPLAINED))
-            follows = consistent(d, len(files))
+            follows = consistent(d, len(files), by_speed)
             tried.append({"round": len(taken) + 1, "kind": kind.name,
                           "parameter": kind.parameter, "delta_bic": d.delta_bic,
                           "gain": d.gain, "explained": d.explained,

@@ -23,6 +23,7 @@ from damper_emulator.diagnose.series import (
     MIN_SERIES_EXPLAINED,
     RIG_OR_DAMPER_BIC,
     SERIES_MAX_DELTA_BIC,
+    SPEED_CONFOUNDED,
     FileColumns,
     SeriesResult,
     alone,
@@ -33,6 +34,7 @@ from damper_emulator.diagnose.series import (
     refit_evidence,
     select,
     series_positions,
+    speed_ordered,
 )
 from damper_emulator.diagnose.session import Session
 from damper_emulator.model.compressible import DamperModel
@@ -52,6 +54,8 @@ class _Series:
     kinds: list[str]
     #: the first look's delay of the force [s] where the chain is estimated, else None
     delay: float | None = None
+    #: the series' order follows the files' speeds (``series.speed_ordered``)
+    by_speed: bool = False
 
     def columns(self, model: DamperModel, rig: RigParams | None) -> list[FileColumns]:
         return file_columns(model, rig, self.session.records, self.reference, self.sigmas)
@@ -82,17 +86,25 @@ def follow_series(session: Session, order: Sequence[str] | None,
     records = session.records
     positions = series_positions(records, order)
     temps = temperature_stats([r.data for r in records])
+    by_speed = speed_ordered(records, positions)
+    kinds = [k.name for k in KINDS
+             if not (k.name == "valve_scale" and temps is not None)
+             and not (by_speed and k.name in SPEED_CONFOUNDED)]
+    if by_speed:
+        session.say("series: the files' order follows their speeds: a friction or a "
+                    "valve scale that changes over the series cannot be told from one "
+                    "that changes with the speed, and is not weighed as a drift")
     ctx = _Series(session, positions, min(positions, key=lambda n: positions[n]),
                   {r.name: noise_level(session.base_res[r.name]) for r in records},
-                  [k.name for k in KINDS if not (k.name == "valve_scale" and temps is not None)],
-                  relative_delay(rig) if rig is not None and session.estimate else None)
+                  kinds, relative_delay(rig) if rig is not None and session.estimate
+                  else None, by_speed)
     model = session.base
     if start is not None:
         model, rig = start.model(), start.rig
         if rig is not None:
             ctx.delay = relative_delay(rig)
     files = ctx.columns(model, rig)
-    result = select(files, positions, ctx.kinds, model)
+    result = select(files, positions, ctx.kinds, model, by_speed=by_speed)
     lead = result.taken[0].kind.name if result.taken else contender(result)
     if lead is not None and (not result.taken or lead in ("zero", "gas")):
         again = _refitted_series(ctx, rounds, files, result, lead)
@@ -168,7 +180,7 @@ def _refitted_series(ctx: _Series, rounds: LibraryRounds, files: list[FileColumn
         if abs(dbic) < RIG_OR_DAMPER_BIC:
             gas_model = refits["gas"].model()
             gas = select(ctx.columns(gas_model, refits["gas"].rig), ctx.positions,
-                         ctx.kinds, gas_model, first="gas").taken[0]
+                         ctx.kinds, gas_model, first="gas", by_speed=ctx.by_speed).taken[0]
             chosen = "gas" if follows_series(gas, len(files)) else "zero"
             ambiguous = "zero" if chosen == "gas" else "gas"
         elif dbic < 0.0:
@@ -183,7 +195,7 @@ def _refitted_series(ctx: _Series, rounds: LibraryRounds, files: list[FileColumn
                       or ((screen["delta_bic"], screen["explained"]) if screen is not None
                           else (0.0, 0.0)))
     result = select(files, ctx.positions, ctx.kinds, model, first=chosen,
-                    evidence=first_evidence)
+                    evidence=first_evidence, by_speed=ctx.by_speed)
     result.taken[0].ambiguous_with = ambiguous
     # the later fits start from the refit's paper's parameters (the delay competes in
     # the rounds as ever)

@@ -216,6 +216,15 @@ class GasHeatTransferParams:
     thermal_time_constant_s: float = rule("positive", "gas thermal time constant τ_g [s]")
 
 
+@dataclass(frozen=True)
+class InertiaParams:
+    """A mass between the load cell and the damper (a heavy rod end, an adapter, the
+    damper's own moving parts on the load cell's side): the recorded force carries
+    ``m ẍ`` beside the damper's."""
+
+    mass_kg: float = rule("positive", "the moving mass m of m ẍ [kg]")
+
+
 def _term(doc: str) -> Any:
     """A coefficient of the discovered term: any finite number, 0 (the feature unused) by
     default."""
@@ -277,6 +286,7 @@ class ExtensionParams:
     air_entrainment: AirEntrainmentParams | None = rule("extension", "air_entrainment", None)
     bypass_groove: BypassGrooveParams | None = rule("extension", "position_dependent", None)
     gas_heat_transfer: GasHeatTransferParams | None = rule("extension", "gas_spring", None)
+    inertia: InertiaParams | None = rule("extension", "inertia", None)
     discovered_term: DiscoveredTermParams | None = rule("extension", "discovered", None)
 
     def active(self) -> list[str]:
@@ -295,6 +305,7 @@ EXTENSION_TYPES: dict[str, type] = {
     "air_entrainment": AirEntrainmentParams,
     "bypass_groove": BypassGrooveParams,
     "gas_heat_transfer": GasHeatTransferParams,
+    "inertia": InertiaParams,
     "discovered_term": DiscoveredTermParams,
 }
 #: family (CONTRACT ``diagnose`` JSON) of each extension

@@ -49,6 +49,23 @@ def test_a_mass_adds_mass_times_the_derivative_of_the_velocity(sport_model):
     assert added[0] == 0.0  # the settled start is at rest
 
 
+def test_an_inertia_adds_mass_times_the_derivative_of_the_velocity(sport_model):
+    """The ``inertia`` extension: ``m ẍ`` of ``x = X sin ωt`` within the backward formula's
+    ``(ω h)² / 3``, and beside a discovered term's own acceleration the masses add."""
+    from damper_emulator.params import InertiaParams
+
+    t, x, v = sine(5.0, 0.02, 3, rate_hz=1000.0)
+    heavy = sport_model.with_extensions(ExtensionParams(inertia=InertiaParams(6.0)))
+    added = simulate(heavy, t, x, v).force_n - simulate(sport_model, t, x, v).force_n
+    w = 2.0 * math.pi * 5.0
+    exact = -6.0 * 0.02 * w * w * np.sin(w * t)
+    assert np.max(np.abs(added[2:] - exact[2:])) < 1e-3 * 6.0 * 0.02 * w * w
+    both = sport_model.with_extensions(ExtensionParams(
+        inertia=InertiaParams(2.0), discovered_term=DiscoveredTermParams(acceleration_kg=4.0)))
+    np.testing.assert_allclose(simulate(both, t, x, v).force_n,
+                               simulate(heavy, t, x, v).force_n, rtol=1e-12, atol=1e-9)
+
+
 def test_the_lag_follows_a_sine_as_a_first_order_lag():
     """Steady state of ``τ ẏ = F − y`` for ``F = sin ωt``: gain ``1/√(1 + (ωτ)²)``, phase
     ``−atan ωτ``; the kernel is exact for a force linear between samples."""

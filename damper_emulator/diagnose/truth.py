@@ -196,9 +196,18 @@ EXAMPLE_TERM: dict[str, float] = {"acceleration_kg": 6.0, "profile_n_s_m": 800.0
                                   "profile_center_m": 0.01, "profile_width_m": 0.005}
 
 
+#: The ``inertia`` extension for the tests of its schema and of the step: 6 kg.  The truth
+#: of an inertia in the benchmark and the diagnosis tests is a force of its own
+#: (``m dv/dt`` on the truth's grid), not the extension the model runs.
+EXAMPLE_INERTIA: dict[str, float] = {"mass_kg": 6.0}
+
+
 def example_params(name: str) -> Mapping[str, Any]:
     """The example parameters of the extension ``name``: a library effect's
-    (:data:`EXAMPLE_EFFECTS`) or the discovered term's (:data:`EXAMPLE_TERM`)."""
+    (:data:`EXAMPLE_EFFECTS`), the inertia's (:data:`EXAMPLE_INERTIA`) or the discovered
+    term's (:data:`EXAMPLE_TERM`)."""
+    if name == "inertia":
+        return EXAMPLE_INERTIA
     return EXAMPLE_TERM if name == "discovered_term" else EXAMPLE_EFFECTS[name]["params"]
 
 

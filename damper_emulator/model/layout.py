@@ -18,10 +18,11 @@ from typing import cast
 import numpy as np
 
 from damper_emulator.model.adaptive import bypass_coefficients
-from damper_emulator.model.discovered import N_TERMS, TERM_FIELDS
+from damper_emulator.model.discovered import N_TERMS, TERM_ACCELERATION, TERM_FIELDS
 from damper_emulator.params import (
     BypassGrooveParams,
     DamperParams,
+    DiscoveredTermParams,
     EndStopParams,
     ExtensionParams,
     LugreFrictionParams,
@@ -144,11 +145,15 @@ def pack_extensions(prm: np.ndarray, d: DamperParams) -> None:
             g.discharge_coefficient)
     if e.gas_heat_transfer is not None:
         prm[P_GT_TAU] = e.gas_heat_transfer.thermal_time_constant_s
-    if e.discovered_term is not None:
-        t = e.discovered_term
+    if e.discovered_term is not None or e.inertia is not None:
+        # an inertia is the discovered term's acceleration part: the one compiled step
+        # runs both, their masses added
+        t = e.discovered_term or DiscoveredTermParams()
         prm[P_DT_ON] = 1.0
         prm[P_DT_VSIGN], prm[P_DT_TREF] = t.smooth_sign_velocity_m_s, t.reference_temperature_c
         prm[P_DT_CENTRE], prm[P_DT_WIDTH] = t.profile_center_m, t.profile_width_m
         prm[P_DT_TAU] = t.lag_time_constant_s
         for k, name in enumerate(TERM_FIELDS):
             prm[P_DT_COEF + k] = getattr(t, name)
+        if e.inertia is not None:
+            prm[P_DT_COEF + TERM_ACCELERATION] += e.inertia.mass_kg

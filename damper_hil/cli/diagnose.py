@@ -29,7 +29,8 @@ def add_parser(sub) -> None:
         description="Trace the identified model's residual to the effects it lacks.  The\n"
                     "paper's parameters are re-identified jointly with each candidate effect\n"
                     "(friction, thermal, cavitation, valve dynamics, compliance, end stops,\n"
-                    "air entrainment, position-dependent damping, gas-spring heat transfer)\n"
+                    "air entrainment, position-dependent damping, gas-spring heat transfer,\n"
+                    "inertia)\n"
                     "on the identification files (--quasi-static, --chirp), simulated whole;\n"
                     "each is scored by the r.m.s. reduction on the held-out files (--validate)\n"
                     "and penalised for its parameters (BIC with the residual's effective\n"
@@ -71,7 +72,7 @@ def add_parser(sub) -> None:
                       help="comma-separated subset of the candidates (default: all): "
                            "lugre_friction, viscosity_temperature, cavitation, valve_lag, "
                            "series_compliance, end_stops, air_entrainment, bypass_groove, "
-                           "gas_heat_transfer")
+                           "gas_heat_transfer, inertia")
     diag.add_argument("--jobs", metavar="N", type=positive_int, default=None,
                       help="fit the candidates in N processes (default: the CPU count, at "
                            "most 4)")

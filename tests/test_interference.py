@@ -33,15 +33,18 @@ def chirp_file(rng, duration=12.0, lines=(), fs=FS):
     return t, r, x
 
 
-def sine_file(rng, f0=1.0, duration=3.0, lines=(), fs=FS, harmonics=80):
+def sine_file(rng, f0=1.0, duration=3.0, lines=(), fs=FS, harmonics=80, rest=0.0):
     """A sine's residual: the damper's miss at every harmonic of the sine up to
-    ``harmonics`` (a friction switch's 1/k), white noise, and ``lines``."""
-    t = np.arange(int(duration * fs)) / fs
-    x = 0.05 * np.sin(2 * math.pi * f0 * t)
+    ``harmonics`` (a friction switch's 1/k), white noise, and ``lines``; the last ``rest``
+    seconds at rest (the sine held where it stopped, nothing but noise and lines)."""
+    t = np.arange(int((duration + rest) * fs)) / fs
+    moving = t < duration
+    tm = np.where(moving, t, duration)
+    x = 0.05 * np.sin(2 * math.pi * f0 * tm)
     r = rng.normal(0, NOISE_N, t.size)
     for k in range(1, harmonics + 1):
         if k * f0 < 0.45 * fs:
-            r += 30.0 / k * np.sin(2 * math.pi * k * f0 * t + 0.1 * k)
+            r += moving * 30.0 / k * np.sin(2 * math.pi * k * f0 * t + 0.1 * k)
     for f, a, phi in lines:
         r += a * np.sin(2 * math.pi * f * t + phi)
     return t, r, x
@@ -79,6 +82,24 @@ def test_a_damper_residual_without_a_line_gives_none(seed):
              "sine_3hz.csv": sine_file(rng, 3.0, duration=1.0),
              "sine_12hz.csv": sine_file(rng, 12.0, duration=0.25)}
     assert find_lines(files) == []
+
+
+def test_a_dyno_runs_harmonics_off_its_bins_and_its_rest_give_no_line():
+    """A crank dyno's sine is no whole number of cycles nor of bins: 9.5 cycles then rest
+    (a short run), 101.3 cycles (a long one), at 300 Hz, the residual's harmonics up to
+    the 40th.  The fundamental off its bin by up to half a bin is 20 bins off at the
+    40th harmonic; found to a fraction of a bin, every harmonic is the damper's."""
+    rng = np.random.default_rng(11)
+    f0 = 1.05295
+    files = {"short.csv": sine_file(rng, f0, duration=9.5 / f0, fs=300.0, harmonics=40,
+                                    rest=0.8),
+             "long.csv": sine_file(rng, f0, duration=101.3 / f0, fs=300.0, harmonics=40)}
+    assert find_lines(files) == []
+    pump = ((37.3, 2.0, 0.0),)  # ... while a line between two harmonics still is one
+    files["long.csv"] = sine_file(rng, f0, duration=101.3 / f0, fs=300.0, harmonics=40,
+                                  lines=pump)
+    (line,) = find_lines(files)
+    assert line.frequency_hz == pytest.approx(37.3, abs=0.01)
 
 
 def test_a_line_at_another_frequency_is_found_and_not_called_the_mains():

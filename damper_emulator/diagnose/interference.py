@@ -71,9 +71,10 @@ MIN_BACKGROUND_BINS = 8
 #: zero stage's) to this fraction of the sample rate (the anti-alias filter's roll-off)
 MIN_LINE_HZ = 1.0
 MAX_LINE_FRACTION = 0.45
-#: a file's displacement is periodic when this fraction of its power (mean and trend
-#: removed) lies within two bins of its fundamental's harmonics up to the fifth
+#: a file's displacement is periodic when its fundamental's harmonics up to
+#: :data:`PERIODIC_HARMONICS` explain this fraction of its power (mean and trend removed)
 PERIODIC_POWER_FRACTION = 0.9
+PERIODIC_HARMONICS = 5
 #: a file resolves a line when it spans at least this many of its periods, and a line is
 #: fitted in a file where its alias does
 MIN_FIT_CYCLES = 4.0
@@ -152,25 +153,57 @@ def _uniform_rate(t: np.ndarray) -> float | None:
     return 1.0 / step
 
 
+def _harmonic_power(t: np.ndarray, y: np.ndarray, f0: float) -> float:
+    """The power of ``y`` that harmonics 1 … :data:`PERIODIC_HARMONICS` of ``f0`` [Hz]
+    explain, by least squares (no window, no bins: a file of a non-integer number of
+    cycles leaks nothing)."""
+    tt = t - t[0]
+    cols = []
+    for h in range(1, PERIODIC_HARMONICS + 1):
+        w = 2.0 * math.pi * h * f0 * tt
+        cols += [np.cos(w), np.sin(w)]
+    a = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    fitted = a @ coef
+    return float(np.dot(fitted, fitted))
+
+
 def _periodic_fundamental(t: np.ndarray, x: np.ndarray) -> float | None:
-    """The fundamental [Hz] of a periodic displacement ``x`` (at least
-    :data:`PERIODIC_POWER_FRACTION` of its power at its first five harmonics), else
-    ``None`` (a chirp, a random road)."""
+    """The fundamental [Hz] of a periodic displacement ``x`` (its first
+    :data:`PERIODIC_HARMONICS` harmonics explain at least :data:`PERIODIC_POWER_FRACTION`
+    of its power, trend removed), else ``None`` (a chirp, a random road).
+
+    Judged where the file moves, from its first crossing of mid-stroke to its last (a
+    dyno run starts and ends at rest, which no harmonic explains).  The periodogram's
+    largest peak is a start, refined to where the harmonics explain most: the bin's
+    frequency is off by up to half a bin, which is ten bins at the twentieth harmonic,
+    where a sine's residual still has force."""
+    from scipy.optimize import minimize_scalar
+
+    side = x > np.median(x)
+    crossings = np.flatnonzero(side[1:] != side[:-1])
+    if crossings.size < 2:
+        return None
+    t, x = t[crossings[0]:crossings[-1] + 2], x[crossings[0]:crossings[-1] + 2]
     n = t.size
     k = np.arange(n)
     y = x - np.polyval(np.polyfit(k, x, 1), k)
-    p = np.abs(np.fft.rfft(y)) ** 2
-    p[0] = 0.0
-    total = float(p.sum())
+    total = float(np.dot(y, y))
     if not total > 0.0:
         return None
+    p = np.abs(np.fft.rfft(y * np.hanning(n))) ** 2
+    p[0] = 0.0
     i = int(np.argmax(p))
     if i == 0:
         return None
-    near = sum(float(p[max(h * i - 2, 1):h * i + 3].sum()) for h in range(1, 6))
-    if near < PERIODIC_POWER_FRACTION * total:
+    df = 1.0 / (n * float(np.median(np.diff(t))))
+    res = minimize_scalar(lambda f: -_harmonic_power(t, y, f),
+                          bounds=((i - 1) * df, (i + 1) * df), method="bounded",
+                          options={"xatol": 1e-6 * df})
+    f0 = float(res.x) if res.success else i * df
+    if not f0 > 0.0 or _harmonic_power(t, y, f0) < PERIODIC_POWER_FRACTION * total:
         return None
-    return float(i / (n * float(np.median(np.diff(t)))))
+    return f0
 
 
 def _spectrum(t: np.ndarray, residual: np.ndarray, x: np.ndarray
@@ -192,19 +225,26 @@ def _spectrum(t: np.ndarray, residual: np.ndarray, x: np.ndarray
     df = float(f[1])
     counted = ((f >= max(MIN_LINE_HZ, MIN_FIT_CYCLES / (t[-1] - t[0])))
                & (f <= MAX_LINE_FRACTION * fs))
+    half = max(MIN_BACKGROUND_BINS, math.ceil(BACKGROUND_HALF_WIDTH_HZ / df))
     f0 = _periodic_fundamental(t, x)
-    level = p
-    if f0 is not None:
+    if f0 is None:
+        bg = median_filter(p, size=2 * half + 1, mode="nearest")
+    else:
         # the excitation's harmonics are the damper's: no peak there, and no part of the
-        # background either (the spectrum between them, bridged in log power)
+        # background either, which is the running median of the bins clear of them (as
+        # many as the window would hold, at their share of the spectrum), bridged across
+        # the harmonics in log power.  The Hann window's main lobe is two bins either side
+        # of a harmonic, which lies anywhere within half a bin of the bin nearest it.
         h = np.rint(f / f0)
-        harmonic = (h >= 1) & (np.abs(f - h * f0) <= SAME_LINE_BINS * df)
+        harmonic = (h >= 1) & (np.abs(f - h * f0) <= (SAME_LINE_BINS + 0.5) * df)
         counted &= ~harmonic
         clear = np.flatnonzero(~harmonic & (p > 0))
-        if clear.size >= 2:
-            level = np.exp(np.interp(np.arange(p.size), clear, np.log(p[clear])))
-    half = max(MIN_BACKGROUND_BINS, math.ceil(BACKGROUND_HALF_WIDTH_HZ / df))
-    bg = median_filter(level, size=2 * half + 1, mode="nearest")
+        if clear.size < 2:
+            return None
+        half_clear = max(MIN_BACKGROUND_BINS // 2,
+                         math.ceil(half * clear.size / p.size))
+        bg_clear = median_filter(p[clear], size=2 * half_clear + 1, mode="nearest")
+        bg = np.exp(np.interp(np.arange(p.size), clear, np.log(bg_clear)))
     ratio = p / np.maximum(bg, np.finfo(float).tiny)
     # where the motion itself has a line (a multisine's components, a slider-crank's
     # harmonics), the damper answers with one: not interference

@@ -5,6 +5,7 @@ force (swept, or at a sine's harmonics) is never taken for one."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -71,6 +72,9 @@ def test_the_mains_and_its_third_harmonic_are_found_and_fitted_in_every_file():
         assert fifty.amplitudes_n[name] == pytest.approx(3.0, abs=tol), name
         assert third.amplitudes_n[name] == pytest.approx(1.0, abs=tol), name
     assert "mains" in fifty.evidence() and "50.0" in fifty.evidence()
+    # the evidence states the size fitted, which the truth's 3 N must fall in
+    lo, hi = re.search(r"of ([\d.]+)–([\d.]+) N", fifty.evidence()).groups()
+    assert float(lo) - tol <= 3.0 <= float(hi) + tol
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -131,10 +131,13 @@ class Line:
         what = ("the mains" + (f" (harmonic {round(self.frequency_hz / self.harmonic_of)})"
                                if self.harmonic_of else "")
                 if self.mains else "a stationary line")
-        out = (f"{what} at {self.frequency_hz:.3f} Hz on the {self.channel} channel, above "
-               f"the residual's spectrum around it in {seen}; at one frequency whatever the "
-               "excitation, which a damper's force is not; fitted in every file and left "
-               "out of the fits")
+        amps = sorted(self.amplitudes_n.values())
+        size = ("" if not amps else f" of {amps[-1]:.3g} N" if len(amps) == 1 or
+                amps[0] >= 0.995 * amps[-1] else f" of {amps[0]:.3g}–{amps[-1]:.3g} N")
+        out = (f"{what}{size} at {self.frequency_hz:.3f} Hz on the {self.channel} channel, "
+               f"above the residual's spectrum around it in {seen}; at one frequency "
+               "whatever the excitation, which a damper's force is not; fitted in every "
+               "file and left out of the fits")
         if self.aliased:
             out += ("; aliased to " + ", ".join(f"{f:.3g} Hz in {k}" for k, f in
                                                 self.aliased.items())

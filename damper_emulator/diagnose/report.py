@@ -394,7 +394,11 @@ def _chain_lines(acq: dict[str, Any]) -> list[str]:
                      f"fit as the rig's, never an effect: {acq['reading']}.  "
                      "`rig_estimated.yaml` holds it, for `validate --rig`.")
     else:
-        lines.append("None: the model's force is compared as it is.")
+        # no --rig and no delay in the model after: the chain candidate competed in
+        # every round (or with the effects) and was not kept
+        lines.append("Estimated (no `--rig`): the force's delay against the displacement "
+                     "competed with the effects as the rig's and was not kept; the model's "
+                     "force is compared as it is.  The log gives each round's figures.")
     return [*lines, ""]
 
 

@@ -84,6 +84,18 @@ QUASI_STATIC_FRICTION_RATIO = "quasi_static_friction_ratio"
 #: ``base_values`` hold it frees it (from
 #: :data:`~damper_emulator.acquisition.chain.ESTIMATED_DELAY_START_S`).
 ACQUISITION_DELAY = "acquisition_delay_s"
+#: The oil's compressibility α (eq 1), freed in a fit whose ``base_values`` hold it: where
+#: the files carry no chain, the force's scale against the oil's stiffness
+#: (:mod:`damper_emulator.diagnose.scale`).  A gain ``g`` of every file alike is the
+#: paper's model with every pressure ``g`` times and α divided by ``g``; the data sheet's
+#: α is the only absolute pressure scale the model has.
+OIL_COMPRESSIBILITY = "oil_compressibility_per_pa"
+#: ... within this factor either side of the value a fit starts from: a load cell's gain
+#: off its calibration by up to 25 %.  Freed within ×2, α went to the bound on a series
+#: compliance (a 1.5 MN/m spring behind the sport damper: a "gain" of 0.5 explained 94 % of
+#: the refit's structure) and on a valve lag; a scale at its bound is no gain
+#: (:mod:`damper_emulator.diagnose.scale`).
+OIL_COMPRESSIBILITY_FACTOR = 1.25
 #: The coefficients of a discovered term's parts (:mod:`damper_emulator.diagnose.
 #: discovery`) in a fit's ``base_values``: this prefix and the part's index.
 TERM_PREFIX = "discovered_term_"
@@ -283,10 +295,12 @@ def config_value(cfg: ModelConfig, path: str) -> float:
 
 
 def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
-                    effects: Sequence[str] = (), delay: bool = False) -> list[Parameter]:
+                    effects: Sequence[str] = (), delay: bool = False,
+                    compressibility: bool = False) -> list[Parameter]:
     """The free parameters of the paper's model around ``cfg`` (``effects`` in the model:
     a parameter they replace is held), as :class:`Parameter` named by path; with
-    ``delay`` and files without a chain also the estimated chain's delay."""
+    ``delay`` and files without a chain also the estimated chain's delay; with
+    ``compressibility`` the oil's compressibility (:data:`OIL_COMPRESSIBILITY`)."""
     d = cfg.damper
     x_lo = min(float(np.min(r.displacement)) for r in fit_data)
     f_max = max(float(np.max(np.abs(r.force))) for r in fit_data)
@@ -316,6 +330,10 @@ def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
     if delay and chain_unknown(fit_data):
         out.append(Parameter(ACQUISITION_DELAY, 0.0, ESTIMATED_DELAY_BOUND_S,
                              ESTIMATED_DELAY_START_S, False, "s"))
+    if compressibility:
+        alpha = d.oil_compressibility_per_pa
+        out.append(Parameter(OIL_COMPRESSIBILITY, alpha / OIL_COMPRESSIBILITY_FACTOR,
+                             alpha * OIL_COMPRESSIBILITY_FACTOR, alpha, True, "1/Pa"))
     return out
 
 

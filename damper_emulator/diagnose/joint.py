@@ -38,6 +38,7 @@ from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.diagnose.base import (
     ACQUISITION_DELAY,
     BASE_PARAMETERS,
+    OIL_COMPRESSIBILITY,
     QUASI_STATIC_FRICTION_RATIO,
     TERM_PREFIX,
     Record,
@@ -652,8 +653,11 @@ class _JointFit:
         (from its own starts and the first pre-fit's values, or with ``screen`` false
         from the latter only): ``(cost, base, candidate's values, simulations,
         factor)``; ``None`` if the re-identification failed."""
-        nb = reidentify(as_cfg or self.cfg, self.records, self.n_quasi_static, masks,
-                        factor, delay_rig(start.base_values))
+        cfg = as_cfg or self.cfg
+        if OIL_COMPRESSIBILITY in start.base_values:  # the force's scale taken
+            cfg = config_with(cfg, {OIL_COMPRESSIBILITY: start.base_values[OIL_COMPRESSIBILITY]})
+        nb = reidentify(cfg, self.records, self.n_quasi_static, masks, factor,
+                        delay_rig(start.base_values))
         if nb is None:
             return None
         nb = {**start.base_values, **nb}
@@ -724,7 +728,8 @@ class _JointFit:
         """Step 4 from ``bv``, ``vals``: bounds around the start (the identified values,
         or the re-identified ones)."""
         free = base_parameters(config_with(self.cfg, bv), [r.data for r in self.records],
-                               [c.effect for c in self.cands], ACQUISITION_DELAY in bv)
+                               [c.effect for c in self.cands], ACQUISITION_DELAY in bv,
+                               OIL_COMPRESSIBILITY in bv)
         free += self.term_parameters
         space = Space(self.cfg, free, bv, self.cands, vals, [True] * len(self.cands),
                       self.records, self.weights, self.n_quasi_static, self.terms)

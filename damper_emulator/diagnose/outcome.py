@@ -19,6 +19,7 @@ from damper_emulator.acquisition.chain import chain_json, estimated_rig
 from damper_emulator.acquisition.rig import RigParams, rig_to_mapping
 from damper_emulator.diagnose.base import (
     ACQUISITION_DELAY,
+    OIL_COMPRESSIBILITY,
     TERM_PREFIX,
     Record,
     delay_rig,
@@ -259,9 +260,10 @@ class StepFit:
         self.score = 1.0 - math.sqrt(self.sse_held / sse0) if sse0 > 0 else 0.0
         k = (sum(len(c.parameters) for c in self.candidates)
              - sum(len(c.parameters) for c in ref.candidates)
-             # the estimated chain's delay, where this fit has it and ``ref`` not
-             + (ACQUISITION_DELAY in self.out["base_values"])
-             - (ACQUISITION_DELAY in ref.out["base_values"]))
+             # the estimated chain's delay and the force's scale, where this fit has
+             # them and ``ref`` not
+             + sum((p in self.out["base_values"]) - (p in ref.out["base_values"])
+                   for p in (ACQUISITION_DELAY, OIL_COMPRESSIBILITY)))
         # (rho: lag1, clipped to MAX_RHO)
         self.delta_bic = delta_bic(((f["n"], f["rho"], f["mse"], ref.out["fit"][name]["mse"])
                                     for name, f in self.out["fit"].items()), k)
@@ -331,6 +333,9 @@ class Diagnosis:
     series: SeriesResult | None = None
     #: what the rig did (``measurement.Finding``), for the JSON's ``measurement``
     measurement: list[Any] = field(default_factory=list)
+    #: the force's scale against the oil's stiffness (``scale.ScaleResult``), where the
+    #: stage ran
+    scale: Any = None
 
     @property
     def chosen(self) -> StepFit | None:
@@ -466,6 +471,7 @@ class Diagnosis:
                       if self.series is not None else []),
             "series": ({"positions": self.series.positions, "tried": self.series.tried}
                        if self.series is not None else None),
+            "scale": self.scale.to_json() if self.scale is not None else None,
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "floor_N": self.floor_n, "noise_N": self.noise_n,

@@ -13,7 +13,9 @@ forward selection, or say ``none`` / ``other``.
 2. **The series** (:func:`follow_series`, module
    :mod:`~damper_emulator.diagnose.series`): what moves from file to file (the rig's zero
    and gain, the damper's gas charge, friction and valves), taken per file beside every
-   later fit and score.
+   later fit and score; then, where the files carry no chain, the force's scale
+   (:func:`~damper_emulator.diagnose.scale.weigh_scale`): a gain of every file alike,
+   as the oil's compressibility freed.
 3. **The library's rounds** (:class:`~damper_emulator.diagnose.rounds.LibraryRounds`),
    steps 1–6 below.
 4. **The answer** (:func:`answer`), step 7.
@@ -127,6 +129,7 @@ from damper_emulator.diagnose.outcome import (
 )
 from damper_emulator.diagnose.pool import LocalPool
 from damper_emulator.diagnose.rounds import CHAIN, LibraryRounds, RoundsOutcome
+from damper_emulator.diagnose.scale import scale_findings, weigh_scale
 from damper_emulator.diagnose.series import SeriesResult
 from damper_emulator.diagnose.series_stage import follow_series
 from damper_emulator.diagnose.session import Say, Session, check_inputs, prepare, records_of
@@ -301,7 +304,9 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
             # identification that took a load-cell filter's lag into its valves
             (chain_first,) = rounds.run(None, [CHAIN], "the rig's delay, first")
         drift = follow_series(session, series, rounds, first_look, chain_first)
-        found = rounds.select(chain_first if not drift.taken else None)
+        present = chain_first if not drift.taken else None
+        scale = weigh_scale(session, rounds, present)
+        found = rounds.select(present if scale is None or not scale.taken else None)
     diag = answer(session, found, drift)
     diag.rms_before = rms_recorded
     diag.rms_before_rig = dict(session.rms_before)
@@ -309,7 +314,9 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     if discovery:
         discover_term(diag, session)
     drift.refresh(session.records, diag.model_after(), diag.rig_after())
+    diag.scale = scale
     diag.measurement = [*line_findings(lines), *drift_findings(drift.taken),
+                        *scale_findings(scale),
                         *chain_findings(diag.acquisition_json(),
                                         recorded[0].data.acquisition)]
     diag.seconds = time.perf_counter() - t_start

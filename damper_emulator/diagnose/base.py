@@ -296,11 +296,13 @@ def config_value(cfg: ModelConfig, path: str) -> float:
 
 def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
                     effects: Sequence[str] = (), delay: bool = False,
-                    compressibility: bool = False) -> list[Parameter]:
+                    compressibility: float | None = None) -> list[Parameter]:
     """The free parameters of the paper's model around ``cfg`` (``effects`` in the model:
     a parameter they replace is held), as :class:`Parameter` named by path; with
     ``delay`` and files without a chain also the estimated chain's delay; with
-    ``compressibility`` the oil's compressibility (:data:`OIL_COMPRESSIBILITY`)."""
+    ``compressibility`` (the identified α [1/Pa]) the oil's compressibility
+    (:data:`OIL_COMPRESSIBILITY`), within :data:`OIL_COMPRESSIBILITY_FACTOR` of it
+    whatever ``cfg`` holds: a gain's bound, not a step's."""
     d = cfg.damper
     x_lo = min(float(np.min(r.displacement)) for r in fit_data)
     f_max = max(float(np.max(np.abs(r.force))) for r in fit_data)
@@ -330,10 +332,11 @@ def base_parameters(cfg: ModelConfig, fit_data: Sequence[MeasuredData],
     if delay and chain_unknown(fit_data):
         out.append(Parameter(ACQUISITION_DELAY, 0.0, ESTIMATED_DELAY_BOUND_S,
                              ESTIMATED_DELAY_START_S, False, "s"))
-    if compressibility:
-        alpha = d.oil_compressibility_per_pa
-        out.append(Parameter(OIL_COMPRESSIBILITY, alpha / OIL_COMPRESSIBILITY_FACTOR,
-                             alpha * OIL_COMPRESSIBILITY_FACTOR, alpha, True, "1/Pa"))
+    if compressibility is not None:
+        lo = compressibility / OIL_COMPRESSIBILITY_FACTOR
+        hi = compressibility * OIL_COMPRESSIBILITY_FACTOR
+        out.append(Parameter(OIL_COMPRESSIBILITY, lo, hi,
+                             min(max(d.oil_compressibility_per_pa, lo), hi), True, "1/Pa"))
     return out
 
 

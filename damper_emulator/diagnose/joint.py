@@ -729,7 +729,8 @@ class _JointFit:
         or the re-identified ones)."""
         free = base_parameters(config_with(self.cfg, bv), [r.data for r in self.records],
                                [c.effect for c in self.cands], ACQUISITION_DELAY in bv,
-                               OIL_COMPRESSIBILITY in bv)
+                               self.cfg.damper.oil_compressibility_per_pa
+                               if OIL_COMPRESSIBILITY in bv else None)
         free += self.term_parameters
         space = Space(self.cfg, free, bv, self.cands, vals, [True] * len(self.cands),
                       self.records, self.weights, self.n_quasi_static, self.terms)

@@ -16,10 +16,10 @@ and without, and takes the scale, off its bounds (:data:`BOUND_MARGIN`), where i
 the effective BIC by :data:`~damper_emulator.diagnose.series.SERIES_MAX_DELTA_BIC` and
 explains :data:`~damper_emulator.diagnose.series.MIN_SERIES_EXPLAINED` of what the refit
 without it leaves (the tests a series' kind passes, :func:`~damper_emulator.diagnose.
-series.refit_evidence`).  Taken, every later fit frees α and the finding is the rig's (``gain``):
-the data cannot tell a gain of every file alike from an oil ``g`` times as stiff as the
-model's (a data sheet's α, free air), and say so.  With a chain given (``--rig``) the
-force's gain is known and the stage does not run.
+series.refit_evidence`).  Taken, every later fit frees α within the same bounds, and the
+finding is the rig's (``gain``): the data cannot tell a gain of every file alike from an
+oil ``g`` times as stiff as the model's (a data sheet's α, free air), and say so.  With a
+chain given (``--rig``) the force's gain is known and the stage does not run.
 """
 
 from __future__ import annotations
@@ -53,15 +53,14 @@ BOUND_MARGIN = 1.01
 @dataclass(frozen=True)
 class ScaleResult:
     """The force's scale as the stage weighed it: the oil's compressibility the model
-    had and the one freed [1/Pa], the evidence against the refit without it, whether it
-    was taken, and the refit with it."""
+    had and the one freed [1/Pa], the evidence against the refit without it, and whether
+    it was taken."""
 
     alpha_model: float
     alpha_fitted: float
     delta_bic: float
     explained: float
     taken: bool
-    fit: StepFit
 
     @property
     def gain(self) -> float:
@@ -115,7 +114,7 @@ def weigh_scale(session: Session, rounds: LibraryRounds, present: StepFit | None
               < alpha * OIL_COMPRESSIBILITY_FACTOR / BOUND_MARGIN)
     taken = bool(dbic <= SERIES_MAX_DELTA_BIC and explained >= MIN_SERIES_EXPLAINED
                  and inside)
-    result = ScaleResult(alpha, fitted, dbic, explained, taken, with_alpha)
+    result = ScaleResult(alpha, fitted, dbic, explained, taken)
     say(f"the force's scale: α {alpha:.3g} → {fitted:.3g} 1/Pa (a gain of "
         f"{result.gain:.4f}), ΔBIC {dbic:.0f}, explains {100 * explained:.0f} % of what the "
         "refit without it leaves" + ("; taken: every later fit frees it" if taken else

@@ -42,8 +42,16 @@ def test_each_family_is_found_after_identify_on_the_same_files(effect):
     for name in CHECKED.get(effect, tuple(truth_params)):
         assert main["parameters"][name] == pytest.approx(
             truth_params[name], rel=PARAMETER_TOLERANCE), (effect, name, main)
-    # each fitted parameter has a finite uncertainty
-    assert all(math.isfinite(f["std"]) for f in main["fitted"].values()), main
+    # each fitted parameter's uncertainty is a number or undetermined (``None``, never
+    # NaN); those the truth sets are determined.  A part the truth lacks (a stop's linear
+    # stiffness or damping) sits at the no-force end of its range, where the data show
+    # next to no slope: whether its σ is huge or undetermined is rounding.
+    fitted = main["fitted"]
+    assert all(f["std"] is None or math.isfinite(f["std"]) for f in fitted.values()), main
+    determined = [n for n in (*CHECKED.get(effect, ()), *truth_params) if n in fitted]
+    assert determined, (effect, sorted(fitted))
+    for name in determined:
+        assert fitted[name]["std"] is not None and fitted[name]["std"] > 0.0, (name, main)
     if effect == "cavitation":
         # its fit started from a re-identification with the friction at speed searched:
         # the truth's smooth seal has 1/tanh(4/5) = 1.5 times the quasi-static friction

@@ -32,8 +32,10 @@ from diagnose_support import (
 
 from damper_emulator.diagnose.outcome import (
     FLOOR_FORCE_FRACTION,
+    MIN_EXPLAINED,
     MIN_SCORE,
     STRUCTURE_RATIO,
+    explained_fraction,
     noise_level,
     structure_ratio,
 )
@@ -229,6 +231,44 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia(tmp_pat
     loaded = load_config(tmp_path / "params_with_effect.yaml")
     assert loaded.damper.extensions.discovered_term == ext.discovered_term
     assert (tmp_path / "discovered.png").stat().st_size > 0
+
+
+def test_a_library_effect_and_the_term_discovered_beside_it_are_both_reported():
+    """A LuGre friction (the library's) and a 6 kg mass between load cell and damper, the
+    library's inertia left out of the candidates.  The friction, after a valve lag that
+    takes part of the mass's phase lead, explains under half of the structure: too little
+    to be the answer alone (step 7).  The term discovered on what they left is the mass;
+    fitted with them, the valve lag gains nothing beside it and goes, and the friction
+    and the mass are reported together, the model after holding both."""
+    mass_kg = 6.0
+
+    def inertia(t, x, v):
+        return mass_kg * np.gradient(v, t)
+
+    sheet, data = truth_session(("lugre_friction",), extra_force=inertia)
+    diag = identify_and_diagnose(sheet, data, ["lugre_friction", "valve_lag"])
+    held = [r for r in diag.records if r.held_out]
+    # the library's effects alone (their own fit, without the term) explained too little
+    assert explained_fraction(diag.refit.residuals(held),
+                              diag.steps[-1].residuals(held)) < MIN_EXPLAINED
+    doc = diag.to_json()
+    assert diag.family == "friction" and diag.effect == "lugre_friction", doc["effects"]
+    assert [e["effect"] for e in doc["effects"]] == ["lugre_friction", "discovered_term"]
+    assert diag.explained >= MIN_EXPLAINED and doc["closest"] is None
+    term = doc["discovered"]
+    assert term["family_hint"] == "inertia" and term["significant"]
+    (part,) = term["coefficients"]
+    assert part["term"] == "ẍ" and part["value"] == pytest.approx(mass_kg, rel=0.1)
+    truth = EXAMPLE_EFFECTS["lugre_friction"]["params"]
+    friction = doc["effects"][0]["parameters"]
+    assert friction["coulomb_n"] == pytest.approx(truth["coulomb_n"], rel=PARAMETER_TOLERANCE)
+    # the JSON's effect is the model after's: the one refitted with the term
+    ext = diag.model_after().cfg.damper.extensions
+    assert set(ext.active()) == {"lugre_friction", "discovered_term"}
+    assert ext.lugre_friction.coulomb_n == pytest.approx(friction["coulomb_n"])
+    assert pooled(diag.rms_after, diag.held_out) < 2.0 * NOISE_N
+    assert pooled(diag.rms_after, diag.held_out) < 0.1 * pooled(diag.rms_before,
+                                                                 diag.held_out)
 
 
 def test_the_fits_run_on_any_executor_in_self_contained_tasks():

@@ -325,6 +325,10 @@ class Discovery:
     base_std: dict[str, float] = field(default_factory=dict)
     #: the reference temperature of the term's temperature feature [°C]
     t_ref: float = 0.0
+    #: after the joint refit: the values and σ of the effects fitted with the term, in
+    #: their order (``accepted`` of :func:`refit_with_term`)
+    effect_values: list[dict[str, float]] = field(default_factory=list)
+    effect_std: list[dict[str, float]] = field(default_factory=list)
     #: after the joint refit: the model with the term as its ``discovered_term``
     #: extension (what ``params_with_effect.yaml`` holds)
     model: DamperModel | None = None
@@ -757,7 +761,8 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
          for r, x in zip([*fit, *held], [*fit_res, *held_res])},
         series, main.variable, found.seconds, refitted=True,
         base_values={k: float(v) for k, v in jf.base_values.items()},
-        base_std={k: float(v) for k, v in jf.base_std.items()}, t_ref=t_ref)
+        base_std={k: float(v) for k, v in jf.base_std.items()}, t_ref=t_ref,
+        effect_values=[dict(v) for v in jf.values], effect_std=[dict(v) for v in jf.std])
     ext = model.cfg.damper.extensions or ExtensionParams()
     out.model = model.with_extensions(dataclasses.replace(ext,
                                                           discovered_term=out.extension()))

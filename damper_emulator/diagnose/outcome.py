@@ -315,6 +315,10 @@ class Diagnosis:
     closest: StepFit | None = None
     #: fraction of the refitted model's held-out structured power the effects removed
     explained: float = 0.0
+    #: with ``other``: the effects that explained too little, and their pair's gain (the
+    #: term discovery may take them back beside its term)
+    dropped: list[StepFit] = field(default_factory=list)
+    dropped_pair_gain: float | None = None
     floor_n: float = 0.0
     noise_n: float = 0.0
     #: the two effects were found together (step 6's pair): their held-out gain against
@@ -402,10 +406,15 @@ class Diagnosis:
     def effects_json(self) -> list[dict[str, Any]]:
         out = []
         final = cast(StepFit, self.final)  # steps[-1] wherever the loop below runs
+        term = self.term
+        # the effects' values of the model after: with a term, its joint refit's
+        values, stds = ((term.effect_values, term.effect_std)
+                        if term is not None and len(term.effect_values) == len(self.steps)
+                        else (final.out["values"], final.out["std"]))
         for k, st in enumerate(self.steps):
             c = st._added
-            vals = final.out["values"][k]
-            sd = final.out["std"][k]
+            vals = values[k]
+            sd = stds[k]
             out.append({"effect": c.effect, "family": c.family,
                         "parameters": {n: float(v) for n, v in c.fields(vals).items()},
                         "fitted": {p.name: {"value": vals[p.name], "std": _sd(sd.get(p.name)),
@@ -415,7 +424,6 @@ class Diagnosis:
                         "significant": st.significant,
                         "rms_held_out_before": st.rms_held_out_before,
                         "rms_held_out": st.rms_held_out})
-        term = self.term
         if term is not None and self.steps:
             # the library explained part, the discovered term the rest: both reported
             out.append({"effect": "discovered_term", "family": term.family_hint,

@@ -101,6 +101,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
+from typing import cast
 
 import numpy as np
 
@@ -200,7 +201,9 @@ def answer(session: Session, found: RoundsOutcome, drift: SeriesResult) -> Diagn
                      structure_after=0.0, seconds=0.0, refit=refit, steps=steps,
                      rounds=found.rounds, closest=closest, explained=explained,
                      floor_n=floor, noise_n=noise, base_model=session.base,
-                     records=session.records, pair_gain=pair_gain, series=drift)
+                     records=session.records, pair_gain=pair_gain, series=drift,
+                     dropped=found.steps if closest is not None else [],
+                     dropped_pair_gain=found.pair_gain if closest is not None else None)
     after_model, after_rig = diag.model_after(), diag.rig_after()
     after = {r.name: r.residual(after_model, rig=after_rig) for r in session.records}
     diag.rms_after = {r.name: rms(after[r.name]) for r in session.records}
@@ -239,16 +242,104 @@ def discover_term(diag: Diagnosis, session: Session) -> Discovery:
                                     fit, held, weights, final.residuals(fit),
                                     final.residuals(held), MIN_SCORE, MAX_DELTA_BIC,
                                     session.n_quasi_static, session.nfev, say)
+    if diag.dropped:
+        found = beside_dropped(diag, session, found)
     diag.discovered = found
     if found.significant:
         diag.rms_after = dict(found.rms_after)
-        diag.structure_after = structure_ratio(
-            [term - missing for term, missing, _ in found.series.values()])
+        diag.structure_after = structure_ratio(held_with_term(found))
         if not diag.steps and diag.effect != "drift":
             diag.family = found.family_hint or "other"
             diag.effect = "discovered"
             diag.significant = True
     return found
+
+
+def beside_dropped(diag: Diagnosis, session: Session, alone: Discovery) -> Discovery:
+    """Stage 5 where step 7 dropped the library's effects for explaining too little: a
+    term discovered on what they left and fitted jointly with them.  The effects come
+    back, with that term beside them (the library explained part, the term the rest),
+    where the term is significant on top of them, together they explain at least
+    :data:`MIN_EXPLAINED` of the refitted model's held-out structured power, and they
+    leave at least :data:`MIN_SCORE` less held out than the term ``alone`` (on the
+    refitted model) when that is significant; else ``alone`` is returned."""
+    say, fit, held = session.say, session.fit, session.held
+    last = diag.dropped[-1]
+    names = " + ".join(last.effects)
+    say(f"discovery: what {names} left (explaining {100 * diag.explained:.0f} %, too "
+        "little alone)")
+    found = discover(last.model(), last.rig, fit, held, session.weights, 0.0, math.inf,
+                     STRUCTURE_RATIO, MIN_SCORE, MAX_DELTA_BIC, say)
+    if not found.features:
+        say(f"discovery: no term beside {names}: {found.reason}")
+        return alone
+    held_before = last.residuals(held)
+    found = refit_with_term(found, session.base.cfg, last.out["base_values"],
+                            list(zip(last.candidates, last.out["values"])), fit, held,
+                            session.weights, last.residuals(fit), held_before, MIN_SCORE,
+                            MAX_DELTA_BIC, session.n_quasi_static, session.nfev, say)
+    if not found.significant:
+        return alone
+    ref_held = cast(StepFit, diag.refit).residuals(held)
+    both_held = held_with_term(found)
+    explained = explained_fraction(ref_held, both_held)
+    gain = (1.0 - pooled_rms(both_held) / pooled_rms(held_with_term(alone))
+            if alone.significant else math.inf)
+    say(f"discovery: {names} and {found.expression} together explain "
+        f"{100 * explained:.0f} % (at least {100 * MIN_EXPLAINED:.0f} %)"
+        + (f", {100 * gain:+.1f} % held out against the term alone"
+           if math.isfinite(gain) else ""))
+    if explained < MIN_EXPLAINED or gain < MIN_SCORE:
+        return alone
+    steps, found = prune_beside(session, diag.dropped, found, held_before)
+    pair_gain = diag.dropped_pair_gain if len(steps) == len(diag.dropped) else None
+    if pair_gain is not None:  # the partner scored against the lead again
+        steps[-1].score_against(steps[0], False)
+    explained = explained_fraction(ref_held, held_with_term(found))
+    diag.steps, diag.closest, diag.explained = steps, None, explained
+    diag.pair_gain, diag.dropped, diag.dropped_pair_gain = pair_gain, [], None
+    diag.family, diag.effect = steps[0]._added.family, steps[0]._added.effect
+    diag.significant = True
+    return found
+
+
+def prune_beside(session: Session, steps: list[StepFit], found: Discovery,
+                 held_before: Sequence[np.ndarray]) -> tuple[list[StepFit], Discovery]:
+    """The effects beside a term, each tried away (the smallest held-out gain first,
+    never the last): the term and the other effects fitted again without it, and it goes
+    where it gains less than :data:`MIN_SCORE` held out on top of them.  A library effect
+    may have taken part of what the term now holds (a valve lag that took an inertia's
+    phase lead before the mass was there to take it).  ``found``: the term refitted with
+    every effect of ``steps``; ``held_before``: the held-out residuals without the term
+    (the reference of the refits' own scores).  Returns the effects kept and the term
+    refitted with them."""
+    say, fit, held = session.say, session.fit, session.held
+    cands = [s._added for s in steps]
+    kept = list(range(len(steps)))
+    ref_fit = steps[-1].residuals(fit)
+    for k in sorted(kept, key=lambda j: steps[j].score):
+        if len(kept) == 1:
+            break
+        rest = [j for j in kept if j != k]
+        values = dict(zip(kept, found.effect_values))
+        trial = refit_with_term(found, session.base.cfg, found.base_values,
+                                [(cands[j], values[j]) for j in rest], fit, held,
+                                session.weights, ref_fit, held_before, MIN_SCORE,
+                                MAX_DELTA_BIC, session.n_quasi_static, session.nfev)
+        gain = 1.0 - (pooled_rms(held_with_term(found))
+                      / pooled_rms(held_with_term(trial)))
+        verdict = "kept" if gain >= MIN_SCORE or not trial.significant else "dropped"
+        say(f"discovery: {cands[k].effect} beside the term and the other effects gains "
+            f"{100 * gain:+.1f} % held out (at least {100 * MIN_SCORE:.0f} %): {verdict}")
+        if verdict == "dropped":
+            kept, found = rest, trial
+    return [steps[j] for j in kept], found
+
+
+def held_with_term(found: Discovery) -> list[np.ndarray]:
+    """The held-out residuals with a discovered term (its plot series: the term and the
+    force it is to explain)."""
+    return [term - missing for term, missing, _ in found.series.values()]
 
 
 def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],

@@ -273,10 +273,10 @@ def beside_dropped(diag: Diagnosis, session: Session, alone: Discovery) -> Disco
     if not found.features:
         say(f"discovery: no term beside {names}: {found.reason}")
         return alone
-    held_before = last.residuals(held)
+    fit_before, held_before = last.residuals(fit), last.residuals(held)
     found = refit_with_term(found, session.base.cfg, last.out["base_values"],
                             list(zip(last.candidates, last.out["values"])), fit, held,
-                            session.weights, last.residuals(fit), held_before, MIN_SCORE,
+                            session.weights, fit_before, held_before, MIN_SCORE,
                             MAX_DELTA_BIC, session.n_quasi_static, session.nfev, say)
     if not found.significant:
         return alone
@@ -291,7 +291,7 @@ def beside_dropped(diag: Diagnosis, session: Session, alone: Discovery) -> Disco
            if math.isfinite(gain) else ""))
     if explained < MIN_EXPLAINED or gain < MIN_SCORE:
         return alone
-    steps, found = prune_beside(session, diag.dropped, found, held_before)
+    steps, found = prune_beside(session, diag.dropped, found, fit_before, held_before)
     pair_gain = diag.dropped_pair_gain if len(steps) == len(diag.dropped) else None
     if pair_gain is not None:  # the partner scored against the lead again
         steps[-1].score_against(steps[0], False)
@@ -304,19 +304,19 @@ def beside_dropped(diag: Diagnosis, session: Session, alone: Discovery) -> Disco
 
 
 def prune_beside(session: Session, steps: list[StepFit], found: Discovery,
-                 held_before: Sequence[np.ndarray]) -> tuple[list[StepFit], Discovery]:
+                 fit_before: Sequence[np.ndarray], held_before: Sequence[np.ndarray]
+                 ) -> tuple[list[StepFit], Discovery]:
     """The effects beside a term, each tried away (the smallest held-out gain first,
     never the last): the term and the other effects fitted again without it, and it goes
     where it gains less than :data:`MIN_SCORE` held out on top of them.  A library effect
     may have taken part of what the term now holds (a valve lag that took an inertia's
     phase lead before the mass was there to take it).  ``found``: the term refitted with
-    every effect of ``steps``; ``held_before``: the held-out residuals without the term
-    (the reference of the refits' own scores).  Returns the effects kept and the term
-    refitted with them."""
+    every effect of ``steps``; ``fit_before``, ``held_before``: the residuals of
+    ``steps``' own fit without the term (the reference of the refits' own scores).
+    Returns the effects kept and the term refitted with them."""
     say, fit, held = session.say, session.fit, session.held
     cands = [s._added for s in steps]
     kept = list(range(len(steps)))
-    ref_fit = steps[-1].residuals(fit)
     for k in sorted(kept, key=lambda j: steps[j].score):
         if len(kept) == 1:
             break
@@ -324,7 +324,7 @@ def prune_beside(session: Session, steps: list[StepFit], found: Discovery,
         values = dict(zip(kept, found.effect_values))
         trial = refit_with_term(found, session.base.cfg, found.base_values,
                                 [(cands[j], values[j]) for j in rest], fit, held,
-                                session.weights, ref_fit, held_before, MIN_SCORE,
+                                session.weights, fit_before, held_before, MIN_SCORE,
                                 MAX_DELTA_BIC, session.n_quasi_static, session.nfev)
         gain = 1.0 - (pooled_rms(held_with_term(found))
                       / pooled_rms(held_with_term(trial)))

@@ -149,11 +149,12 @@ class SeriesComplianceParams:
 @dataclass(frozen=True)
 class EndStopParams:
     """End stops past a penetration ``δ`` of either stop, moving into it at ``v``:
-    ``(k₁ δ + k δⁿ)(1 + η tanh(v / v_h)) + c δ v`` pushing back towards the middle (an
-    elastomer's linear and progressive stiffness and its hysteresis, which hardly depends
-    on the speed, ``v_h`` = 5 mm/s; a hydraulic stop's damping growing with the
-    penetration), the compression stop's times ``s``; without the optional terms the
-    progressive ``k δ²`` of both stops alike."""
+    ``(k₁ δ + k δⁿ)(1 + η tanh(v / v_h)) + c δ v + c_h min(δ/δ_h, 1) v|v|`` pushing back
+    towards the middle (an elastomer's linear and progressive stiffness and its
+    hysteresis, which hardly depends on the speed, ``v_h`` = 5 mm/s; a damping growing
+    with the penetration; a hydraulic stop's orifice, quadratic in the speed, engaging
+    over its first ``δ_h``), the compression stop's times ``s``; without the optional
+    terms the progressive ``k δ²`` of both stops alike."""
 
     rebound_position_m: float = rule(("closed", -1.0, 1.0),
                                      "stroke at which the rebound stop engages [m, ext +]")
@@ -171,6 +172,12 @@ class EndStopParams:
     damping_n_s_m2: float = rule("non-negative",
                                  "damping c of c δ v, growing with the penetration "
                                  "[N·s/m²]", 0.0)
+    hydraulic_damping_n_s2_m2: float = rule(
+        "non-negative", "a hydraulic stop's orifice damping c_h of c_h v|v|, in full past "
+        "its engagement [N·s²/m²]", 0.0)
+    hydraulic_engagement_m: float = rule(
+        "positive", "the penetration δ_h over which the hydraulic damping grows in "
+        "linearly (a cup's entry) [m]", 0.005)
     compression_scale: float = rule("positive",
                                     "the compression stop's force over the rebound stop's "
                                     "at the same penetration and speed [-]", 1.0)
@@ -179,6 +186,7 @@ class EndStopParams:
     def plain(self) -> bool:
         """Whether only the progressive ``k δ²`` of both stops alike is in use."""
         return (self.linear_stiffness_n_m == 0.0 and self.damping_n_s_m2 == 0.0
+                and self.hydraulic_damping_n_s2_m2 == 0.0
                 and self.compression_scale == 1.0 and self.progressive_exponent == 2.0
                 and self.hysteresis == 0.0)
 

@@ -692,26 +692,31 @@ def test_end_stop_force_is_the_quadratic_closed_form(sport_cfg, sport_model):
 
 
 def test_end_stops_of_their_own_form_are_the_closed_form(sport_cfg, sport_model):
-    """``(k₁ δ + k δⁿ)(1 + η tanh(u/v_h)) + c δ u`` past either stop pushing back, ``u``
-    the speed into it (``ẋ`` past the rebound stop, ``−ẋ`` past the compression stop),
-    the compression stop's times ``s``, on a sine through both; the model's force without
-    them is the paper's."""
+    """``(k₁ δ + k δⁿ)(1 + η tanh(u/v_h)) + c δ u + c_h min(δ/δ_h, 1) u|u|`` past either
+    stop pushing back, ``u`` the speed into it (``ẋ`` past the rebound stop, ``−ẋ`` past
+    the compression stop), the compression stop's times ``s``, on a sine through both;
+    the model's force without them is the paper's."""
     p = {"rebound_position_m": 0.04, "compression_position_m": -0.035,
          "stiffness_n_m2": 2e7, "linear_stiffness_n_m": 3e4, "progressive_exponent": 2.5,
-         "hysteresis": 0.2, "damping_n_s_m2": 5e4, "compression_scale": 2.5}
+         "hysteresis": 0.2, "damping_n_s_m2": 5e4, "hydraulic_damping_n_s2_m2": 2e3,
+         "hydraulic_engagement_m": 0.004, "compression_scale": 2.5}
     m = _ext(sport_cfg, "end_stops", p)
     t, x, v = sine(2.0, 0.06, cycles=2, rate_hz=2000)
     dr, dc = x - p["rebound_position_m"], p["compression_position_m"] - x
     k1, k, n, eta, c, s = (p["linear_stiffness_n_m"], p["stiffness_n_m2"],
                            p["progressive_exponent"], p["hysteresis"],
                            p["damping_n_s_m2"], p["compression_scale"])
+    c_h, d_h = p["hydraulic_damping_n_s2_m2"], p["hydraulic_engagement_m"]
 
     def stop(d, u):
-        return (k1 * d + k * d ** n) * (1 + eta * np.tanh(u / 0.005)) + c * d * u
+        return ((k1 * d + k * d ** n) * (1 + eta * np.tanh(u / 0.005)) + c * d * u
+                + c_h * np.minimum(d / d_h, 1.0) * u * np.abs(u))
     expected = np.where(dr > 0, stop(np.maximum(dr, 0), v),
                         np.where(dc > 0, -s * stop(np.maximum(dc, 0), -v), 0.0))
     diff = simulate(m, t, x, v).force_n - simulate(sport_model, t, x, v).force_n
     np.testing.assert_allclose(diff, expected, rtol=1e-9, atol=1e-9)
+    # the orifice's part is a large share of it: its u|u| is exercised, not left at zero
+    assert np.max(c_h * np.minimum(np.maximum(dr, 0) / d_h, 1.0) * v ** 2) > 300.0
     # the hysteresis and damping: into the rebound stop and out of it at the same stroke
     into, out_of = (dr > 0.01) & (v > 0), (dr > 0.01) & (v < 0)
     assert expected[into].max() > expected[out_of].max()
@@ -726,8 +731,10 @@ def test_end_stops_without_their_own_terms_are_the_plain_progressive_stops(sport
     p = EXAMPLE_EFFECTS["end_stops"]["params"]
     assert EndStopParams(**p).plain
     assert lane_eligible(_ext(sport_cfg, "end_stops", p).prm)[0]
-    own = _ext(sport_cfg, "end_stops", {**p, "damping_n_s_m2": 1e3})
-    assert not lane_eligible(own.prm)[0]
+    for term in ("damping_n_s_m2", "hydraulic_damping_n_s2_m2"):
+        own = _ext(sport_cfg, "end_stops", {**p, term: 1e3})
+        assert not EndStopParams(**{**p, term: 1e3}).plain
+        assert not lane_eligible(own.prm)[0]
 
 
 # --------------------------------------------------------------------------------------

@@ -40,10 +40,10 @@ off, the step's arithmetic is the paper's model's.  Families as in the ``diagnos
     deflection.
 ``end_stop`` — progressive elastomer stops, ``F += k (x − x_r)²`` past the rebound stop and
     ``− k (x_c − x)²`` past the compression stop (:func:`end_stop_force`); or stops of
-    their own form, ``(k₁ δ + k δⁿ)(1 + η tanh(u/v_h)) + c δ u`` past either stop (``u``
-    the speed into it), the compression stop's scaled (:func:`end_stop_form_force`): an
-    elastomer's linear and progressive stiffness and its hysteresis, a hydraulic stop's
-    damping.
+    their own form, ``(k₁ δ + k δⁿ)(1 + η tanh(u/v_h)) + c δ u + c_h min(δ/δ_h, 1) u|u|``
+    past either stop (``u`` the speed into it), the compression stop's scaled
+    (:func:`end_stop_form_force`): an elastomer's linear and progressive stiffness and its
+    hysteresis, a damping growing with the penetration, a hydraulic stop's orifice.
 ``air_entrainment`` — free air in the rebound chamber, isothermal, volume fraction ``ε`` at
     ``P_ATM``: the chamber's compliance becomes ``V (α + ε P_ATM / p²)``; the air term is
     integrated exactly in ``p`` (``∫ ε P_ATM / p² dp``), so the implicit residual stays
@@ -134,21 +134,25 @@ STOP_HYSTERESIS_SPEED = 0.005
 
 @inlined_kernel
 def end_stop_form_force(x: float, v: float, x_reb: float, x_com: float, k1: float,
-                        k: float, n: float, eta: float, c: float, scale: float) -> float:
+                        k: float, n: float, eta: float, c: float, c_h: float, d_h: float,
+                        scale: float) -> float:
     """Force of end stops of their own form [N, rebound +] at stroke ``x`` and velocity
     ``v``: past a stop (penetration ``δ``, ``u`` the speed into it, ``ẋ`` past the rebound
-    stop and ``−ẋ`` past the compression stop) ``(k₁ δ + k δⁿ)(1 + η tanh(u/v_h)) + c δ u``
-    pushing back towards the middle of the stroke, the compression stop's times
-    ``scale``: an elastomer's spring and hysteresis, a damping that resists the motion."""
+    stop and ``−ẋ`` past the compression stop) ``(k₁ δ + k δⁿ)(1 + η tanh(u/v_h)) + c δ u
+    + c_h min(δ/δ_h, 1) u|u|`` pushing back towards the middle of the stroke, the
+    compression stop's times ``scale``: an elastomer's spring and hysteresis, a damping
+    that resists the motion, and a hydraulic stop's orifice (its pressure drop quadratic
+    in the flow, engaging over the cup's entry ``δ_h``)."""
     if x > x_reb:
         d = x - x_reb
         spring = k1 * d + k * math.pow(d, n)
-        return spring * (1.0 + eta * math.tanh(v / STOP_HYSTERESIS_SPEED)) + c * d * v
+        return (spring * (1.0 + eta * math.tanh(v / STOP_HYSTERESIS_SPEED)) + c * d * v
+                + c_h * min(d / d_h, 1.0) * v * abs(v))
     if x < x_com:
         d = x_com - x
         spring = k1 * d + k * math.pow(d, n)
         return -scale * (spring * (1.0 + eta * math.tanh(-v / STOP_HYSTERESIS_SPEED))
-                         - c * d * v)
+                         - c * d * v - c_h * min(d / d_h, 1.0) * v * abs(v))
     return 0.0
 
 

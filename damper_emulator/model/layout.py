@@ -75,11 +75,12 @@ FAULT_VELOCITY_CLAMPED = int(Fault.VELOCITY_CLAMPED)
  P_VL_TAU,
  P_MOUNT_K,
  P_ES_XR, P_ES_XC, P_ES_K, P_ES_FORM_K, P_ES_K1, P_ES_C, P_ES_SCALE, P_ES_N, P_ES_ETA,
+ P_ES_CH, P_ES_DH,
  P_AIR_EPS,
  P_GR_AREA, P_GR_X, P_GR_HALF, P_GR_LAMINAR, P_GR_TURBULENT,
  P_GT_TAU,
  P_DT_ON, P_DT_VSIGN, P_DT_TREF, P_DT_CENTRE, P_DT_WIDTH, P_DT_TAU,
- P_DT_COEF) = range(62)
+ P_DT_COEF) = range(64)
 P_SIZE = P_DT_COEF + N_TERMS
 
 # Layout of the state vector; ``S_CMD`` is the commanded valve command (0 comfort .. 1
@@ -135,6 +136,8 @@ def pack_extensions(prm: np.ndarray, d: DamperParams) -> None:
             prm[P_ES_FORM_K], prm[P_ES_K1] = g.stiffness_n_m2, g.linear_stiffness_n_m
             prm[P_ES_C], prm[P_ES_SCALE] = g.damping_n_s_m2, g.compression_scale
             prm[P_ES_N], prm[P_ES_ETA] = g.progressive_exponent, g.hysteresis
+            prm[P_ES_CH], prm[P_ES_DH] = (g.hydraulic_damping_n_s2_m2,
+                                          g.hydraulic_engagement_m)
     if e.air_entrainment is not None:
         prm[P_AIR_EPS] = e.air_entrainment.air_volume_fraction
     if e.bypass_groove is not None:

@@ -65,6 +65,8 @@ from damper_emulator.model.layout import (
     P_DT_VSIGN,
     P_DT_WIDTH,
     P_ES_C,
+    P_ES_CH,
+    P_ES_DH,
     P_ES_ETA,
     P_ES_FORM_K,
     P_ES_K,
@@ -163,7 +165,8 @@ def _force(prm: _Vec, p_reb: float, p_com: float, friction: float, x: float, v: 
     if prm[P_ES_FORM_K] > 0.0:
         force += end_stop_form_force(x, v, prm[P_ES_XR], prm[P_ES_XC], prm[P_ES_K1],
                                      prm[P_ES_FORM_K], prm[P_ES_N], prm[P_ES_ETA],
-                                     prm[P_ES_C], prm[P_ES_SCALE])
+                                     prm[P_ES_C], prm[P_ES_CH], prm[P_ES_DH],
+                                     prm[P_ES_SCALE])
     return force
 
 

@@ -121,6 +121,11 @@ INERTIA_SIZES_KG = (1.5, 5.0, 10.0)
 #: each programme: the paper's sines reach ±50 mm, the speed series ±25 mm
 STOP_POSITIONS = {"paper": (0.035, -0.038), "speeds": (0.018, -0.02)}
 STOP_FORMS = ("elastomer", "exponential", "hydraulic")
+#: the hydraulic stop's cup closes over this length [m] (its orifice's area falls
+#: linearly, to nothing there; the programmes go at most 15 mm into a stop) ...
+TAPER_LENGTH_M = 0.025
+#: ... and the taper is taken no further than this [m] (a bound on the force)
+TAPER_STOP_M = 0.02
 #: every library effect with a second one it dominates (``~weak``: the second effect's
 #: weaker parameters, :data:`WEAK_EFFECTS`)
 DOMINANT_PAIRS = (("cavitation", "lugre_friction"), ("end_stops", "viscosity_temperature"),
@@ -244,8 +249,9 @@ def stop_force(form: str, programme: str):
     """``f(t, x, v)`` of end stops outside the library's form, at both ends of the
     programme's stroke (:data:`STOP_POSITIONS`; the compression stop 1.5 times as stiff):
     an elastomer (``k₁ δ + k₃ δ³``, 20 % hysteresis with the direction), an exponential
-    stiffening (``a (e^(δ/δ₀) − 1)``), a hydraulic stop (``c ẋ|ẋ|`` growing in over 3 mm,
-    and a soft spring)."""
+    stiffening (``a (e^(δ/δ₀) − 1)``), a hydraulic stop in a tapered cup (an orifice's
+    ``c ẋ|ẋ|``, its area closing as ``1 − δ/δ_t``, so ``c₀ / (1 − δ/δ_t)²``; and a soft
+    spring)."""
     x_r, x_c = STOP_POSITIONS[programme]
 
     def one(d, v_in):
@@ -254,7 +260,8 @@ def stop_force(form: str, programme: str):
             return (5e4 * d + 5e7 * d ** 3) * (1.0 + 0.2 * np.tanh(v_in / 0.01))
         if form == "exponential":
             return 300.0 * (np.exp(d / 0.015) - 1.0)
-        return 3e3 * v_in * np.abs(v_in) * np.minimum(d / 0.003, 1.0) + 5e4 * d
+        taper = 1.0 - np.minimum(d, TAPER_STOP_M) / TAPER_LENGTH_M
+        return 1.5e3 * v_in * np.abs(v_in) / taper ** 2 + 5e4 * d
 
     def force(t, x, v):
         dr, dc = np.maximum(x - x_r, 0.0), np.maximum(x_c - x, 0.0)

@@ -746,3 +746,64 @@ def test_the_delay_taken_on_a_step_keeps_the_steps_effect(sport_cfg):
     assert taken.candidate is lag and taken.candidate.family == "valve_dynamics"
     assert (taken.score, taken.delta_bic, taken.significant) == (0.5, -100.0, True)
     assert taken.out["chain"]
+
+
+
+def test_an_optional_stop_term_the_files_do_not_determine_is_held_at_its_low_end():
+    """A joint fit's step 5 (``_JointFit.without_undetermined``), from the truth's plain
+    progressive stops with a hydraulic stop's orifice damping switched on beside them.
+    The fit files enter the stops only in the quasi-static test, at 5 mm/s, where an
+    orifice's ``c_h v|v|`` is a hundredth of a newton: they do not determine it.  It is
+    held at its low end (σ undetermined) and the fit repeated, and the model predicts
+    the held-out sines, which go into the stops at up to 0.6 m/s, within 3× the noise;
+    with the orifice left on, the same sines are far off."""
+    from scipy.optimize import OptimizeResult
+
+    from damper_emulator.diagnose import joint
+    from damper_emulator.diagnose.base import base_parameters, make_record
+    from damper_emulator.diagnose.candidates import STOP_REFERENCE_FRACTION, candidates
+
+    sheet, data = truth_session("end_stops")
+    truth = EXAMPLE_EFFECTS["end_stops"]["params"]
+    cfg = identify(data[0], data[1], sheet).config
+    records = [make_record(d, False) for d in data[:2]]
+    held_out = [make_record(d, True) for d in data[2:]]
+    weights = [1.0 / (math.sqrt(r.counted) * NOISE_N) for r in records]
+    (stops,) = candidates(cfg, data[:2], ["end_stops"])
+    start = {p.name: p.start for p in stops.parameters}
+    d_ref = STOP_REFERENCE_FRACTION * (max(d.displacement.max() for d in data[:2])
+                                       - min(d.displacement.min() for d in data[:2]))
+    on = {**start, "rebound_position_m": truth["rebound_position_m"],
+          "compression_position_m": truth["compression_position_m"],
+          "reference_force_n": truth["stiffness_n_m2"] * d_ref ** 2,
+          "progressive_exponent": 2.0, "linear_stiffness_n_m": 1.0, "hysteresis": 0.0,
+          "damping_n_s_m2": 1.0, "compression_scale": 1.0,
+          "hydraulic_damping_n_s2_m2": 3e3}
+    fit = joint._JointFit(cfg, records, weights, 1, joint.JOINT_NFEV, None, (), [stops])
+    # the paper's parameters fitted jointly with the truth's stops (the orifice held
+    # off), then the orifice switched on there
+    ref, ref_sol = fit.fit_from({p.name: p.start for p in base_parameters(cfg, data[:2])},
+                                [on], [stops.holding({"hydraulic_damping_n_s2_m2"})])
+    base, (values,) = ref.decode(ref_sol.x)
+    on = {**values, "hydraulic_damping_n_s2_m2": 3e3}
+    space = joint.Space(cfg, base_parameters(cfg, data[:2]), base, [stops], [on], [True],
+                        records, weights)
+    s = space.encode(base, [on])
+    f = space.residuals(s)
+    at_on = OptimizeResult(x=s, fun=f, cost=0.5 * float(f @ f), jac=space.jacobian(s))
+
+    def held_out_rms(sp, x):
+        model = sp.model(x)
+        return math.sqrt(np.mean(np.concatenate([r.residual(model) for r in held_out]) ** 2))
+
+    kept, sol, std, held, n = fit.without_undetermined(space, at_on)
+    assert {(0, "hydraulic_damping_n_s2_m2"), (0, "hydraulic_engagement_m")} <= held
+    by_name = {p.name: p for p in stops.parameters}
+    assert all(by_name[n].optional or by_name[n].part_of for _, n in held), held
+    assert not held & set(std)  # no longer free: no σ of their own (null in the JSON)
+    assert n > 0
+    _, values = kept.decode(sol.x)
+    assert values[0]["hydraulic_damping_n_s2_m2"] == stops.parameters[
+        [p.name for p in stops.parameters].index("hydraulic_damping_n_s2_m2")].lo
+    assert held_out_rms(kept, sol.x) <= 3.0 * NOISE_N
+    assert held_out_rms(space, s) > 10.0 * NOISE_N

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +53,12 @@ class Parameter:
     start: float
     log: bool = True
     unit: str = ""
+    #: its low end is the form without it (no force within the tested stroke): held
+    #: there where the fit files do not determine it (``joint_fit``'s step 5)
+    optional: bool = False
+    #: the optional parameter this one only shapes (an engagement length of a damping):
+    #: held at its start with it
+    part_of: str | None = None
 
     def to_internal(self, value: float) -> float:
         return math.log10(value) if self.log else value
@@ -95,6 +101,8 @@ class Candidate:
     #: screened best from a start that ends at 23 mm for a stop at 35 mm, cost 39 against
     #: 1.4)
     prefit_keep: int = 1
+    #: parameters no longer free and their values (:meth:`holding`)
+    held: Mapping[str, float] = field(default_factory=dict)
     family: str = field(init=False)
 
     def __post_init__(self) -> None:
@@ -110,6 +118,19 @@ class Candidate:
         searches = 4 if self.friction_coupled else 1  # joint.search_friction's tries
         return (len(self.starts()) * len(self.parameters)
                 + (3 * searches if reidentifies else 0))
+
+    def holding(self, names: Collection[str]) -> Candidate:
+        """This candidate with its optional parameters ``names`` held at their low ends
+        (their forms left out) and the parameters that are ``part_of`` them at their
+        starts: no longer free, their values in :attr:`fields`."""
+        held = {p.name: (p.lo if p.name in names else p.start) for p in self.parameters
+                if p.name in names or p.part_of in names}
+        keep = [k for k, p in enumerate(self.parameters) if p.name not in held]
+        fields = self.fields
+        return dataclasses.replace(
+            self, parameters=tuple(self.parameters[k] for k in keep),
+            fields=lambda values: fields({**values, **held}), held={**self.held, **held},
+            extra_starts=tuple(tuple(s[k] for k in keep) for s in self.extra_starts))
 
     def starts(self) -> list[np.ndarray]:
         """Start vectors in the internal (search) coordinates."""
@@ -279,10 +300,14 @@ def _end_stops(s: Scales) -> Candidate:
     progressive force ``F_ref (δ/δ_ref)ⁿ`` of 1 N .. 100 kN at a tenth of the stroke into
     the stop with ``n`` 1 .. 5 (linear to steeply progressive) beside a linear stiffness up
     to that force's scale (an elastomer's first millimetres), an elastomer's hysteresis
-    η 0 .. 0.8, a damping growing with the penetration (a hydraulic stop) up to what makes
-    the progressive force at the files' speeds, and the compression stop 1/30 .. 30 times
+    η 0 .. 0.8, a damping growing with the penetration up to what makes the progressive
+    force at the files' speeds, a hydraulic stop's orifice damping ``c_h u|u|`` up to
+    1 MN at the files' top speed, engaging over 0.05 .. 2 ``δ_ref`` (one start has it on,
+    the others off), and the compression stop 1/30 .. 30 times
     the rebound stop (a bump stop and a top-out stop are different parts); scales in log
-    space, their low ends no force at all within the tested stroke.  A stop fitted on top
+    space, their low ends no force at all within the tested stroke (the linear
+    stiffness, the hysteresis and both dampings are optional: held there where the files
+    do not determine them).  A stop fitted on top
     of an identification has to undo a gas spring that absorbed it; the
     re-identification leaves out the outer half of the tested stroke, where a stop may
     engage (the quasi-static fit then sees the gas spring alone)."""
@@ -300,13 +325,21 @@ def _end_stops(s: Scales) -> Candidate:
                 "progressive_exponent": v["progressive_exponent"],
                 "linear_stiffness_n_m": v["linear_stiffness_n_m"],
                 "hysteresis": v["hysteresis"], "damping_n_s_m2": v["damping_n_s_m2"],
+                "hydraulic_damping_n_s2_m2": v["hydraulic_damping_n_s2_m2"],
+                "hydraulic_engagement_m": v["hydraulic_engagement_m"],
                 "compression_scale": v["compression_scale"]}
 
     # the plain stops' starts: the force of 1e6 N/m² δ² (1e7, 1e4) at δ_ref; and where
     # the identified model's slowest file starts to miss at each end of the stroke
     f6, f7, f4 = (k * d_ref ** 2 for k in (1e6, 1e7, 1e4))
+    v_top = max(s.v_max, 1e-3)
+    # the hydraulic damping off (its low end) in the starts but one, which has it make
+    # the progressive start's force at half the top speed
+    d_h = 0.5 * d_ref
+    off = (1.0, d_h)
     knees = stroke_knees(s)
-    at_knees = (((*knees, f6, 2.0, 1e3, 0.1, 1e3, 1.0),) if knees is not None else ())
+    at_knees = (((*knees, f6, 2.0, 1e3, 0.1, 1e3, *off, 1.0),) if knees is not None
+                else ())
     return Candidate(
         "end_stops",
         (Parameter("rebound_position_m", x_lo + 0.5 * span, x_hi, x_hi - 0.15 * span, False,
@@ -315,16 +348,25 @@ def _end_stops(s: Scales) -> Candidate:
                    False, "m"),
          Parameter("reference_force_n", 1.0, 1e5, f6, True, "N"),
          Parameter("progressive_exponent", 1.0, 5.0, 2.0, False, "-"),
-         Parameter("linear_stiffness_n_m", 1.0, 1e5 / d_ref, 1e3, True, "N/m"),
-         Parameter("hysteresis", 0.0, 0.8, 0.1, False, "-"),
-         Parameter("damping_n_s_m2", 1.0, 1e10 / max(s.v_max, 1e-3), 1e3, True, "N·s/m²"),
+         Parameter("linear_stiffness_n_m", 1.0, 1e5 / d_ref, 1e3, True, "N/m",
+                   optional=True),
+         Parameter("hysteresis", 0.0, 0.8, 0.1, False, "-", optional=True),
+         Parameter("damping_n_s_m2", 1.0, 1e10 / v_top, 1e3, True, "N·s/m²",
+                   optional=True),
+         Parameter("hydraulic_damping_n_s2_m2", 1.0, 1e6 / v_top ** 2, 1.0, True,
+                   "N·s²/m²", optional=True),
+         Parameter("hydraulic_engagement_m", 0.05 * d_ref, 2.0 * d_ref, d_h, True, "m",
+                   part_of="hydraulic_damping_n_s2_m2"),
          Parameter("compression_scale", 1.0 / 30.0, 30.0, 1.0, True, "-")),
         fields, may_act=outer_half, prefit_keep=2,
         note=f"the progressive force fitted at {1e3 * d_ref:.3g} mm into the stop",
-        extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, f6, 2.0, 1e3, 0.1, 1e3, 1.0),
-                      (x_hi - 0.05 * span, x_lo + 0.05 * span, f7, 3.0, 1e3, 0.1, 1e3,
+        extra_starts=((x_hi - 0.3 * span, x_lo + 0.3 * span, f6, 2.0, 1e3, 0.1, 1e3, *off,
                        1.0),
-                      (x_hi, x_lo, f4, 2.0, 1.0, 0.0, 1.0, 1.0),  # (almost) not engaged
+                      (x_hi - 0.05 * span, x_lo + 0.05 * span, f7, 3.0, 1e3, 0.1, 1e3,
+                       *off, 1.0),
+                      (x_hi - 0.15 * span, x_lo + 0.15 * span, f4, 1.0, 1e3, 0.0, 1.0,
+                       f6 / (0.5 * v_top) ** 2, d_h, 1.0),  # a hydraulic stop
+                      (x_hi, x_lo, f4, 2.0, 1.0, 0.0, 1.0, *off, 1.0),  # (almost) not engaged
                       *at_knees))
 
 

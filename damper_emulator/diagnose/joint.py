@@ -517,7 +517,8 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
 
     1. **Pre-fit** the candidate alone on top of the present model (``base_values`` and
        ``accepted`` held), ``SCREEN_NFEV`` evaluations from each of its start vectors, then
-       ``PREFIT_NFEV`` from the best (the ``Candidate.prefit_keep`` best, the better end
+       ``PREFIT_NFEV`` from the best (the ``Candidate.prefit_keep`` best, and each of
+       its form's own starts unscreened, ``Candidate.form_starts``; the better end
        kept): a start for step 3 that already has the effect.
     2. **Re-identify** when a local effect is in the model (the candidate or an accepted
        one, :func:`active_samples`, or where it says it may act, ``Candidate.may_act``):
@@ -560,6 +561,7 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
     The cost weights are fixed by the caller for a whole diagnosis, so the costs of
     different candidates compare.
     """
+    accepted = [(c.settled(v), v) for c, v in accepted]
     j = _JointFit(cfg, records, weights, n_quasi_static, nfev, terms, term_parameters,
                   [c for c, _ in accepted] + ([candidate] if candidate is not None else []))
     start = _Start(dict(base_values), [dict(v) for _, v in accepted])
@@ -604,10 +606,12 @@ class _JointFit:
         self.cands = cands
 
     def prefit(self, bv: Mapping[str, float], vals: Sequence[Mapping[str, float]],
-               free: int, starts_values: Sequence[Mapping[str, float]]
+               free: int, starts_values: Sequence[Mapping[str, float]],
+               form_values: Sequence[Mapping[str, float]] = ()
                ) -> tuple[dict[str, float], float, int]:
         """Effect ``free`` of the candidates fitted alone on the model ``bv``, ``vals``
-        from each of ``starts_values``: its values, the cost, the simulations."""
+        from each of ``starts_values`` (screened) and of ``form_values`` (not screened:
+        ``Candidate.form_starts``): its values, the cost, the simulations."""
         def with_start(sv: Mapping[str, float]) -> list[Mapping[str, float]]:
             return [sv if k == free else v for k, v in enumerate(vals)]
 
@@ -619,15 +623,16 @@ class _JointFit:
             screened = sorted((pre.solve(s0, SCREEN_NFEV) for s0 in starts),
                               key=lambda r: r.cost)
             starts = [r.x for r in screened[:self.cands[free].prefit_keep]]
+        starts += [pre.encode(bv, with_start(sv)) for sv in form_values]
         sol = min((pre.solve(s0, PREFIT_NFEV) for s0 in starts), key=lambda r: r.cost)
         return pre.decode(sol.x)[1][free], float(sol.cost), pre.evaluations
 
     @staticmethod
-    def own_starts(c: Candidate) -> list[dict[str, float]]:
-        """The candidate's start vectors, by parameter name."""
+    def own_starts(c: Candidate, form: bool = False) -> list[dict[str, float]]:
+        """The candidate's start vectors (``form``: its form's own), by parameter name."""
         names = [p.name for p in c.parameters]
         return [dict(zip(names, (p.from_internal(u) for p, u in zip(c.parameters, u0))))
-                for u0 in c.starts()]
+                for u0 in c.starts(form)]
 
     def prefitted(self, start: _Start, candidate: Candidate) -> None:
         """Step 1: the candidate alone on top of the present model, from its own
@@ -635,7 +640,7 @@ class _JointFit:
         starts = self.own_starts(candidate)
         last = len(self.cands) - 1
         values, cost, n = self.prefit(start.base_values, [*start.values, starts[0]], last,
-                                      starts)
+                                      starts, self.own_starts(candidate, form=True))
         start.candidate_values, start.cost = values, cost
         start.evaluations += n
 
@@ -674,7 +679,8 @@ class _JointFit:
         nb = {**start.base_values, **nb}
         pre = start.candidate_values
         starts = [*self.own_starts(candidate), pre] if screen else [pre]
-        vals, cost, n = self.prefit(nb, [*start.values, pre], len(self.cands) - 1, starts)
+        vals, cost, n = self.prefit(nb, [*start.values, pre], len(self.cands) - 1, starts,
+                                    self.own_starts(candidate, form=True) if screen else ())
         return cost, nb, vals, n, factor
 
     def masks(self, start: _Start, candidate: Candidate) -> list[np.ndarray] | None:
@@ -760,36 +766,37 @@ class _JointFit:
         space, sol = min(ends, key=lambda e: float(e[1].cost))
         reidentified = start.reidentified or space is not ends[0][0]
         evaluations = start.evaluations + sum(e[0].evaluations for e in ends)
-        space, sol, std, held, n = self.without_undetermined(space, sol)
+        space, sol, std, n = self.without_undetermined(space, sol)
         evaluations += n
         base, vals = space.decode(sol.x)
         return JointFit(base_values=base,
                         base_std={p.name: std[(i, p.name)] for i, p in space.slots if i < 0},
                         values=vals,
-                        std=[{p.name: (math.inf if (k, p.name) in held
-                                       else std.get((k, p.name), 0.0))
-                              for p in c.parameters} for k, c in enumerate(self.cands)],
+                        # a held parameter's σ is undetermined
+                        std=[{**dict.fromkeys(c.held, math.inf),
+                              **{p.name: std.get((k, p.name), 0.0) for p in c.parameters}}
+                             for k, c in enumerate(space.cands)],
                         cost=float(sol.cost), evaluations=evaluations,
                         reidentified=reidentified, friction_factor=start.friction_factor)
 
     def without_undetermined(self, space: Space, sol: OptimizeResult
                              ) -> tuple[Space, OptimizeResult, dict[tuple[int, str], float],
-                                        set[tuple[int, str]], int]:
+                                        int]:
         """Step 5: the optional parameters (``Parameter.optional``) the fit files do not
         determine (σ at least the value, or undetermined) where they have some force
         (above :data:`OPTIONAL_ON` of their search range) held at their low ends, the
         form without them, and the fit repeated from there (``PREFIT_NFEV``
         evaluations); taken unless the effective BIC of the identification files says
         they are wanted.  A term the files do not determine only extrapolates.  Returns
-        the space and solution kept, their σ, the parameters held (by effect index and
-        name; none where the fit was kept) and the simulations the step ran."""
+        the space and solution kept (its candidates hold what was held,
+        ``Candidate.held``), their σ and the simulations the step ran."""
         std = space.std(sol, _rho(space, sol))
         base, vals = space.decode(sol.x)
         loose = {(i, p.name) for k, (i, p) in enumerate(space.slots)
                  if i >= 0 and p.optional and sol.x[k] > OPTIONAL_ON
                  and not std[(i, p.name)] < abs(vals[i][p.name])}
         if not loose:
-            return space, sol, std, set(), 0
+            return space, sol, std, 0
         cands = [c.holding({n for i, n in loose if i == k})
                  for k, c in enumerate(self.cands)]
         held_vals = [{**v, **c.held} for c, v in zip(cands, vals)]
@@ -798,9 +805,8 @@ class _JointFit:
         dbic = (n_eff * math.log(max(sol2.cost, 1e-300) / max(sol.cost, 1e-300))
                 - len(loose) * math.log(max(n_eff, 2.0)))
         if dbic > 0.0:
-            return space, sol, std, set(), space2.evaluations
-        return space2, sol2, space2.std(sol2, _rho(space2, sol2)), {
-            (k, name) for k, c in enumerate(cands) for name in c.held}, space2.evaluations
+            return space, sol, std, space2.evaluations
+        return space2, sol2, space2.std(sol2, _rho(space2, sol2)), space2.evaluations
 
 
 def _rho(space: Space, sol: OptimizeResult) -> float:

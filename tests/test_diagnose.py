@@ -775,6 +775,7 @@ def test_an_optional_stop_term_the_files_do_not_determine_is_held_at_its_low_end
     # the candidate has no orifice to fit there (ORIFICE_SPEED_SPAN) ...
     (one_speed,) = candidates(cfg, data[:2], ["end_stops"])
     assert one_speed.held["hydraulic_damping_n_s2_m2"] == 1.0 and not one_speed.form_starts
+    assert "at one speed" in one_speed.note  # the report says why
     # ... built with a held-out sine too (it enters the stops at every speed up to its
     # top; the same stroke and top speed), it has one, which step 5 must hold here
     (stops,) = candidates(cfg, [*data[:2], data[3]], ["end_stops"])

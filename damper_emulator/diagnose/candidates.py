@@ -401,7 +401,10 @@ def _end_stops(s: Scales) -> Candidate:
                         >= ORIFICE_SPEED_SPAN * max(np.percentile(speeds, 10), 1e-12)):
         return stops
     # the files reach the stroke's ends at one speed: no orifice, nor its start
-    return dataclasses.replace(stops.holding({"hydraulic_damping_n_s2_m2"}), form_starts=())
+    return dataclasses.replace(
+        stops.holding({"hydraulic_damping_n_s2_m2"}), form_starts=(),
+        note=f"{stops.note}; no hydraulic stop's orifice: the files reach the stroke's ends "
+             "at one speed, where a law of the speed cannot be told from a hysteresis")
 
 
 #: the stroke's knees: the identified model's residual on the slowest file, in this many

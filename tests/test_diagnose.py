@@ -748,7 +748,6 @@ def test_the_delay_taken_on_a_step_keeps_the_steps_effect(sport_cfg):
     assert taken.out["chain"]
 
 
-
 def test_an_optional_stop_term_the_files_do_not_determine_is_held_at_its_low_end():
     """A joint fit's step 5 (``_JointFit.without_undetermined``), from the truth's plain
     progressive stops with a hydraulic stop's orifice damping switched on beside them
@@ -810,12 +809,12 @@ def test_an_optional_stop_term_the_files_do_not_determine_is_held_at_its_low_end
     held = set(kept.cands[0].held)
     assert {"hydraulic_damping_n_s2_m2", "hydraulic_engagement_m"} <= held
     by_name = {p.name: p for p in stops.parameters}
-    assert all(by_name[n].optional or by_name[n].part_of for n in held), held
+    assert all(by_name[name].optional or by_name[name].part_of for name in held), held
     assert not held & {name for _, name in std}  # no longer free: no σ of their own
     assert n > 0
     _, values = kept.decode(sol.x)
-    assert values[0]["hydraulic_damping_n_s2_m2"] == stops.parameters[
-        [p.name for p in stops.parameters].index("hydraulic_damping_n_s2_m2")].lo
+    assert (values[0]["hydraulic_damping_n_s2_m2"]
+            == by_name["hydraulic_damping_n_s2_m2"].lo)
     assert held_out_rms(kept, sol.x) <= 3.0 * NOISE_N
     # accepted with these values, the stops keep the orifice held in later fits
     assert held <= set(stops.settled(values[0]).held)

@@ -214,8 +214,13 @@ class Scales:
     @property
     def v_max(self) -> float:
         """The files' largest speed [m/s]."""
-        return max(float(np.max(np.abs(np.gradient(r.displacement, r.time))))
-                   for r in self.fit_data)
+        return max(float(np.max(speed(r))) for r in self.fit_data)
+
+
+def speed(data: MeasuredData) -> np.ndarray:
+    """``|ẋ|`` [m/s] of a file, its displacement differentiated."""
+    out: np.ndarray = np.abs(np.gradient(data.displacement, data.time))
+    return out
 
 
 def _friction(s: Scales) -> Candidate:
@@ -395,8 +400,7 @@ def _end_stops(s: Scales) -> Candidate:
         # a hydraulic stop: a soft spring and the orifice
         form_starts=((x_hi - 0.15 * span, x_lo + 0.15 * span, f4, 1.0, 1e3, 0.0, 1.0,
                       f6 / (0.5 * v_top) ** 2, d_h, 1.0),))
-    speeds = np.concatenate([np.abs(np.gradient(d.displacement, d.time))[outer_half(d)]
-                             for d in s.fit_data])
+    speeds = np.concatenate([speed(d)[outer_half(d)] for d in s.fit_data])
     if speeds.size and (np.percentile(speeds, 90)
                         >= ORIFICE_SPEED_SPAN * max(np.percentile(speeds, 10), 1e-12)):
         return stops
@@ -423,8 +427,7 @@ def stroke_knees(s: Scales) -> tuple[float, float] | None:
     none at either end."""
     from damper_emulator.model.compressible import DamperModel, simulate
 
-    slow = min(s.fit_data, key=lambda r: float(np.max(np.abs(np.gradient(r.displacement,
-                                                                          r.time)))))
+    slow = min(s.fit_data, key=lambda r: float(np.max(speed(r))))
     try:
         res = simulate(DamperModel(s.cfg), slow.time, slow.displacement, slow.velocity)
     except (ValueError, UserError):

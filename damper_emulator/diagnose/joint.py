@@ -51,7 +51,7 @@ from damper_emulator.diagnose.base import (
     model_of,
 )
 from damper_emulator.diagnose.candidates import Candidate, Parameter
-from damper_emulator.diagnose.statistics import bic_gain, effective_samples, lag1
+from damper_emulator.diagnose.statistics import bic_gain, delta_bic, lag1
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import ModelConfig
 from damper_emulator.schema import ParameterError
@@ -790,7 +790,8 @@ class _JointFit:
         they are wanted.  A term the files do not determine only extrapolates.  Returns
         the space and solution kept (its candidates hold what was held,
         ``Candidate.held``), their σ and the simulations the step ran."""
-        std = space.std(sol, _rho(space, sol))
+        rho = _rho(space, sol)
+        std = space.std(sol, rho)
         base, vals = space.decode(sol.x)
         loose = {(i, p.name) for k, (i, p) in enumerate(space.slots)
                  if i >= 0 and p.optional and sol.x[k] > OPTIONAL_ON
@@ -798,13 +799,11 @@ class _JointFit:
         if not loose:
             return space, sol, std, 0
         cands = [c.holding({n for i, n in loose if i == k})
-                 for k, c in enumerate(self.cands)]
+                 for k, c in enumerate(space.cands)]
         held_vals = [{**v, **c.held} for c, v in zip(cands, vals)]
         space2, sol2 = self.fit_from(base, held_vals, cands, PREFIT_NFEV)
-        n_eff = effective_samples(sol.fun.size, _rho(space, sol))
-        dbic = (n_eff * math.log(max(sol2.cost, 1e-300) / max(sol.cost, 1e-300))
-                - len(loose) * math.log(max(n_eff, 2.0)))
-        if dbic > 0.0:
+        # the parts wanted: the fit with them beats the one without by the effective BIC
+        if delta_bic([(sol.fun.size, rho, sol.cost, sol2.cost)], len(loose)) < 0.0:
             return space, sol, std, space2.evaluations
         return space2, sol2, space2.std(sol2, _rho(space2, sol2)), space2.evaluations
 

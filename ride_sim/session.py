@@ -161,11 +161,17 @@ class RideSession:
 
 
 def offline_run(car: QuarterCarParams, road: RoadParams, run: RideRunParams, dt_s: float,
-                damper) -> tuple[RideResult, dict[str, float]]:
+                damper, *, compiled: bool = True) -> tuple[RideResult, dict[str, float]]:
     """The same run with a damper plug-in in the compiled loop
-    (:func:`~ride_sim.quarter_car.simulate`): the reference for a lockstep ROS run."""
+    (:func:`~ride_sim.quarter_car.simulate`): the reference for a lockstep ROS run.
+
+    ``compiled=False`` steps the plug-in per sample and the car in Python, as the
+    emulator and ride nodes do: the same arithmetic as theirs, where the compiled loop
+    agrees to rounding (its kernels are compiled with fast-math, and may round
+    differently inlined into the loop)."""
     heights, n_lead = run_road(road, run, dt_s)
-    result = simulate(car, damper, heights, dt_s, initial_state=start_state(heights, dt_s))
+    result = simulate(car, damper, heights, dt_s, initial_state=start_state(heights, dt_s),
+                      compiled=compiled)
     return result, metrics(result, n_lead, heights.size)
 
 

@@ -153,8 +153,13 @@ def test_lockstep_ride_equals_the_offline_simulation(tmp_path):
                              CompressiblePlugin(DamperModel()))
     for key in ("sws_rms", "accel_w_rms", "dtl_rms", "dtl_peak_pos", "accel_w_peak_neg"):
         assert doc["metrics"][key] == pytest.approx(offline[key], rel=0.01), key
-    # in fact the same arithmetic: equal to rounding
-    assert doc["metrics"]["dtl_rms"] == pytest.approx(offline["dtl_rms"], rel=1e-9)
+    # in fact the same arithmetic as stepping the kernel per sample, equal to rounding: one
+    # sample with a stale force moves dtl_rms by 2e-8 to 6e-6.  Not as the compiled loop,
+    # whose rounding differs on some CPU targets, and flips the friction's sign where the
+    # start leaves the damper at rest: 4e-7 on a generic x86-64 target
+    _, stepped = offline_run(cfg.quarter_car, cfg.road, run, cfg.simulation.step_s,
+                             CompressiblePlugin(DamperModel()), compiled=False)
+    assert doc["metrics"]["dtl_rms"] == pytest.approx(stepped["dtl_rms"], rel=1e-9)
 
 
 def test_stale_input_gives_the_fault_output_within_two_timeouts(tmp_path):

@@ -253,22 +253,39 @@ def test_road_group_defaults_and_validation(tmp_path):
 
 
 @pytest.mark.parametrize("command", [1.0, 0.0])
-def test_semi_active_loop_equals_the_compiled_loop_at_a_fixed_command(cfg, command):
-    """The session loop the adaptive study runs (controller every sample) gives the compiled
-    ride loop's forces exactly at a constant command (also catches a stale compiled cache
-    of the ride loop that does not see the valve command)."""
+def test_semi_active_loop_equals_the_ride_loop_at_a_fixed_command(cfg, command):
+    """The session loop the adaptive study runs (controller every sample) gives the ride
+    loop's forces at a constant command: bit for bit the Python loop's (the same kernel per
+    step, the same car arithmetic), and the compiled loop's to rounding.
+
+    The compiled loop is not compared bit for bit: its kernels are compiled with fast-math
+    (re-association), so the damper kernel inlined into it may round differently from the
+    same kernel called per step, depending on the CPU target (equal on znver4, 5e-11 N
+    apart on a generic x86-64 target).  Its r.m.s. bound, 1 % of the force, still catches a
+    stale compiled cache of the ride loop that does not see the valve command: sport and
+    comfort differ by 60 % r.m.s. here."""
     from ride_sim.dampers import CompressiblePlugin
-    from ride_sim.session import semi_active_run
+    from ride_sim.quarter_car import simulate
+    from ride_sim.session import semi_active_run, start_state
 
     s = _settings(cfg, length_m=120.0, lead_in_s=0.5)
     heights, n_lead, _n_eval = study_runs.random_road_input(s.road, 20.0, 0, s.dt_s)
     model = study_setup.default_model()
-    ref = study_runs.run(s.car, CompressiblePlugin(model, valve_command=command), heights, s.dt_s)
-    out = semi_active_run(s.car, heights, n_lead, s.dt_s,
-                          CompressiblePlugin(model, valve_command=command),
-                          lambda vb, vd: command, 1)
-    assert np.array_equal(out.result.damper_force_n, ref.damper_force_n)
+
+    def plugin():
+        return CompressiblePlugin(model, valve_command=command)
+
+    compiled = study_runs.run(s.car, plugin(), heights, s.dt_s).damper_force_n
+    stepped = simulate(s.car, plugin(), heights, s.dt_s, compiled=False,
+                       initial_state=start_state(heights, s.dt_s)).damper_force_n
+    out = semi_active_run(s.car, heights, n_lead, s.dt_s, plugin(), lambda vb, vd: command, 1)
+    np.testing.assert_array_equal(out.result.damper_force_n, stepped)
+    assert _rms(compiled - stepped) <= 0.01 * _rms(stepped)
     assert np.all(out.command == command) and np.all(out.effective_command == command)
+
+
+def _rms(a):
+    return float(np.sqrt(np.mean(np.square(a))))
 
 
 def test_semi_active_run_holds_the_command_between_updates(cfg):

@@ -219,6 +219,22 @@ def _run(model, *, mode="model", delay_s=0.004, duration_s=4.0, specimen=None,
     return host, rig
 
 
+def test_a_ride_shorter_than_its_ramps_goes_on_with_the_periodic_road():
+    """The ramp out continues the evaluated road (one period of the periodic road) with its
+    start, also when the ride is shorter than the ramp."""
+    from ride_sim.hybrid.host import hybrid_road
+
+    run = HybridRunParams(duration_s=0.5, ramp_s=1.0)
+    road = hybrid_road(run, DT)
+    h, lead, n = road.heights, road.n_lead, road.n_eval
+    assert lead == 1000 and n < lead and h.size == 3 * lead + n
+    ramp_out = h[lead + n: 2 * lead + n]
+    weight = 0.5 + 0.5 * np.cos(np.pi * np.arange(1, lead + 1) / lead)   # 1 → 0
+    np.testing.assert_allclose(ramp_out, np.resize(h[lead: lead + n], lead) * weight,
+                               rtol=1e-12, atol=1e-15)
+    assert not h[2 * lead + n:].any()
+
+
 def _nrms(host, sl):
     xt, xm = host.record[0, sl], host.record[2, sl]
     return float(np.sqrt(np.mean((xm - xt) ** 2) / np.mean(xt ** 2)))

@@ -69,7 +69,9 @@ def hybrid_road(run: HybridRunParams, dt_s: float) -> HybridRoad:
     heights, n_lead, n_eval = random_road_input(road, run.speed_m_s, run.seed, dt_s, band)
     n_ramp = n_lead
     ramp = 0.5 - 0.5 * np.cos(np.pi * np.arange(n_ramp) / max(n_ramp, 1))
-    out = heights[n_lead: n_lead + n_ramp].copy() * ramp[::-1]
+    # the periodic road goes on after the evaluated part (one period) with its start
+    out = np.take(heights[n_lead: n_lead + n_eval], np.arange(n_ramp), mode="wrap") \
+        * ramp[::-1]
     heights = heights.copy()
     heights[:n_lead] *= ramp
     full = np.concatenate([heights, out, np.zeros(n_ramp)])

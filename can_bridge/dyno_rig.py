@@ -81,7 +81,8 @@ class RigEngine:
         stats = run_hybrid_link(self.bus, self.db, host, self.stop, realtime=self.realtime,
                                 progress=self.progress)
         run: dict[str, Any] = {"samples": int(grid.size), "phase_at_end": host.phase,
-                               "reason": host.reason or "", "link": stats.summary()}
+                               "reason": host.reason or "", "link": stats.summary(),
+                               "identification": host.identification_report()}
         if host.transfer is not None:
             run["transfer"] = host.transfer.to_dict()
         k = host.k

@@ -92,6 +92,10 @@ def plot_transfer(path: Path, host: HybridHost) -> Path | None:
     ax.plot(t, x * 1e3, lw=0.8, label="measured")
     ax.plot(t, response(u, host.dt_s, host.transfer) * 1e3, lw=0.8, ls="--",
             label="fitted transfer model")
+    left_out = ~host.usable
+    if left_out.any():
+        ax.fill_between(t, 0.0, 1.0, where=left_out, transform=ax.get_xaxis_transform(),
+                        color="0.85", step="post", label="left out (stall)")
     est = host.transfer
     ax.set_title(f"delay {est.delay_s * 1e3:.2f} ms, servo {est.bandwidth_hz:.1f} Hz, "
                  f"damping {est.damping:.2f}, gain {est.gain:.3f}, fit "

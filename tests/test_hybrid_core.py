@@ -341,6 +341,89 @@ def test_parameter_groups_refuse_bad_values_in_one_line():
         build(ActuatorParams, {"bandwidth_hz": -1.0}, "actuator")
 
 
+# -- stalls of the host during the identification ------------------------------------------
+
+def _stalled_run(model, stalls, compensator=None):
+    """A short ride whose host stalls over ``stalls`` ((start, length) [s]): the
+    identification runs from about 0.5 s to 3.5 s into the run."""
+    host = HybridHost(HybridRunParams(duration_s=0.5), load_quarter_car(), model,
+                      compensator or CompensatorParams(), SafetyParams())
+    rig = VirtualRig(model, ActuatorParams(delay_s=0.004), RigParams())
+    run_offline(host, rig, disturbance=Disturbance(host_stalls=stalls), max_time_s=30.0)
+    return host
+
+
+@pytest.fixture(scope="module")
+def three_stalls(model):
+    return _stalled_run(model, tuple((t, 0.015) for t in (1.0, 1.7, 2.4)))
+
+
+def test_the_cycles_a_stall_disturbed_are_left_out_of_the_identification(three_stalls):
+    """Three 15 ms stalls of the host in the identification (the rig holds its last demand,
+    then gets the backlog's commands at once): each leaves out its cycles and the guard
+    after them, and the fit finds the clean run's transfer system."""
+    host = three_stalls
+    assert host.phase == "done" and host.reason is None
+    (attempt,) = host.attempts
+    # of each stall's 15 cycles, the 12 whose commands go out more than 3 cycles late (their
+    # feedbacks came 0.25 ms after the rig's cycle, the commands at the stall's end)
+    assert attempt["stalls"] == 3 and attempt["disturbed_cycles"] == 3 * 12
+    guard = round(CompensatorParams().stall_guard_s / DT)
+    assert attempt["left_out"] == pytest.approx(3 * (12 + guard) / host.usable.size, abs=1e-9)
+    assert host.transfer.delay_s == pytest.approx(0.005, abs=0.2e-3)
+    assert host.transfer.bandwidth_hz == pytest.approx(ActuatorParams().bandwidth_hz, rel=0.05)
+    assert attempt["fit_nrms"] < 0.05
+
+
+def test_the_stalls_left_in_would_spoil_the_identification(three_stalls):
+    u, x = three_stalls.identification
+    kept = identify(u, x, DT, usable=three_stalls.usable)
+    spoiled = identify(u, x, DT)
+    assert spoiled.fit_nrms > 3 * kept.fit_nrms
+
+
+def test_an_identification_that_stalls_throughout_runs_again(model):
+    """Stalls every 30 ms over the first identification leave out most of it: it runs
+    again, without a fit, and the second, clean, is the ride's."""
+    host = _stalled_run(model, tuple((0.6 + 0.03 * i, 0.01) for i in range(80)))
+    first, second = host.attempts
+    assert first["fit_nrms"] is None and first["left_out"] > 0.5
+    assert second["stalls"] == 0 and second["fit_nrms"] < 0.05
+    assert host.phase == "done" and host.reason is None
+
+
+def test_an_identification_that_never_gets_clear_of_stalls_stops_the_run(model):
+    host = _stalled_run(model, tuple((0.6 + 0.03 * i, 0.01) for i in range(240)),
+                        CompensatorParams(identify_attempts=2))
+    assert host.phase == "stopped" and host.transfer is None
+    assert [a["fit_nrms"] for a in host.attempts] == [None, None]
+    assert "stalls" in host.reason and "attempt 2 of 2" in host.reason
+    assert not host.safety.enable
+
+
+def test_a_stall_in_the_ride_is_reported_and_left_out_of_the_tracking_outside_stalls(
+        model, compensated):
+    """A 15 ms stall of the host 1.5 s into the evaluated ride: the report counts it (its
+    12 samples whose commands went out more than 3 cycles late), the tracking over the
+    whole ride shows it, and outside its window (the stall and the rig's settling) the
+    tracking is better, but not the clean run's: the loop's recovery from the stall (here
+    75 ms of up to 0.5 mm error) counts against it."""
+    from ride_sim.hybrid.criteria import summary
+
+    at = (compensated.road.n_lead + 1500) * DT + 3.6      # the ride starts ≈ 3.6 s in
+    host, _ = _run(model, disturbance=Disturbance(host_stalls=((at, 0.015),)))
+    assert host.phase == "done"
+    doc = summary(host)
+    assert doc["stalls"]["count"] == 1 and doc["stalls"]["samples"] == 12
+    assert doc["stalls"]["longest_ms"] == pytest.approx(14.75, abs=0.01)
+    guard = round(CompensatorParams().stall_guard_s / DT)
+    tracked = doc["tracking"]
+    assert tracked["samples_in_stalls"] == 12 + guard
+    clean = summary(compensated)["tracking"]
+    assert clean["samples_in_stalls"] == 0 and clean["nrms"] == clean["nrms_outside_stalls"]
+    assert clean["nrms"] < tracked["nrms_outside_stalls"] < tracked["nrms"]
+
+
 def test_measured_velocity_counts_the_cycles_of_lost_frames():
     safety = SafetyLayer(SafetyParams(velocity_limit_m_s=1.5), DT)
     cycle = 0

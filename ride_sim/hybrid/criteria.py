@@ -15,6 +15,8 @@ import numpy as np
 
 from ride_sim.hybrid.compensator import force_path_gain, steepest_slope
 from ride_sim.hybrid.host import RIDE_KEYS, HybridHost
+from ride_sim.hybrid.rig_host import RigHost
+from ride_sim.hybrid.transfer import stall_count, usable_cycles
 
 #: The twin's residual is also reported over the ride's first and last this long [s].
 TWIN_WINDOW_S = 2.0
@@ -53,6 +55,36 @@ def tracking(target: np.ndarray, measured: np.ndarray, dt_s: float) -> dict[str,
             "delay_ms": residual_delay_s(target, measured, dt_s) * 1e3}
 
 
+def _stall_windows(host: RigHost, ridden: slice) -> np.ndarray:
+    """The ridden samples a stall disturbed, each with ``stall_guard_s`` after it."""
+    guard = int(round(host.compensator_params.stall_guard_s / host.dt_s))
+    return ~usable_cycles(host.stalled[ridden], guard)
+
+
+def outside_stalls(host: RigHost, ridden: slice) -> dict[str, float | int]:
+    """The tracking's ``nrms`` and ``peak_error_m`` over the ridden samples outside the
+    stalls' windows (:func:`_stall_windows`), and how many samples those windows hold."""
+    inside = _stall_windows(host, ridden)
+    target = host.record[0, ridden][~inside]
+    error = host.record[2, ridden][~inside] - target
+    scale = float(np.sqrt(np.mean(target ** 2))) if target.size else 0.0
+    return {"nrms_outside_stalls": (float(np.sqrt(np.mean(error ** 2))) / scale
+                                    if scale > 0 else math.nan),
+            "peak_error_outside_stalls_m": (float(np.max(np.abs(error))) if error.size
+                                            else math.nan),
+            "samples_in_stalls": int(np.count_nonzero(inside))}
+
+
+def stall_summary(host: RigHost, ridden: slice) -> dict[str, float | int]:
+    """The stalls the host saw: over the ride, ``count`` (runs of disturbed samples) and
+    ``samples`` (disturbed); ``longest_ms`` in any phase (the longest a cycle ran behind
+    the rig's beat)."""
+    s = host.stalled[ridden]
+    return {"count": stall_count(s),
+            "samples": int(np.count_nonzero(s)),
+            "longest_ms": host.longest_stall_s * 1e3}
+
+
 def summary(host: HybridHost) -> dict[str, Any]:
     """The run's ``hybrid.json`` (without the link's and the files' parts): status,
     reason, tracking, ride and reference metrics, twin, transfer system, stability."""
@@ -66,8 +98,10 @@ def summary(host: HybridHost) -> dict[str, Any]:
     if ridden.stop - ridden.start > 10:
         doc["tracking"] = tracking(rec[0, ridden], rec[2, ridden], host.dt_s)
         doc["tracking"]["samples"] = ridden.stop - ridden.start
+        doc["tracking"].update(outside_stalls(host, ridden))
     else:
         doc["tracking"] = None
+    doc["stalls"] = stall_summary(host, ridden)
     if host.tracker is not None:
         doc["tracking_delay_estimate_ms"] = host.tracker.delay_s * 1e3
         doc["tracking_gain_estimate"] = host.tracker.gain
@@ -85,6 +119,7 @@ def summary(host: HybridHost) -> dict[str, Any]:
                    "residual_rms_first_n": _rms(residual[ridden][:window]),
                    "residual_rms_last_n": _rms(residual[ridden][-window:])}
     doc["static_force_n"] = host.static_force_n
+    doc["identification"] = host.identification_report()
     if host.transfer is not None:
         slope = steepest_slope(host.twin_model)
         gain, at_hz = force_path_gain(host.compensator_params, host.transfer, host.car, slope,
@@ -93,8 +128,13 @@ def summary(host: HybridHost) -> dict[str, Any]:
         doc["stability"] = {"force_path_gain": gain, "at_hz": at_hz,
                             "damper_slope_ns_m": slope,
                             "small_gain_margin": (1.0 / gain if gain > 0 else math.inf)}
-    doc["safety"] = {"clamped_demands": host.safety.clamped,
-                     "error_ratio_max": max(host.safety.error_ratios, default=math.nan)}
+    safety = host.safety
+    doc["safety"] = {"clamped_demands": safety.clamped,
+                     "error_ratio_max": max(safety.error_ratios, default=math.nan),
+                     # on the host's monotonic clock [s]: when the run stopped, and the
+                     # last valid feedback before it
+                     "stopped_at_s": safety.stopped_at_s,
+                     "last_valid_feedback_s": safety.last_valid_s}
     return doc
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ride_sim.hybrid.host import HybridHost
-from ride_sim.hybrid.rig import VirtualRig
+from ride_sim.hybrid.rig import Feedback, VirtualRig
 
 #: Frame times on a 500 kbit/s bus, about one 8-byte frame each way [s].
 FEEDBACK_LATENCY_S = 0.25e-3
@@ -31,6 +31,17 @@ class Disturbance:
     feedback_cut_at_s: float | None = None
     #: every n-th feedback frame is lost (a corrupted frame the host drops); 0: none
     drop_every: int = 0
+    #: the host stalls over each ``(start_s, length_s)`` (a virtual machine's halt): it
+    #: sends nothing, and at the stall's end runs a cycle on each feedback that arrived
+    #: meanwhile, at its arrival time, its command sent then
+    host_stalls: tuple[tuple[float, float], ...] = ()
+
+    def stalled(self, t_s: float) -> float | None:
+        """The end of the host stall ``t_s`` falls in, or None."""
+        for start, length in self.host_stalls:
+            if start <= t_s < start + length:
+                return start + length
+        return None
 
 
 def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0,
@@ -42,19 +53,36 @@ def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0
     Returns the host, its record filled.
     """
     period = rig.period_s
+    d = disturbance
+    queued: list[tuple[float, Feedback | None]] = []   # arrived during a host stall
+    released_at = 0.0
     j = 0
+
+    def answer(t_host: float, feedback: Feedback | None, sent_s: float) -> None:
+        command = host.cycle(t_host, feedback, int(round(t_host * 1e9)))
+        host.stamp(int(round(sent_s * 1e9)))
+        rig.command(sent_s + command_latency_s, command.stroke_m, command.enable,
+                    command.velocity_m_s)
+        host.after_send()
+
     while not host.finished and j * period < max_time_s:
         t = j * period
-        d = disturbance
+        t_host = t + feedback_latency_s
+        if queued and d.stalled(t_host) is None:
+            for arrived, feedback in queued:       # the stall ends: its backlog, at once
+                if not host.finished:
+                    answer(arrived, feedback, released_at)
+            queued.clear()
         if d.delay_change_at_s is not None and t >= d.delay_change_at_s:
             rig.set_delay(d.new_delay_s)
         feedback = rig.step(t)
         lost = (d.drop_every and (j + 1) % d.drop_every == 0) or (
             d.feedback_cut_at_s is not None and t >= d.feedback_cut_at_s)
-        t_host = t + feedback_latency_s
-        command = host.cycle(t_host, None if lost else feedback, int(round(t_host * 1e9)))
-        rig.command(t_host + command_latency_s, command.stroke_m, command.enable,
-                    command.velocity_m_s)
-        host.after_send()
+        end = d.stalled(t_host)
+        if end is not None:
+            queued.append((t_host, None if lost else feedback))
+            released_at = end
+        else:
+            answer(t_host, None if lost else feedback, t_host)
         j += 1
     return host

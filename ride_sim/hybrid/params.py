@@ -167,6 +167,17 @@ class CompensatorParams:
                                                                "identification [m]", 1e-3)
     identify_band_hz: tuple[float, float] = _rule("band", "band of the identification "
                                                           "signal [Hz]", (0.5, 30.0))
+    stall_guard_s: float = _rule(("range", 0.0, 1.0), "a cycle that a stall disturbed "
+                                                       "(its feedback or its command 3 cycles "
+                                                       "late or more) is left out of the "
+                                                       "identification's fit and of the "
+                                                       "tracking outside stalls, with this "
+                                                       "long after it: the rig's delay and "
+                                                       "its servo's settling [s]", 0.02)
+    identify_attempts: int = _rule(("int_range", 1, 10), "the identification runs again, up "
+                                                          "to this many times in all, while "
+                                                          "its fit misses max_fit_nrms or "
+                                                          "stalls leave too little of it", 3)
 
 
 @dataclass(frozen=True)

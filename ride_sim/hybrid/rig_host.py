@@ -17,7 +17,12 @@ identification and tracker, and the record.  :class:`~ride_sim.hybrid.host.Hybri
 ``identify``, ``fit``
     The low-amplitude test signal (:func:`~ride_sim.hybrid.transfer.excitation`), then
     the fit of the transfer system (:func:`~ride_sim.hybrid.transfer.identify`; run by the
-    ``executor`` given, the demand held at the static position meanwhile).
+    ``executor`` given, the demand held at the static position meanwhile).  A cycle that
+    a stall of the host or the bus disturbed (:data:`STALL_CYCLES`) is left out of the fit
+    with ``stall_guard_s`` after it; while
+    the fit misses ``max_fit_nrms``, or stalls leave less than :data:`MIN_USABLE_SHARE` of
+    the cycles, the signal runs again, up to ``identify_attempts`` in all
+    (:attr:`RigHost.attempts` holds each one's account).
 the run proper (:attr:`RigHost.RUN_PHASE`)
     The subclass's.
 ``return``, ``done``
@@ -51,10 +56,22 @@ from ride_sim.hybrid.transfer import (
     excitation,
     identify,
     response,
+    stall_count,
+    usable_cycles,
 )
 
 #: The host's cycle: one per cycle of a dyno at 1 kHz [s] (the hosts' default ``dt_s``).
 HOST_CYCLE_S = 1e-3
+#: A stall, in the identification [cycles]: a fresh feedback more than this many cycles
+#: later than a cycle after the last fresh one, or a command sent more than this many cycles
+#: after its feedback arrived.  Shorter jitter stays in the fit: it moves the demand the rig
+#: took by three cycles at most, and leaving it out (with its guard) left out most of an
+#: identification on this project's 2-core VM, whose host runs cycles without feedback
+#: (1.5 cycles late) in 1 % to 17 % of them, for fits no better.
+STALL_CYCLES = 3.0
+#: An identification whose stalls leave less than this share of its cycles is run again
+#: without a fit [-].
+MIN_USABLE_SHARE = 0.5
 #: Rows of a run's record (:attr:`RigHost.record`), in ``hybrid.csv``'s order after
 #: ``t_monotonic_ns`` and ``time``.
 RECORD_COLUMNS = ("stroke_target", "stroke_command", "stroke_measured", "force_measured",
@@ -131,6 +148,15 @@ class RigHost:
                                       compensator.identify_amplitude_m,
                                       compensator.identify_band_hz, seed=run.seed)
         self.identification = np.full((2, self._excitation.size), np.nan)
+        #: the identification's cycles a stall disturbed (the latest attempt's)
+        self.disturbed = np.zeros(self._excitation.size, dtype=bool)
+        #: the cycles the latest attempt's fit compared
+        self.usable = np.ones(self._excitation.size, dtype=bool)
+        #: each identification attempt's account (:meth:`identification_report`)
+        self.attempts: list[dict[str, Any]] = []
+        self._last_fresh_s: float | None = None
+        self._cycle_s = math.nan
+        self._stalled = False
         self._j = 0
         self._fit_job: Future[TransferEstimate] | None = None
         self.transfer: TransferEstimate | None = None
@@ -141,6 +167,10 @@ class RigHost:
         self.delay_estimate_s = np.full(n, np.nan)
         #: the dyno's latest oil temperature (DYNO_AUX) at each sample of the run [°C]
         self.temperature_c = np.full(n, np.nan)
+        #: the run's samples a stall disturbed (as the identification's: :data:`STALL_CYCLES`)
+        self.stalled = np.zeros(n, dtype=bool)
+        #: the longest stall the host saw, in any phase [s]
+        self.longest_stall_s = 0.0
         self._pending: tuple[float, float] | None = None
         self._cycles = 0            # cycles run: the rig's cycles, lost frames included
         self.k = 0
@@ -164,7 +194,15 @@ class RigHost:
 
     def stamp(self, t_ns: int) -> None:
         """The time [ns, the host's monotonic clock] the latest cycle's command was sent:
-        the run's sample's ``t_monotonic_ns``."""
+        the run's sample's ``t_monotonic_ns``; in the identification, a command sent late
+        marks its cycle disturbed."""
+        late = t_ns * 1e-9 - self._cycle_s
+        self.longest_stall_s = max(self.longest_stall_s, late)
+        if late > STALL_CYCLES * self.dt_s:
+            if self.phase == "identify" and self._j > 0:
+                self.disturbed[self._j - 1] = True
+            elif self.phase == self.RUN_PHASE and self.k > 0:
+                self.stalled[self.k - 1] = True
         if self.k > 0 and self.t_ns[self.k - 1] == 0:
             self.t_ns[self.k - 1] = t_ns
 
@@ -201,6 +239,7 @@ class RigHost:
         safety = self.safety
         self._cycles += 1
         self.after_send()
+        self._watch_stall(t_s, feedback is not None)
         if self._start_s is None:
             self._start_s = t_s
             self._phase_start_s = t_s
@@ -232,6 +271,17 @@ class RigHost:
                 self._pending = (self._demand, self._measured)
         return Command(self._demand, velocity, True)
 
+    def _watch_stall(self, t_s: float, fresh: bool) -> None:
+        """Whether this cycle comes after a stall: :data:`STALL_CYCLES` or more later than a
+        cycle after the last fresh feedback."""
+        last = self._last_fresh_s
+        behind = 0.0 if last is None else t_s - last - self.dt_s
+        self.longest_stall_s = max(self.longest_stall_s, behind)
+        self._stalled = behind > STALL_CYCLES * self.dt_s
+        if fresh:
+            self._last_fresh_s = t_s
+        self._cycle_s = t_s
+
     def after_send(self) -> None:
         """The cycle's work that can wait until its command is out: the tracker's update
         of the rig's delay and gain (the next cycle does it first if this is not called)."""
@@ -256,15 +306,56 @@ class RigHost:
         j = self._j
         u = self._excitation
         if j >= u.size:
-            self._enter("fit", t_s)
-            self._fit_job = self.executor.submit(identify, self.identification[0],
-                                             self.identification[1], self.dt_s,
-                                             self.compensator_params.max_delay_s)
-            return self._fit_poll(t_s)
+            return self._submit_fit(t_s)
         # the measurement received this cycle, and the demand then sent (the tracker's pairing)
         self.identification[:, j] = u[j], self._measured
+        self.disturbed[j] = self._stalled
         self._j = j + 1
         return float(u[j]), 0.0
+
+    def _submit_fit(self, t_s: float) -> tuple[float, float]:
+        """The signal has run: fit it on its usable cycles, or run it again when stalls
+        left too few."""
+        p = self.compensator_params
+        self.usable = usable_cycles(self.disturbed, int(round(p.stall_guard_s / self.dt_s)))
+        if np.mean(self.usable) < MIN_USABLE_SHARE:
+            self._account(None)
+            return self._again_or_stop(t_s, f"kept {np.mean(self.usable):.0%} of its cycles "
+                                            f"from stalls (at least {MIN_USABLE_SHARE:.0%})")
+        self._enter("fit", t_s)
+        self._fit_job = self.executor.submit(identify, self.identification[0],
+                                             self.identification[1], self.dt_s,
+                                             p.max_delay_s, self.usable)
+        return self._fit_poll(t_s)
+
+    def _account(self, estimate: TransferEstimate | None) -> None:
+        """Add the attempt just ended to :attr:`attempts`."""
+        d = self.disturbed
+        self.attempts.append({
+            "fit_nrms": None if estimate is None else estimate.fit_nrms,
+            "stalls": stall_count(d),
+            "disturbed_cycles": int(np.count_nonzero(d)),
+            "left_out": float(1.0 - np.mean(self.usable))})
+
+    def _again_or_stop(self, t_s: float, why: str) -> tuple[float, float]:
+        """Run the identification again, or stop the run when its attempts are spent."""
+        tries = len(self.attempts)
+        if tries >= self.compensator_params.identify_attempts:
+            self.safety.stop(t_s, f"the transfer system's identification {why} "
+                                  f"(attempt {tries} of {tries})")
+            self.phase = "stopped"
+            return 0.0, 0.0
+        self._enter("identify", t_s)
+        self._j = 0
+        self.identification[:] = np.nan
+        self.disturbed[:] = False
+        return 0.0, 0.0
+
+    def identification_report(self) -> dict[str, Any]:
+        """The identification's attempts and what stalls left out of each (``hybrid.json``'s
+        ``identification``)."""
+        return {"attempts": len(self.attempts), "each": list(self.attempts),
+                "guard_ms": self.compensator_params.stall_guard_s * 1e3}
 
     def _fit_poll(self, t_s: float) -> tuple[float, float]:
         assert self._fit_job is not None
@@ -276,13 +367,11 @@ class RigHost:
             self.safety.stop(t_s, f"the transfer system's identification failed: {exc}")
             self.phase = "stopped"
             return 0.0, 0.0
+        self._account(estimate)
         if not estimate.fit_nrms <= self.run.max_fit_nrms:
-            self.safety.stop(t_s, f"the transfer system's identification fits the rig "
-                                  f"{estimate.fit_nrms:.0%} r.m.s. (limit "
-                                  f"{self.run.max_fit_nrms:.0%}): not the transfer system "
-                                  "it models")
-            self.phase = "stopped"
-            return 0.0, 0.0
+            return self._again_or_stop(t_s, f"fits the rig {estimate.fit_nrms:.0%} r.m.s. "
+                                            f"(limit {self.run.max_fit_nrms:.0%}): not the "
+                                            "transfer system it models")
         self.transfer = estimate
         p = self.compensator_params
         self.tracker = TransferTracker(estimate, self.dt_s, p.adapt_window_s,
@@ -318,6 +407,7 @@ class RigHost:
         rec[2, k] = self._measured
         rec[3, k] = self._force
         rec[5, k] = 1.0
+        self.stalled[k] = self._stalled
         self.t_ns[k] = t_ns
         assert self.tracker is not None
         self.delay_estimate_s[k] = self.tracker.delay_s

@@ -123,36 +123,55 @@ def excitation(duration_s: float, dt_s: float, amplitude_m: float,
     return out
 
 
-def identify(u: ArrayLike, measured: ArrayLike, dt_s: float, max_delay_s: float = 0.05
-             ) -> TransferEstimate:
+#: The fewest cycles an identification fits.
+MIN_IDENTIFICATION_CYCLES = 100
+
+
+def identify(u: ArrayLike, measured: ArrayLike, dt_s: float, max_delay_s: float = 0.05,
+             usable: ArrayLike | None = None) -> TransferEstimate:
     """Fit the transfer model to demands ``u`` and measurements ``measured`` (one per host
     cycle, ``dt_s`` apart), by nonlinear least squares from several starts.
+
+    ``usable`` (boolean, one per cycle; default all) says which cycles the fit compares:
+    the model still runs through the others (it needs the demands' whole history), but
+    their measurements are left out.  A host leaves out the cycles a stall disturbed
+    (:func:`usable_cycles`): there the rig did not get the demands on the model's
+    timeline.  ``fit_nrms`` is over the usable cycles.
 
     Raises
     ------
     UserError
-        Arrays of different lengths, too short, not finite, or a measurement that does not
+        Arrays of different lengths, too short, not finite, fewer than
+        :data:`MIN_IDENTIFICATION_CYCLES` usable cycles, or a measurement that does not
         move (no rig answered).
     """
     u = np.asarray(u, dtype=float)
     x = np.asarray(measured, dtype=float)
-    if u.shape != x.shape or u.ndim != 1 or u.size < 100:
-        raise UserError("identification needs equal 1-D records of at least 100 cycles")
-    if not (np.isfinite(u).all() and np.isfinite(x).all()):
+    n_min = MIN_IDENTIFICATION_CYCLES
+    if u.shape != x.shape or u.ndim != 1 or u.size < n_min:
+        raise UserError(f"identification needs equal 1-D records of at least {n_min} cycles")
+    keep = np.ones(u.size, bool) if usable is None else np.asarray(usable, dtype=bool)
+    if keep.shape != u.shape:
+        raise UserError("identification: one usable flag per cycle")
+    if np.count_nonzero(keep) < n_min:
+        raise UserError(f"identification: {np.count_nonzero(keep)} usable cycles (at least "
+                        f"{n_min})")
+    if not (np.isfinite(u).all() and np.isfinite(x[keep]).all()):
         raise UserError("identification records must be finite")
-    x = x - x[0] + u[0]
-    if np.std(x) < 0.05 * np.std(u):
+    x = x - x[keep][0] + u[0]
+    if np.std(x[keep]) < 0.05 * np.std(u):
         raise UserError("the rig did not follow the identification demand (measured stroke "
-                        f"r.m.s. {np.std(x) * 1e3:.3g} mm for a demand of "
+                        f"r.m.s. {np.std(x[keep]) * 1e3:.3g} mm for a demand of "
                         f"{np.std(u) * 1e3:.3g} mm)")
-    scale = float(np.sqrt(np.mean((x - x.mean()) ** 2)))
+    scale = float(np.std(x[keep]))
 
     def residual(p: np.ndarray) -> np.ndarray:
         est = TransferEstimate(p[0] * 1e-3, p[1], p[2], p[3])
-        out: np.ndarray = (response(u, dt_s, est) - x) / scale
+        out: np.ndarray = (response(u, dt_s, est)[keep] - x[keep]) / scale
         return out
 
-    lag = _xcorr_lag(u, x, int(max_delay_s / dt_s))
+    # the cross-correlation's start: a left-out cycle's measurement at the demand's level
+    lag = _xcorr_lag(u, np.where(keep, x, u[0]), int(max_delay_s / dt_s))
     best = None
     hi = (max_delay_s * 1e3, BANDWIDTH_BOUNDS_HZ[1], DAMPING_BOUNDS[1], GAIN_BOUNDS[1])
     lo = (0.0, BANDWIDTH_BOUNDS_HZ[0], DAMPING_BOUNDS[0], GAIN_BOUNDS[0])
@@ -166,6 +185,24 @@ def identify(u: ArrayLike, measured: ArrayLike, dt_s: float, max_delay_s: float 
     p = best.x
     nrms = float(np.sqrt(np.mean(best.fun ** 2)))
     return TransferEstimate(float(p[0]) * 1e-3, float(p[1]), float(p[2]), float(p[3]), nrms)
+
+
+def usable_cycles(disturbed: ArrayLike, guard: int) -> np.ndarray:
+    """The cycles an identification can compare: neither one that a stall disturbed
+    (``disturbed``, one flag per cycle) nor one of the ``guard`` cycles after it, while the
+    rig's delay and its servo still carry the disturbance."""
+    bad = np.asarray(disturbed, dtype=bool)
+    count = np.concatenate(([0], np.cumsum(bad)))
+    j = np.arange(bad.size)
+    recent = count[j + 1] - count[np.maximum(j - int(guard), 0)]
+    out: np.ndarray = recent == 0
+    return out
+
+
+def stall_count(disturbed: ArrayLike) -> int:
+    """The stalls in ``disturbed`` (one flag per cycle): its runs of disturbed cycles."""
+    d = np.asarray(disturbed, dtype=bool)
+    return int(np.count_nonzero(d[1:] & ~d[:-1]) + np.count_nonzero(d[:1]))
 
 
 def _xcorr_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> int:

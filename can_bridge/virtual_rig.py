@@ -26,7 +26,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import can
 
@@ -55,12 +55,19 @@ class RigFaults:
     feedback_stop_at_s: float | None = None
 
 
+#: The rig logs each time it falls this far behind its cycle [ms] (a stall of the machine).
+STALL_LOG_MS = 10.0
+
+
 @dataclass
 class RigStats:
     """What the virtual rig did."""
 
     cycles: int = 0
     skipped: int = 0                # deadlines skipped after falling behind
+    longest_stall_ms: float = 0.0   # the longest time the rig fell behind its cycle (a stall)
+    #: each stall of STALL_LOG_MS or more: (its start on the monotonic clock [s], length [ms])
+    stalls: list[tuple[float, float]] = field(default_factory=list)
     feedback_sent: int = 0
     corrupted: int = 0              # feedback frames sent with a wrong checksum
     aux_sent: int = 0
@@ -148,6 +155,9 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                 j += 1
                 deadline += period
                 behind = time.monotonic() - deadline
+                stats.longest_stall_ms = max(stats.longest_stall_ms, behind * 1e3)
+                if behind * 1e3 >= STALL_LOG_MS:
+                    stats.stalls.append((deadline, behind * 1e3))
                 if behind > period:
                     # fell behind: the physics runs through the missed cycles, without a
                     # burst of frames

@@ -99,7 +99,9 @@ def _receive(bus: ResilientBus, poll_from: float, deadline: float) -> can.Messag
         msg = bus.recv(0.0)
         if msg is not None:
             return msg
-    return None
+    # past the deadline, a frame that came while this process was held up is still read:
+    # without it, a stall of the host would run a cycle without the feedback that waited
+    return bus.recv(0.0)
 
 
 def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event, *,
@@ -166,6 +168,7 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
                 deadline = last_cycle + MISSED_FEEDBACK_PERIODS * period
                 msg = _receive(bus, last_cycle + period - poll, deadline)
                 read_ns = time.monotonic_ns()
+                host.safety.host_wakes(read_ns * 1e-9)
                 # when it arrived (the kernel's stamp): the response time counts a stall
                 arrival = read_ns * 1e-9 if msg is None else receive_time(msg, offset)
                 arrival_ns = int(arrival * 1e9)

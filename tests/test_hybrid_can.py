@@ -41,7 +41,7 @@ SHORT = """/**:
     hybrid: {ramp_s: 0.5, settle_s: 0.3, connect_timeout_s: 3.0}
     compensator: {identify_s: 1.5}
 """
-OFFSETS = {"ride": 0, "cut": 1, "unstable": 2, "nodyno": 3, "dyno": 4}
+OFFSETS = {"ride": 0, "cut": 1, "unstable": 2, "nodyno": 3, "dyno": 4, "hoststall": 6}
 
 
 def udp_channel(offset: int) -> str:
@@ -266,6 +266,58 @@ def test_feedback_cut_clears_enable_within_50_ms_and_exits_3(tmp_path, bus_db):
     later = [rx.decode_values(i, d)["Enable"] for t, i, d in tap.frames
              if i == cmd_id and t >= cleared[0]]
     assert not any(later)
+
+
+def test_a_stall_of_the_host_past_the_watchdog_stops_the_run_with_enable_clear(tmp_path,
+                                                                                bus_db):
+    """The hybrid process held (SIGSTOP) for 200 ms in the ride.  The feedback that waited
+    is stamped on arrival and looks fresh, but the host sent nothing for 200 ms (the rig,
+    without commands, held): the run stops naming the host's stall, and every command after
+    the stall has Enable clear."""
+    import signal
+    import time
+
+    bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["hoststall"]))
+    bus_args = ["--can-interface", bus.interface, "--can-channel", bus.channel]
+    config = tmp_path / "short.yaml"
+    config.write_text(SHORT)
+    rig = start_rig([*bus_args, "--config", str(config)])
+    tap = BusTap(bus)
+    out = tmp_path / "out"
+    try:
+        proc = subprocess.Popen([*CLI, "hybrid", "--out", str(out), "--config", str(config),
+                                 *bus_args, "--duration", "3"], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+        assert proc.stderr is not None
+        seen = []
+        for line in proc.stderr:
+            seen.append(line)
+            if line.startswith("hybrid: ride"):
+                break
+        else:
+            raise AssertionError(f"the ride did not start: {''.join(seen)}")
+        time.sleep(0.5)
+        os.kill(proc.pid, signal.SIGSTOP)
+        time.sleep(0.2)
+        os.kill(proc.pid, signal.SIGCONT)
+        rest = proc.stderr.read()
+        assert proc.wait(120) == 3, rest
+    finally:
+        rig.send_signal(2)
+        rig.wait(timeout=20)
+        tap.close()
+    last = rest.strip().splitlines()[-1]
+    assert last.startswith("damper-hil: stopped: the host stalled: no DYNO_COMMAND for"), last
+    doc = json.loads((out / "hybrid.json").read_text())
+    assert doc["status"] == "stopped" and doc["reason"].startswith("the host stalled")
+    cmd_id = bus_db.get_message_by_name("DYNO_COMMAND").frame_id
+    rx = Receiver(bus_db, ["DYNO_COMMAND"])
+    commands = [(t, rx.decode_values(i, d)["Enable"]) for t, i, d in tap.frames if i == cmd_id]
+    times = np.array([t for t, _ in commands])
+    gap = int(np.argmax(np.diff(times)))
+    assert 0.15 < times[gap + 1] - times[gap] < 0.5      # the stall, seen on the bus
+    assert all(enable for _, enable in commands[gap - 100: gap + 1])   # riding before it
+    assert not any(enable for _, enable in commands[gap + 1:])
 
 
 def test_unstable_setting_is_stopped_before_any_limit(tmp_path):

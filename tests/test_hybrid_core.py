@@ -173,6 +173,19 @@ def test_watchdog_clears_enable_within_its_time_of_the_last_valid_feedback():
     assert "DYNO_FEEDBACK" in safety.reason
 
 
+def test_a_host_that_wakes_a_watchdog_late_stops_the_run_as_its_own_stall():
+    """Feedback stamped on arrival looks fresh after the host's own stall; the host's wake-up
+    times tell: a loop that ran every cycle goes on, one that wakes 0.8 watchdogs late
+    stops, naming the host."""
+    p = SafetyParams()
+    safety = SafetyLayer(p, DT)
+    for k in range(100):
+        safety.host_wakes(k * 1.5 * DT)            # a cycle without feedback each 1.5 ms
+    assert safety.enable
+    safety.host_wakes(99 * 1.5 * DT + WATCHDOG_TRIP * p.watchdog_s)
+    assert not safety.enable and safety.reason.startswith("the host stalled")
+
+
 @pytest.mark.parametrize(("stroke", "force", "what"), [(0.07, 0.0, "stroke"),
                                                   (0.0, 9000.0, "force")])
 def test_measured_limits_stop_the_run(stroke, force, what):

@@ -10,6 +10,10 @@
   ``DYNO_FEEDBACK`` is ``watchdog_s`` old (at :data:`WATCHDOG_TRIP` of it);
   a frame with a CRC, counter or length error never reaches :meth:`SafetyLayer.feedback`
   and so does not count as valid;
+* **the host's own stall**: the run stops when the host's loop wakes ``watchdog_s`` (at
+  :data:`WATCHDOG_TRIP` of it) or more after it last ran (:meth:`SafetyLayer.host_wakes`):
+  it sent no ``DYNO_COMMAND`` meanwhile, and a rig that holds without commands has
+  stopped following, while the feedback that waited, stamped on arrival, looks fresh;
 * **instability**: per window of ``window_s``, the tracking error's r.m.s. over the
   reference stroke's (the all-numerical run's over the trailing ``reference_window_s``, at
   least half its r.m.s. over the ride so far, plus ``error_floor_m``); when it has grown
@@ -52,6 +56,7 @@ class SafetyLayer:
         self.reason: str | None = None
         self.stopped_at_s: float | None = None
         self.last_valid_s: float | None = None
+        self.last_host_s: float | None = None
         self.clamped = 0
         self._strokes: deque[tuple[int, float]] = deque()
         self._frames = 0
@@ -130,6 +135,17 @@ class SafetyLayer:
         if age >= WATCHDOG_TRIP * self.params.watchdog_s:
             self.stop(t_s, f"no valid DYNO_FEEDBACK for {age * 1e3:.0f} ms (watchdog "
                            f"{self.params.watchdog_s * 1e3:g} ms)")
+
+    def host_wakes(self, t_s: float) -> None:
+        """The host's loop runs at ``t_s`` [s, its monotonic clock, not a frame's stamp]:
+        stop when it last ran :data:`WATCHDOG_TRIP` of ``watchdog_s`` or more ago."""
+        last, self.last_host_s = self.last_host_s, float(t_s)
+        if last is None:
+            return
+        gap = t_s - last
+        if gap >= WATCHDOG_TRIP * self.params.watchdog_s:
+            self.stop(t_s, f"the host stalled: no DYNO_COMMAND for {gap * 1e3:.0f} ms "
+                           f"(watchdog {self.params.watchdog_s * 1e3:g} ms)")
 
     def tracking(self, t_s: float, error_m: float, reference_m: float) -> None:
         """One cycle of the ride: the tracking error (measured − target stroke) and the

@@ -13,6 +13,7 @@ import csv
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -75,26 +76,62 @@ RUNS_THROUGH_STALLS = 3
 HOST_JITTER_MS = 10.0
 
 
-def machine_stalled(proc, out: Path, rig_stats: dict) -> str | None:
-    """Why a stopped run says nothing about the code, or None: the watchdog stopped it for a
-    pause of the feedback that the rig's own loop saw as its stall (the rig fell behind its
-    cycle then, for most of the pause: the virtual machine halted it), or stalls left the
-    identification too little (the host's account, in hybrid.json).  What the code
-    guarantees is the stop."""
+#: One SCHED_FIFO thread per CPU that logs its late wake-ups: a witness of the machine's
+#: stalls, beside the rig's own log.
+SENTINEL = Path(__file__).resolve().parents[1] / "benchmarks" / "host_sentinel.py"
+
+
+class Sentinels:
+    """:data:`SENTINEL` on every CPU while a run lasts; :attr:`stalls` then holds each late
+    wake-up as (its deadline, its lateness [ms]) on the monotonic clock (none where the
+    machine refuses SCHED_FIFO)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.files = [folder / f"sentinel{cpu}.npy" for cpu in sorted(os.sched_getaffinity(0))]
+        self.procs = [subprocess.Popen([sys.executable, str(SENTINEL), str(cpu), "3600",
+                                        str(f), "--late-us", "10000"],
+                                       stderr=subprocess.DEVNULL)
+                      for cpu, f in zip(sorted(os.sched_getaffinity(0)), self.files,
+                                        strict=True)]
+        self.stalls: list[tuple[float, float]] = []
+
+    def close(self) -> None:
+        for proc in self.procs:
+            proc.terminate()
+        for proc in self.procs:
+            proc.wait(20)
+        for f in self.files:
+            if f.exists():
+                self.stalls += [(d * 1e-9, (w - d) * 1e-6) for d, w in np.load(f)]
+
+
+def machine_stalled(proc, out: Path, rig_stats: dict, host_stalls) -> str | None:
+    """Why a stopped run says nothing about the code, or None:
+
+    * the watchdog stopped it for a pause of the feedback, or the host stopped for a pause
+      of its own loop, and for most of that pause the rig fell behind its cycle (its own
+      log) or a sentinel thread at real-time priority woke late (:class:`Sentinels`): the
+      virtual machine halted them;
+    * stalls left the identification too little (the host's account, in hybrid.json).
+
+    What the code guarantees is the stop."""
     if proc.returncode != 3 or not (out / "hybrid.json").exists():
         return None
     doc = json.loads((out / "hybrid.json").read_text())
     reason = doc["reason"]
     if "from stalls" in reason:
         return reason
-    if "no valid DYNO_FEEDBACK for" not in reason:
+    pause = re.search(r"(?:DYNO_FEEDBACK|DYNO_COMMAND) for (\d+) ms", reason)
+    if pause is None:
         return None
-    safety = doc["safety"]
-    paused, stopped = safety["last_valid_feedback_s"], safety["stopped_at_s"]
-    for start, length_ms in rig_stats.get("stalls", []):
-        overlap = min(stopped, start + length_ms * 1e-3) - max(paused, start)
-        if overlap * 1e3 >= (stopped - paused) * 1e3 - HOST_JITTER_MS:
-            return f"{reason}; the rig fell {length_ms:.0f} ms behind then"
+    stopped = doc["safety"]["stopped_at_s"]
+    started = stopped - float(pause.group(1)) * 1e-3
+    witnesses = [("the rig fell behind", s) for s in rig_stats.get("stalls", [])]
+    witnesses += [("a sentinel woke late", s) for s in host_stalls]
+    for who, (start, length_ms) in witnesses:
+        overlap = min(stopped, start + length_ms * 1e-3) - max(started, start)
+        if overlap * 1e3 >= (stopped - started) * 1e3 - HOST_JITTER_MS:
+            return f"{reason}; {who} by {length_ms:.0f} ms then"
     return None
 
 
@@ -103,8 +140,14 @@ def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False, 
     process, its output folder, the rig's statistics and the tap (or None).  A run that the
     machine stalled (:func:`machine_stalled`) runs again, with a warning."""
     for run in range(1, RUNS_THROUGH_STALLS + 1):
-        result = _run_pair_once(tmp / f"run{run}", bus, rig_args, hybrid_args, tap, env)
-        why = machine_stalled(result[0], result[1], result[2])
+        folder = tmp / f"run{run}"
+        folder.mkdir(parents=True)
+        sentinels = Sentinels(folder)
+        try:
+            result = _run_pair_once(folder, bus, rig_args, hybrid_args, tap, env)
+        finally:
+            sentinels.close()
+        why = machine_stalled(result[0], result[1], result[2], sentinels.stalls)
         if why is None:
             return result
         warnings.warn(f"run {run} stopped by a stall of the machine: {why}", stacklevel=2)
@@ -112,7 +155,6 @@ def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False, 
 
 
 def _run_pair_once(tmp: Path, bus: BusConfig, rig_args, hybrid_args, tap, env):
-    tmp.mkdir(parents=True)
     config = tmp / "short.yaml"
     config.write_text(SHORT)
     bus_args = ["--can-interface", bus.interface, "--can-channel", bus.channel]

@@ -44,34 +44,35 @@ def residual_delay_s(target: np.ndarray, measured: np.ndarray, dt_s: float) -> f
     return float((lags[i] + shift) * dt_s)
 
 
+def _errors(target: np.ndarray, measured: np.ndarray) -> tuple[float, float]:
+    """``(nrms, peak)``: the r.m.s. of measured − target over the target's r.m.s., and the
+    largest error [m] (NaN where there is nothing to compare)."""
+    target = np.asarray(target, float)
+    error = np.asarray(measured, float) - target
+    scale = float(np.sqrt(np.mean(target ** 2))) if target.size else 0.0
+    return (float(np.sqrt(np.mean(error ** 2))) / scale if scale > 0 else math.nan,
+            float(np.max(np.abs(error))) if error.size else math.nan)
+
+
 def tracking(target: np.ndarray, measured: np.ndarray, dt_s: float) -> dict[str, float]:
     """``nrms`` (r.m.s. of measured − target over the target's r.m.s.), ``peak_error_m``,
     ``delay_ms`` (:func:`residual_delay_s`)."""
-    target = np.asarray(target, float)
-    error = np.asarray(measured, float) - target
-    scale = float(np.sqrt(np.mean(target ** 2)))
-    return {"nrms": float(np.sqrt(np.mean(error ** 2))) / scale if scale > 0 else math.nan,
-            "peak_error_m": float(np.max(np.abs(error))) if error.size else math.nan,
+    nrms, peak = _errors(target, measured)
+    return {"nrms": nrms, "peak_error_m": peak,
             "delay_ms": residual_delay_s(target, measured, dt_s) * 1e3}
 
 
 def _stall_windows(host: RigHost, ridden: slice) -> np.ndarray:
     """The ridden samples a stall disturbed, each with ``stall_guard_s`` after it."""
-    guard = int(round(host.compensator_params.stall_guard_s / host.dt_s))
-    return ~usable_cycles(host.stalled[ridden], guard)
+    return ~usable_cycles(host.stalled[ridden], host.stall_guard_cycles)
 
 
 def outside_stalls(host: RigHost, ridden: slice) -> dict[str, float | int]:
     """The tracking's ``nrms`` and ``peak_error_m`` over the ridden samples outside the
     stalls' windows (:func:`_stall_windows`), and how many samples those windows hold."""
     inside = _stall_windows(host, ridden)
-    target = host.record[0, ridden][~inside]
-    error = host.record[2, ridden][~inside] - target
-    scale = float(np.sqrt(np.mean(target ** 2))) if target.size else 0.0
-    return {"nrms_outside_stalls": (float(np.sqrt(np.mean(error ** 2))) / scale
-                                    if scale > 0 else math.nan),
-            "peak_error_outside_stalls_m": (float(np.max(np.abs(error))) if error.size
-                                            else math.nan),
+    nrms, peak = _errors(host.record[0, ridden][~inside], host.record[2, ridden][~inside])
+    return {"nrms_outside_stalls": nrms, "peak_error_outside_stalls_m": peak,
             "samples_in_stalls": int(np.count_nonzero(inside))}
 
 

@@ -19,10 +19,9 @@ identification and tracker, and the record.  :class:`~ride_sim.hybrid.host.Hybri
     the fit of the transfer system (:func:`~ride_sim.hybrid.transfer.identify`; run by the
     ``executor`` given, the demand held at the static position meanwhile).  A cycle that
     a stall of the host or the bus disturbed (:data:`STALL_CYCLES`) is left out of the fit
-    with ``stall_guard_s`` after it; while
-    the fit misses ``max_fit_nrms``, or stalls leave less than :data:`MIN_USABLE_SHARE` of
-    the cycles, the signal runs again, up to ``identify_attempts`` in all
-    (:attr:`RigHost.attempts` holds each one's account).
+    with ``stall_guard_s`` after it; while the fit misses ``max_fit_nrms``, or stalls
+    leave less than :data:`MIN_USABLE_SHARE` of the cycles, the signal runs again, up to
+    ``identify_attempts`` in all (:attr:`RigHost.attempts` holds each one's account).
 the run proper (:attr:`RigHost.RUN_PHASE`)
     The subclass's.
 ``return``, ``done``
@@ -207,6 +206,11 @@ class RigHost:
             self.t_ns[self.k - 1] = t_ns
 
     @property
+    def stall_guard_cycles(self) -> int:
+        """``stall_guard_s`` in cycles: left out after a stall's cycles."""
+        return int(round(self.compensator_params.stall_guard_s / self.dt_s))
+
+    @property
     def finished(self) -> bool:
         return self.phase in ("done", "stopped")
 
@@ -317,7 +321,7 @@ class RigHost:
         """The signal has run: fit it on its usable cycles, or run it again when stalls
         left too few."""
         p = self.compensator_params
-        self.usable = usable_cycles(self.disturbed, int(round(p.stall_guard_s / self.dt_s)))
+        self.usable = usable_cycles(self.disturbed, self.stall_guard_cycles)
         if np.mean(self.usable) < MIN_USABLE_SHARE:
             self._account(None)
             return self._again_or_stop(t_s, f"kept {np.mean(self.usable):.0%} of its cycles "

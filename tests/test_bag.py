@@ -394,6 +394,37 @@ def test_background_flush_writes_without_explicit_flush(tmp_path):
     w.close()  # no-op
 
 
+def test_a_disk_slow_to_sync_holds_back_no_write(tmp_path, monkeypatch):
+    """Each ``fdatasync`` takes 1 s (a busy machine's disk): the background flushes still
+    put every message into the file within a period or two (what a SIGKILL would keep);
+    only the syncs fall behind, and :meth:`close` syncs what they had not reached."""
+    synced = []
+    real_sync = os.fdatasync
+
+    def slow_sync(fd: int) -> None:
+        time.sleep(1.0)
+        real_sync(fd)
+        synced.append(time.monotonic())
+
+    monkeypatch.setattr(os, "fdatasync", slow_sync)
+    bag = tmp_path / "slow"
+    start = time.monotonic()
+    w = BagWriter(bag, flush_period_s=0.05, fsync=True)
+    c = w.add_topic("/x", F64)
+    behind = []
+    for i in range(150):                   # 1.5 s of messages at 100 Hz
+        w.write(c, T0 + i, messages.float64(i))
+        time.sleep(0.01)
+        if i % 25 == 24:                   # what the file holds, read as it is
+            behind.append((i + 1) - len(read_mcap(bag)[0]))
+    assert synced and synced[0] - start >= 1.0   # the syncs were slow indeed
+    # at most 0.05 s hold-back + 0.05 s period + the read: about 10-20 messages behind
+    assert max(behind) <= 30, behind
+    w.close()
+    assert len(read_mcap(bag)[0]) == 150
+    assert synced[-1] >= time.monotonic() - 1.0   # close synced before it returned
+
+
 # ---------------------------------------------------------------- growth
 
 

@@ -70,9 +70,13 @@ Flushing and loss bound
 -----------------------
 :meth:`BagWriter.write` only appends to an in-memory list under a lock. A
 daemon thread flushes every ``flush_period_s`` (0.25 s): the pending messages
-are sorted by timestamp (stable), written as chunks (at most 1 MiB each), the
-file optionally ``fdatasync``-ed, and ``metadata.yaml`` rewritten atomically
-(temporary file and ``os.replace``). The background flush holds back the
+are sorted by timestamp (stable), written as chunks (at most 1 MiB each), and
+``metadata.yaml`` rewritten atomically (temporary file and ``os.replace``).
+With ``fsync``, a second daemon thread then ``fdatasync``-s both files: a disk
+slow to sync (a busy machine's, for seconds) delays only the protection against a
+power loss, never the writes that a SIGKILL would otherwise lose.
+:meth:`BagWriter.flush` and :meth:`BagWriter.close` sync before they return. The
+background flush holds back the
 messages stamped within 50 ms of the newest one until its next round, so a
 message that another thread stamped earlier but handed over a little later
 still goes in in timestamp order. A SIGKILL loses what was not yet written: at
@@ -144,8 +148,10 @@ class BagWriter:
     custom_data : mapping of str to str, optional
         rosbag2 ``custom_data``.
     fsync : bool, optional
-        ``fdatasync`` the MCAP file after each flush (protects against power
-        loss too; it only runs in the flush thread).
+        ``fdatasync`` the MCAP file and ``metadata.yaml`` after each flush
+        (protects against a power loss too). The background flush leaves it to a
+        thread of its own, so that a slow sync never holds back the writes;
+        :meth:`flush` and :meth:`close` sync before they return.
     flush_thread_setup : callable, optional
         Called first on the background flush thread (e.g. to give it the
         real-time priority of the thread that calls :meth:`write`: the two share
@@ -258,6 +264,14 @@ class BagWriter:
             target=self._run, name=f"bag-flush {self.path.name}", daemon=True
         )
         self._thread.start()
+        #: set by each background flush: the sync thread has new writes to make durable
+        self._sync_wanted = threading.Event()
+        self._sync_thread: threading.Thread | None = None
+        if self._fsync:
+            self._sync_thread = threading.Thread(
+                target=self._sync_run, name=f"bag-sync {self.path.name}", daemon=True
+            )
+            self._sync_thread.start()
 
     # ------------------------------------------------------------------ API
 
@@ -380,7 +394,7 @@ class BagWriter:
         with self._io_lock:
             with self._lock:
                 self._check_open()
-            self._flush_locked()
+            self._flush_locked(durable=True)
 
     def close(self) -> None:
         """Flush and write the final summary, truncate the file, write the final metadata.yaml.
@@ -399,6 +413,9 @@ class BagWriter:
         self._stop.set()
         if self._thread is not threading.current_thread():
             self._thread.join()
+        if self._sync_thread is not None:
+            self._sync_wanted.set()  # wakes it to see _stop; it touches the file no more
+            self._sync_thread.join()
         with self._io_lock:
             try:
                 if self._error is None:
@@ -465,6 +482,31 @@ class BagWriter:
                     self._flush_locked(hold_back=True)
                 except BagError:
                     return
+
+    def _sync_run(self) -> None:
+        """The sync thread: ``fdatasync`` what the background flushes wrote, as often as
+        the disk allows (outside ``_io_lock``: the flushes go on meanwhile)."""
+        while True:
+            self._sync_wanted.wait()
+            self._sync_wanted.clear()
+            if self._stop.is_set():
+                return
+            try:
+                self._sync_files()
+            except OSError as exc:
+                with self._lock:
+                    if self._error is None:
+                        self._error = f"syncing failed: {exc.strerror or exc}"
+                return
+
+    def _sync_files(self) -> None:
+        """``fdatasync`` the MCAP file and the current ``metadata.yaml``."""
+        os.fdatasync(self._fd)
+        fd = os.open(self.path / "metadata.yaml", os.O_RDONLY | os.O_CLOEXEC)
+        try:
+            os.fdatasync(fd)
+        finally:
+            os.close(fd)
 
     def _pwrite(self, data: bytes, offset: int) -> None:
         view = memoryview(data)
@@ -561,13 +603,15 @@ class BagWriter:
             )
         return b"".join(parts), indexes
 
-    def _flush_locked(self, hold_back: bool = False) -> None:
+    def _flush_locked(self, hold_back: bool = False, durable: bool = False) -> None:
         """Write queued definitions and messages (caller holds ``_io_lock``).
 
         With ``hold_back`` (the background flush), messages stamped within
         ``_REORDER_NS`` of the newest one wait for the next flush, so that a
         message handed over slightly late by another thread still lands in
         timestamp order; what waited is always written by the next flush.
+        With ``fsync``, ``durable`` syncs the files before returning; otherwise the
+        sync thread does.
         """
         if self._error is not None:
             raise BagError(f"bag {self.path}: writer failed earlier: {self._error}")
@@ -592,8 +636,6 @@ class BagWriter:
                 self._build_chunks(pending, self._pos + len(head)) if pending else (b"", [])
             )
             self._append(head + chunks)
-            if self._fsync:
-                os.fdatasync(self._fd)
             self._chunk_indexes.extend(indexes)
             counts = self._counts
             for _, channel_id, _ in pending:
@@ -613,6 +655,11 @@ class BagWriter:
                 self._start = min(self._start, pending[0][0])
                 self._end = max(self._end, pending[-1][0])
             self._write_metadata_yaml()
+            if self._fsync:
+                if durable:
+                    self._sync_files()
+                else:
+                    self._sync_wanted.set()
         except OSError as exc:
             self._error = f"writing failed: {exc.strerror or exc}"
             raise BagError(f"bag {self.path}: {self._error}") from None
@@ -671,9 +718,9 @@ class BagWriter:
             os.ftruncate(self._fd, self._pos + len(tail))
             self._pwrite(tail[: rec.RECORD_HEADER_SIZE], self._pos)
             self._pos += len(tail)
-            if self._fsync:
-                os.fdatasync(self._fd)
             self._write_metadata_yaml()
+            if self._fsync:
+                self._sync_files()
         except OSError as exc:
             self._error = f"closing failed: {exc.strerror or exc}"
 
@@ -719,7 +766,8 @@ class BagWriter:
         }
 
     def _write_metadata_yaml(self) -> None:
-        """Replace metadata.yaml atomically (temporary file + rename)."""
+        """Replace metadata.yaml atomically (temporary file + rename); syncing it is
+        :meth:`_sync_files`' (ext4 writes a file renamed over another out with the rename)."""
         text = dump_yaml(self._metadata()).encode()
         tmp = self.path / ".metadata.yaml.tmp"
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
@@ -727,8 +775,6 @@ class BagWriter:
             view = memoryview(text)
             while view:
                 view = view[os.write(fd, view) :]
-            if self._fsync:
-                os.fdatasync(fd)
         finally:
             os.close(fd)
         os.replace(tmp, self.path / "metadata.yaml")

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from host_stalls import Sentinels
 
 from can_bridge.bus import BusConfig, socketcan_problem
 from can_bridge.codec import Receiver
@@ -74,35 +75,6 @@ def start_rig(args) -> subprocess.Popen:
 RUNS_THROUGH_STALLS = 3
 #: The host's own jitter beside a stall of the rig's [ms].
 HOST_JITTER_MS = 10.0
-
-
-#: One SCHED_FIFO thread per CPU that logs its late wake-ups: a witness of the machine's
-#: stalls, beside the rig's own log.
-SENTINEL = Path(__file__).resolve().parents[1] / "benchmarks" / "host_sentinel.py"
-
-
-class Sentinels:
-    """:data:`SENTINEL` on every CPU while a run lasts; :attr:`stalls` then holds each late
-    wake-up as (its deadline, its lateness [ms]) on the monotonic clock (none where the
-    machine refuses SCHED_FIFO)."""
-
-    def __init__(self, folder: Path) -> None:
-        self.files = [folder / f"sentinel{cpu}.npy" for cpu in sorted(os.sched_getaffinity(0))]
-        self.procs = [subprocess.Popen([sys.executable, str(SENTINEL), str(cpu), "3600",
-                                        str(f), "--late-us", "10000"],
-                                       stderr=subprocess.DEVNULL)
-                      for cpu, f in zip(sorted(os.sched_getaffinity(0)), self.files,
-                                        strict=True)]
-        self.stalls: list[tuple[float, float]] = []
-
-    def close(self) -> None:
-        for proc in self.procs:
-            proc.terminate()
-        for proc in self.procs:
-            proc.wait(20)
-        for f in self.files:
-            if f.exists():
-                self.stalls += [(d * 1e-9, (w - d) * 1e-6) for d, w in np.load(f)]
 
 
 def machine_stalled(proc, out: Path, rig_stats: dict, host_stalls) -> str | None:

@@ -10,10 +10,12 @@ import os
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from host_stalls import Sentinels
 
 rclpy = pytest.importorskip("rclpy")
 from rclpy.context import Context  # noqa: E402
@@ -248,7 +250,40 @@ def test_nan_input_never_reaches_the_force(tmp_path):
     assert sum(1 for f in flagged if f) >= 20, flagged
 
 
+#: What a SIGKILL may cost the recorder: its flush period twice [s], plus the test's
+#: own scheduling.
+KILL_LOSS_S = 0.5
+KILL_SLACK_S = 0.1
+#: Runs of a test that a stall of the machine can void, before it gives up.
+RUNS_THROUGH_STALLS = 3
+
+
 def test_a_killed_recorder_leaves_a_readable_bag(tmp_path):
+    """A recorder killed (SIGKILL) mid-stream leaves a bag that rosbags reads, in order,
+    holding everything sent up to 0.5 s before the kill.  What it had not yet taken it
+    cannot have written: a run that lost more while the machine stalled (sentinels at
+    real-time priority woke late for the time lost beyond the bound) says nothing about
+    the code and runs again, with a warning."""
+    for run in range(1, RUNS_THROUGH_STALLS + 1):
+        folder = tmp_path / f"run{run}"
+        folder.mkdir()
+        with Sentinels(folder) as sentinels:
+            lost_s, window, recorded = _kill_a_recording(folder)
+        if lost_s <= KILL_LOSS_S + KILL_SLACK_S:
+            assert recorded > 500
+            return
+        stalled_ms = sentinels.stalled_ms(*window)
+        assert stalled_ms >= (lost_s - KILL_LOSS_S) * 1e3, \
+            f"lost {lost_s:.2f} s of the stream, the machine stalled {stalled_ms:.0f} ms"
+        warnings.warn(f"run {run}: lost {lost_s:.2f} s while the machine stalled "
+                      f"{stalled_ms:.0f} ms", stacklevel=1)
+    pytest.skip(f"the machine stalled in each of {RUNS_THROUGH_STALLS} runs")
+
+
+def _kill_a_recording(tmp_path: Path) -> tuple[float, tuple[float, float], int]:
+    """Record 2 s of 1 kHz /damper/state, SIGKILL the recorder, read its bag back: the
+    time from the last message the bag holds to the kill [s], the stream's window on the
+    monotonic clock, and how many messages the bag holds."""
     d = DOMAINS["kill"]
     bag = tmp_path / "bag"
     rec = start("recorder", "record", d, tmp_path, extra=["--out", str(bag)])
@@ -257,25 +292,25 @@ def test_a_killed_recorder_leaves_a_readable_bag(tmp_path):
         pub = probe.node.create_publisher(JointState, topics.STATE, control_qos(10))
         assert probe.spin_until(lambda: pub.get_subscription_count() > 0, 60), rec.log_tail()
         sent = []
-        end = time.monotonic() + 2.0
+        began = time.monotonic()
+        end = began + 2.0
         k = 0
         while time.monotonic() < end:
             msg = state(k * 1e-6, 0.0)
             pub.publish(msg)
-            sent.append((time.time_ns(), k))
+            sent.append((time.monotonic(), k))
             k += 1
             time.sleep(0.001)
         rec.kill()                                 # SIGKILL: no clean-up at all
-        killed_at = time.time_ns()
+        killed_at = time.monotonic()
     finally:
         probe.close()
     msgs = read_bag(bag)[topics.STATE]              # rosbags reads it as it is
-    assert len(msgs) > 500
-    last_k = round(msgs[-1][1].position[0] / 1e-6)
+    assert msgs, "nothing recorded"
     ks = [round(m.position[0] / 1e-6) for _, m in msgs]
     assert ks == sorted(ks) and len(set(ks)) == len(ks)
-    last_sent_time = dict((kk, t) for t, kk in sent)[last_k]
-    assert (killed_at - last_sent_time) * 1e-9 <= 0.5 + 0.1   # at most 0.5 s lost
+    last_sent_time = dict((kk, t) for t, kk in sent)[ks[-1]]
+    return killed_at - last_sent_time, (began, killed_at), len(msgs)
 
 
 def test_a_recorder_held_back_for_seconds_loses_nothing(tmp_path):

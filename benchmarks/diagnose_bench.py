@@ -62,8 +62,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -380,6 +382,8 @@ def main() -> None:
     ap.add_argument("--only", nargs="+", default=None,
                     help="scenario labels, or a label's start followed by '*'")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--json", metavar="DIR", type=Path, default=None,
+                    help="write each scenario's diagnose JSON there (LABEL.json)")
     args = ap.parse_args()
 
     def wanted(label: str) -> bool:
@@ -408,6 +412,10 @@ def main() -> None:
         wall = time.perf_counter() - t0
         walls.append(time.perf_counter() - t1)
         doc = d.to_json()
+        if args.json is not None:
+            args.json.mkdir(parents=True, exist_ok=True)
+            name = re.sub(r"[^A-Za-z0-9_.+-]", "_", sc.label)
+            (args.json / f"{name}.json").write_text(json.dumps(doc, indent=1, default=str))
         counts = {r.name: r.counted for r in d.records if r.name in d.held_out}
         b, a = _pooled(d.rms_before, counts), _pooled(d.rms_after, counts)
         r = _pooled(d.refit.rms_held_out, counts) if d.refit else math.nan

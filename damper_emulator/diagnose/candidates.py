@@ -109,6 +109,12 @@ class Candidate:
     form_starts: tuple[tuple[float, ...], ...] = ()
     #: parameters no longer free and their values (:meth:`holding`)
     held: Mapping[str, float] = field(default_factory=dict)
+    #: where the fit files leave a part of the effect's law undetermined
+    #: (``(MeasuredData, fitted values) -> mask``), and why (:attr:`limit`): a held-out
+    #: residual there neither credits nor blames the effect
+    #: (:mod:`damper_emulator.diagnose.undetermined`); ``None``: nowhere
+    undetermined: Callable[[MeasuredData, Mapping[str, float]], np.ndarray] | None = None
+    limit: str = ""
     family: str = field(init=False)
 
     def __post_init__(self) -> None:
@@ -401,14 +407,26 @@ def _end_stops(s: Scales) -> Candidate:
         form_starts=((x_hi - 0.15 * span, x_lo + 0.15 * span, f4, 1.0, 1e3, 0.0, 1.0,
                       f6 / (0.5 * v_top) ** 2, d_h, 1.0),))
     speeds = np.concatenate([speed(d)[outer_half(d)] for d in s.fit_data])
-    if speeds.size and (np.percentile(speeds, 90)
-                        >= ORIFICE_SPEED_SPAN * max(np.percentile(speeds, 10), 1e-12)):
+    top = float(np.percentile(speeds, 90)) if speeds.size else 0.0
+    if speeds.size and top >= ORIFICE_SPEED_SPAN * max(np.percentile(speeds, 10), 1e-12):
         return stops
-    # the files reach the stroke's ends at one speed: no orifice, nor its start
+    # the files reach the stroke's ends at one speed: no orifice, nor its start; past
+    # the stops at speeds beyond what they span, the stops' law is not theirs to tell
+
+    def undetermined(data: MeasuredData, v: Mapping[str, float]) -> np.ndarray:
+        x = data.displacement
+        past = (x > v["rebound_position_m"]) | (x < v["compression_position_m"])
+        return past & (speed(data) > ORIFICE_SPEED_SPAN * top)
+
     return dataclasses.replace(
         stops.holding({"hydraulic_damping_n_s2_m2"}), form_starts=(),
         note=f"{stops.note}; no hydraulic stop's orifice: the files reach the stroke's ends "
-             "at one speed, where a law of the speed cannot be told from a hysteresis")
+             "at one speed, where a law of the speed cannot be told from a hysteresis",
+        undetermined=undetermined,
+        limit=f"the fit files move in the outer half of the stroke at one speed (90 % of "
+              f"their samples there below {1e3 * top:.2g} mm/s): past the stops above "
+              f"{1e3 * ORIFICE_SPEED_SPAN * top:.2g} mm/s, the stops' law of the speed is "
+              "not theirs to tell")
 
 
 #: the stroke's knees: the identified model's residual on the slowest file, in this many

@@ -340,6 +340,9 @@ class Diagnosis:
     #: the force's scale against the oil's stiffness (``scale.ScaleResult``), where the
     #: stage ran
     scale: Any = None
+    #: what lies of the held-out residual where the fit files leave an effect's law
+    #: undetermined (``undetermined.Undetermined``, one per such effect)
+    undetermined: list[Any] = field(default_factory=list)
 
     @property
     def chosen(self) -> StepFit | None:
@@ -480,6 +483,7 @@ class Diagnosis:
             "series": ({"positions": self.series.positions, "tried": self.series.tried}
                        if self.series is not None else None),
             "scale": self.scale.to_json() if self.scale is not None else None,
+            "undetermined": [u.to_json() for u in self.undetermined],
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "floor_N": self.floor_n, "noise_N": self.noise_n,

@@ -279,6 +279,11 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                   + ("  What the identified model missed was the rig's (section What the "
                      "rig did)." if any(f["kind"] not in ("filter", "skew", "delay")
                                         for f in doc["measurement"]) else ""), ""]
+    for u in diag.undetermined:
+        lines += ["**What these files cannot tell.** " + u.sentence()
+                  + ("  The effects are weighed where the files determine their laws."
+                     if diag.steps and diag.explained < doc["thresholds"]["min_explained"]
+                     else ""), ""]
     lines += (_rig_lines(doc) + _series_lines(diag) + _chain_lines(doc["acquisition"])
               + _discovery_lines(diag))
     lines += ["## The paper's parameters", "",

@@ -66,7 +66,10 @@ The library's rounds and the answer (steps 1–7):
    noise level), else ``other``.  Effects added: the first (largest) names the family,
    unless together they remove less than :data:`MIN_EXPLAINED` of the refitted model's
    held-out structured power (:func:`explained_fraction`) while structure above the floor
-   remains: then ``other``, the first as the closest family, nothing added.
+   remains: then ``other``, the first as the closest family, nothing added.  Where most of
+   what they left lies where the fit files leave an effect's law undetermined
+   (:mod:`~damper_emulator.diagnose.undetermined`), that share is asked of the samples
+   outside those regions.
 
 **The rig's delay** (no chain given: ``docs/diagnose.md``, "The measurement chain")
 competes in every round as the chain candidate: taken when it gains at least as much as
@@ -134,6 +137,13 @@ from damper_emulator.diagnose.scale import scale_findings, weigh_scale
 from damper_emulator.diagnose.series import SeriesResult
 from damper_emulator.diagnose.series_stage import follow_series
 from damper_emulator.diagnose.session import Say, Session, check_inputs, prepare, records_of
+from damper_emulator.diagnose.undetermined import (
+    MIN_UNDETERMINED_SHARE,
+    determined_masks,
+    explained_where,
+    undetermined_findings,
+    undetermined_share,
+)
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.validation import rms
@@ -146,16 +156,21 @@ Progress = Callable[[str], None] | None
 def weigh_effects(refit: StepFit, ref_held: Sequence[np.ndarray], steps: list[StepFit],
                   held: Sequence[Record], floor: float, pair_gain: float | None,
                   min_explained: float = MIN_EXPLAINED,
-                  structure: float = STRUCTURE_RATIO
+                  structure: float = STRUCTURE_RATIO,
+                  determined: Sequence[np.ndarray] | None = None
                   ) -> tuple[list[StepFit], StepFit | None, float, float | None]:
     """Step 7 on the effects ``steps`` added (``pair_gain``: found as a pair): whether
     they explain enough of the refitted model's held-out residual ``ref_held`` (on the
-    records ``held``).
+    records ``held``).  ``determined``: per held-out record, its counted samples where
+    the fit files determine the effects' laws
+    (:func:`~damper_emulator.diagnose.undetermined.determined_masks`).
 
     Returns ``(steps, closest, explained, pair_gain)``: ``steps`` unchanged, unless they
     remove less than ``min_explained`` of the structured power while the residual stays
-    above ``floor`` and above ``structure`` × its noise level; then no step, and the
-    closest is the first step (for a pair, the pair's fit, scored against ``refit``)."""
+    above ``floor`` and above ``structure`` × its noise level, and (given ``determined``)
+    less than that where their laws are determined too or most of what they left lies
+    there; then no step, and the closest is the first step (for a pair, the pair's fit,
+    scored against ``refit``)."""
     if not steps:
         return steps, None, 0.0, pair_gain
     final_held = steps[-1].residuals(held)
@@ -163,6 +178,10 @@ def weigh_effects(refit: StepFit, ref_held: Sequence[np.ndarray], steps: list[St
     if (explained >= min_explained or structure_ratio(final_held) <= structure
             or pooled_rms(final_held) <= floor):
         return steps, None, explained, pair_gain
+    if (determined is not None
+            and undetermined_share(final_held, determined) >= MIN_UNDETERMINED_SHARE
+            and explained_where(ref_held, final_held, determined) >= min_explained):
+        return steps, None, explained, pair_gain   # the rest: where the files cannot tell
     closest = steps[0]
     if pair_gain is not None:  # the pair's fit, scored as a pair
         closest = steps[-1]
@@ -179,8 +198,12 @@ def answer(session: Session, found: RoundsOutcome, drift: SeriesResult) -> Diagn
     ref_held = refit.residuals(held)
     floor, noise = floor_level(held, ref_held)
     structure_ref = structure_ratio(ref_held)
-    steps, closest, explained, pair_gain = weigh_effects(refit, ref_held, found.steps,
-                                                         held, floor, found.pair_gain)
+    # the effects added, as fitted together last
+    accepted = found.steps[-1].candidates if found.steps else []
+    values = found.steps[-1].out["values"] if found.steps else []
+    steps, closest, explained, pair_gain = weigh_effects(
+        refit, ref_held, found.steps, held, floor, found.pair_gain,
+        determined=determined_masks(accepted, values, held))
     damper_drift = [d for d in drift.taken if d.kind.family is not None]
     effect: str | None
     if steps:
@@ -208,6 +231,8 @@ def answer(session: Session, found: RoundsOutcome, drift: SeriesResult) -> Diagn
     after = {r.name: r.residual(after_model, rig=after_rig) for r in session.records}
     diag.rms_after = {r.name: rms(after[r.name]) for r in session.records}
     diag.structure_after = structure_ratio([after[r.name] for r in held])
+    diag.undetermined = undetermined_findings(accepted, values, held,
+                                              [after[r.name] for r in held])
     return diag
 
 

@@ -259,12 +259,8 @@ class BagWriter:
             raise BagError(f"bag {self.path}: cannot write: {exc.strerror or exc}") from None
 
         self._stop = threading.Event()
-        self._thread_setup = flush_thread_setup
-        self._thread = threading.Thread(
-            target=self._run, name=f"bag-flush {self.path.name}", daemon=True
-        )
-        self._thread.start()
         #: set by each background flush: the sync thread has new writes to make durable
+        #: (before the flush thread starts: its first flush sets it)
         self._sync_wanted = threading.Event()
         self._sync_thread: threading.Thread | None = None
         if self._fsync:
@@ -272,6 +268,11 @@ class BagWriter:
                 target=self._sync_run, name=f"bag-sync {self.path.name}", daemon=True
             )
             self._sync_thread.start()
+        self._thread_setup = flush_thread_setup
+        self._thread = threading.Thread(
+            target=self._run, name=f"bag-flush {self.path.name}", daemon=True
+        )
+        self._thread.start()
 
     # ------------------------------------------------------------------ API
 

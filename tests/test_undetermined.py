@@ -16,8 +16,8 @@ from damper_emulator.diagnose.undetermined import (
     MIN_UNDETERMINED_SHARE,
     determined_masks,
     explained_where,
+    power_share,
     undetermined_findings,
-    undetermined_share,
 )
 from damper_emulator.dyno.measured import MeasuredData
 
@@ -71,7 +71,7 @@ def test_an_effect_whose_remainder_the_files_cannot_tell_is_kept():
     after = noise + np.where(determined, 0.0, 300.0)
     assert explained_fraction([before], [after]) < 0.75
     assert explained_where([before], [after], [determined]) == pytest.approx(1.0, abs=0.01)
-    assert undetermined_share([after], [determined]) >= MIN_UNDETERMINED_SHARE
+    assert power_share([after], [~determined]) >= MIN_UNDETERMINED_SHARE
     effect, refit = _Fitted(after), _Fitted(before)
     steps, closest, _, _ = weigh_effects(refit, [before], [effect], [held], 0.0, None)
     assert steps == [] and closest is effect

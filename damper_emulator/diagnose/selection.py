@@ -141,8 +141,8 @@ from damper_emulator.diagnose.undetermined import (
     MIN_UNDETERMINED_SHARE,
     determined_masks,
     explained_where,
+    power_share,
     undetermined_findings,
-    undetermined_share,
 )
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.model.compressible import DamperModel
@@ -179,7 +179,7 @@ def weigh_effects(refit: StepFit, ref_held: Sequence[np.ndarray], steps: list[St
             or pooled_rms(final_held) <= floor):
         return steps, None, explained, pair_gain
     if (determined is not None
-            and undetermined_share(final_held, determined) >= MIN_UNDETERMINED_SHARE
+            and power_share(final_held, [~m for m in determined]) >= MIN_UNDETERMINED_SHARE
             and explained_where(ref_held, final_held, determined) >= min_explained):
         return steps, None, explained, pair_gain   # the rest: where the files cannot tell
     closest = steps[0]

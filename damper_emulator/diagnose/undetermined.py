@@ -27,7 +27,7 @@ from damper_emulator.diagnose.candidates import Candidate
 from damper_emulator.diagnose.outcome import STRUCTURE_RATIO, noise_level
 
 __all__ = ["MIN_UNDETERMINED_SHARE", "Undetermined", "determined_masks", "explained_where",
-           "split_power", "undetermined_findings", "undetermined_share"]
+           "power_share", "split_power", "undetermined_findings"]
 
 #: step 7 weighs the effects where the fit files determine their laws when at least this
 #: share of the structured power they left on the held-out files lies where they do not
@@ -56,13 +56,11 @@ def explained_where(before: Sequence[np.ndarray], after: Sequence[np.ndarray],
     return 1.0 - max(p1, 0.0) / p0 if p0 > 0.0 else 0.0
 
 
-def undetermined_share(residuals: Sequence[np.ndarray], determined: Sequence[np.ndarray]
-                       ) -> float:
-    """The share of the structured power of ``residuals`` outside the samples
-    ``determined``."""
-    p_in, p_out = split_power(residuals, determined)
+def power_share(residuals: Sequence[np.ndarray], where: Sequence[np.ndarray]) -> float:
+    """The share of the structured power of ``residuals`` over the samples ``where``."""
+    p_in, p_out = split_power(residuals, where)
     total = max(p_in, 0.0) + max(p_out, 0.0)
-    return max(p_out, 0.0) / total if total > 0.0 else 0.0
+    return max(p_in, 0.0) / total if total > 0.0 else 0.0
 
 
 def _regions(candidates: Sequence[Candidate], values: Sequence[Mapping[str, float]],
@@ -133,12 +131,12 @@ def undetermined_findings(candidates: Sequence[Candidate],
         n = sum(int(m.sum()) for m in regions)
         if n == 0:
             continue
-        p_in, p_out = split_power(residuals, regions)
+        p_in, _ = split_power(residuals, regions)
         if p_in / n <= (STRUCTURE_RATIO ** 2 - 1.0) * noise2:
             continue
         out.append(Undetermined(
             effect=c.effect, limit=c.limit,
             samples=n / sum(m.size for m in regions),
-            power=max(p_in, 0.0) / (max(p_in, 0.0) + max(p_out, 0.0)),
+            power=power_share(residuals, regions),
             files={r.name: float(m.mean()) for r, m in zip(held, regions)}))
     return out

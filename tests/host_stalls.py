@@ -16,6 +16,8 @@ import numpy as np
 SENTINEL = Path(__file__).resolve().parents[1] / "benchmarks" / "host_sentinel.py"
 #: Late wake-ups shorter than this are the host's jitter, not a stall [ms].
 LATE_MS = 10.0
+#: A run that the machine stalled is run again, at most this many times in all.
+RUNS_THROUGH_STALLS = 3
 
 
 class Sentinels:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from host_stalls import Sentinels
+from host_stalls import RUNS_THROUGH_STALLS, Sentinels
 
 from can_bridge.bus import BusConfig, socketcan_problem
 from can_bridge.codec import Receiver
@@ -71,10 +71,19 @@ def start_rig(args) -> subprocess.Popen:
     return rig
 
 
-#: A run the machine stalled is run again, at most this many times in all.
-RUNS_THROUGH_STALLS = 3
 #: The host's own jitter beside a stall of the rig's [ms].
 HOST_JITTER_MS = 10.0
+
+
+def _stopped(proc, doc_path: Path) -> tuple[dict, str, float | None] | None:
+    """A run that stopped (exit 3) and wrote ``doc_path``: its JSON, the reason, and the
+    pause of the feedback or of the host's loop the reason names [ms] (None: another
+    reason); None for a run that did not stop."""
+    if proc.returncode != 3 or not doc_path.exists():
+        return None
+    doc = json.loads(doc_path.read_text())
+    pause = re.search(r"(?:DYNO_FEEDBACK|DYNO_COMMAND) for (\d+) ms", doc["reason"])
+    return doc, doc["reason"], float(pause.group(1)) if pause else None
 
 
 def machine_stalled(proc, out: Path, rig_stats: dict, host_stalls) -> str | None:
@@ -87,17 +96,15 @@ def machine_stalled(proc, out: Path, rig_stats: dict, host_stalls) -> str | None
     * stalls left the identification too little (the host's account, in hybrid.json).
 
     What the code guarantees is the stop."""
-    if proc.returncode != 3 or not (out / "hybrid.json").exists():
+    if (stop := _stopped(proc, out / "hybrid.json")) is None:
         return None
-    doc = json.loads((out / "hybrid.json").read_text())
-    reason = doc["reason"]
+    doc, reason, pause_ms = stop
     if "from stalls" in reason:
         return reason
-    pause = re.search(r"(?:DYNO_FEEDBACK|DYNO_COMMAND) for (\d+) ms", reason)
-    if pause is None:
+    if pause_ms is None:
         return None
     stopped = doc["safety"]["stopped_at_s"]
-    started = stopped - float(pause.group(1)) * 1e-3
+    started = stopped - pause_ms * 1e-3
     witnesses = [("the rig fell behind", s) for s in rig_stats.get("stalls", [])]
     witnesses += [("a sentinel woke late", s) for s in host_stalls]
     for who, (start, length_ms) in witnesses:
@@ -410,16 +417,15 @@ def dyno_stalled(proc, out: Path, host_stalls) -> str | None:
     identification too little (the host's account), or it stopped for a pause of the
     feedback or of its own loop while a sentinel at real-time priority woke late by as
     long (its JSON has no stop time to match them by)."""
-    if proc.returncode != 3 or not (out / "dyno.json").exists():
+    if (stop := _stopped(proc, out / "dyno.json")) is None:
         return None
-    reason = json.loads((out / "dyno.json").read_text())["reason"]
+    _, reason, pause_ms = stop
     if "from stalls" in reason:
         return reason
-    pause = re.search(r"(?:DYNO_FEEDBACK|DYNO_COMMAND) for (\d+) ms", reason)
-    if pause is None:
+    if pause_ms is None:
         return None
     late = max((ms for _, ms in host_stalls), default=0.0)
-    if late >= float(pause.group(1)) - HOST_JITTER_MS:
+    if late >= pause_ms - HOST_JITTER_MS:
         return f"{reason}; a sentinel woke late by {late:.0f} ms"
     return None
 

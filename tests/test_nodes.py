@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from host_stalls import Sentinels
+from host_stalls import RUNS_THROUGH_STALLS, Sentinels
 
 rclpy = pytest.importorskip("rclpy")
 from rclpy.context import Context  # noqa: E402
@@ -254,8 +254,6 @@ def test_nan_input_never_reaches_the_force(tmp_path):
 #: own scheduling.
 KILL_LOSS_S = 0.5
 KILL_SLACK_S = 0.1
-#: Runs of a test that a stall of the machine can void, before it gives up.
-RUNS_THROUGH_STALLS = 3
 
 
 def test_a_killed_recorder_leaves_a_readable_bag(tmp_path):

@@ -15,7 +15,8 @@ invalid command is dropped and counted, and the rig holds once no valid command 
 for ``rig.hold_after_s``.
 
 :class:`RigFaults` injects what a test of the host's safety layer needs: a transport
-delay that changes mid-run, corrupted feedback frames, feedback that stops.
+delay that changes mid-run, corrupted feedback frames, feedback frames a cycle late,
+feedback that stops.
 """
 
 from __future__ import annotations
@@ -51,6 +52,8 @@ class RigFaults:
     delay_change_to_s: float = 0.0
     #: every n-th DYNO_FEEDBACK goes out with a wrong checksum (0: none)
     corrupt_every: int = 0
+    #: every n-th DYNO_FEEDBACK goes out a cycle late, just before the next one (0: none)
+    late_every: int = 0
     #: from this time on no DYNO_FEEDBACK goes out (the rig runs on)
     feedback_stop_at_s: float | None = None
 
@@ -70,6 +73,8 @@ class RigStats:
     stalls: list[tuple[float, float]] = field(default_factory=list)
     feedback_sent: int = 0
     corrupted: int = 0              # feedback frames sent with a wrong checksum
+    frames: int = 0                 # feedback frames due (a frame held back included)
+    late: int = 0                   # feedback frames held back a cycle
     aux_sent: int = 0
     send_failures: int = 0
     commands: int = 0               # valid DYNO_COMMAND frames
@@ -108,6 +113,7 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
             first_command: float | None = None
             j = 0
             offset = time.time() - time.monotonic()
+            held: can.Message | None = None     # a feedback frame sent a cycle late
             while not stop.is_set():
                 msg = bus.recv(max(0.0, deadline - time.monotonic()))
                 while msg is not None:      # every command that has come, at its time
@@ -142,11 +148,21 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                             == faults.corrupt_every - 1:
                         data = data[:-1] + bytes([data[-1] ^ 0xFF])
                         stats.corrupted += 1
-                    if bus.send(can.Message(arbitration_id=feedback_enc.frame_id, data=data,
-                                            is_extended_id=False)):
-                        stats.feedback_sent += 1
-                    else:
-                        stats.send_failures += 1
+                    frame = can.Message(arbitration_id=feedback_enc.frame_id, data=data,
+                                        is_extended_id=False)
+                    due = [frame]
+                    if held is not None:
+                        due, held = [held, frame], None
+                    if faults.late_every and stats.frames % faults.late_every \
+                            == faults.late_every - 1:
+                        held = due.pop()
+                        stats.late += 1
+                    stats.frames += 1
+                    for m in due:
+                        if bus.send(m):
+                            stats.feedback_sent += 1
+                        else:
+                            stats.send_failures += 1
                 if j % aux_every == 0:
                     data, _ = aux_enc.encode(Temperature=fb.temperature_c)
                     if bus.send(can.Message(arbitration_id=aux_enc.frame_id, data=data,

@@ -84,6 +84,9 @@ def add_parser(sub) -> None:
                    default=None, help="the changed transport delay [ms]")
     f.add_argument("--corrupt-every", metavar="N", type=non_negative_int, default=0,
                    help="every N-th DYNO_FEEDBACK goes out with a wrong checksum")
+    f.add_argument("--late-every", metavar="N", type=non_negative_int, default=0,
+                   help="every N-th DYNO_FEEDBACK goes out a cycle late, just before the "
+                        "next")
     f.add_argument("--feedback-stop-at", metavar="S", type=non_negative_float, default=None,
                    help="from S seconds after the first valid command no DYNO_FEEDBACK "
                         "goes out")
@@ -118,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
     faults = RigFaults(
         delay_change_at_s=args.delay_change_at,
         delay_change_to_s=(args.delay_change_to_ms or 0.0) * 1e-3,
-        corrupt_every=args.corrupt_every, feedback_stop_at_s=args.feedback_stop_at)
+        corrupt_every=args.corrupt_every, late_every=args.late_every,
+        feedback_stop_at_s=args.feedback_stop_at)
     rig = VirtualRig(model, actuator, config.virtual_rig)
     rig.specimen.warm_up()
     stop = threading.Event()

@@ -7,7 +7,8 @@ to the dyno's cycle (``DYNO_FEEDBACK``'s cycle time), is run on the dyno through
 ``DYNO_*`` messages by a :class:`~ride_sim.hybrid.protocol_host.ProtocolHost` (settle, the
 transfer system's identification, the history compensated, the safety layer throughout)
 and the stroke and force the dyno measured come back, resampled onto the protocol's times:
-the measured data record them.  A run the safety layer stops raises :class:`RigStopped`.
+the measured data record them (a sample whose cycle's feedback never came is left out, not
+held).  A run the safety layer stops raises :class:`RigStopped`.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from damper_emulator.errors import DamperHilError
 from damper_emulator.realtime.rt import RealtimeRequest
 from ride_sim.hybrid.params import HybridConfig
 from ride_sim.hybrid.protocol_host import ProtocolHost
+from ride_sim.hybrid.rig_host import measured_samples
 
 
 class RigStopped(DamperHilError, RuntimeError):
@@ -85,9 +87,11 @@ class RigEngine:
                                "identification": host.identification_report()}
         if host.transfer is not None:
             run["transfer"] = host.transfer.to_dict()
-        k = host.k
-        if k > 10:
-            target, measured = host.record[0, :k], host.record[2, :k]
+        fresh = measured_samples(host)
+        run["samples_without_measurement"] = int(host.k - fresh.size)
+        run["samples_measured_late"] = host.placed_late
+        if fresh.size > 10:
+            target, measured = host.record[0, fresh], host.record[2, fresh]
             error = measured - target
             run["tracking_nrms"] = float(np.sqrt(np.mean(error ** 2) / np.mean(target ** 2)))
             run["peak_error_m"] = float(np.max(np.abs(error)))
@@ -96,10 +100,15 @@ class RigEngine:
             if host.failure is not None and host.transfer is None:
                 raise RigStopped(host.failure)
             raise RigStopped(host.reason or f"the run ended in phase {host.phase}")
-        measured = np.interp(t, grid, host.record[2])
-        force = np.interp(t, grid, host.record[3])
+        if fresh.size < 2:
+            raise RigStopped("the run recorded fewer than 2 measured samples")
+        # onto the protocol's times from the measured cycles; a protocol sample whose
+        # nearest cycle went without its feedback is marked, and the data leave it out
+        stroke = np.interp(t, grid[fresh], host.record[2, fresh])
+        force = np.interp(t, grid[fresh], host.record[3, fresh])
+        nearest = np.clip(np.rint((t - grid[0]) / self.dt_s).astype(int), 0, host.k - 1)
         return SimpleNamespace(force_n=force, faults=np.zeros(t.size, dtype=np.int64),
-                               measured_stroke_m=measured)
+                               measured_stroke_m=stroke, measured=host.fresh[nearest])
 
 
 __all__ = ["RigEngine", "RigStopped"]

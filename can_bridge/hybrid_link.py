@@ -12,7 +12,11 @@ machine, the halted CPU's return too).
 The run advances one step per cycle of the rig, counted by the feedback's
 alive counter: a cycle whose feedback does not come (lost or invalid) runs
 ``MISSED_FEEDBACK_PERIODS`` periods after the last one on the last measurement (the watchdog
-keeps counting), and the next feedback runs the cycles its counter says are still owed.
+keeps counting).  A feedback that comes after its cycle ran that way is put in its place
+(:meth:`~ride_sim.hybrid.rig_host.RigHost.late`); one whose counter says frames were lost
+runs their cycles first, on the last measurement, and then its own.  The run's samples so
+stay on the dyno's cycles, and those without their own measurement are marked
+(:attr:`~ride_sim.hybrid.rig_host.RigHost.fresh`).
 ``DYNO_AUX`` updates the oil temperature. Frames with a wrong length, checksum or counter
 are dropped and counted by the :class:`~can_bridge.codec.Receiver` and never reach the host:
 they are not valid feedback.
@@ -46,6 +50,8 @@ COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"
 MISSED_FEEDBACK_PERIODS = 1.5
 #: Python's GIL switch interval while the loop runs [s].
 GIL_SWITCH_INTERVAL_S = 1e-4
+#: The alive counter's cycle (4 bits: the DBC's ``Counter``).
+COUNTER_CYCLES = 16
 #: Commands with Enable clear sent at the end.
 FINAL_COMMANDS = 5
 
@@ -60,6 +66,8 @@ class LinkStats:
     dropped_checksum: int = 0
     lost: int = 0                    # frames missing (counter jumps)
     cycles_without_feedback: int = 0
+    #: feedback frames that came after their cycle had run on a timeout: put in its place
+    late_feedback: int = 0
     commands_sent: int = 0
     send_failures: int = 0
     saturated_commands: int = 0      # a value outside its DBC range, sent saturated
@@ -198,17 +206,26 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
                 counter = int(v["Counter"])
                 # the rig's cycles since the last feedback, by its alive counter: the car
                 # advances one step per rig cycle whatever the bus lost or delayed
-                elapsed = 1 if last_counter is None else (counter - last_counter) % 16 or 16
+                elapsed = 1 if last_counter is None else (
+                    (counter - last_counter) % COUNTER_CYCLES or COUNTER_CYCLES)
                 last_counter = counter
-                owed = elapsed - ran_without
-                ran_without = 0
-                if owed <= 0:                   # its cycle already ran on the timeout
+                if ran_without >= COUNTER_CYCLES:
+                    # more cycles ran without feedback than the counter can tell apart:
+                    # the newest measurement, in no sample's place
+                    ran_without = 0
                     host.measure(arrival, feedback)
+                elif elapsed <= ran_without:    # its cycle already ran on the timeout
+                    ran_without -= elapsed
+                    stats.late_feedback += 1
+                    host.late(arrival, feedback, ran_without)
                 else:
+                    # lost frames: their cycles first, on the last measurement, then this
+                    # one's: each sample of the run is its own cycle's measurement or held
+                    for _ in range(elapsed - ran_without - 1):
+                        cycle(arrival, None, None)
+                    ran_without = 0
                     stats.read_us.append((read_ns - arrival_ns) / 1e3)
                     cycle(arrival, feedback, arrival_ns)
-                    for _ in range(owed - 1):   # lost frames: their cycles, on this one's
-                        cycle(arrival, None, None)
                 last_cycle = arrival
             for _ in range(FINAL_COMMANDS):
                 send(host.demand_m, 0.0, False)

@@ -305,8 +305,14 @@ def test_feedback_cut_clears_enable_within_the_watchdog(model):
 
 
 def test_a_lost_frame_every_hundred_does_not_stop_the_run(model):
+    from ride_sim.hybrid.criteria import summary
+
     host, _ = _run(model, disturbance=Disturbance(drop_every=100))
     assert host.phase == "done" and _nrms(host, host.road.evaluated) < 0.02
+    # each lost frame's cycle holds the last measurement, and is counted as such
+    tracked = summary(host)["tracking"]
+    assert tracked["samples_without_measurement"] == pytest.approx(
+        tracked["samples"] / 100, abs=1)
 
 
 def test_unstable_setting_is_stopped_before_any_limit(model):

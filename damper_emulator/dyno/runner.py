@@ -30,7 +30,7 @@ from damper_emulator.dyno.simulated import (
     check_travel,
     fault_names,
     fourteen_speed_table,
-    measured_motion,
+    measured_samples,
     simulate_sine,
     sine_file_name,
 )
@@ -151,9 +151,8 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path,
     out = _out(out_dir)
     t, x, v = protocols.quasi_static(velocity, amplitude, cycles, rate)
     check_travel(model, x, f"quasi-static amplitude {amplitude:g} m")
-    res = (engine or simulate)(model, t, x, v)
-    x, v = measured_motion(res, t, x, v)
-    f = add_noise(res.force_n, noise_std, rng)
+    t, x, v, f, faults = measured_samples((engine or simulate)(model, t, x, v), t, x, v)
+    f = add_noise(f, noise_std, rng)
     csv_path = _write(out, "quasi_static.csv", progress, t, x, v, f)
     png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
                 f"Quasi-static test, {velocity * 1e3:g} mm/s, ±{amplitude * 1e3:g} mm "
@@ -165,7 +164,7 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path,
             "velocity_m_s": float(velocity), "amplitude_m": float(amplitude),
             "cycles": cycles, "rate_hz": float(rate), "samples": int(t.size),
             "duration_s": float(t[-1] - t[0]), **_force_summary(v, f),
-            "friction_estimate_n": friction, "faults": fault_names(res.faults)}
+            "friction_estimate_n": friction, "faults": fault_names(faults)}
 
 
 def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_start_hz,
@@ -182,9 +181,8 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_
     out = _out(out_dir)
     t, x, v = protocols.chirp(f_start, f_end, duration, v_start, v_end, rate)
     check_travel(model, x, "chirp displacement")
-    res = (engine or simulate)(model, t, x, v)
-    x, v = measured_motion(res, t, x, v)
-    f = add_noise(res.force_n, noise_std, rng)
+    t, x, v, f, faults = measured_samples((engine or simulate)(model, t, x, v), t, x, v)
+    f = add_noise(f, noise_std, rng)
     csv_path = _write(out, "chirp.csv", progress, t, x, v, f)
     png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
                 f"Chirp {f_start:g}–{f_end:g} Hz in {duration:g} s, velocity amplitude "
@@ -195,7 +193,7 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_
             "duration_s": float(duration), "v_start_m_s": float(v_start),
             "v_end_m_s": float(v_end), "rate_hz": float(rate), "samples": int(t.size),
             **_force_summary(v, f), "peak_displacement_m": float(np.abs(x).max()),
-            "dissipated_energy_j": _energy(x, f), "faults": fault_names(res.faults)}
+            "dissipated_energy_j": _energy(x, f), "faults": fault_names(faults)}
 
 
 def run_fourteen_speed(model: DamperModel, out_dir: str | Path,

@@ -21,21 +21,27 @@ from damper_emulator.model.layout import Fault
 #: What produces the forces of a protocol: ``engine(model, t, x, v)`` → an object with
 #: ``force_n`` and ``faults`` arrays (default :func:`simulate`, the offline model; the
 #: loopback dyno passes one that runs the samples over CAN, :mod:`can_bridge.loopback`).
-#: A physical dyno's engine adds ``measured_stroke_m``: the stroke it achieved, which the
-#: measured data then record (:func:`measured_motion`).
+#: A physical dyno's engine adds ``measured_stroke_m``, the stroke it achieved, and
+#: ``measured``, which samples it measured (False where its feedback never came); the
+#: measured data then record those (:func:`measured_samples`).
 Engine = Callable[..., Any] | None
 
 
-def measured_motion(result: Any, t: np.ndarray, x: np.ndarray, v: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """The displacement and velocity the measured data record: an engine's measured stroke
-    and its central difference when it gives one (a physical dyno follows the demand
-    only so well), else the demanded ``x`` and ``v``."""
-    measured = getattr(result, "measured_stroke_m", None)
-    if measured is None:
-        return x, v
-    measured = np.asarray(measured, dtype=float)
-    return measured, np.gradient(measured, t)
+def measured_samples(result: Any, t: np.ndarray, x: np.ndarray, v: np.ndarray
+                     ) -> tuple[np.ndarray, ...]:
+    """What the measured data record of an engine's ``result``: ``(t, x, v, force,
+    faults)``.  A physical dyno follows the demand only so well: its measured stroke, the
+    stroke's derivative and its force, at the samples it measured (a sample the dyno's
+    feedback never gave is left out, not made up).  Else the demanded ``x`` and ``v`` and
+    the engine's force, at every sample."""
+    force = np.asarray(result.force_n, dtype=float)
+    faults = np.asarray(result.faults)
+    stroke = getattr(result, "measured_stroke_m", None)
+    if stroke is None:
+        return t, x, v, force, faults
+    keep = np.asarray(getattr(result, "measured", np.ones(t.size, dtype=bool)), dtype=bool)
+    t, x = t[keep], np.asarray(stroke, dtype=float)[keep]
+    return t, x, np.gradient(x, t), force[keep], faults[keep]
 
 #: columns of ``14speed.csv``
 FOURTEEN_SPEED_COLUMNS = ("frequency_hz", "peak_velocity_rebound_m_s", "peak_force_rebound_n",
@@ -85,10 +91,9 @@ def simulate_sine(model: DamperModel, frequency: float, amplitude: float,
                       cycles=cycles, rate_hz=rate, settle_cycles=settle_cycles)
     t, x, v = protocols.sine(frequency, amplitude, cycles, rate, start_cycles=settle_cycles)
     check_travel(model, x, f"sine amplitude {amplitude:g} m")
-    res = (engine or simulate)(model, t, x, v)
-    x, v = measured_motion(res, t, x, v)
+    t, x, v, f, faults = measured_samples((engine or simulate)(model, t, x, v), t, x, v)
     k = int(np.searchsorted(t, 0.0))  # protocols.sine puts a sample on t = 0
-    return (t[k:], x[k:], v[k:], res.force_n[k:], res.faults[k:])
+    return (t[k:], x[k:], v[k:], f[k:], faults[k:])
 
 
 

@@ -99,6 +99,9 @@ def summary(host: HybridHost) -> dict[str, Any]:
     if ridden.stop - ridden.start > 10:
         doc["tracking"] = tracking(rec[0, ridden], rec[2, ridden], host.dt_s)
         doc["tracking"]["samples"] = ridden.stop - ridden.start
+        # cycles whose feedback never came: they hold the last measurement
+        doc["tracking"]["samples_without_measurement"] = int(
+            np.count_nonzero(~host.fresh[ridden]))
         doc["tracking"].update(outside_stalls(host, ridden))
     else:
         doc["tracking"] = None

@@ -168,6 +168,12 @@ class RigHost:
         self.temperature_c = np.full(n, np.nan)
         #: the run's samples a stall disturbed (as the identification's: :data:`STALL_CYCLES`)
         self.stalled = np.zeros(n, dtype=bool)
+        #: the run's samples measured in their own cycle: its feedback came (in time, or
+        #: late and put in its place by :meth:`late`); the others hold the last measurement
+        self.fresh = np.zeros(n, dtype=bool)
+        #: of those, the samples whose feedback came after their cycle had run
+        self.placed_late = 0
+        self._fresh_now = False
         #: the longest stall the host saw, in any phase [s]
         self.longest_stall_s = 0.0
         self._pending: tuple[float, float] | None = None
@@ -236,6 +242,21 @@ class RigHost:
         self._temperature = feedback.temperature_c
         self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n, self._cycles)
 
+    def late(self, t_s: float, feedback: Feedback, cycles_back: int) -> None:
+        """A valid feedback received at ``t_s`` for a cycle that already ran on the last
+        measurement, ``cycles_back`` cycles before the latest (the dyno's alive counter
+        says which): the newest measurement for the next cycle (:meth:`measure`), and in
+        the run proper the measurement of that cycle's sample, in its place."""
+        self.measure(t_s, feedback)
+        if self.phase != self.RUN_PHASE:
+            return
+        k = self.k - 1 - int(cycles_back)
+        if 0 <= k < self.fresh.size and not self.fresh[k]:
+            self.record[2, k], self.record[3, k] = feedback.stroke_m, feedback.force_n
+            self.temperature_c[k] = feedback.temperature_c
+            self.fresh[k] = True
+            self.placed_late += 1
+
     def cycle(self, t_s: float, feedback: Feedback | None, t_ns: int = 0) -> Command:
         """One cycle at ``t_s`` [s, the host's monotonic clock] with the newest valid
         feedback since the last cycle (None: none arrived); ``t_ns`` is recorded as the
@@ -244,6 +265,7 @@ class RigHost:
         self._cycles += 1
         self.after_send()
         self._watch_stall(t_s, feedback is not None)
+        self._fresh_now = feedback is not None
         if self._start_s is None:
             self._start_s = t_s
             self._phase_start_s = t_s
@@ -412,22 +434,32 @@ class RigHost:
         rec[3, k] = self._force
         rec[5, k] = 1.0
         self.stalled[k] = self._stalled
+        self.fresh[k] = self._fresh_now
         self.t_ns[k] = t_ns
         assert self.tracker is not None
         self.delay_estimate_s[k] = self.tracker.delay_s
         self.temperature_c[k] = self._temperature
 
 
+def measured_samples(host: RigHost) -> np.ndarray:
+    """The indices of the run's samples that were measured in their own cycle
+    (:attr:`RigHost.fresh`): a cycle run without its feedback (lost, or the host's wait
+    timed out and it never came) holds the last measurement, which is not that cycle's."""
+    return np.flatnonzero(host.fresh[:host.k])
+
+
 def export_measured(host: RigHost, path: Path) -> Path | None:
-    """The run's samples as a measured-data CSV (docs/interfaces.md §2): ``time``, ``displacement``
-    (the measured stroke), ``velocity`` (its central difference), ``force`` (measured) and,
-    when the dyno reported it, ``temperature``: held-out data for ``validate`` and
-    ``diagnose``.  None when no sample of the run proper was recorded."""
-    k = host.k
-    if k < 3:
+    """The run's measured samples (:func:`measured_samples`) as a measured-data CSV
+    (docs/interfaces.md §2): ``time`` (the sample's cycle times the rig's period),
+    ``displacement`` (the measured stroke), ``velocity`` (its derivative), ``force``
+    (measured) and, when the dyno reported it, ``temperature``: held-out data for
+    ``validate`` and ``diagnose``.  A cycle without its own measurement is left out, not
+    held.  None when fewer than 3 samples of the run proper were measured."""
+    k = measured_samples(host)
+    if k.size < 3:
         return None
-    x = host.record[2, :k]
-    t = np.arange(k) * host.dt_s
-    temperature = host.temperature_c[:k]
-    return write_measured_csv(path, t, x, host.record[3, :k], np.gradient(x, host.dt_s),
+    x = host.record[2, k]
+    t = k * host.dt_s
+    temperature = host.temperature_c[k]
+    return write_measured_csv(path, t, x, host.record[3, k], np.gradient(x, t),
                               temperature if np.isfinite(temperature).all() else None)

@@ -501,6 +501,163 @@ def _bic(fit_res: Sequence[np.ndarray], ref_res: Sequence[np.ndarray], k: int) -
                       for r, r0 in zip(fit_res, ref_res)), k)
 
 
+@dataclass
+class _Regression:
+    """One dictionary's regression (steps 3–6): the features, their columns per record
+    (identification and held out), the residuals the term is to explain, and the
+    weighted design matrix ``x`` and target ``y`` over the identification samples."""
+
+    feats: list[Feature]
+    fit_mats: list[np.ndarray]
+    held_mats: list[np.ndarray]
+    fit_res: list[np.ndarray]
+    held_res: list[np.ndarray]
+    w_rows: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    max_delta_bic: float
+
+    @classmethod
+    def of(cls, feats: list[Feature], fit_mats: list[np.ndarray],
+           held_mats: list[np.ndarray], fit_res: list[np.ndarray],
+           held_res: list[np.ndarray], weights: Sequence[float],
+           max_delta_bic: float) -> _Regression:
+        """The rows weighted as the joint fits weigh the files; ``y`` the missing force
+        ``F_meas − F_model``."""
+        w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
+        return cls(feats, fit_mats, held_mats, fit_res, held_res, w_rows,
+                   np.vstack(fit_mats) * w_rows[:, None], -np.concatenate(fit_res) * w_rows,
+                   max_delta_bic)
+
+    def solve(self, cols: Sequence[int]) -> np.ndarray:
+        """Least squares of the columns ``cols`` on the weighted identification rows."""
+        beta, *_ = np.linalg.lstsq(self.x[:, cols], self.y, rcond=None)
+        out: np.ndarray = beta
+        return out
+
+    def after(self, cols: Sequence[int], beta: np.ndarray, held: bool = False
+              ) -> list[np.ndarray]:
+        """The residuals with the term ``Σ βₖ fₖ`` (of ``cols``) added."""
+        mats, res = (self.held_mats, self.held_res) if held else (self.fit_mats,
+                                                                   self.fit_res)
+        return [r + m[:, cols] @ beta for r, m in zip(res, mats)]
+
+    def bic(self, cols: Sequence[int]) -> float:
+        """The effective ΔBIC of the least-squares term of ``cols`` (none: 0 terms)."""
+        beta = self.solve(cols) if cols else np.zeros(0)
+        return _bic(self.after(cols, beta), self.fit_res, len(cols))
+
+    def prune(self, cols: list[int]) -> list[int]:
+        """Backward elimination by the effective BIC: the feature whose removal costs
+        least goes while that cost is under ``-max_delta_bic``."""
+        while cols:
+            full = self.bic(cols)
+            worst, worst_gain = None, 0.0
+            for j in cols:
+                cost = self.bic([c for c in cols if c != j]) - full
+                if cost < -self.max_delta_bic and (worst is None or cost < worst_gain):
+                    worst, worst_gain = j, cost
+            if worst is None:
+                break
+            cols = [c for c in cols if c != worst]
+        return cols
+
+    def replace(self, j: int, feature: Feature, fit: Sequence[Record],
+                fit_motion: Sequence[Motion], held: Sequence[Record],
+                held_motion: Sequence[Motion], rig: RigParams | None) -> None:
+        """Feature ``j`` becomes ``feature`` (a refined profile), in every column."""
+        self.feats[j] = feature
+        col = [r.through_chain(feature.fn(m), rig)[r.start:] for r, m in zip(fit, fit_motion)]
+        self.x[:, j] = np.concatenate(col) * self.w_rows
+        for mat, c in zip(self.fit_mats, col):
+            mat[:, j] = c
+        for rec, m, mat in zip(held, held_motion, self.held_mats):
+            mat[:, j] = rec.through_chain(feature.fn(m), rig)[rec.start:]
+
+    def std(self, cols: Sequence[int], beta: np.ndarray) -> np.ndarray:
+        """σ of the coefficients: ``(XᵀX)⁻¹ s²``, inflated for an AR(1) residual."""
+        resid = self.y - self.x[:, cols] @ beta
+        rho = max(lag1(r) for r in self.after(cols, beta))
+        s2 = float(np.dot(resid, resid)) / max(resid.size - len(cols), 1) \
+            * (1 + rho) / (1 - rho)
+        try:
+            cov = np.linalg.inv(self.x[:, cols].T @ self.x[:, cols]) * s2
+        except np.linalg.LinAlgError:
+            return np.full(len(cols), math.inf)
+        out: np.ndarray = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        return out
+
+
+def _stable(reg: _Regression, fit: Sequence[Record], say: Callable[[str], None]
+            ) -> tuple[list[int], dict[str, float]]:
+    """Step 3: the stable features (at most :data:`MAX_TERMS`, one of each kind), and the
+    six most frequent features' selection frequencies."""
+    keep = np.any(reg.x != 0.0, axis=0)
+    freq = np.zeros(len(reg.feats))
+    freq[keep] = stability(reg.x[:, keep], reg.y, _blocks(fit), np.random.default_rng(SEED))
+    chosen = _one_of_each([j for j in np.argsort(-freq) if freq[j] >= MIN_FREQUENCY],
+                          reg.feats)[:MAX_TERMS]
+    frequency = {reg.feats[j].symbol: float(freq[j]) for j in np.argsort(-freq)[:6]}
+    say("discovery: selection frequencies " + ", ".join(
+        f"{k} {v:.2f}" for k, v in frequency.items()))
+    return chosen, frequency
+
+
+def _refine_profiles(reg: _Regression, chosen: list[int], fit: Sequence[Record],
+                     fit_motion: Sequence[Motion], held: Sequence[Record],
+                     held_motion: Sequence[Motion], rig: RigParams | None) -> None:
+    """Step 4's refinement: each chosen Gaussian profile's centre and width."""
+    for j in chosen:
+        f = reg.feats[j]
+        if f.profile is not None:
+            refined = refine_profile(f, reg.x[:, [k for k in chosen if k != j]], reg.y,
+                                     reg.w_rows, fit, fit_motion, rig)
+            reg.replace(j, refined, fit, fit_motion, held, held_motion, rig)
+
+
+def _physical(reg: _Regression, chosen: list[int], say: Callable[[str], None]
+              ) -> list[int]:
+    """A known form of the wrong sign (a negative mass) is not that physics: it goes, and
+    what is left is pruned again."""
+    while chosen:
+        beta = reg.solve(chosen)
+        wrong = [j for j, b in zip(chosen, beta) if reg.feats[j].positive and b < 0.0]
+        if not wrong:
+            break
+        say("discovery: " + ", ".join(reg.feats[j].symbol for j in wrong)
+            + " of the wrong sign for its physics: left out")
+        chosen = reg.prune([j for j in chosen if j not in wrong])
+    return chosen
+
+
+def _scored(reg: _Regression, chosen: list[int], frequency: dict[str, float],
+            fit: Sequence[Record], held: Sequence[Record], held_motion: Sequence[Motion],
+            before: dict[str, float], min_score: float, t0: float) -> Discovery:
+    """Step 5 and 6: the term of ``chosen`` scored as a candidate, and read."""
+    import time
+
+    beta = reg.solve(chosen)
+    fit_after = reg.after(chosen, beta)
+    held_after = reg.after(chosen, beta, held=True)
+    sse0 = sum(float(np.dot(r, r)) for r in reg.held_res)
+    sse1 = sum(float(np.dot(r, r)) for r in held_after)
+    gain = 1.0 - math.sqrt(sse1 / sse0) if sse0 > 0 else 0.0
+    dbic = _bic(fit_after, reg.fit_res, len(chosen))
+    stacked = np.vstack(reg.held_mats)
+    parts = [float(np.sqrt(np.mean((stacked[:, j] * b) ** 2))) for j, b in zip(chosen, beta)]
+    main = chosen[int(np.argmax(parts))]
+    feats = reg.feats
+    return Discovery(
+        True, "", [feats[j] for j in chosen], beta, reg.std(chosen, beta), frequency, gain,
+        dbic, bool(gain >= min_score and dbic <= reg.max_delta_bic), before,
+        {r.name: float(np.sqrt(np.mean(a * a))) for r, a in zip(held, held_after)},
+        {r.name: float(np.sqrt(np.mean(a * a)))
+         for r, a in zip([*fit, *held], [*fit_after, *held_after])},
+        {r.name: (m[:, chosen] @ beta, -x0, variable_values(feats[main].variable, mo)[r.start:])
+         for r, m, x0, mo in zip(held, reg.held_mats, reg.held_res, held_motion)},
+        feats[main].variable, time.perf_counter() - t0, t_ref=scales(fit)[1])
+
+
 def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
              held: Sequence[Record], weights: Sequence[float], floor: float,
              structure: float, structure_limit: float, min_score: float,
@@ -532,110 +689,23 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
     all_feats, all_fit, fit_motion = features(model, fit, rig, fit)
     _, all_held, held_motion = features(model, held, rig, fit)
 
-    def regress(feats: list[Feature], fit_mats: list[np.ndarray],
-                held_mats: list[np.ndarray]) -> Discovery:
-        """Steps 3–6 on the dictionary ``feats`` (its columns ``fit_mats``,
-        ``held_mats``, which the refined zone's replace)."""
-        w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
-        x = np.vstack(fit_mats) * w_rows[:, None]
-        y = -np.concatenate(fit_res) * w_rows  # the missing force: F_meas − F_model
-        keep = np.any(x != 0.0, axis=0)
-        freq = np.zeros(len(feats))
-        freq[keep] = stability(x[:, keep], y, _blocks(fit), np.random.default_rng(SEED))
-        chosen = _one_of_each([j for j in np.argsort(-freq) if freq[j] >= MIN_FREQUENCY],
-                              feats)[:MAX_TERMS]
-        frequency = {feats[j].symbol: float(freq[j]) for j in np.argsort(-freq)[:6]}
-        say("discovery: selection frequencies " + ", ".join(
-            f"{k} {v:.2f}" for k, v in frequency.items()))
-
-        def solve(cols: Sequence[int]) -> np.ndarray:
-            beta, *_ = np.linalg.lstsq(x[:, cols], y, rcond=None)
-            out: np.ndarray = beta
-            return out
-
-        def after(cols: Sequence[int], beta: np.ndarray, mats: Sequence[np.ndarray],
-                  res: Sequence[np.ndarray]) -> list[np.ndarray]:
-            return [r + m[:, cols] @ beta for r, m in zip(res, mats)]
-
-        def prune(cols: list[int]) -> list[int]:
-            """Backward elimination by the effective BIC: the feature whose removal costs
-            least goes while that cost is under ``-max_delta_bic``."""
-            while cols:
-                full = _bic(after(cols, solve(cols), fit_mats, fit_res), fit_res, len(cols))
-                worst, worst_gain = None, 0.0
-                for j in cols:
-                    rest = [c for c in cols if c != j]
-                    b2 = solve(rest) if rest else np.zeros(0)
-                    part = _bic(after(rest, b2, fit_mats, fit_res), fit_res, len(rest))
-                    if part - full < -max_delta_bic and (worst is None or part - full < worst_gain):
-                        worst, worst_gain = j, part - full
-                if worst is None:
-                    break
-                cols = [c for c in cols if c != worst]
-            return cols
-
-        chosen = prune(chosen)
+    def regress(reg: _Regression) -> Discovery:
+        """Steps 3–6 on one dictionary."""
+        chosen, frequency = _stable(reg, fit, say)
+        chosen = reg.prune(chosen)
         if not chosen:
             return Discovery(True, "no feature is stable", frequency=frequency,
                              rms_held_out_before=before, seconds=time.perf_counter() - t0)
-        for j in chosen:  # a Gaussian profile's centre and width, refined
-            f = feats[j]
-            if f.profile is not None:
-                feats[j] = refine_profile(f, x[:, [k for k in chosen if k != j]], y, w_rows,
-                                          fit, fit_motion, rig)
-                col = [r.through_chain(feats[j].fn(m), rig)[r.start:]
-                       for r, m in zip(fit, fit_motion)]
-                x[:, j] = np.concatenate(col) * w_rows
-                for mat, c in zip(fit_mats, col):
-                    mat[:, j] = c
-                for rec, m, mat in zip(held, held_motion, held_mats):
-                    mat[:, j] = rec.through_chain(feats[j].fn(m), rig)[rec.start:]
+        _refine_profiles(reg, chosen, fit, fit_motion, held, held_motion, rig)
         # what the refined profile now explains, the others no longer need to
-        chosen = prune(chosen)
-        # a known form of the wrong sign (a negative mass) is not that physics: it goes,
-        # and what is left is pruned again
-        while chosen:
-            beta = solve(chosen)
-            wrong = [j for j, b in zip(chosen, beta) if feats[j].positive and b < 0.0]
-            if not wrong:
-                break
-            say("discovery: " + ", ".join(feats[j].symbol for j in wrong)
-                + " of the wrong sign for its physics: left out")
-            chosen = prune([j for j in chosen if j not in wrong])
+        chosen = _physical(reg, reg.prune(chosen), say)
         if not chosen:
             return Discovery(True, "no feature is significant", frequency=frequency,
                              rms_held_out_before=before, seconds=time.perf_counter() - t0)
-        beta = solve(chosen)
-        fit_after = after(chosen, beta, fit_mats, fit_res)
-        held_after = after(chosen, beta, held_mats, held_res)
-        sse0 = sum(float(np.dot(r, r)) for r in held_res)
-        sse1 = sum(float(np.dot(r, r)) for r in held_after)
-        gain = 1.0 - math.sqrt(sse1 / sse0) if sse0 > 0 else 0.0
-        dbic = _bic(fit_after, fit_res, len(chosen))
-        # σ of the coefficients: (XᵀX)⁻¹ s², inflated for an AR(1) residual
-        resid = y - x[:, chosen] @ beta
-        rho = max(lag1(r) for r in fit_after)
-        s2 = float(np.dot(resid, resid)) / max(resid.size - len(chosen), 1) \
-            * (1 + rho) / (1 - rho)
-        try:
-            cov = np.linalg.inv(x[:, chosen].T @ x[:, chosen]) * s2
-            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        except np.linalg.LinAlgError:
-            std = np.full(len(chosen), math.inf)
-        parts = [float(np.sqrt(np.mean((np.vstack(held_mats)[:, j] * b) ** 2)))
-                 for j, b in zip(chosen, beta)]
-        main = chosen[int(np.argmax(parts))]
-        found = Discovery(
-            True, "", [feats[j] for j in chosen], beta, std, frequency, gain, dbic,
-            bool(gain >= min_score and dbic <= max_delta_bic), before,
-            {r.name: float(np.sqrt(np.mean(a * a))) for r, a in zip(held, held_after)},
-            {r.name: float(np.sqrt(np.mean(a * a)))
-             for r, a in zip([*fit, *held], [*fit_after, *held_after])},
-            {r.name: (m[:, chosen] @ beta, -x0, variable_values(feats[main].variable, mo)[r.start:])
-             for r, m, x0, mo in zip(held, held_mats, held_res, held_motion)},
-            feats[main].variable, time.perf_counter() - t0, t_ref=scales(fit)[1])
-        say(f"discovery: {found.expression}: held-out gain {100 * gain:+.1f} %, ΔBIC "
-            f"{dbic:.0f}{' (significant)' if found.significant else ''}")
+        found = _scored(reg, chosen, frequency, fit, held, held_motion, before, min_score,
+                        t0)
+        say(f"discovery: {found.expression}: held-out gain {100 * found.held_out_gain:+.1f} "
+            f"%, ΔBIC {found.delta_bic:.0f}{' (significant)' if found.significant else ''}")
         return found
 
     best: Discovery | None = None
@@ -643,8 +713,10 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
         cols = [j for j, f in enumerate(all_feats)
                 if not (local and f.index in POLYNOMIAL_DAMPING)]
         # (copies: the refined zone replaces its column)
-        one = regress([all_feats[j] for j in cols], [m[:, cols] for m in all_fit],
-                      [m[:, cols] for m in all_held])
+        one = regress(_Regression.of([all_feats[j] for j in cols],
+                                     [m[:, cols] for m in all_fit],
+                                     [m[:, cols] for m in all_held], fit_res, held_res,
+                                     weights, max_delta_bic))
         if best is None or (one.features and (
                 not best.features or one.held_out_gain > best.held_out_gain)):
             if best is not None:
@@ -654,7 +726,6 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
             best = one
     assert best is not None  # at least one dictionary
     return best
-
 
 
 def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:

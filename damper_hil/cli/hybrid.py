@@ -7,7 +7,7 @@ import dataclasses
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from damper_hil.cli.common import (
     PROG,
@@ -21,6 +21,9 @@ from damper_hil.cli.common import (
 )
 from damper_hil.cli.virtual_rig import add_bus_options, open_checked_bus
 from ride_sim.hybrid.params import COMPENSATION_MODES, ROAD_CLASSES, HybridRunParams
+
+if TYPE_CHECKING:
+    from ride_sim.hybrid.learn import LearnedTwin
 
 #: Exit status of a run the safety layer stopped.
 EXIT_STOPPED = 3
@@ -69,6 +72,11 @@ def add_parser(sub) -> None:
     hy.add_argument("--twin", metavar="PARAMS.yaml", type=Path, default=None,
                     help="the damper's model: the twin, the compensator's prediction and the "
                          "reference (default: config/sport.yaml)")
+    hy.add_argument("--learn", action="store_true",
+                    help="before the ride, the twin learns the specimen: a quasi-static test "
+                         "and a chirp on the rig (the config's group learn), identified into "
+                         "the twin; written to DIR/learn/ (twin_learned.yaml), and the ride "
+                         "runs with it")
     hy.add_argument("--compensation", choices=COMPENSATION_MODES, default=None,
                     help="model: compensate the rig's delay and servo (default); none: send "
                          "the car's stroke as it is")
@@ -100,6 +108,28 @@ def _finite(doc: Any) -> Any:
     return doc
 
 
+def _learn(out: Path, twin: Any, config: Any, bus: Any, db: Any, realtime: Any
+           ) -> LearnedTwin | int:
+    """The twin learns the specimen (:func:`ride_sim.hybrid.learn.learn_twin`) on the rig
+    of ``bus``: the :class:`~ride_sim.hybrid.learn.LearnedTwin`, or the exit status of a
+    characterisation the safety layer stopped (``hybrid.json`` says why)."""
+    from can_bridge.dyno_rig import RigEngine, RigStopped
+    from ride_sim.hybrid.learn import learn_twin
+
+    engine = RigEngine(bus, db, config, realtime=realtime,
+                       progress=lambda phase: say(f"hybrid: learn on the rig: {phase}"))
+    try:
+        return learn_twin(twin, config.learn, out / "learn", engine, progress=say)
+    except RigStopped as exc:
+        write_json(out / "hybrid.json", {"status": "stopped", "reason": str(exc),
+                                         "phase_at_end": "learn",
+                                         "twin_learning": {"runs": engine.runs}})
+        print(f"{PROG}: stopped: {exc}", file=sys.stderr)
+        return EXIT_STOPPED
+    finally:
+        engine.close()
+
+
 def run(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -114,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
     from damper_hil.hybrid_report import write_report
     from ride_sim.hybrid.criteria import summary
     from ride_sim.hybrid.host import HybridHost, export_measured
+    from ride_sim.hybrid.learn import LearnedTwin
     from ride_sim.hybrid.params import load_hybrid_config
     from ride_sim.hybrid.recorder import HybridRecorder, WriterProcess
     from ride_sim.hybrid.rig_host import HOST_CYCLE_S
@@ -126,6 +157,10 @@ def run(args: argparse.Namespace) -> int:
     run_params = dataclasses.replace(config.hybrid, **changes)
     compensator = config.compensator if args.compensation is None else \
         dataclasses.replace(config.compensator, mode=args.compensation)
+    if args.learn:
+        from ride_sim.hybrid.learn import check_safe
+
+        check_safe(config.learn, config.safety)
     car = load_quarter_car(args.quarter_car)
     twin, twin_file = load_model(args.twin)
     db = load_database(required=HYBRID_SIGNALS)
@@ -135,6 +170,13 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"{out / 'bag'} exists: give a new --out directory (a run never "
                        "overwrites a recording)")
     out.mkdir(parents=True, exist_ok=True)
+    realtime = RealtimeRequest(priority=args.priority, cpu=args.cpu)
+    learned = None
+    if args.learn:
+        learned = _learn(out, twin, config, bus, db, realtime)
+        if not isinstance(learned, LearnedTwin):
+            return learned
+        twin, twin_file = learned.model, str(learned.params_file)
 
     say(f"hybrid: {run_params.duration_s:g} s of an ISO 8608 class {run_params.road_class} "
         f"road at {run_params.speed_m_s:g} m/s, {compensator.mode} compensation, twin "
@@ -173,8 +215,7 @@ def run(args: argparse.Namespace) -> int:
         started = time.monotonic()
         with HybridRecorder(out, host, bag=not args.no_bag, writer=writer,
                             on_status=on_status if status is not None else None) as recorder:
-            stats = run_hybrid_link(bus, db, host, stop,
-                                    realtime=RealtimeRequest(priority=args.priority, cpu=args.cpu),
+            stats = run_hybrid_link(bus, db, host, stop, realtime=realtime,
                                     progress=progress)
         if recorder.error is not None:
             raise recorder.error
@@ -186,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
     doc = summary(host)
     doc["link"] = stats.summary()
     doc["elapsed_s"] = time.monotonic() - started
+    if learned is not None:
+        doc["twin_learning"] = learned.to_json()
     doc["settings"] = {"hybrid": dataclasses.asdict(run_params),
                        "compensator": dataclasses.asdict(compensator),
                        "safety": dataclasses.asdict(config.safety),

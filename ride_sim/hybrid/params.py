@@ -129,6 +129,30 @@ class HybridRunParams:
                                  "or unpinned: it sleeps until the frame comes) [s]", 4e-4)
 
 
+@dataclass(frozen=True)
+class LearnParams:
+    """The characterisation the twin learns the specimen from (``hybrid --learn``).
+
+    A quasi-static test and a chirp run on the rig under the safety layer before the ride,
+    and the paper's parameters are identified from them into the twin
+    (:mod:`ride_sim.hybrid.learn`)."""
+
+    quasi_static_velocity_m_s: float = _rule(("range", 0.0, 0.5), "the quasi-static "
+                                                                 "test's constant stroke "
+                                                                 "velocity [m/s]", 0.02)
+    quasi_static_amplitude_m: float = _rule(("range", 0.0, 0.2), "the quasi-static test's "
+                                                                "amplitude [m]", 0.02)
+    chirp_s: float = _rule(("range", 0.0, 600.0), "the chirp's duration [s]", 12.0)
+    chirp_band_hz: tuple[float, float] = _rule("band", "the chirp's start and end "
+                                                       "frequencies [Hz]", (0.5, 12.0))
+    chirp_start_velocity_m_s: float = _rule(("range", 0.0, 20.0), "the chirp's velocity "
+                                                                 "amplitude at its start "
+                                                                 "[m/s]", 0.05)
+    chirp_end_velocity_m_s: float = _rule(("range", 0.0, 20.0), "the chirp's velocity "
+                                                               "amplitude at its end [m/s]",
+                                          1.0)
+
+
 def build(cls: type[_G], data: Any, prefix: str, where: str = "<memory>") -> _G:
     """The group ``cls`` from the mapping ``data`` (missing keys take their defaults).
 
@@ -189,12 +213,13 @@ class HybridConfig:
     virtual_rig: RigParams = field(default_factory=RigParams)
     safety: SafetyParams = field(default_factory=SafetyParams)
     compensator: CompensatorParams = field(default_factory=CompensatorParams)
+    learn: LearnParams = field(default_factory=LearnParams)
 
 
 #: the groups of :class:`HybridConfig`, by key
 GROUPS: dict[str, type] = {"hybrid": HybridRunParams, "actuator": ActuatorParams,
                            "virtual_rig": RigParams, "safety": SafetyParams,
-                           "compensator": CompensatorParams}
+                           "compensator": CompensatorParams, "learn": LearnParams}
 #: the default parameter file
 DEFAULT_HYBRID_FILE = Path(__file__).resolve().parents[2] / "config" / "hybrid.yaml"
 

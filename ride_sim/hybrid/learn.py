@@ -1,0 +1,133 @@
+"""The twin learns the specimen: a characterisation on the rig before the ride.
+
+A real damper never equals its model.  The host's prediction runs the twin over the
+horizon, and the measured force corrects it only below ``force_correction_hz``
+(:mod:`ride_sim.hybrid.compensator`): the further the twin is from the specimen, the worse
+the rig tracks.  :func:`learn_twin` makes the twin the specimen's, as a test engineer
+would, with the project's own tools:
+
+1. **Characterise.**  A quasi-static test (constant velocity, docs/model.md §3) and a chirp
+   (:class:`LearnParams`) run on the specimen through ``engine``: on a dyno, the
+   :class:`~can_bridge.dyno_rig.RigEngine` (the transfer system identified and
+   compensated, the safety layer throughout).  The measured data are written as the
+   ``dyno`` command writes them (``quasi_static.csv``, ``chirp.csv`` and their plots).
+2. **Identify** the paper's parameters (gas spring, friction, both valves) from them
+   (:func:`damper_emulator.identify.pipeline.identify`), starting from the twin's file.
+3. **Compare**: the twin before and after, each simulated on the measured motion of both
+   files (eq 34, 35 of the validation), and write the learned parameter file
+   (``twin_learned.yaml``, usable by ``emulate``, ``hybrid --twin`` and ``diagnose``).
+
+The comparison is on the data the twin learned from; the ride is the held-out test
+(``hybrid.json``'s ``twin`` residual over the ride).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from damper_emulator.dyno.measured import read_measured_csv
+from damper_emulator.dyno.runner import run_chirp, run_quasi_static
+from damper_emulator.errors import UserError
+from damper_emulator.identify.pipeline import identify
+from damper_emulator.identify.quasi_static import IdentificationError
+from damper_emulator.model.compressible import DamperModel
+from damper_emulator.params import save_config
+from damper_emulator.validation import validate_file
+from ride_sim.hybrid.params import LearnParams, SafetyParams
+
+#: The learned parameter file, in the characterisation's directory.
+LEARNED_FILE = "twin_learned.yaml"
+
+
+@dataclass
+class LearnedTwin:
+    """What :func:`learn_twin` did: the learned twin, its parameter file, and the twins'
+    force residuals before and after on each characterisation file."""
+
+    model: DamperModel
+    params_file: Path
+    files: list[Path]
+    #: per file: ``rms_N`` and ``relative_rms`` of the twin before and after
+    before: dict[str, dict[str, float]] = field(default_factory=dict)
+    after: dict[str, dict[str, float]] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        """``hybrid.json``'s ``twin_learning``."""
+        return {"params_file": str(self.params_file),
+                "files": [str(p) for p in self.files],
+                "residual_before": self.before, "residual_after": self.after,
+                "seconds": self.seconds}
+
+
+def check_safe(learn: LearnParams, safety: SafetyParams) -> None:
+    """The characterisation within the safety layer's limits, or one line why not (the
+    layer would stop it on the rig)."""
+    v_max = max(learn.chirp_start_velocity_m_s, learn.chirp_end_velocity_m_s,
+                learn.quasi_static_velocity_m_s)
+    if v_max > safety.velocity_limit_m_s:
+        raise UserError(f"learn: a velocity of {v_max:g} m/s exceeds "
+                        f"safety.velocity_limit_m_s {safety.velocity_limit_m_s:g}")
+    # the chirp's largest stroke is its start's: v / (2π f)
+    x_chirp = learn.chirp_start_velocity_m_s / (2.0 * math.pi * learn.chirp_band_hz[0])
+    x_max = max(learn.quasi_static_amplitude_m, x_chirp)
+    if x_max > safety.stroke_limit_m:
+        raise UserError(f"learn: a stroke of {x_max:g} m exceeds safety.stroke_limit_m "
+                        f"{safety.stroke_limit_m:g}")
+
+
+def _residuals(model: DamperModel, data: list[Any]) -> dict[str, dict[str, float]]:
+    out = {}
+    for d in data:
+        v = validate_file(model, d)
+        out[d.name] = {"rms_n": v["rms_N"], "relative_rms": v["relative_rms"]}
+    return out
+
+
+def learn_twin(twin: DamperModel, learn: LearnParams, out: Path, engine: Any,
+               progress: Callable[[str], None] | None = None) -> LearnedTwin:
+    """Characterise the specimen through ``engine`` (an
+    :data:`~damper_emulator.dyno.simulated.Engine`), identify the twin from it and write
+    the learned parameter file into ``out`` (module docstring).
+
+    Raises
+    ------
+    UserError
+        The characterisation leaves the damper's travel, or the identification fails on
+        its data (one line).
+    can_bridge.dyno_rig.RigStopped
+        The safety layer stopped a test on the rig.
+    """
+    say = progress or (lambda msg: None)
+    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    say(f"learn: a quasi-static test, ±{1e3 * learn.quasi_static_amplitude_m:g} mm at "
+        f"{1e3 * learn.quasi_static_velocity_m_s:g} mm/s")
+    run_quasi_static(twin, out, velocity=learn.quasi_static_velocity_m_s,
+                     amplitude=learn.quasi_static_amplitude_m, cycles=1, engine=engine)
+    f0, f1 = learn.chirp_band_hz
+    say(f"learn: a chirp, {f0:g}–{f1:g} Hz in {learn.chirp_s:g} s, "
+        f"{learn.chirp_start_velocity_m_s:g}–{learn.chirp_end_velocity_m_s:g} m/s")
+    run_chirp(twin, out, f_start=f0, f_end=f1, duration=learn.chirp_s,
+              v_start=learn.chirp_start_velocity_m_s, v_end=learn.chirp_end_velocity_m_s,
+              engine=engine)
+    files = [out / "quasi_static.csv", out / "chirp.csv"]
+    data = [read_measured_csv(p) for p in files]
+    say("learn: identifying the twin from them")
+    try:
+        learned = DamperModel(identify(data[0], data[1], twin.cfg, fit_alpha=True).config)
+    except IdentificationError as exc:
+        raise UserError(f"learn: the twin's identification failed on {out}: {exc}") from None
+    params_file = out / LEARNED_FILE
+    save_config(learned.cfg, params_file)
+    result = LearnedTwin(learned, params_file, files, _residuals(twin, data),
+                         _residuals(learned, data), time.perf_counter() - t0)
+    for name in result.after:
+        say(f"learn: {name}: twin residual {result.before[name]['rms_n']:.0f} → "
+            f"{result.after[name]['rms_n']:.0f} N r.m.s.")
+    return result

@@ -235,19 +235,21 @@ class RigHost:
         return min(max(target_m, self._demand - step), self._demand + step)
 
     # -- the cycle ---------------------------------------------------------------------
-    def measure(self, t_s: float, feedback: Feedback) -> None:
-        """A valid feedback received at ``t_s`` whose cycle has already run (it came
-        late): the newest measurement for the next cycle; the safety layer checks it."""
+    def measure(self, t_s: float, feedback: Feedback, cycles_back: int = 0) -> None:
+        """A valid feedback received at ``t_s``, of the cycle ``cycles_back`` cycles before
+        the latest: the newest measurement for the next cycle; the safety layer checks it
+        (its velocity over the cycles the frame's really are)."""
         self._measured, self._force = feedback.stroke_m, feedback.force_n
         self._temperature = feedback.temperature_c
-        self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n, self._cycles)
+        self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n,
+                             self._cycles - int(cycles_back))
 
     def late(self, t_s: float, feedback: Feedback, cycles_back: int) -> None:
         """A valid feedback received at ``t_s`` for a cycle that already ran on the last
         measurement, ``cycles_back`` cycles before the latest (the dyno's alive counter
         says which): the newest measurement for the next cycle (:meth:`measure`), and in
         the run proper the measurement of that cycle's sample, in its place."""
-        self.measure(t_s, feedback)
+        self.measure(t_s, feedback, cycles_back)
         if self.phase != self.RUN_PHASE:
             return
         k = self.k - 1 - int(cycles_back)

@@ -25,7 +25,8 @@ diagnose.selection.diagnose`):
 4. **Fit and prune.**  Least squares of the stable features on every identification
    sample (rows weighted as the joint fits weigh the files), then backward elimination:
    a feature whose removal raises the effective BIC by less than ``-MAX_DELTA_BIC`` goes.
-   A Gaussian profile's centre and width are then refined by bounded least squares.
+   A Gaussian profile's centre and width are then refined by bounded least squares, and
+   the smooth sign's width of the chosen sign features (:data:`SIGN_RANGE_M_S`).
 5. **Score** exactly as a candidate: the held-out gain ``1 − √(SSE_after/SSE_before)``
    and the effective ΔBIC on the identification files against the final model; the term
    is *significant* with a gain of at least ``MIN_SCORE`` and ``ΔBIC ≤ MAX_DELTA_BIC``.
@@ -139,6 +140,23 @@ class Motion:
     x_ref: float
     #: the mean temperature of the identification files [°C]
     t_ref: float
+    #: the model's chamber pressures [Pa] (the features' inputs at another sign width)
+    p_reb: np.ndarray | None = None
+    p_com: np.ndarray | None = None
+    _at_sign: dict[float, np.ndarray] = field(default_factory=dict, repr=False)
+
+    def terms_at(self, v_sign: float) -> np.ndarray:
+        """The compiled features with the smooth sign ``tanh(ẋ / v_sign)`` [m/s]."""
+        if v_sign == V_SIGN_M_S or self.p_reb is None or self.p_com is None:
+            return self.terms
+        if v_sign not in self._at_sign:
+            out = np.empty_like(self.terms)
+            temp = (np.full(self.t.size, math.nan) if self.temperature is None
+                    else np.asarray(self.temperature, dtype=float))
+            feature_history(self.t, self.x, self.v, temp, self.force_model, self.p_reb,
+                            self.p_com, v_sign, self.t_ref, 0.0, 0.0, LAGS_S[0], out)
+            self._at_sign[v_sign] = out
+        return self._at_sign[v_sign]
 
     @property
     def a(self) -> np.ndarray:
@@ -168,6 +186,8 @@ class Feature:
     #: the parameters of a profile refined after selection (centre, width) [m]
     profile: tuple[float, float] | None = None
     lag_s: float | None = None
+    #: for a feature of the smooth sign ``tanh(ẋ / v_s)``, its ``v_s`` [m/s]
+    sign_m_s: float | None = None
     #: a known physical form whose coefficient is positive (a mass of ẍ, a damping of ẋ,
     #: a friction of the sign, a stiffness of x): fitted within that bound, and not
     #: taken where the data want it negative (it would not be that physics)
@@ -183,6 +203,8 @@ class Feature:
             profile_history(m.x, m.v, self.profile[0], self.profile[1], out)
         elif self.lag_s is not None:
             lag_history(m.t, m.force_model, self.lag_s, out)
+        elif self.sign_m_s is not None:
+            out[:] = m.terms_at(self.sign_m_s)[:, self.index]
         else:
             out[:] = m.terms[:, self.index]
         return out
@@ -194,24 +216,42 @@ def profile_feature(centre: float, width: float) -> Feature:
                    "N·s/m", "stroke·velocity", TERM_PROFILE, (centre, width), positive=True)
 
 
+#: the features of the smooth sign: index, the factor's symbol, the coefficient's unit,
+#: whether it is a known form with a positive coefficient (a friction)
+SIGN_FEATURES = ((TERM_SIGN, "", "N", True), (TERM_STROKE_SIGN, "x · ", "N/m", False),
+                 (TERM_STROKE_SQ_SIGN, "x² · ", "N/m²", False),
+                 (TERM_ABS_STROKE_SIGN, "|x| · ", "N/m", False),
+                 (TERM_P_COM_SIGN, "p_c · ", "m²", False),
+                 (TERM_P_REB_SIGN, "p_r · ", "m²", False))
+#: the range of a refined sign width [m/s]: a seal's pre-sliding, a fraction of a mm/s,
+#: up to the dictionary's own width (a wider "sign" is a damping of ẋ, which the dictionary
+#: holds as such, and a polynomial times it grows without bound beyond the files' speeds)
+SIGN_RANGE_M_S = (2e-4, V_SIGN_M_S)
+
+
+def sign_feature(index: int, v_sign: float) -> Feature:
+    """The feature of the smooth sign of index ``index`` (:data:`SIGN_FEATURES`) at the
+    width ``v_sign`` [m/s]."""
+    factor, unit, positive = next((f, u, p) for i, f, u, p in SIGN_FEATURES if i == index)
+    return Feature(f"{factor}tanh(ẋ / {1e3 * v_sign:.3g} mm/s)", unit, "friction", index,
+                   positive=positive, sign_m_s=v_sign)
+
+
 def _features(x_ref: float) -> list[Feature]:
-    vs = f"{1e3 * V_SIGN_M_S:g} mm/s"
+    sign = {i: sign_feature(i, V_SIGN_M_S) for i, *_ in SIGN_FEATURES}
     out = [
         Feature("ẍ", "kg", "acceleration", TERM_ACCELERATION, positive=True),
         Feature("ẋ", "N·s/m", "velocity", TERM_VELOCITY, positive=True),
         Feature("ẋ|ẋ|", "N·s²/m²", "velocity", TERM_VELOCITY_SQ, positive=True),
         Feature("ẋ³", "N·s³/m³", "velocity", TERM_VELOCITY_CUBE, positive=True),
-        Feature(f"tanh(ẋ / {vs})", "N", "friction", TERM_SIGN, positive=True),
+        sign[TERM_SIGN],
         Feature("x", "N/m", "stroke (linear)", TERM_STROKE, positive=True),
         Feature("x²", "N/m²", "stroke (even)", TERM_STROKE_SQ),
         Feature("x³", "N/m³", "stroke", TERM_STROKE_CUBE),
         Feature("x · ẋ", "N·s/m²", "stroke·velocity", TERM_STROKE_VEL),
         Feature("x² · ẋ", "N·s/m³", "stroke·velocity", TERM_STROKE_SQ_VEL),
-        Feature(f"x · tanh(ẋ / {vs})", "N/m", "friction", TERM_STROKE_SIGN),
-        Feature(f"x² · tanh(ẋ / {vs})", "N/m²", "friction", TERM_STROKE_SQ_SIGN),
-        Feature(f"|x| · tanh(ẋ / {vs})", "N/m", "friction", TERM_ABS_STROKE_SIGN),
-        Feature(f"p_c · tanh(ẋ / {vs})", "m²", "friction", TERM_P_COM_SIGN),
-        Feature(f"p_r · tanh(ẋ / {vs})", "m²", "friction", TERM_P_REB_SIGN),
+        sign[TERM_STROKE_SIGN], sign[TERM_STROKE_SQ_SIGN], sign[TERM_ABS_STROKE_SIGN],
+        sign[TERM_P_COM_SIGN], sign[TERM_P_REB_SIGN],
         Feature("(p_r − p_c)", "m²", "pressure", TERM_P_DROP),
         Feature("E · F_model", "1/J", "energy", TERM_ENERGY),
     ]
@@ -243,7 +283,7 @@ def motion(model: DamperModel, rec: Record, x_ref: float, t_ref: float) -> Motio
                     res.rebound_pressure_pa, res.compression_pressure_pa, V_SIGN_M_S, t_ref,
                     0.0, 0.0, LAGS_S[0], terms)
     return Motion(d.time, d.displacement, v, d.temperature, res.force_n, terms, x_ref,
-                  t_ref)
+                  t_ref, res.rebound_pressure_pa, res.compression_pressure_pa)
 
 
 def _without_chain(d: Any) -> Any:
@@ -280,7 +320,7 @@ def features(model: DamperModel, records: Sequence[Record], rig: RigParams | Non
 def term_params(feats: Sequence[Feature], coefficients: Sequence[float], t_ref: float
                 ) -> DiscoveredTermParams:
     """The ``damper.extensions.discovered_term`` group of the term ``Σ cₖ fₖ`` (at most one
-    zone and one lag among ``feats``)."""
+    zone, one lag and one sign width among ``feats``)."""
     values: dict[str, float] = {}
     for f, c in zip(feats, coefficients):
         values[TERM_FIELDS[f.index]] = values.get(TERM_FIELDS[f.index], 0.0) + float(c)
@@ -288,7 +328,8 @@ def term_params(feats: Sequence[Feature], coefficients: Sequence[float], t_ref: 
             values["profile_center_m"], values["profile_width_m"] = f.profile
         if f.lag_s is not None:
             values["lag_time_constant_s"] = f.lag_s
-    return DiscoveredTermParams(smooth_sign_velocity_m_s=V_SIGN_M_S,
+    v_sign = next((f.sign_m_s for f in feats if f.sign_m_s is not None), V_SIGN_M_S)
+    return DiscoveredTermParams(smooth_sign_velocity_m_s=v_sign,
                                 reference_temperature_c=t_ref, **values)
 
 
@@ -615,6 +656,44 @@ def _refine_profiles(reg: _Regression, chosen: list[int], fit: Sequence[Record],
             reg.replace(j, refined, fit, fit_motion, held, held_motion, rig)
 
 
+def _refine_sign(reg: _Regression, chosen: list[int], fit: Sequence[Record],
+                 fit_motion: Sequence[Motion], held: Sequence[Record],
+                 held_motion: Sequence[Motion], rig: RigParams | None,
+                 say: Callable[[str], None]) -> None:
+    """Step 4's refinement of the smooth sign's width (one for the term, as the compiled
+    term has): a seal's pre-sliding is its own, not the dictionary's 5 mm/s.  A bounded
+    search on ``log v_s`` over :data:`SIGN_RANGE_M_S` for the least weighted squares of
+    the chosen features (their coefficients solved at each width)."""
+    from scipy.optimize import minimize_scalar
+
+    signs = [j for j in chosen if reg.feats[j].sign_m_s is not None]
+    if not signs:
+        return
+    others = reg.x[:, [j for j in chosen if j not in signs]]
+
+    def columns(v_sign: float) -> np.ndarray:
+        return np.column_stack([np.concatenate([
+            r.through_chain(sign_feature(reg.feats[j].index, v_sign).fn(m), rig)[r.start:]
+            for r, m in zip(fit, fit_motion)]) * reg.w_rows for j in signs])
+
+    def sse(log_v: float) -> float:
+        a = np.column_stack([columns(math.exp(log_v)), others])
+        beta, *_ = np.linalg.lstsq(a, reg.y, rcond=None)
+        r = reg.y - a @ beta
+        return float(np.dot(r, r))
+
+    lo, hi = (math.log(v) for v in SIGN_RANGE_M_S)
+    sol = minimize_scalar(sse, bounds=(lo, hi), method="bounded",
+                          options={"xatol": 0.05, "maxiter": 25})
+    v_sign = math.exp(float(sol.x))
+    if not sol.fun < sse(math.log(V_SIGN_M_S)):
+        return
+    say(f"discovery: the smooth sign's width refined to {1e3 * v_sign:.3g} mm/s")
+    for j in signs:
+        reg.replace(j, sign_feature(reg.feats[j].index, v_sign), fit, fit_motion, held,
+                    held_motion, rig)
+
+
 def _physical(reg: _Regression, chosen: list[int], say: Callable[[str], None]
               ) -> list[int]:
     """A known form of the wrong sign (a negative mass) is not that physics: it goes, and
@@ -697,6 +776,7 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
             return Discovery(True, "no feature is stable", frequency=frequency,
                              rms_held_out_before=before, seconds=time.perf_counter() - t0)
         _refine_profiles(reg, chosen, fit, fit_motion, held, held_motion, rig)
+        _refine_sign(reg, chosen, fit, fit_motion, held, held_motion, rig, say)
         # what the refined profile now explains, the others no longer need to
         chosen = _physical(reg, reg.prune(chosen), say)
         if not chosen:

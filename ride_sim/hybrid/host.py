@@ -171,7 +171,11 @@ class HybridHost(RigHost):
         x1, x2 = self._prev_measured
         if k >= 1 and math.isfinite(x2):
             force_model, _ = self.twin.step(x1, (x_m - x2) / (2.0 * self.dt_s), self.dt_s)
-            self.record[4, k - 1] = force_model
+            # a force from a held sample's motion is no prediction (half the velocity, a
+            # spike of the damping force): NaN, and the residual leaves it out
+            fresh = self.fresh
+            predicted = fresh[k] and fresh[k - 1] and (k < 2 or fresh[k - 2])
+            self.record[4, k - 1] = force_model if predicted else math.nan
         self._prev_measured = (x_m, x1)
         self.k = k + 1
         if not self.safety.enable:

@@ -46,6 +46,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from damper_emulator.model.valve_table import ValveTable
 
 DEFAULT_PARAMS_FILE = Path(__file__).resolve().parent.parent / "config" / "sport.yaml"
+#: The virtual dyno's default specimen: a prototype of the sport damper, not its model.
+PROTOTYPE_FILE = DEFAULT_PARAMS_FILE.with_name("prototype.yaml")
 
 
 # --------------------------------------------------------------------------------------

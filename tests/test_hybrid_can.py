@@ -168,7 +168,8 @@ def bus_db():
 
 @pytest.fixture(scope="module")
 def ride(tmp_path_factory):
-    """A compensated 3 s ride, every 100th feedback frame corrupted on the way, its live
+    """A compensated 3 s ride on the virtual rig's sport prototype, with the twin learned
+    from it first (``--learn``), every 100th feedback frame corrupted on the way, its live
     ``/diagnostics`` (``--ros``) received by a node of the test's."""
     from ros_probe import Probe
 
@@ -191,7 +192,8 @@ def ride(tmp_path_factory):
     spinner.start()
     try:
         result = run_pair(tmp_path_factory.mktemp("ride"), bus, ["--corrupt-every", "100"],
-                          ["--duration", "3", "--ros"], env=ros_environment(DOMAIN))
+                          ["--duration", "3", "--ros", "--learn"],
+                          env=ros_environment(DOMAIN))
     finally:
         stop.set()
         spinner.join(5)
@@ -199,6 +201,9 @@ def ride(tmp_path_factory):
     return (*result, got)
 
 
+#: The prototype's force r.m.s. over the test's class-C ride at 20 m/s (about 880 N,
+#: tare included), for the live twin residual's bound [N].
+FORCE_RMS_N = 850.0
 #: A ride whose stall windows hold more than this share of it is the machine's, for the
 #: bounds on its physics (each stall moves the car off its reference and the twin's input).
 QUIET_SHARE = 0.1
@@ -229,9 +234,14 @@ def test_compensated_ride_completes_and_tracks(ride):
         assert tracked["nrms"] == pytest.approx(tracked["nrms_outside_stalls"], rel=1e-12)
     assert abs(doc["tracking"]["delay_ms"]) < 0.5
     if quiet_ride(doc):
+        # the reference rides the learned twin, which misses the prototype's force by up
+        # to 10 % (its friction's pre-sliding, its oil warmed by the characterisation):
+        # 7 % on sws_rms once (with the twin the specimen, offline, 3 %: test_hybrid_core)
         for key, ratio in doc["ride_vs_reference"].items():
-            assert abs(ratio) < 0.03, key
-        assert doc["twin"]["residual_rms_n"] < 100.0      # the twin is the specimen, + noise
+            assert abs(ratio) < 0.1, key
+        rows = np.genfromtxt(out / "hybrid.csv", delimiter=",", names=True)
+        force = rows["force_measured"][np.isfinite(rows["force_measured"])]
+        assert doc["twin"]["residual_rms_n"] <= 0.1 * np.sqrt(np.mean(force ** 2))
     assert doc["stability"]["force_path_gain"] < 1.0
     # the rig's identified transfer system: its 4 ms, rounded up to whole cycles, plus the
     # feedback's way back
@@ -446,12 +456,13 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     """``damper-hil dyno`` on the virtual rig, whose every 10th feedback frame comes a cycle
     late and every 50th is corrupted: the sine's CSV records what the rig measured, each
     stroke with the force of its own cycle (a late frame put in its place, a lost one's
-    sample left out), which is the specimen's force on the protocol (the offline model's,
-    to the rig's noise and tracking).  A run that the machine stopped
-    (:func:`dyno_stalled`) runs again, with a warning."""
+    sample left out), which is the specimen's force on the protocol (the offline model's
+    of the rig's specimen, the sport prototype, to the rig's noise and tracking).  A run
+    that the machine stopped (:func:`dyno_stalled`) runs again, with a warning."""
     from damper_emulator.dyno.measured import read_measured_csv
     from damper_emulator.dyno.runner import run_sine
     from damper_emulator.model.compressible import simulate
+    from damper_emulator.params import PROTOTYPE_FILE, load_config
 
     ch = udp_channel(OFFSETS["dyno"])
     bus_args = ["--can-interface", "udp_multicast", "--can-channel", ch]
@@ -482,7 +493,8 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     run = doc["rig"]["runs"][0]
     assert run["phase_at_end"] == "done" and run["tracking_nrms"] < 0.03
     measured = read_measured_csv(out / "sine_2hz.csv")
-    run_sine(DamperModel(), tmp_path / "model", 2.0, 0.02, cycles=2)
+    specimen = DamperModel(load_config(PROTOTYPE_FILE))      # the rig's
+    run_sine(specimen, tmp_path / "model", 2.0, 0.02, cycles=2)
     model = read_measured_csv(tmp_path / "model" / "sine_2hz.csv")
     # the late frames were put in their cycles; a sample whose frame never came (a
     # corrupted one, one a stall of the machine cost) is left out of the file
@@ -505,7 +517,7 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     # each sample's stroke and force are one cycle's: the model on the measured motion
     # gives the measured force (0.5 % here; a sample held from an earlier cycle, as before
     # the late frames were placed, made it 3.9 %), past the first 50 ms of settling
-    on_motion = simulate(DamperModel(), measured.time, measured.displacement,
+    on_motion = simulate(specimen, measured.time, measured.displacement,
                          measured.velocity).force_n
     settled = measured.time >= 0.05
     consistent = off(measured.force[settled], on_motion[settled])
@@ -520,20 +532,16 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
 
 
 def test_the_twin_learns_the_specimen_on_the_rig(tmp_path):
-    """``hybrid --learn`` against a virtual rig whose specimen is not the twin (other
-    valves, a stiffer oil, a LuGre friction, an oil that thins as it warms): the
+    """``hybrid --learn`` against the virtual rig's default specimen, the sport prototype,
+    which is not the sport twin (other valves, a stiffer oil, a LuGre friction, an oil
+    that thins as it warms): the
     characterisation's files are the rig's, the twin learned from them misses them far
     less than the sport twin did, its file loads, and over the ride (motion it never
     learned from) its residual is at most 10 % of the measured force's r.m.s."""
-    from specimens import mismatched_specimen
+    from damper_emulator.params import load_config
 
-    from damper_emulator.params import load_config, save_config
-
-    specimen = tmp_path / "specimen.yaml"
-    save_config(mismatched_specimen(), specimen)
     bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["learn"]))
-    proc, out, _rig, _ = run_pair(tmp_path, bus, ["--params", str(specimen)],
-                                  ["--learn", "--duration", "3"])
+    proc, out, _rig, _ = run_pair(tmp_path, bus, [], ["--learn", "--duration", "3"])
     assert proc.returncode == 0, proc.stderr
     doc = json.loads((out / "hybrid.json").read_text())
     learned = doc["twin_learning"]
@@ -562,6 +570,6 @@ def test_the_twin_residual_is_live_on_diagnostics(ride):
     values = {kv.key: kv.value for kv in ours[-1].values}
     assert math.isfinite(float(values["twin_residual_rms_n"]))
     if quiet_ride(json.loads((out / "hybrid.json").read_text())):
-        assert float(values["twin_residual_rms_n"]) < 100.0
+        assert float(values["twin_residual_rms_n"]) < 0.1 * FORCE_RMS_N
         assert float(values["tracking_nrms"]) < 0.05
     assert 4.0 < float(values["delay_ms"]) < 7.0

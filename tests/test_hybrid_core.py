@@ -457,21 +457,21 @@ def test_measured_velocity_counts_the_cycles_of_lost_frames():
 
 
 def test_the_twin_learns_a_specimen_that_is_not_its_model(model, tmp_path):
-    """The characterisation (a quasi-static test and a chirp) on a specimen of another
-    form than the twin, through a load cell with 2 N of noise, identified into the twin:
+    """The characterisation (a quasi-static test and a chirp) on the sport prototype
+    (``config/prototype.yaml``: other valves, a stiffer oil, a LuGre friction, a thermal
+    fade), through a load cell with 2 N of noise, identified into the sport twin:
     on the damper strokes of a class-C ride (motion it never learned from) the sport twin
     misses the specimen's force by 30 % r.m.s. or more, the learned one by 10 % at most;
     the learned parameter file reads back as the same model."""
     from types import SimpleNamespace
 
-    from specimens import mismatched_specimen
-
     from damper_emulator.model.compressible import simulate
+    from damper_emulator.params import PROTOTYPE_FILE
     from ride_sim.hybrid.host import hybrid_road, reference_run
     from ride_sim.hybrid.learn import learn_twin
     from ride_sim.hybrid.params import LearnParams
 
-    specimen = DamperModel(mismatched_specimen())
+    specimen = DamperModel(load_config(PROTOTYPE_FILE))
     rng = np.random.default_rng(3)
 
     def rig(_twin, t, x, v):

@@ -61,7 +61,8 @@ def add_parser(sub) -> None:
                "--can-channel '[ff11::d5:1]:43210'\n"
                f"  {PROG} virtual-rig --delay-ms 8 --bandwidth-hz 25 --params faded.yaml")
     rig.add_argument("--params", metavar="PARAMS.yaml", type=Path, default=None,
-                     help="the specimen's parameter file (default: config/sport.yaml)")
+                     help="the specimen's parameter file (default: config/prototype.yaml, "
+                          "a prototype of the sport damper that is not its model)")
     rig.add_argument("--config", metavar="FILE", type=Path, default=None,
                      help="hybrid parameter file, groups actuator and virtual_rig (default: "
                           "config/hybrid.yaml)")
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from can_bridge.dbc import HYBRID_SIGNALS, load_database
     from can_bridge.virtual_rig import RigFaults, run_virtual_rig
     from damper_emulator.model.compressible import DamperModel
-    from damper_emulator.params import load_config
+    from damper_emulator.params import PROTOTYPE_FILE, load_config
     from damper_emulator.realtime.rt import RealtimeRequest
     from ride_sim.hybrid.params import load_hybrid_config
     from ride_sim.hybrid.rig import VirtualRig
@@ -115,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
                                  ("bandwidth_hz", args.bandwidth_hz),
                                  ("damping", args.damping)) if v is not None}
     actuator = dataclasses.replace(config.actuator, **changes)
-    model = DamperModel(load_config(args.params))
+    model = DamperModel(load_config(args.params if args.params is not None
+                                    else PROTOTYPE_FILE))
     db = load_database(required=HYBRID_SIGNALS)
     bus = open_checked_bus(args)
     faults = RigFaults(

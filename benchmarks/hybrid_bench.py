@@ -2,15 +2,19 @@
 """Benchmark of ``damper-hil hybrid`` against ``damper-hil virtual-rig``; prints markdown
 tables.
 
-The rig: 4 ms transport delay, a 40 Hz servo with damping 0.7, the sport specimen
-without extensions; 20 s of an ISO 8608 class C road at 20 m/s.  Both commands run as
+The rig: 4 ms transport delay, a 40 Hz servo with damping 0.7, the virtual rig's default
+specimen (``config/prototype.yaml``: a sport prototype that the sport twin misses by about
+40 % r.m.s. of force); 20 s of an ISO 8608 class C road at 20 m/s.  Both commands run as
 processes on a ``udp_multicast`` bus of their own, in turn (so that on a 2-core machine
 they do not compete for the cores):
 
-1. **compensated** and **uncompensated** on the same rig, ``--repeats`` times each:
-   tracking NRMS, peak error, residual delay, the ride's r.m.s. values against the
-   all-numerical reference, the host's response time (feedback arrival → its command
-   sent) p50/p99/max;
+1. on the same rig, ``--repeats`` times each: **the twin learned** (``--learn``, the
+   headline), the sport twin as it is, **uncompensated**, the host sleeping until each
+   feedback (no polling), and for reference a specimen that *is* the twin
+   (``--params config/sport.yaml``): tracking NRMS, peak error, residual delay, the
+   ride's r.m.s. values against the all-numerical reference, the twin's residual (and
+   over the measured force's r.m.s.), the host's response time (feedback arrival → its
+   command sent) p50/p99/max;
 2. **robustness**: the delay doubled 8 s into the ride (tracking NRMS over each 0.5 s
    around it: back within 5 % in 2 s?); the feedback cut (Enable clear after the last
    valid feedback, on the wire); a corrupted feedback frame in every 100; 30 ms
@@ -92,6 +96,17 @@ def run_pair(tmp: Path, n: int, rig_args, hybrid_args, tap=False):
     return proc, doc, elapsed, listener
 
 
+def twin_cell(doc: dict, case: Path) -> str:
+    """The twin's residual over the ride [N], and over the measured force's r.m.s."""
+    twin = (doc.get("twin") or {}).get("residual_rms_n")
+    csv = case / "out" / "hybrid.csv"
+    if twin is None or not csv.exists():
+        return "–"
+    rows = np.genfromtxt(csv, delimiter=",", names=True)
+    force = rows["force_measured"][np.isfinite(rows["force_measured"])]
+    return f"{twin:.0f} ({twin / np.sqrt(np.mean(force ** 2)) * 100:.1f} %)"
+
+
 def windows(out: Path, width_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """NRMS of the tracking error per window of the ride, and the windows' start [s]."""
     d = np.genfromtxt(out / "hybrid.csv", delimiter=",", skip_header=1)
@@ -127,7 +142,8 @@ def run(args: argparse.Namespace) -> None:
     dur = ["--duration", f"{args.duration:g}", "--road-class", "C", "--speed", "20"]
     print(f"# Damper in the loop: `damper-hil hybrid` against `virtual-rig` — {cpu_name()}, "
           f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}\n")
-    print(f"Rig: 4 ms transport delay, 40 Hz servo, damping 0.7, sport specimen; "
+    print(f"Rig: 4 ms transport delay, 40 Hz servo, damping 0.7, the sport prototype "
+          f"(config/prototype.yaml) unless said; "
           f"{args.duration:g} s of ISO 8608 class C at 20 m/s; udp_multicast; host loop "
           f"{' '.join(PIN_HOST) or 'unpinned'}, rig {' '.join(PIN_RIG) or 'unpinned'}.\n")
     # 1. compensated and uncompensated, in turn
@@ -137,23 +153,31 @@ def run(args: argparse.Namespace) -> None:
     sleeping = root / "sleeping.yaml"
     sleeping.write_text("/**:\n  ros__parameters:\n    hybrid:\n      poll_before_s: 0.0\n",
                         encoding="utf-8")
-    cases = (("model", []), ("none", []), ("model, no polling", ["--config", str(sleeping)]))
+    sport = str(Path(__file__).resolve().parents[1] / "config" / "sport.yaml")
+    # (label, rig's arguments, hybrid's)
+    cases = (("model, learned twin", [], ["--compensation", "model", "--learn"]),
+             ("model, sport twin", [], ["--compensation", "model"]),
+             ("none", [], ["--compensation", "none"]),
+             ("model, learned, no polling", [],
+              ["--compensation", "model", "--learn", "--config", str(sleeping)]),
+             ("model, specimen = twin (reference)", ["--params", sport],
+              ["--compensation", "model"]))
     for r in range(args.repeats):
-        for i, (mode, extra) in enumerate(cases):
+        for i, (mode, rig_args, hybrid_args) in enumerate(cases):
             n += 1
             tmp = root / f"case{i}-{r}"
             tmp.mkdir()
-            proc, doc, elapsed, _ = run_pair(tmp, n, [], [*dur, "--compensation",
-                                                           mode.split(",")[0], *extra])
+            proc, doc, elapsed, _ = run_pair(tmp, n, rig_args, [*dur, *hybrid_args])
             if not doc:
                 print(f"{mode} run {r}: failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
             rows.append((mode, r, proc.returncode, doc, elapsed))
-    print("## Compensated and uncompensated on the same rig\n")
-    print("| compensation | run | exit | NRMS [%] | peak [mm] | residual delay [ms] | "
+    print("## On the same rig: the twin learned, as it is, uncompensated\n")
+    print("| case | run | exit | NRMS [%] | peak [mm] | residual delay [ms] | "
           "rig delay followed [ms] | SWS / ref | Wk accel / ref | DTL / ref | "
+          "twin residual [N] (of the force) | "
           "response p50 / p99 / max [µs] | of it, read p50 / p99 [µs] | force-path gain |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for mode, r, rc, doc, _ in rows:
         tr = doc.get("tracking") or {}
         rr = doc.get("ride_vs_reference") or {}
@@ -163,23 +187,26 @@ def run(args: argparse.Namespace) -> None:
               f"{fmt(tr.get('peak_error_m', 0) * 1e3)} | {fmt(tr.get('delay_ms'))} | "
               f"{fmt(doc.get('tracking_delay_estimate_ms'))} | "
               + " | ".join(f"{rr[k] * 100:+.2f} %" if k in rr else "–" for k in RIDE_KEYS)
+              + f" | {twin_cell(doc, root / f'case{[c[0] for c in cases].index(mode)}-{r}')}"
               + f" | {fmt(link.get('response_p50_us'), '.0f')} / "
               f"{fmt(link.get('response_p99_us'), '.0f')} / "
               f"{fmt(link.get('response_max_us'), '.0f')} | "
               f"{fmt(link.get('read_p50_us'), '.0f')} / {fmt(link.get('read_p99_us'), '.0f')} | "
               f"{fmt(st.get('force_path_gain'))} |")
-    comp = [d["tracking"]["nrms"] for m, _, _, d, _ in rows if m == "model" and d.get("tracking")]
+    head, polled = "model, learned twin", "model, learned, no polling"
+    comp = [d["tracking"]["nrms"] for m, _, _, d, _ in rows if m == head and d.get("tracking")]
     none = [d["tracking"]["nrms"] for m, _, _, d, _ in rows if m == "none" and d.get("tracking")]
     p99 = {label: [d["link"]["response_p99_us"] for m, _, _, d, _ in rows
                    if m == label and d.get("link", {}).get("response_p99_us") is not None]
-           for label, _ in cases}
-    if p99["model"] and p99["model, no polling"]:
-        print(f"\nResponse p99 compensated, polling: {statistics.mean(p99['model']):.0f} µs "
-              f"(runs {', '.join(f'{x:.0f}' for x in p99['model'])}); sleeping until the "
-              f"frame comes: {statistics.mean(p99['model, no polling']):.0f} µs: ratio "
-              f"{statistics.mean(p99['model, no polling']) / statistics.mean(p99['model']):.2f}.")
+           for label, *_ in cases}
+    if p99[head] and p99[polled]:
+        print(f"\nResponse p99 compensated, polling: {statistics.mean(p99[head]):.0f} µs "
+              f"(runs {', '.join(f'{x:.0f}' for x in p99[head])}); sleeping until the "
+              f"frame comes: {statistics.mean(p99[polled]):.0f} µs: ratio "
+              f"{statistics.mean(p99[polled]) / statistics.mean(p99[head]):.2f}.")
     if comp and none:
-        print(f"\nNRMS compensated {statistics.mean(comp) * 100:.2f} % (spread "
+        print(f"\nNRMS compensated with the learned twin {statistics.mean(comp) * 100:.2f} % "
+              f"(spread "
               f"{(max(comp) - min(comp)) * 100:.2f}), uncompensated "
               f"{statistics.mean(none) * 100:.2f} %: ratio "
               f"{statistics.mean(none) / statistics.mean(comp):.0f}×.\n")
@@ -219,8 +246,10 @@ def run(args: argparse.Namespace) -> None:
     last = max(t for t, i, _ in tap.frames if i == fb)
     cleared = [t for t, i, d in tap.frames
                if i == cmd and t > last and not rx.decode_values(i, d)["Enable"]]
-    print(f"| feedback cut | {proc.returncode} | {doc.get('reason', '–')} | Enable clear "
-          f"{(cleared[0] - last) * 1e3:.1f} ms after the last feedback on the wire |")
+    # (a run stopped before the cut, by the machine's stall, sends its clear before it)
+    print(f"| feedback cut | {proc.returncode} | {doc.get('reason', '–')} | " + (
+        f"Enable clear {(cleared[0] - last) * 1e3:.1f} ms after the last feedback on the wire"
+        if cleared else "no command after the last feedback on the wire") + " |")
     n += 1
     tmp = root / "corrupt"
     tmp.mkdir()

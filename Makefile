@@ -14,11 +14,13 @@ $(BIN)/python:
 # dependencies' wheels, ROS 2's included, are most of a fresh `make test`); pip if uv fails.
 # --compile-bytecode as pip does, and compileall for the packages here: where
 # PYTHONDONTWRITEBYTECODE is set, every process would otherwise compile each module it
-# imports again (a CLI start 1.1 -> 2.8 s)
+# imports again (a CLI start 1.1 -> 2.8 s); then the kernels a first run needs are
+# compiled into numba's cache (damper_hil.warm), so a newcomer's first demo loads them
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m uv pip install --quiet --compile-bytecode --python $(BIN)/python -e '.[test]' \
 	    || $(BIN)/python -m pip install --quiet -e '.[test]'
 	$(BIN)/python -m compileall -q damper_emulator ride_sim can_bridge damper_hil
+	$(BIN)/python -m damper_hil.warm
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -144,6 +144,16 @@ def write_report(out: Path, host: HybridHost, doc: dict[str, Any]) -> list[Path]
               f"{TWIN_WINDOW_S:g} s, "
               f"{_fmt(twin['residual_rms_last_n'], '.1f')} N over its last.", "",
               "![force](hybrid_force.png)", ""]
+    learned = doc.get("twin_learning")
+    if learned is not None:
+        lines += ["The twin learned the specimen before the ride (`--learn`) from the files "
+                  "below; the ride used `" + Path(learned["params_file"]).name + "`. Its "
+                  "residual on them, before and after:", "",
+                  "| file | before [N] | after [N] |", "|---|---|---|"]
+        for name, after in learned["residual_after"].items():
+            lines.append(f"| {name} | {_fmt(learned['residual_before'][name]['rms_n'], '.1f')} "
+                         f"| {_fmt(after['rms_n'], '.1f')} |")
+        lines.append("")
     if "transfer" in doc:
         st = doc["stability"]
         lines += ["## Transfer system and stability", "",

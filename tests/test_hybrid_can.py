@@ -552,6 +552,7 @@ def test_the_twin_learns_the_specimen_on_the_rig(ride):
     # offline, 26 -> 6 N)
     assert after["quasi_static.csv"]["rms_n"] < before["quasi_static.csv"]["rms_n"]
     assert (out / "learn" / "chirp.csv").exists()
+    assert "| chirp.csv |" in (out / "report.md").read_text()
     assert doc["settings"]["twin"] == learned["params_file"]
     DamperModel(load_config(learned["params_file"]))
 

@@ -10,7 +10,7 @@ would, with the project's own tools:
    (:class:`LearnParams`) run on the specimen through ``engine``: on a dyno, the
    :class:`~can_bridge.dyno_rig.RigEngine` (the transfer system identified and
    compensated, the safety layer throughout).  The measured data are written as the
-   ``dyno`` command writes them (``quasi_static.csv``, ``chirp.csv`` and their plots).
+   ``dyno`` command writes them (``quasi_static.csv``, ``chirp.csv``).
 2. **Identify** the paper's parameters (gas spring, friction, both valves) from them
    (:func:`damper_emulator.identify.pipeline.identify`), starting from the twin's file.
 3. **Compare**: the twin before and after, each simulated on the measured motion of both
@@ -30,8 +30,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from damper_emulator.dyno.measured import read_measured_csv
-from damper_emulator.dyno.runner import run_chirp, run_quasi_static
+import numpy as np
+
+from damper_emulator.dyno import protocols
+from damper_emulator.dyno.measured import read_measured_csv, write_measured_csv
+from damper_emulator.dyno.protocols import Chirp, QuasiStatic
+from damper_emulator.dyno.simulated import check_travel, measured_samples
 from damper_emulator.errors import UserError
 from damper_emulator.identify.pipeline import identify
 from damper_emulator.identify.quasi_static import IdentificationError
@@ -89,6 +93,16 @@ def _residuals(model: DamperModel, data: list[Any]) -> dict[str, dict[str, float
     return out
 
 
+def _run_test(twin: DamperModel, engine: Any, name: str,
+              history: tuple[np.ndarray, np.ndarray, np.ndarray], out: Path) -> Path:
+    """One test's stroke history through ``engine``; its measured data written as
+    ``out/NAME.csv`` (the samples the engine measured, as ``dyno`` writes them)."""
+    t, x, v = history
+    check_travel(twin, x, f"learn: the {name} test")
+    t, x, v, force, _ = measured_samples(engine(twin, t, x, v), t, x, v)
+    return write_measured_csv(out / f"{name}.csv", t, x, force, v)
+
+
 def learn_twin(twin: DamperModel, learn: LearnParams, out: Path, engine: Any,
                progress: Callable[[str], None] | None = None) -> LearnedTwin:
     """Characterise the specimen through ``engine`` (an
@@ -106,17 +120,21 @@ def learn_twin(twin: DamperModel, learn: LearnParams, out: Path, engine: Any,
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    say(f"learn: a quasi-static test, ±{1e3 * learn.quasi_static_amplitude_m:g} mm at "
-        f"{1e3 * learn.quasi_static_velocity_m_s:g} mm/s")
-    run_quasi_static(twin, out, velocity=learn.quasi_static_velocity_m_s,
-                     amplitude=learn.quasi_static_amplitude_m, cycles=1, engine=engine)
+    qs = protocols.checked(QuasiStatic, "learn", velocity_m_s=learn.quasi_static_velocity_m_s,
+                           amplitude_m=learn.quasi_static_amplitude_m, cycles=1)
     f0, f1 = learn.chirp_band_hz
-    say(f"learn: a chirp, {f0:g}–{f1:g} Hz in {learn.chirp_s:g} s, "
-        f"{learn.chirp_start_velocity_m_s:g}–{learn.chirp_end_velocity_m_s:g} m/s")
-    run_chirp(twin, out, f_start=f0, f_end=f1, duration=learn.chirp_s,
-              v_start=learn.chirp_start_velocity_m_s, v_end=learn.chirp_end_velocity_m_s,
-              engine=engine)
-    files = [out / "quasi_static.csv", out / "chirp.csv"]
+    chirp = protocols.checked(Chirp, "learn", f_start_hz=f0, f_end_hz=f1,
+                              duration_s=learn.chirp_s,
+                              v_start_m_s=learn.chirp_start_velocity_m_s,
+                              v_end_m_s=learn.chirp_end_velocity_m_s)
+    say(f"learn: a quasi-static test, ±{1e3 * qs.amplitude_m:g} mm at "
+        f"{1e3 * qs.velocity_m_s:g} mm/s")
+    files = [_run_test(twin, engine, "quasi_static", protocols.quasi_static(
+        qs.velocity_m_s, qs.amplitude_m, qs.cycles, qs.rate_hz), out)]
+    say(f"learn: a chirp, {f0:g}–{f1:g} Hz in {chirp.duration_s:g} s, "
+        f"{chirp.v_start_m_s:g}–{chirp.v_end_m_s:g} m/s")
+    files.append(_run_test(twin, engine, "chirp", protocols.chirp(
+        f0, f1, chirp.duration_s, chirp.v_start_m_s, chirp.v_end_m_s, chirp.rate_hz), out))
     data = [read_measured_csv(p) for p in files]
     say("learn: identifying the twin from them")
     try:

@@ -27,13 +27,13 @@ demo: $(STAMP)
 	$(BIN)/damper-hil demo --out demo_out
 
 # the tests in two parts: the cores in one process per core (pytest-xdist, each module
-# on one worker, its fixtures built once), then the ROS and CAN tests alone: their
-# real-time, DDS and bus checks need the machine to themselves
+# on one worker, its fixtures built once), then the ROS, CAN and timing tests alone: their
+# real-time, DDS, bus and wall-clock checks need the machine to themselves
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	$(BIN)/python -m pytest -q --durations=10 -n 2 --dist loadscope -m "not ros and not can"
-	$(BIN)/python -m pytest -q --durations=10 -m "ros or can"
+	$(BIN)/python -m pytest -q --durations=10 -n 2 --dist loadscope -m "not ros and not can and not timing"
+	$(BIN)/python -m pytest -q --durations=10 -m "ros or can or timing"
 
 fuzz: $(STAMP)
 	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest -q --durations=15 tests/test_fuzz_*.py

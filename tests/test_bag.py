@@ -515,6 +515,7 @@ def _drain(stream, lines):
 
 
 @pytest.mark.slow
+@pytest.mark.timing
 def test_sigkill_loses_at_most_half_a_second(tmp_path):
     delays = (0.7, 1.1, 1.5)  # s after the first message
     env = dict(os.environ, PYTHONUNBUFFERED="1")

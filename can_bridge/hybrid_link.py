@@ -233,7 +233,7 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
         sys.setswitchinterval(switch)
         gc.unfreeze()
         if report is not None:
-            report.release()
+            report.restore()
     d = receiver.drops
     stats.dropped, stats.dropped_checksum, stats.lost = d.dropped, d.checksum, d.lost
     return stats

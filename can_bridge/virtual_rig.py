@@ -189,7 +189,7 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
     finally:
         sys.setswitchinterval(switch)
         if report is not None:
-            report.release()
+            report.restore()
     d = receiver.drops
     stats.dropped, stats.lost = d.dropped, d.lost
     return stats

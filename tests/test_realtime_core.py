@@ -5,6 +5,7 @@ import dataclasses
 import math
 import os
 import struct
+import threading
 import time
 
 import numpy as np
@@ -223,3 +224,34 @@ def test_latency_request_refused_without_the_device(monkeypatch, tmp_path):
                                             timer_slack_ns=0, cpu_dma_latency_us=0))
     assert len(report.refused) == 1 and "wake-up latency" in report.refused[0]
     assert report.held_fds == []
+
+
+def test_restore_gives_the_thread_its_policy_back_before_it_starts_another():
+    """A run of several loops in one thread (``hybrid --learn``): after the first loop's
+    restore(), a thread the caller starts runs under the normal policy, not SCHED_FIFO
+    inherited from a loop that has ended."""
+    seen: dict[str, object] = {}
+
+    def loop_thread() -> None:
+        before = (os.sched_getscheduler(0), os.sched_getaffinity(0))
+        report = apply_realtime(RealtimeRequest(sched_fifo=True, priority=10,
+                                                lock_memory=False, cpu=0))
+        seen["fifo"] = report.sched_fifo
+        seen["during"] = os.sched_getscheduler(0)
+        report.restore()
+        report.restore()                # a second call does nothing
+        seen["after"] = (os.sched_getscheduler(0), os.sched_getaffinity(0))
+        seen["before"] = before
+        child = threading.Thread(
+            target=lambda: seen.__setitem__("child", os.sched_getscheduler(0)))
+        child.start()
+        child.join()
+
+    t = threading.Thread(target=loop_thread)
+    t.start()
+    t.join()
+    if not seen["fifo"]:
+        pytest.skip("SCHED_FIFO not permitted here")
+    assert seen["during"] == os.SCHED_FIFO
+    assert seen["after"] == seen["before"]
+    assert seen["child"] == seen["before"][0] != os.SCHED_FIFO

@@ -6,6 +6,9 @@ Linux applies scheduling policy, affinity and timer slack per thread: call
 :func:`apply_realtime` from the loop thread itself.  ``mlockall`` is per process.  The wake-up
 latency request (PM QoS, ``/dev/cpu_dma_latency``, as ``cyclictest`` makes it) is
 system-wide and lasts while its file stays open: :meth:`RealtimeReport.release` closes it.
+A thread that goes on after its loop (a run of several loops in one process) calls
+:meth:`RealtimeReport.restore` to get its scheduling and affinity back: a thread it starts
+later would otherwise inherit ``SCHED_FIFO``.
 On a virtual machine whose idle CPUs halt, it is what brings the wake-up latency of a sleeping
 loop from about 60 µs (p99 several hundred µs) down to about 30 µs (p99 about 50 µs); the
 price is idle CPUs that poll instead of halting.
@@ -51,12 +54,28 @@ class RealtimeReport:
     applied: list[str] = field(default_factory=list)
     refused: list[str] = field(default_factory=list)
     held_fds: list[int] = field(default_factory=list, repr=False)   # released by release()
+    #: the thread's policy, parameters and affinity before the request (restored by restore())
+    prior: tuple[int, os.sched_param, set[int]] | None = field(default=None, repr=False)
 
     def release(self) -> None:
         """Withdraw the requests that last while a file is open (the latency request)."""
         while self.held_fds:
             with contextlib.suppress(OSError):
                 os.close(self.held_fds.pop())
+
+    def restore(self) -> None:
+        """:meth:`release`, and give the calling thread (the one that applied the request)
+        its scheduling policy and CPU affinity back; ``mlockall`` stays (it is the
+        process's).  Calling it again does nothing."""
+        self.release()
+        prior, self.prior = self.prior, None
+        if prior is None:
+            return
+        policy, param, cpus = prior
+        with contextlib.suppress(OSError, AttributeError):
+            os.sched_setscheduler(0, policy, param)
+        with contextlib.suppress(OSError, AttributeError, ValueError):
+            os.sched_setaffinity(0, cpus)
 
     @property
     def sched_fifo(self) -> bool:
@@ -103,6 +122,9 @@ def apply_realtime(request: RealtimeRequest) -> RealtimeReport:
     :attr:`RealtimeReport.refused` so that the caller can warn once and carry on.
     """
     report = RealtimeReport()
+    with contextlib.suppress(OSError, AttributeError):
+        report.prior = (os.sched_getscheduler(0), os.sched_getparam(0),
+                        os.sched_getaffinity(0))
     libc = _libc()
     if request.lock_memory:
         if libc is None:

@@ -364,7 +364,13 @@ def test_a_stall_of_the_host_past_the_watchdog_stops_the_run_with_enable_clear(t
     commands = [(t, rx.decode_values(i, d)["Enable"]) for t, i, d in tap.frames if i == cmd_id]
     times = np.array([t for t, _ in commands])
     gap = int(np.argmax(np.diff(times)))
-    assert 0.15 < times[gap + 1] - times[gap] < 0.5      # the stall, seen on the bus
+    # the stall, seen on the bus: past the watchdog, and as long as the run says it was
+    # (SIGSTOP takes hold when the kernel next runs the process: the gap is not the test's
+    # 200 ms to the millisecond; 105 ms once on a loaded machine)
+    said_ms = float(re.search(r"no DYNO_COMMAND for (\d+) ms", last).group(1))
+    seen_ms = (times[gap + 1] - times[gap]) * 1e3
+    assert SafetyParams().watchdog_s * 1e3 < seen_ms < 500
+    assert seen_ms == pytest.approx(said_ms, abs=5)
     assert all(enable for _, enable in commands[gap - 100: gap + 1])   # riding before it
     assert not any(enable for _, enable in commands[gap + 1:])
 

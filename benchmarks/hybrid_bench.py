@@ -75,15 +75,20 @@ def channel(n: int) -> str:
     return f"[ff11::d7:{n:x}:{pid & 0xFFFF:x}]:{22000 + (pid % 300) * 10 + n}"
 
 
+#: the pinning of the run (``--unpinned`` clears it): (host's, rig's) arguments
+PINS = [PIN_HOST, PIN_RIG]
+
+
 def run_pair(tmp: Path, n: int, rig_args, hybrid_args, tap=False):
+    pin_host, pin_rig = PINS
     ch = channel(n)
     bus = ["--can-interface", "udp_multicast", "--can-channel", ch]
     rig = subprocess.Popen([*CLI, "virtual-rig", *bus, "--json", str(tmp / "rig.json"),
-                            *PIN_RIG, *rig_args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            *pin_rig, *rig_args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                            text=True)
     listener = BusTap(BusConfig(interface="udp_multicast", channel=ch)) if tap else None
     t0 = time.perf_counter()
-    proc = subprocess.run([*CLI, "hybrid", "--out", str(tmp / "out"), *bus, *PIN_HOST,
+    proc = subprocess.run([*CLI, "hybrid", "--out", str(tmp / "out"), *bus, *pin_host,
                            *hybrid_args],
                           capture_output=True, text=True)
     elapsed = time.perf_counter() - t0
@@ -130,6 +135,10 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--twin-chain", action="store_true")
     ap.add_argument("--twin-only", action="store_true", help="only the twin chain")
+    ap.add_argument("--unpinned", action="store_true",
+                    help="neither loop pinned to a CPU (the README's command as it is)")
+    ap.add_argument("--headline", action="store_true",
+                    help="only the learned twin's rides (no other case, no robustness)")
     run(ap.parse_args())
 
 
@@ -139,13 +148,16 @@ def run(args: argparse.Namespace) -> None:
     if args.twin_only:
         twin_chain(root / "twin", args.duration)
         return
+    if args.unpinned:
+        PINS[:] = [[], []]
+    pin_host, pin_rig = PINS
     dur = ["--duration", f"{args.duration:g}", "--road-class", "C", "--speed", "20"]
     print(f"# Damper in the loop: `damper-hil hybrid` against `virtual-rig` — {cpu_name()}, "
           f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}\n")
     print(f"Rig: 4 ms transport delay, 40 Hz servo, damping 0.7, the sport prototype "
           f"(config/prototype.yaml) unless said; "
           f"{args.duration:g} s of ISO 8608 class C at 20 m/s; udp_multicast; host loop "
-          f"{' '.join(PIN_HOST) or 'unpinned'}, rig {' '.join(PIN_RIG) or 'unpinned'}.\n")
+          f"{' '.join(pin_host) or 'unpinned'}, rig {' '.join(pin_rig) or 'unpinned'}.\n")
     # 1. compensated and uncompensated, in turn
     rows = []
     n = 0
@@ -162,6 +174,8 @@ def run(args: argparse.Namespace) -> None:
               ["--compensation", "model", "--learn", "--config", str(sleeping)]),
              ("model, specimen = twin (reference)", ["--params", sport],
               ["--compensation", "model"]))
+    if args.headline:
+        cases = cases[:1]
     for r in range(args.repeats):
         for i, (mode, rig_args, hybrid_args) in enumerate(cases):
             n += 1
@@ -207,9 +221,16 @@ def run(args: argparse.Namespace) -> None:
     if comp and none:
         print(f"\nNRMS compensated with the learned twin {statistics.mean(comp) * 100:.2f} % "
               f"(spread "
-              f"{(max(comp) - min(comp)) * 100:.2f}), uncompensated "
+              f"{(max(comp) - min(comp)) * 100:.2f}; runs "
+              f"{', '.join(f'{x * 100:.2f}' for x in comp)}), uncompensated "
               f"{statistics.mean(none) * 100:.2f} %: ratio "
               f"{statistics.mean(none) / statistics.mean(comp):.0f}×.\n")
+    if args.headline:
+        done = [d for m, _, rc, d, _ in rows if m == head and rc == 0]
+        print(f"\nLearned twin, {'unpinned' if args.unpinned else 'pinned'}: {len(done)} of "
+              f"{args.repeats} rides completed, NRMS "
+              + ", ".join(f"{d['tracking']['nrms'] * 100:.2f}" for d in done) + " %.")
+        return
     # 2. robustness
     print("## Robustness\n")
     print("| case | exit | reason | measure |")

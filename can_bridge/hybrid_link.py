@@ -151,7 +151,7 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
     gc.freeze()          # the start-up's objects: out of the collector's way
     def cycle(now: float, feedback: Feedback | None, arrival_ns: int | None) -> None:
         nonlocal phase
-        command = host.cycle(now, feedback)
+        command = host.cycle(now, feedback, now_s=time.monotonic())
         send(*command)
         sent_ns = time.monotonic_ns()
         host.stamp(sent_ns)

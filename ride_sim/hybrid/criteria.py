@@ -78,11 +78,13 @@ def outside_stalls(host: RigHost, ridden: slice) -> dict[str, float | int]:
 
 def stall_summary(host: RigHost, ridden: slice) -> dict[str, float | int]:
     """The stalls the host saw: over the ride, ``count`` (runs of disturbed samples) and
-    ``samples`` (disturbed); ``longest_ms`` in any phase (the longest a cycle ran behind
-    the rig's beat)."""
+    ``samples`` (disturbed); ``held_cycles``, the backlog's cycles the run held (the rig
+    stood: :meth:`~ride_sim.hybrid.rig_host.RigHost._hold`); ``longest_ms`` in any phase
+    (the longest a cycle ran behind the rig's beat)."""
     s = host.stalled[ridden]
     return {"count": stall_count(s),
             "samples": int(np.count_nonzero(s)),
+            "held_cycles": host.held_cycles,
             "longest_ms": host.longest_stall_s * 1e3}
 
 

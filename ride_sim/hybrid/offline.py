@@ -59,7 +59,8 @@ def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0
     j = 0
 
     def answer(t_host: float, feedback: Feedback | None, sent_s: float) -> None:
-        command = host.cycle(t_host, feedback, int(round(t_host * 1e9)))
+        host.safety.host_wakes(sent_s)          # as the link: the host's own watchdog
+        command = host.cycle(t_host, feedback, int(round(t_host * 1e9)), now_s=sent_s)
         host.stamp(int(round(sent_s * 1e9)))
         rig.command(sent_s + command_latency_s, command.stroke_m, command.enable,
                     command.velocity_m_s)

@@ -178,6 +178,10 @@ class RigHost:
         self.longest_stall_s = 0.0
         self._pending: tuple[float, float] | None = None
         self._cycles = 0            # cycles run: the rig's cycles, lost frames included
+        #: the run proper's cycles held as a stall's backlog (:meth:`_hold`)
+        self.held_cycles = 0
+        self._after_hold = False
+        self._backlog_from: float | None = None
         self.k = 0
 
     def warm_up(self) -> None:
@@ -259,10 +263,14 @@ class RigHost:
             self.fresh[k] = True
             self.placed_late += 1
 
-    def cycle(self, t_s: float, feedback: Feedback | None, t_ns: int = 0) -> Command:
+    def cycle(self, t_s: float, feedback: Feedback | None, t_ns: int = 0,
+              now_s: float | None = None) -> Command:
         """One cycle at ``t_s`` [s, the host's monotonic clock] with the newest valid
         feedback since the last cycle (None: none arrived); ``t_ns`` is recorded as the
-        run's sample's send time.  Returns the command to send now."""
+        run's sample's send time.  ``now_s``: when the host runs the cycle (default
+        ``t_s``); a cycle run more than :data:`STALL_CYCLES` after its feedback came is one
+        of a stall's backlog, which the run proper holds (:meth:`_hold`).  Returns the
+        command to send now."""
         safety = self.safety
         self._cycles += 1
         self.after_send()
@@ -288,7 +296,13 @@ class RigHost:
         if self.phase == "stopped" or self.phase == "done":
             return Command(self._demand, 0.0, False)
         if self.phase == self.RUN_PHASE:
-            demand, velocity = self._run_cycle(t_s, t_ns)
+            if self._holds(t_s, now_s):
+                demand, velocity = self._hold()
+            else:
+                demand, velocity = self._run_cycle(t_s, t_ns)
+                if self._after_hold:
+                    self._after_hold = False
+                    self.stalled[self.k - 1] = True
         else:
             demand, velocity = getattr(self, "_" + self.phase)(t_s, feedback, t_ns)
         previous = self._demand
@@ -426,6 +440,39 @@ class RigHost:
         """One cycle of the run proper: record sample :attr:`k`, advance it, and return
         the demand and its rate (entering ``return`` after the last sample)."""
         raise NotImplementedError
+
+    def _holds(self, t_s: float, now_s: float | None) -> bool:
+        """Whether this cycle of the run proper is held (:meth:`_hold`): one of a stall's
+        backlog (run more than :data:`STALL_CYCLES` after its feedback came) whose
+        feedback came a transport delay (the tracker's) or more after the backlog's
+        first.  Until then the rig still ran on the demands it had been sent, and its
+        feedback is the run's motion; after, it stood."""
+        behind = 0.0 if now_s is None else now_s - t_s
+        if behind <= STALL_CYCLES * self.dt_s:
+            self._backlog_from = None
+            return False
+        if self._backlog_from is None:
+            self._backlog_from = t_s
+        assert self.tracker is not None
+        return self.k > 0 and t_s - self._backlog_from >= self.tracker.delay_s
+
+    def _hold(self) -> tuple[float, float]:
+        """A cycle of a stall's backlog in the run proper (:meth:`_holds`): the demand
+        held, no sample.
+
+        While the host stalled, the rig had no command: once through the demands it had,
+        it held the last one, and its cycles that waited for the host are the rig at rest,
+        not the run's motion.  Run as samples, they would step the run on that force (the
+        quarter car takes the damper's force without its damping) and put the next demand
+        a stall's worth of motion ahead of where the rig stands: an error burst that grows
+        with the stall (offline, a 30 ms stall: up to 7.7 mm).  Held, the run resumes where the rig
+        stopped, a stall later, and the error is the servo's start from rest, whatever
+        the stall's length; the sample after the hold is marked stalled.  The tracker
+        still takes the cycle (held demand, measurement): that is what the rig was given
+        and did."""
+        self._after_hold = True
+        self.held_cycles += 1
+        return self._demand, 0.0
 
     def _record_sample(self, k: int, target_m: float, t_ns: int) -> None:
         """Sample ``k``'s target, measurement and state (the demand follows after the

@@ -24,15 +24,16 @@ import numpy as np
 from can_bridge.bus import BusConfig
 from can_bridge.dbc import cycle_time_s
 from can_bridge.hybrid_link import FEEDBACK, run_hybrid_link
-from damper_emulator.errors import DamperHilError
 from damper_emulator.realtime.rt import RealtimeRequest
 from ride_sim.hybrid.params import HybridConfig
 from ride_sim.hybrid.protocol_host import ProtocolHost
 from ride_sim.hybrid.rig_host import measured_samples
+from ride_sim.hybrid.safety import RunStopped
 
 
-class RigStopped(DamperHilError, RuntimeError):
-    """The safety layer stopped a protocol on the dyno (one line: why)."""
+class RigStopped(RunStopped):
+    """The safety layer stopped a protocol on the dyno (one line: why; ``timing``: the
+    watchdog or a stall of the host did, :class:`~ride_sim.hybrid.safety.RunStopped`)."""
 
 
 class RigEngine:
@@ -99,7 +100,8 @@ class RigEngine:
         if host.phase != "done":
             if host.failure is not None and host.transfer is None:
                 raise RigStopped(host.failure)
-            raise RigStopped(host.reason or f"the run ended in phase {host.phase}")
+            raise RigStopped(host.reason or f"the run ended in phase {host.phase}",
+                             timing=host.safety.timing)
         if fresh.size < 2:
             raise RigStopped("the run recorded fewer than 2 measured samples")
         # onto the protocol's times from the measured cycles; a protocol sample whose

@@ -530,6 +530,50 @@ def test_the_twin_learns_a_specimen_that_is_not_its_model(model, tmp_path):
                                simulate(learned.model, t, x, v).force_n, rtol=1e-9, atol=1e-6)
 
 
+@pytest.mark.parametrize(("safety", "stall", "calls"), [
+    (SafetyParams(), True, 3),                          # run again: QS twice, the chirp
+    (SafetyParams(force_limit_n=100.0), False, 1),      # a limit: no second run
+])
+def test_a_test_a_stall_stopped_runs_again_and_one_a_limit_stopped_does_not(
+        model, tmp_path, safety, stall, calls):
+    """The characterisation's quasi-static test, on a host and rig of the run (offline
+    timeline): a 200 ms stall of the host stops it by the host's own watchdog, and it runs
+    again (then the learning goes on); a force beyond the limit stops it for the
+    specimen, and the learning stops with it."""
+    from damper_emulator.model.compressible import simulate
+    from ride_sim.hybrid.learn import learn_twin
+    from ride_sim.hybrid.params import LearnParams
+    from ride_sim.hybrid.protocol_host import ProtocolHost
+    from ride_sim.hybrid.safety import RunStopped
+
+    seen: list[str] = []
+    ran = []
+
+    def engine(twin, t, x, v):
+        ran.append(t.size)
+        if len(ran) == 1:
+            host = ProtocolHost(HybridRunParams(), CompensatorParams(), safety, x, DT)
+            rig = VirtualRig(model, ActuatorParams(delay_s=0.004), RigParams())
+            run_offline(host, rig, max_time_s=60.0, disturbance=Disturbance(
+                host_stalls=((1.0, 0.2),) if stall else ()))
+            assert host.phase == "stopped"
+            raise RunStopped(host.reason, timing=host.safety.timing)
+        res = simulate(model, t, x, v)
+        return SimpleNamespace(force_n=res.force_n, faults=res.faults)
+
+    from types import SimpleNamespace
+
+    if stall:
+        learned = learn_twin(model, LearnParams(), tmp_path, engine, progress=seen.append)
+        assert learned.params_file.exists()
+        assert any("the quasi_static test stopped (the host stalled" in line
+                   and "run 2 of at most 3" in line for line in seen), seen
+    else:
+        with pytest.raises(RunStopped, match="beyond the limit"):
+            learn_twin(model, LearnParams(), tmp_path, engine, progress=seen.append)
+    assert len(ran) == calls
+
+
 @pytest.mark.parametrize(("change", "says"), [
     ({"chirp_end_velocity_m_s": 2.0}, "velocity_limit_m_s"),
     ({"quasi_static_amplitude_m": 0.08}, "stroke_limit_m"),

@@ -43,6 +43,7 @@ from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import save_config
 from damper_emulator.validation import validate_file
 from ride_sim.hybrid.params import LearnParams, SafetyParams
+from ride_sim.hybrid.safety import RunStopped
 
 #: The learned parameter file, in the characterisation's directory.
 LEARNED_FILE = "twin_learned.yaml"
@@ -94,12 +95,24 @@ def _residuals(model: DamperModel, data: list[Any]) -> dict[str, dict[str, float
 
 
 def _run_test(twin: DamperModel, engine: Any, name: str,
-              history: tuple[np.ndarray, np.ndarray, np.ndarray], out: Path) -> Path:
+              history: tuple[np.ndarray, np.ndarray, np.ndarray], out: Path,
+              attempts: int = 1, say: Callable[[str], None] = lambda msg: None) -> Path:
     """One test's stroke history through ``engine``; its measured data written as
-    ``out/NAME.csv`` (the samples the engine measured, as ``dyno`` writes them)."""
+    ``out/NAME.csv`` (the samples the engine measured, as ``dyno`` writes them).  A run
+    that the watchdog or a stall of the host stopped (:class:`RunStopped` with
+    ``timing``) goes again, ``attempts`` runs in all."""
     t, x, v = history
     check_travel(twin, x, f"learn: the {name} test")
-    t, x, v, force, _ = measured_samples(engine(twin, t, x, v), t, x, v)
+    for attempt in range(1, attempts + 1):
+        try:
+            result = engine(twin, t, x, v)
+            break
+        except RunStopped as exc:
+            if not exc.timing or attempt == attempts:
+                raise
+            say(f"learn: the {name} test stopped ({exc}): run {attempt + 1} of at most "
+                f"{attempts}")
+    t, x, v, force, _ = measured_samples(result, t, x, v)
     return write_measured_csv(out / f"{name}.csv", t, x, force, v)
 
 
@@ -114,8 +127,9 @@ def learn_twin(twin: DamperModel, learn: LearnParams, out: Path, engine: Any,
     UserError
         The characterisation leaves the damper's travel, or the identification fails on
         its data (one line).
-    can_bridge.dyno_rig.RigStopped
-        The safety layer stopped a test on the rig.
+    ride_sim.hybrid.safety.RunStopped
+        The safety layer stopped a test on the rig: for a limit the specimen reached, or
+        for the watchdog or a stall of the host ``learn.attempts`` times.
     """
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
@@ -130,11 +144,12 @@ def learn_twin(twin: DamperModel, learn: LearnParams, out: Path, engine: Any,
     say(f"learn: a quasi-static test, ±{1e3 * qs.amplitude_m:g} mm at "
         f"{1e3 * qs.velocity_m_s:g} mm/s")
     files = [_run_test(twin, engine, "quasi_static", protocols.quasi_static(
-        qs.velocity_m_s, qs.amplitude_m, qs.cycles, qs.rate_hz), out)]
+        qs.velocity_m_s, qs.amplitude_m, qs.cycles, qs.rate_hz), out, learn.attempts, say)]
     say(f"learn: a chirp, {f0:g}–{f1:g} Hz in {chirp.duration_s:g} s, "
         f"{chirp.v_start_m_s:g}–{chirp.v_end_m_s:g} m/s")
     files.append(_run_test(twin, engine, "chirp", protocols.chirp(
-        f0, f1, chirp.duration_s, chirp.v_start_m_s, chirp.v_end_m_s, chirp.rate_hz), out))
+        f0, f1, chirp.duration_s, chirp.v_start_m_s, chirp.v_end_m_s, chirp.rate_hz), out,
+        learn.attempts, say))
     data = [read_measured_csv(p) for p in files]
     say("learn: identifying the twin from them")
     try:

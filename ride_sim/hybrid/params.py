@@ -151,6 +151,10 @@ class LearnParams:
     chirp_end_velocity_m_s: float = _rule(("range", 0.0, 20.0), "the chirp's velocity "
                                                                "amplitude at its end [m/s]",
                                           1.0)
+    attempts: int = _rule(("int_range", 1, 10), "runs of each test at most: a test the "
+                                                "watchdog or a stall of the host stopped "
+                                                "runs again (a limit the specimen reached "
+                                                "stops the learning)", 3)
 
 
 def build(cls: type[_G], data: Any, prefix: str, where: str = "<memory>") -> _G:

@@ -33,11 +33,22 @@ from __future__ import annotations
 import math
 from collections import deque
 
+from damper_emulator.errors import DamperHilError
 from ride_sim.hybrid.params import SafetyParams
 
 #: The watchdog trips at this fraction of ``watchdog_s``: the rest is the margin for a
 #: late cycle (without feedback the host cycles every period, give or take its jitter).
 WATCHDOG_TRIP = 0.8
+
+
+class RunStopped(DamperHilError, RuntimeError):
+    """The safety layer stopped a run on the rig (one line: why).  ``timing``: the
+    watchdog or a stall of the host stopped it (:attr:`SafetyLayer.timing`), not a limit
+    the specimen reached: the run may go again."""
+
+    def __init__(self, reason: str, timing: bool = False) -> None:
+        super().__init__(reason)
+        self.timing = timing
 
 
 class SafetyLayer:
@@ -55,6 +66,9 @@ class SafetyLayer:
         self.dt_s = float(dt_s)
         self.reason: str | None = None
         self.stopped_at_s: float | None = None
+        #: the stop came from time (the watchdog, a stall of the host), not the specimen:
+        #: a characterisation may run again (:class:`RunStopped`)
+        self.timing = False
         self.last_valid_s: float | None = None
         self.last_host_s: float | None = None
         self.clamped = 0
@@ -78,11 +92,13 @@ class SafetyLayer:
         """Whether the rig may follow the demand (False after any stop)."""
         return self.reason is None
 
-    def stop(self, t_s: float, reason: str) -> None:
-        """Stop the run now (the first reason is kept)."""
+    def stop(self, t_s: float, reason: str, timing: bool = False) -> None:
+        """Stop the run now (the first reason is kept); ``timing``: the watchdog or a
+        stall of the host stopped it, not the specimen (:attr:`timing`)."""
         if self.reason is None:
             self.reason = reason
             self.stopped_at_s = float(t_s)
+            self.timing = bool(timing)
 
     def clamp(self, demand_m: float, previous_m: float) -> float:
         """``demand_m`` within the stroke limits, at most the velocity limit's step from
@@ -134,7 +150,7 @@ class SafetyLayer:
         age = t_s - self.last_valid_s
         if age >= WATCHDOG_TRIP * self.params.watchdog_s:
             self.stop(t_s, f"no valid DYNO_FEEDBACK for {age * 1e3:.0f} ms (watchdog "
-                           f"{self.params.watchdog_s * 1e3:g} ms)")
+                           f"{self.params.watchdog_s * 1e3:g} ms)", timing=True)
 
     def host_wakes(self, t_s: float) -> None:
         """The host's loop runs at ``t_s`` [s, its monotonic clock, not a frame's stamp]:
@@ -145,7 +161,7 @@ class SafetyLayer:
         gap = t_s - last
         if gap >= WATCHDOG_TRIP * self.params.watchdog_s:
             self.stop(t_s, f"the host stalled: no DYNO_COMMAND for {gap * 1e3:.0f} ms "
-                           f"(watchdog {self.params.watchdog_s * 1e3:g} ms)")
+                           f"(watchdog {self.params.watchdog_s * 1e3:g} ms)", timing=True)
 
     def tracking(self, t_s: float, error_m: float, reference_m: float) -> None:
         """One cycle of the ride: the tracking error (measured − target stroke) and the

@@ -43,7 +43,7 @@ from can_bridge.bus import BusConfig, ResilientBus, receive_time
 from can_bridge.codec import Encoder, Receiver
 from damper_emulator.realtime.rt import RealtimeReport, RealtimeRequest, apply_realtime
 from ride_sim.hybrid.rig import Feedback
-from ride_sim.hybrid.rig_host import RigHost
+from ride_sim.hybrid.rig_host import Command, RigHost
 
 COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"
 #: A cycle whose feedback has not come this many periods after the last runs without it.
@@ -152,6 +152,11 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
     def cycle(now: float, feedback: Feedback | None, arrival_ns: int | None) -> None:
         nonlocal phase
         command = host.cycle(now, feedback, now_s=time.monotonic())
+        # a stall of the host while it ran the cycle (SIGSTOP, the VM halting it): the
+        # command is stale, and the safety layer's stop goes out in its place
+        host.safety.host_wakes(time.monotonic())
+        if command.enable and not host.safety.enable:
+            command = Command(host.demand_m, 0.0, False)
         send(*command)
         sent_ns = time.monotonic_ns()
         host.stamp(sent_ns)

@@ -362,13 +362,15 @@ def test_parameter_groups_refuse_bad_values_in_one_line():
 
 # -- stalls of the host during the identification ------------------------------------------
 
-def _stalled_run(model, stalls, compensator=None):
+def _stalled_run(model, stalls, compensator=None, run=None, cut_at_s=None):
     """A short ride whose host stalls over ``stalls`` ((start, length) [s]): the
     identification runs from about 0.5 s to 3.5 s into the run."""
-    host = HybridHost(HybridRunParams(duration_s=0.5), load_quarter_car(), model,
+    host = HybridHost(run or HybridRunParams(duration_s=0.5), load_quarter_car(), model,
                       compensator or CompensatorParams(), SafetyParams())
     rig = VirtualRig(model, ActuatorParams(delay_s=0.004), RigParams())
-    run_offline(host, rig, disturbance=Disturbance(host_stalls=stalls), max_time_s=30.0)
+    run_offline(host, rig, disturbance=Disturbance(host_stalls=stalls,
+                                                   feedback_cut_at_s=cut_at_s),
+                max_time_s=30.0)
     return host
 
 
@@ -418,6 +420,38 @@ def test_an_identification_that_never_gets_clear_of_stalls_stops_the_run(model):
     assert [a["fit_nrms"] for a in host.attempts] == [None, None]
     assert "stalls" in host.reason and "attempt 2 of 2" in host.reason
     assert not host.safety.enable
+
+
+def test_a_timing_stop_before_the_ride_starts_the_run_again(model):
+    """A 200 ms stall of the host in the identification stops the run (the host's own
+    watchdog); before the ride nothing is lost but time, so the host clears Enable for the
+    watchdog's time, connects again and starts over: the ride completes, the restart in
+    ``identification``.  With ``restarts: 0`` the stop is final."""
+    host = _stalled_run(model, ((1.0, 0.2),))
+    assert host.phase == "done" and host.reason is None, host.reason
+    (restart,) = host.identification_report()["restarts"]
+    assert restart["phase"] == "identify" and "the host stalled" in restart["reason"]
+    assert 0.99 < restart["at_s"] < 1.3
+    # the identification that ran was the second, clean one
+    (attempt,) = host.attempts
+    assert attempt["stalls"] == 0 and attempt["fit_nrms"] < 0.1
+    assert _nrms(host, host.road.evaluated) < 0.05
+
+    final = _stalled_run(model, ((1.0, 0.2),), run=HybridRunParams(duration_s=0.5,
+                                                                    restarts=0))
+    assert final.phase == "stopped" and "the host stalled" in final.reason
+    assert final.identification_report()["restarts"] == [] and final.k == 0
+
+
+def test_a_feedback_cut_before_the_ride_stops_once_the_restart_finds_no_rig(model):
+    """The feedback cut in the identification: the restart waits ``connect_timeout_s`` for
+    the rig, then the watchdog's stop stands (a stop, not a failure to connect)."""
+    host = _stalled_run(model, (), run=HybridRunParams(duration_s=0.5, connect_timeout_s=0.5),
+                        cut_at_s=1.5)
+    assert host.phase == "stopped" and host.safety.timing
+    assert host.reason.startswith("no valid DYNO_FEEDBACK") and "of the restart" in \
+        host.reason, host.reason
+    assert host.failure is None and len(host.restarts) == 1
 
 
 def test_a_stall_in_the_ride_is_reported_and_left_out_of_the_tracking_outside_stalls(
@@ -537,9 +571,10 @@ def test_the_twin_learns_a_specimen_that_is_not_its_model(model, tmp_path):
 def test_a_test_a_stall_stopped_runs_again_and_one_a_limit_stopped_does_not(
         model, tmp_path, safety, stall, calls):
     """The characterisation's quasi-static test, on a host and rig of the run (offline
-    timeline): a 200 ms stall of the host stops it by the host's own watchdog, and it runs
-    again (then the learning goes on); a force beyond the limit stops it for the
-    specimen, and the learning stops with it."""
+    timeline): a 200 ms stall of the host in the test proper stops it by the host's own
+    watchdog (before it, the host starts again by itself), and it runs again (then the
+    learning goes on); a force beyond the limit stops it for the specimen, and the
+    learning stops with it."""
     from damper_emulator.model.compressible import simulate
     from ride_sim.hybrid.learn import learn_twin
     from ride_sim.hybrid.params import LearnParams
@@ -555,7 +590,7 @@ def test_a_test_a_stall_stopped_runs_again_and_one_a_limit_stopped_does_not(
             host = ProtocolHost(HybridRunParams(), CompensatorParams(), safety, x, DT)
             rig = VirtualRig(model, ActuatorParams(delay_s=0.004), RigParams())
             run_offline(host, rig, max_time_s=60.0, disturbance=Disturbance(
-                host_stalls=((1.0, 0.2),) if stall else ()))
+                host_stalls=((3.8, 0.2),) if stall else ()))
             assert host.phase == "stopped"
             raise RunStopped(host.reason, timing=host.safety.timing)
         res = simulate(model, t, x, v)

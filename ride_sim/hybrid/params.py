@@ -121,6 +121,12 @@ class HybridRunParams:
     max_fit_nrms: float = _rule("positive", "the identification fits the rig's answer at "
                                             "least this well (r.m.s. error / r.m.s. "
                                             "stroke), or the run stops [-]", 0.2)
+    restarts: int = _rule(("int_range", 0, 10), "a stop of the watchdog or of a stall of "
+                                                "the host before the run proper (settle, "
+                                                "identification, fit) clears Enable for "
+                                                "watchdog_s and starts the run again from "
+                                                "connect, up to this many times (in the "
+                                                "run proper a stop is final)", 2)
     poll_before_s: float = _rule(("closed", 0.0, 0.01),
                                  "with its loop pinned to a CPU (--cpu), the host polls the "
                                  "bus, without sleeping, from this long before the next "

@@ -29,6 +29,13 @@ the run proper (:attr:`RigHost.RUN_PHASE`)
 ``stopped``
     The safety layer stopped the run (:mod:`ride_sim.hybrid.safety`): ``Enable`` clear,
     the demand held; :attr:`RigHost.reason` says why.
+``rearm``
+    The watchdog or a stall of the host stopped the run before the run proper (a stop
+    of the timing, not one of the specimen's limits): ``Enable`` clear for
+    ``watchdog_s`` (the rig's own watchdog has tripped by then too), then ``connect``
+    again with a new safety layer and a new identification, up to ``restarts`` times
+    (:attr:`RigHost.restarts` holds each one's account).  Nothing has been ridden or
+    tested yet, so nothing is lost but time; in the run proper a stop is final.
 
 Every demand passes :meth:`~ride_sim.hybrid.safety.SafetyLayer.clamp`, in every phase.
 """
@@ -88,7 +95,7 @@ class Command(NamedTuple):
 #: The phases every run has, in order (``stopped`` may follow any); the run proper's
 #: (:attr:`RigHost.RUN_PHASE`) comes after ``fit``, and a subclass may add its own
 #: (:attr:`RigHost.OWN_PHASES`).
-PHASES = ("connect", "settle", "identify", "fit", "return", "done", "stopped")
+PHASES = ("connect", "settle", "identify", "fit", "return", "done", "stopped", "rearm")
 
 
 class _Immediate:
@@ -153,6 +160,9 @@ class RigHost:
         self.usable = np.ones(self._excitation.size, dtype=bool)
         #: each identification attempt's account (:meth:`identification_report`)
         self.attempts: list[dict[str, Any]] = []
+        self._attempts_from = 0     # the current start's first attempt in attempts
+        #: each restart's account (:meth:`_restart`): the phase and the stop's reason
+        self.restarts: list[dict[str, Any]] = []
         self._last_fresh_s: float | None = None
         self._cycle_s = math.nan
         self._stalled = False
@@ -282,12 +292,18 @@ class RigHost:
         if feedback is not None:
             self.measure(t_s, feedback)
         safety.watchdog(t_s)
+        if not safety.enable and self._may_restart():
+            self._restart(t_s)
+            safety = self.safety
+        if self.phase == "rearm":
+            if self._elapsed(t_s) >= safety.params.watchdog_s:
+                self.phase = "connect"
+                self._start_s = t_s
+            return Command(self._demand, 0.0, False)
         if self.phase == "connect":
             if feedback is None:
                 if t_s - self._start_s > self.run.connect_timeout_s:
-                    self.failure = (f"no DYNO_FEEDBACK within {self.run.connect_timeout_s:g} s "
-                                    "(is a dyno on the bus?)")
-                    self.phase = "stopped"
+                    self._connect_timed_out(t_s)
                 return Command(self._demand, 0.0, False)
             self._demand = feedback.stroke_m
             self._enter("settle", t_s)
@@ -312,6 +328,41 @@ class RigHost:
             if self.compensator_params.adapt:
                 self._pending = (self._demand, self._measured)
         return Command(self._demand, velocity, True)
+
+    def _connect_timed_out(self, t_s: float) -> None:
+        """No feedback within ``connect_timeout_s``: no dyno at the start (a failure), or,
+        after a restart, the stop that began it stands (the rig has not come back)."""
+        wait = f"no DYNO_FEEDBACK within {self.run.connect_timeout_s:g} s"
+        if self.restarts:
+            self.safety.stop(t_s, f"{self.restarts[-1]['reason']}; {wait} of the restart",
+                             timing=True)
+        else:
+            self.failure = f"{wait} (is a dyno on the bus?)"
+        self.phase = "stopped"
+
+    def _may_restart(self) -> bool:
+        """Whether the safety layer's stop may start the run again (:meth:`_restart`)."""
+        return (self.safety.timing and len(self.restarts) < self.run.restarts
+                and self.phase not in (self.RUN_PHASE, "return", "done", "stopped"))
+
+    def _restart(self, t_s: float) -> None:
+        """The watchdog or a stall of the host stopped the run before the run proper:
+        account for it, take a new safety layer (its demands' clamp count carried over)
+        and forget the start (tare, identification, transfer system), then ``rearm``."""
+        old = self.safety
+        self.restarts.append({"phase": self.phase, "reason": old.reason,
+                              "at_s": t_s - (self._start_s or t_s)})
+        self.safety = SafetyLayer(old.params, self.dt_s)
+        self.safety.clamped = old.clamped
+        self._tare = []
+        self._j = 0
+        self.identification[:] = np.nan
+        self.disturbed[:] = False
+        self._fit_job = None
+        self.transfer = None
+        self.tracker = None
+        self._attempts_from = len(self.attempts)
+        self._enter("rearm", t_s)
 
     def _watch_stall(self, t_s: float, fresh: bool) -> None:
         """Whether this cycle comes after a stall: :data:`STALL_CYCLES` or more later than a
@@ -381,7 +432,7 @@ class RigHost:
 
     def _again_or_stop(self, t_s: float, why: str) -> tuple[float, float]:
         """Run the identification again, or stop the run when its attempts are spent."""
-        tries = len(self.attempts)
+        tries = len(self.attempts) - self._attempts_from
         if tries >= self.compensator_params.identify_attempts:
             self.safety.stop(t_s, f"the transfer system's identification {why} "
                                   f"(attempt {tries} of {tries})")
@@ -397,7 +448,8 @@ class RigHost:
         """The identification's attempts and what stalls left out of each (``hybrid.json``'s
         ``identification``)."""
         return {"attempts": len(self.attempts), "each": list(self.attempts),
-                "guard_ms": self.compensator_params.stall_guard_s * 1e3}
+                "guard_ms": self.compensator_params.stall_guard_s * 1e3,
+                "restarts": list(self.restarts)}
 
     def _fit_poll(self, t_s: float) -> tuple[float, float]:
         assert self._fit_job is not None

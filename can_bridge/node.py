@@ -6,6 +6,14 @@ permitted), publishes what it decodes and runs the watchdog at least every DBC c
 input thread (SCHED_FIFO too) waits on ``/damper/force`` (and, in controller mode,
 ``/ride/state`` and ``/damper/state``) without an executor and turns each message into
 frames.  The executor serves only the diagnostics timer and the parameter services.
+
+With ``model: true`` (dyno mode) there is no input thread and no emulator node: the
+receive thread steps the damper's model itself (an
+:class:`~damper_emulator.realtime.core.EmulatorCore` under ``trigger: input``, as the
+emulator node's) on each ``DAMPER_STATE`` and sends its ``DAMPER_FORCE`` at once, then
+publishes the state and the force on ``/damper/state`` and ``/damper/force`` for
+observation and recording.  The force leaves within the dyno's cycle: no DDS hop and no
+second process lie between the frame and its answer.
 Nothing is queued by the bridge: a frame that cannot be sent is counted and dropped, and a
 failed bus is reopened with exponential backoff.
 """
@@ -30,9 +38,9 @@ from can_bridge.settings import (
     bridge_params_from_mapping,
     default_bridge_mapping,
 )
-from damper_emulator import topics
+from damper_emulator import force_message, topics
 from damper_emulator.bag.cdr_fast import JointStateSample
-from damper_emulator.realtime.core import Status
+from damper_emulator.realtime.core import EmulatorCore, Output, Status
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
 from damper_emulator.ros.common import (
     JointStateIn,
@@ -77,6 +85,23 @@ class BridgeNode(ManagedNode):
         defaults = default_bridge_mapping()
         values = declare_parameters(self, defaults, {"": BridgeParams})
         p = self.params = bridge_params_from_mapping(values, f"node {NODE_NAME} parameters")
+        self._model = self._emulator_params = None
+        if p.model:
+            from damper_emulator.realtime.settings import (
+                EmulatorParams,
+                default_emulator_mapping,
+                emulator_params_from_mapping,
+            )
+            from damper_emulator.ros.emulator import load_node_model
+
+            emu_values, self._model = load_node_model(
+                self, {"emulator": default_emulator_mapping()}, {"emulator": EmulatorParams})
+            self._emulator_params = emulator_params_from_mapping(
+                emu_values["emulator"], f"node {NODE_NAME} parameters")
+        #: the model stepped in the receive thread (``model: true``), from configure on
+        self.emulator: EmulatorCore | None = None
+        self._force_pub = None
+        self._force_out: JointStateOut | None = None
         #: read by spin_node: the DDS threads' SCHED_FIFO priority (0: normal scheduling)
         self.dds_priority = p.dds_priority
         #: read by spin_node: the executor thread's SCHED_FIFO priority (0: normal)
@@ -128,6 +153,14 @@ class BridgeNode(ManagedNode):
         if p.mode == "dyno":
             self._state_pub = self.create_lifecycle_publisher(JointState, topics.STATE, qos)
             self._state_out = JointStateOut(self._state_pub, [p.damper_name], (1, 1, 0))
+        if self._model is not None and self._emulator_params is not None:
+            # the model's compiled code loaded (or compiled) before any frame is answered
+            self.emulator = EmulatorCore(self._model, self._emulator_params)
+            self.emulator.warm_up()
+            self._force_pub = self.create_lifecycle_publisher(JointState, topics.FORCE, qos)
+            self._force_out = JointStateOut(self._force_pub,
+                                            force_message.names(p.damper_name),
+                                            force_message.COUNTS)
         else:
             self._valve_pub = self.create_lifecycle_publisher(Float64, topics.VALVE_COMMAND,
                                                               qos)
@@ -142,6 +175,13 @@ class BridgeNode(ManagedNode):
         # the 1 kHz inputs on a thread of their own, without the executor, as CDR bytes;
         # best effort: each frame carries the latest sample (topics.py).  Each force wakes
         # the thread; the vehicle's motion is sampled at VEHICLE_MOTION's cycle.
+        self._stop.clear()
+        self._rx = threading.Thread(target=self._receive_loop, name="can-rx", daemon=True)
+        if self.emulator is not None:       # the forces are the receive thread's own
+            self._rx.start()
+            self._inactive_reason = ""
+            self.get_logger().info("active: answering DAMPER_STATE with the model's force")
+            return
         self._ros_in = SubscriptionThread(
             self, [(JointState, topics.FORCE, self._on_force)],
             control_qos(topics.CONTROL_DEPTH, reliable=False), "ros-in",
@@ -150,8 +190,6 @@ class BridgeNode(ManagedNode):
             polled=([(JointState, topics.STATE), (JointState, topics.RIDE_STATE)]
                     if controller else ()),
             after_wake=self._send_motion if controller else None)
-        self._stop.clear()
-        self._rx = threading.Thread(target=self._receive_loop, name="can-rx", daemon=True)
         self._rx.start()
         self._ros_in.start()
         self._inactive_reason = ""
@@ -191,10 +229,12 @@ class BridgeNode(ManagedNode):
         if self._diag_timer is not None:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = None
-        for pub in (self._state_pub, self._valve_pub):
+        for pub in (self._state_pub, self._valve_pub, self._force_pub):
             if pub is not None:
                 self.destroy_lifecycle_publisher(pub)
-        self._state_pub = self._valve_pub = None
+        self._state_pub = self._valve_pub = self._force_pub = None
+        self._force_out = None
+        self.emulator = None
         if self._diag_pub is not None:
             self.destroy_publisher(self._diag_pub)
             self._diag_pub = None
@@ -205,7 +245,7 @@ class BridgeNode(ManagedNode):
 
     def before_spin(self, executor) -> None:
         p = self.params
-        if p.emulator_node:
+        if p.emulator_node and not p.model:
             # the frames flow meanwhile (fault frames with the no-force status until the
             # emulator's forces arrive); this only says what the bridge waits for
             try:
@@ -241,7 +281,9 @@ class BridgeNode(ManagedNode):
                 now_ns = time.monotonic_ns()
                 if msg is not None and not msg.is_error_frame:
                     out = core.on_frame(msg.arbitration_id, msg.data, now_ns)
-                    if out is not None:
+                    if out is not None and out[0] == "state" and self.emulator is not None:
+                        self._answer(out[1], out[2], msg.timestamp)
+                    elif out is not None:
                         self._publish_inbound(out, msg.timestamp)
                 errors = self.bus.rx_error_frames
                 if errors != self._errors_seen:
@@ -261,13 +303,39 @@ class BridgeNode(ManagedNode):
             self.exit_status = 1
             rclpy.try_shutdown()
 
+    @staticmethod
+    def _stamp(can_stamp_s: float) -> int:
+        """A state's stamp [ns, the wall clock]: the frame's CAN time stamp where it is
+        trusted (within :data:`STAMP_TRUST_S` of now), else now."""
+        now = time.time_ns()
+        return int(can_stamp_s * 1e9) if can_stamp_s and \
+            abs(can_stamp_s * 1e9 - now) < STAMP_TRUST_S * 1e9 else now
+
+    def _answer(self, x: float, v: float, can_stamp_s: float) -> None:
+        """``model: true``: the force of the state ``(x, v)`` out as ``DAMPER_FORCE`` at
+        once, then the state and the force on their topics.  The model steps by the
+        states' stamps, as the emulator node under ``trigger: input``; a sample the input
+        checks reject (or not after the previous one) is answered with the fault output
+        and its status bit."""
+        emulator = self.emulator
+        assert emulator is not None and self._force_out is not None
+        stamp = self._stamp(can_stamp_s)
+        out = emulator.evaluate(stamp, float(x), float(v))
+        if out is None:
+            out = Output(emulator.fault_force(), float(x), float(v), stamp, 0.0,
+                         Status.REJECTED, 0)
+        with self._force_lock:
+            frame = self.core.force_frame(out.force_n, int(out.status) & EMULATOR_BITS,
+                                          out.input_age_s, out.stroke_m, time.monotonic_ns())
+            self._send(self._force_id, frame)
+        self._state_out.publish(stamp, (float(x), float(v)))
+        self._force_out.publish(stamp, force_message.values(
+            out.force_n, int(out.status), out.stroke_m, out.velocity_m_s, out.input_age_s))
+
     def _publish_inbound(self, out, can_stamp_s: float) -> None:
         if out[0] == "state":
             _, x, v = out
-            now = time.time_ns()
-            stamp = int(can_stamp_s * 1e9) if can_stamp_s and \
-                abs(can_stamp_s * 1e9 - now) < STAMP_TRUST_S * 1e9 else now
-            self._state_out.publish(stamp, (float(x), float(v)))
+            self._state_out.publish(self._stamp(can_stamp_s), (float(x), float(v)))
         else:
             self._valve_pub.publish(Float64(data=float(out[1])))
 
@@ -362,7 +430,15 @@ class BridgeNode(ManagedNode):
             "saturated_forces": str(c.saturated),
             "valve_command": "" if self.core.command is None else f"{self.core.command:g}",
             "realtime": self._rt_report.summary() if self._rt_report else "",
+            "model": ("" if self.emulator is None else
+                      f"in the bridge, damper '{self.emulator.model.cfg.damper.name}'"),
         }
+        if self.emulator is not None:
+            e = self.emulator.counters
+            values.update({"model_inputs_accepted": str(e.accepted),
+                           "model_inputs_rejected": str(e.rejected),
+                           "model_last_rejection": e.last_rejection,
+                           "model_faults": str(e.model_faults)})
         level, message = DiagnosticStatus.OK, "ok"
         if d.dropped or d.lost:
             level, message = DiagnosticStatus.WARN, "frames dropped or lost"

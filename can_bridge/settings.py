@@ -35,6 +35,12 @@ class BridgeParams:
                      "dyno: DAMPER_STATE → /damper/state, /damper/force → DAMPER_FORCE; "
                      "controller: VALVE_COMMAND → /damper/valve_command, /ride/state → "
                      "VEHICLE_MOTION, /damper/force → DAMPER_FORCE", "dyno")
+    model: bool = rule("bool", "dyno: the bridge steps the damper's model itself, in its "
+                               "receive thread, and answers each DAMPER_STATE at once with "
+                               "the force computed from it (the damper and numerics groups "
+                               "of its params files, the emulator group's input checks; "
+                               "/damper/state and /damper/force are still published, for "
+                               "observation and recording; no emulator node)", False)
     dbc_file: str = rule("text", "CAN database ('' = config/damper.dbc)", "")
     damper_name: str = rule("text", "name[0] of /damper/state (REP-144)", "damper")
     state_timeout_s: float = rule(("range", 0.0, 10.0),
@@ -74,6 +80,10 @@ def bridge_params_from_mapping(data: Mapping[str, Any] | None,
     """Build and check :class:`BridgeParams` from a mapping of its parameters."""
     params = build_group(BridgeParams, {} if data is None else data, NODE_NAME, where,
                          check_value)
+    if params.model and params.mode != "dyno":
+        raise ParameterError(f"{where}: {NODE_NAME}.model is true in mode "
+                             f"{params.mode!r}: the bridge steps the model only in mode "
+                             "'dyno'")
     if params.backoff_max_s < params.backoff_initial_s:
         raise ParameterError(f"{where}: {NODE_NAME}.backoff_max_s ({params.backoff_max_s:g}) "
                              f"must be >= backoff_initial_s ({params.backoff_initial_s:g})")

@@ -43,10 +43,11 @@ pytestmark = [pytest.mark.ros, pytest.mark.can]
 ROOT = Path(__file__).resolve().parent.parent
 #: each set-up its own ROS domain (tests/test_nodes.py uses 120..126; the benchmark 138, 139)
 DOMAINS = {"dyno": 130, "lone": 131, "sine": 132, "chirp": 133, "controller": 134,
-           "badparams": 135, "external": 136, "socketcan": 137}
+           "badparams": 135, "external": 136, "socketcan": 137, "model": 144}
 #: each bus set-up its own udp_multicast group and port (offset 0..9 within this process's
 #: block of ports)
-OFFSETS = {"dyno": 0, "lone": 1, "sine": 2, "chirp": 3, "controller": 4, "external": 5}
+OFFSETS = {"dyno": 0, "lone": 1, "sine": 2, "chirp": 3, "controller": 4, "external": 5,
+           "model": 6}
 CLI = [sys.executable, "-m", "damper_hil.cli"]
 STROKE_STEP = 1e-5           # DAMPER_STATE.Stroke / DAMPER_FORCE.StrokeUsed resolution [m]
 VELOCITY_STEP = 2e-4         # DAMPER_STATE.Velocity resolution [m/s]
@@ -500,6 +501,115 @@ class TestDynoBridge:
 
 
 # ======================================================================================
+# 2b. the bridge alone, stepping the damper's model itself (model: true)
+# ======================================================================================
+
+
+@pytest.fixture(scope="class")
+def model_bridge(tmp_path_factory, db):
+    """One bridge with ``model: true`` and the touring damper's params file, nothing else:
+    answering once its model is loaded."""
+    from sensor_msgs.msg import JointState
+
+    from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
+
+    tmp = tmp_path_factory.mktemp("model")
+    channel = udp_channel(OFFSETS["model"])
+    node = NodeProcess("model_bridge", node_command(
+        "bridge", bridge_params(channel, model=True), [ROOT / "config" / "touring.yaml"]),
+        ros_environment(DOMAINS["model"]), tmp / "logs")
+    tap, probe = None, None
+    try:
+        tap = BusTap(channel, db)
+        probe = Probe(DOMAINS["model"])
+        seen = {"state": [], "force": []}
+        for topic, key in (("/damper/state", "state"), ("/damper/force", "force")):
+            probe.node.create_subscription(JointState, topic,
+                                           lambda m, k=key: seen[k].append(m), 10000)
+        enc = Encoder(db, STATE)
+
+        def answered() -> bool:
+            recent = tap.decoded(FORCE, time.monotonic_ns() - 100 * MS)
+            return any(round(v["StrokeUsed"] / STROKE_STEP) == 500 for _, v in recent)
+
+        assert tap.wait_for(answered, 90, tick=lambda: _stream(tap, enc, [0.005] * 5, 0.0)), \
+            node.log_tail()
+
+        def observed() -> bool:     # the probe's subscriptions matched: they receive
+            _stream(tap, enc, [0.005] * 5, 0.0)
+            probe.spin_for(0.05)
+            return bool(seen["state"]) and bool(seen["force"])
+
+        assert tap.wait_for(observed, 30), node.log_tail()
+        yield SimpleNamespace(tap=tap, probe=probe, seen=seen, enc=enc, node=node)
+        assert node.poll() is None, f"the bridge stopped: {node.log_tail()}"
+    finally:
+        if probe is not None:
+            probe.close()
+        if tap is not None:
+            tap.close()
+        node.stop()
+
+
+class TestModelInTheBridge:
+    def test_every_state_is_answered_with_the_force_of_that_state(self, model_bridge, db):
+        """1000 states at 1 kHz, each a stroke of its own (a tag) and the velocity of a
+        1 Hz sine: each comes back as exactly one DAMPER_FORCE with its stroke, and the
+        forces are the touring damper's model stepped over the states' own stamps (the
+        batch kernel, not the bridge's stepper), to the Force signal's resolution."""
+        from damper_emulator.model.compressible import DamperModel, simulate
+        from damper_emulator.params import load_config
+
+        rig = model_bridge
+        tap, probe = rig.tap, rig.probe
+        probe.spin_for(0.5)
+        rig.seen["state"].clear()
+        rig.seen["force"].clear()
+        raw = 1000 + np.arange(1000)                       # strokes 10.00 .. 19.99 mm
+        velocity = np.round(0.3 * np.sin(2 * np.pi * np.arange(raw.size) * 1e-3)
+                            / VELOCITY_STEP) * VELOCITY_STEP
+        t0 = time.monotonic_ns()
+        sent: list[int] = []
+        for k in range(0, raw.size, 50):                   # the velocity changes per frame
+            for x, v in zip(raw[k:k + 50] * STROKE_STEP, velocity[k:k + 50]):
+                _stream(tap, rig.enc, [x], float(v), sent)
+        assert tap.wait_for(lambda: any(round(v["StrokeUsed"] / STROKE_STEP) == raw[-1]
+                                        for _, v in tap.decoded(FORCE, sent[-1])), 5.0)
+        forces = [v for _, v in tap.decoded(FORCE, t0)]
+        tags = [round(v["StrokeUsed"] / STROKE_STEP) for v in forces]
+        answered = [t for t in tags if raw[0] <= t <= raw[-1]]
+        assert sorted(answered) == list(raw), (
+            f"{len(set(answered))} of {raw.size} states answered, "
+            f"{len(answered) - len(set(answered))} twice")
+        assert all(int(v["Status"]) == 0 for v in forces
+                   if raw[0] <= round(v["StrokeUsed"] / STROKE_STEP) <= raw[-1])
+        # the states as the bridge stamped and published them: the model's time base
+        assert probe.spin_until(lambda: len(rig.seen["state"]) >= raw.size, 10)
+        states = [m for m in rig.seen["state"]
+                  if raw[0] <= round(m.position[0] / STROKE_STEP) <= raw[-1]]
+        assert len(states) == raw.size
+        stamp = np.array([m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec
+                          for m in states])
+        x = np.array([m.position[0] for m in states])
+        v = np.array([m.velocity[0] for m in states])
+        model = DamperModel(load_config(ROOT / "config" / "touring.yaml"))
+        expected = simulate(model, (stamp - stamp[0]) * 1e-9, x, v).force_n
+        by_tag = {round(f["StrokeUsed"] / STROKE_STEP): f["Force"] for f in forces}
+        got = np.array([by_tag[round(xi / STROKE_STEP)] for xi in x])
+        resolution = db.get_message_by_name(FORCE).get_signal_by_name("Force").scale
+        # the bridge's model runs on from the fixture's states, the reference starts
+        # quasi-steady at the first of these: the two converge within some 30 ms
+        settled = slice(100, None)
+        np.testing.assert_allclose(got[settled], expected[settled], rtol=0, atol=resolution)
+        # the published forces are the frames' (observation and recording)
+        assert probe.spin_until(lambda: len(rig.seen["force"]) >= raw.size, 10)
+        published = {round(m.position[0] / STROKE_STEP): m.effort[0]
+                     for m in rig.seen["force"]}
+        np.testing.assert_allclose([published[round(xi / STROKE_STEP)] for xi in x], got,
+                                   rtol=0, atol=resolution)
+
+
+# ======================================================================================
 # 3. loopback dyno over CAN vs the offline virtual dyno (the acceptance test)
 # ======================================================================================
 
@@ -682,7 +792,9 @@ def test_bad_bridge_parameters_exit_2_with_one_line():
     cases = [(["-p", "mode:=sideways"], "mode"),
              (["-p", "can_interface:=socketcan", "-p", f"can_channel:={missing}"],
               "socketcan"),
-             (["-p", "colour:=red"], "colour")]
+             (["-p", "colour:=red"], "colour"),
+             (["-p", "mode:=controller", "-p", "model:=true"],
+              "model is true in mode 'controller'")]
     env = _cli_env(DOMAINS["badparams"])
     procs = [subprocess.Popen([*CLI, "bridge", "--ros-args", *args], env=env,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

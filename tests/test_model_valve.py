@@ -9,6 +9,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.optimize import brentq
 
 from damper_emulator.model import valve as V
@@ -193,3 +195,25 @@ def test_valve_point_is_the_exact_pressure_drop_and_the_table_flow(sport_cfg, po
             assert ddp == pytest.approx(table.scale_pa * 1.75 * u ** 0.75 * (u + 1.0),
                                         rel=1e-13, abs=1e-300)
             assert (q, dq, beyond) == table_flow(table.coef, table.step, zi)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.floats(1e-6, 10.0), st.floats(-1e3, 1e3)), min_size=2,
+                max_size=40),
+       st.floats(-5.0, 5.0), st.integers(0, 3))
+def test_pchip_coefficients_are_scipys_bit_for_bit(steps, x0, flats):
+    """The valve tables' own PCHIP (no scipy import at a model's build) gives
+    ``PchipInterpolator(x, y).c.T`` exactly: on uneven nodes, with sign changes, flat
+    stretches (repeated values) and monotone runs."""
+    from scipy.interpolate import PchipInterpolator
+
+    from damper_emulator.model.pchip import pchip_coefficients
+
+    x = x0 + np.cumsum([0.0, *(h for h, _ in steps)])
+    y = np.cumsum([0.0, *(dy for _, dy in steps)])
+    y[1:1 + flats] = y[0]                                   # a flat start
+    got = pchip_coefficients(x, y)
+    expected = PchipInterpolator(x, y).c.T
+    assert got.shape == expected.shape
+    assert np.array_equal(got, expected), np.max(np.abs(got - expected))
+

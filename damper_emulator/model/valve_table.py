@@ -25,10 +25,10 @@ from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import PchipInterpolator
 
 from damper_emulator.errors import UserError
 from damper_emulator.model.jit import inlined_kernel, kernel
+from damper_emulator.model.pchip import pchip_coefficients
 from damper_emulator.model.valve import FLOW_EXPONENT, form_code, pressure_drop, pressure_drop_array
 
 # pressure_drop_of_z's square roots are the power FLOW_EXPONENT − 1 = 3/4
@@ -272,7 +272,7 @@ def build_valve_table(valve: Iterable[float], annulus_area_m2: float, nu_m2_s: f
     q_nodes[0] = 0.0
     step = float(z[1] - z[0])
     coef = np.empty((points - 1, TABLE_COLUMNS))
-    coef[:, :4] = PchipInterpolator(z, q_nodes).c.T
+    coef[:, :4] = pchip_coefficients(z, q_nodes)
     coef[:, C_EXP] = np.exp(z[:-1])
     coef[:, C_EXPM1] = np.expm1(z[:-1])
     return ValveTable(scale, step, coef, float(q_nodes[-1]), float(dp[-1]))

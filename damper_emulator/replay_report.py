@@ -127,11 +127,14 @@ def write_replay_bag(path: str | os.PathLike[str], data: BagData, rep: Replayed,
 def plot_replay(path: str | os.PathLike[str], data: BagData, rep: Replayed,
                 cmp: Comparison, title: str, zoom_s: float = 0.25) -> Path:
     """Recorded and replayed force against time, their difference, and a ``zoom_s`` detail
-    around the largest difference (PNG)."""
+    around the largest difference (PNG).  The axes are placed, and the legends put in
+    their corners, by hand: a replay is a command users wait for, and matplotlib's
+    constrained layout and best-place legends would double the drawing's time."""
     from damper_emulator.dyno.plots import decorate, new_figure, save
 
     t0 = int(min(data.state.stamp_ns.min(), data.force.stamp_ns.min()))
-    fig = new_figure(11.0, 9.5)
+    fig = new_figure(11.0, 9.5, layout=None)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.06, top=0.95, hspace=0.42)
     ax, ax_d, ax_z = fig.subplots(3, 1, height_ratios=(3, 2, 2.4))
     ax_d.sharex(ax)
     t_rec = (data.force.stamp_ns - t0) * 1e-9
@@ -149,7 +152,7 @@ def plot_replay(path: str | os.PathLike[str], data: BagData, rep: Replayed,
                    color="tab:red", markersize=8, label=f"fault outputs ({faults.size})")
 
     overlay(ax, fault)
-    decorate(ax, "", "force [kN, rebound +]")
+    decorate(ax, "", "force [kN, rebound +]", legend="upper right")
     ax.set_title(title, fontsize="medium")
     if cmp.compared:
         ax_d.plot(t_rep[cmp.index], cmp.difference_n, color="tab:purple", linewidth=0.7,
@@ -159,7 +162,8 @@ def plot_replay(path: str | os.PathLike[str], data: BagData, rep: Replayed,
         centre = float(t_rep[worst])
     else:
         centre = float(t_rep[0]) if t_rep.size else 0.0
-    decorate(ax_d, "time [s] (from the first stamp)", "replayed − recorded [N]")
+    decorate(ax_d, "time [s] (from the first stamp)", "replayed − recorded [N]",
+             legend="upper right")
     first = float(min(t_rec.min(), t_rep.min() if t_rep.size else t_rec.min()))
     last = float(max(t_rec.max(), t_rep.max() if t_rep.size else t_rec.max()))
     lo = min(max(centre - zoom_s / 2, first), max(last - zoom_s, first))
@@ -175,5 +179,6 @@ def plot_replay(path: str | os.PathLike[str], data: BagData, rep: Replayed,
         ax_z.set_ylim((near.min() - pad) * 1e-3, (near.max() + pad) * 1e-3)
     ax_z.set_title(f"detail: {zoom_s * 1e3:g} ms around the largest difference",
                    fontsize="small")
-    decorate(ax_z, "time [s] (from the first stamp)", "force [kN, rebound +]")
+    decorate(ax_z, "time [s] (from the first stamp)", "force [kN, rebound +]",
+             legend="upper right")
     return save(fig, path)

@@ -7,7 +7,8 @@ runs in the compiled batch loop of :mod:`damper_emulator.model.batch` (the kerne
 :class:`~damper_emulator.realtime.core.EmulatorCore` use), and the output is a rosbag2 bag
 written by :class:`~damper_emulator.bag.BagWriter`.  Deterministic: the same bag and
 parameters give byte-identical output bags, and JSON files that differ only in the timing
-fields (``elapsed_s``, ``speed_vs_real_time``, ``setup_s``, ``timings_s``).
+fields (``elapsed_s``, ``speed_vs_real_time``, ``compute_s``,
+``compute_speed_vs_real_time``, ``setup_s``, ``timings_s``, ``command_s``).
 
 Semantics
 ---------
@@ -89,9 +90,12 @@ gives ``rms_N_after_first_0.1s``.  With ``trigger: timer`` the remaining differe
 time base (item 2): the node's tick times are not in the bag.
 
 ``elapsed_s`` is the replay proper: reading and decoding the bag, the model, writing the
-output bag and the comparison.  Building the model, the message typestore and loading the
-compiled code (``setup_s``, once per process) and drawing the plot (``timings_s.plot``) are
-timed separately.
+output bag and the comparison.  ``compute_s`` is the model's part of it (matching the
+inputs and the compiled batch loop; ``compute_speed_vs_real_time``).  Building the model,
+the message typestore and loading the compiled code (``setup_s``, once per process) and
+drawing the plot (``timings_s.plot``) are timed separately, and ``command_s`` is the whole
+process's time until the JSON is written (from its start, on Linux; elsewhere from the
+replay's), what a user waits for.
 ``recorded_duration_s`` is the span of the ``/damper/state`` stamps (the signal's time).
 
 Here: the command (:func:`run_replay`) and the emulator parameters it reads
@@ -154,6 +158,17 @@ def load_emulator_params(path: str | os.PathLike[str] | None = None
     where = str(path)
     body = node_parameters(read_yaml(path), where, "emulator")
     return emulator_params_from_mapping({**mapping, **dict(body["emulator"])}, where), where
+
+
+def _process_age_s(fallback_start: float) -> float:
+    """Seconds since this process started (``/proc/self/stat``'s start time against the
+    boot clock, to a clock tick), else since ``fallback_start`` [``time.perf_counter``]."""
+    try:
+        fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        started = int(fields[19]) / os.sysconf("SC_CLK_TCK")   # field 22: starttime
+        return time.clock_gettime(time.CLOCK_BOOTTIME) - started
+    except (OSError, ValueError, IndexError, AttributeError):
+        return time.perf_counter() - fallback_start
 
 
 def _round(value: float | None, digits: int = 6) -> float | None:
@@ -252,6 +267,9 @@ def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
         "elapsed_s": round(elapsed, 6),
         "recorded_duration_s": round(duration, 6),
         "speed_vs_real_time": round(duration / elapsed, 1) if elapsed > 0 else None,
+        "compute_s": round(timings["emulate"], 6),
+        "compute_speed_vs_real_time": (round(duration / timings["emulate"], 1)
+                                       if timings["emulate"] > 0 else None),
         "recorded_forces": len(data.force),
         "state_messages": len(data.state),
         "valve_commands": 0 if data.valve is None else int(data.valve[1].size),
@@ -281,6 +299,7 @@ def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
                     f"'{model.cfg.damper.name}'): {rms}")
         doc["timings_s"]["plot"] = round(time.perf_counter() - t5, 6)
         doc["files"].insert(1, REPLAY_PNG)
+    doc["command_s"] = round(_process_age_s(t_setup), 3)
     text = json.dumps(doc, indent=2) + "\n"
     for target in (staged / REPLAY_JSON, json_at):
         if target is not None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -62,6 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Set by :func:`main` when the command that ran leaves without the interpreter's
+#: finalisation (:func:`entry`): its parser's ``hard_exit`` default.
+_hard_exit = False
+
 #: Printed under an unexpected exception (a bug, not a user error).
 BUG_HINT = "run again with --debug for the traceback, and please report it"
 
@@ -107,7 +112,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if ros_args and not getattr(args, "takes_ros_args", False):
         parser.error(f"{args.command} does not take --ros-args")
     try:
-        return args.handler(args)
+        status = args.handler(args)
+        global _hard_exit
+        _hard_exit = bool(getattr(args, "hard_exit", False))
+        return status
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
@@ -129,3 +137,20 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{PROG}: this is a bug in damper-hil, not in your input; {BUG_HINT}",
               file=sys.stderr)
         return 1
+
+
+def entry() -> None:
+    """The ``damper-hil`` console script: :func:`main`'s status as the exit status.
+
+    A subcommand that holds nothing the interpreter's clean-up must close once it has
+    returned (its files written and closed, no threads, processes or nodes left; its
+    parser's ``hard_exit`` default: ``replay``) leaves through :func:`os._exit` after the
+    streams are flushed, as mypy does: the finalisation of numba's, matplotlib's and
+    rosbags' objects took 0.4 s of the 2.5 s a replay took in all, measured here.
+    """
+    status = main()
+    if _hard_exit:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)

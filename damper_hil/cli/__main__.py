@@ -1,7 +1,5 @@
 """``python -m damper_hil.cli``."""
 
-import sys
+from damper_hil.cli import entry
 
-from damper_hil.cli import main
-
-sys.exit(main())
+entry()

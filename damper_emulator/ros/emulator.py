@@ -265,7 +265,7 @@ class EmulatorNode(ManagedNode):
             self._stats = self._loop.stats
             self._loop.start()
             report = self._loop.report
-            self._memory_locked = "mlockall" in report.applied
+            self._memory_locked = report.memory_locked
             self._realtime_summary = report.summary()
             log = self.get_logger().warning if report.refused else self.get_logger().info
             log(f"real-time settings: {self._realtime_summary}")

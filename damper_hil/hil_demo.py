@@ -55,11 +55,15 @@ READY_POLL_S = 2.0
 
 
 def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
-                       subscribed: tuple[tuple[str, str], ...] = ()) -> None:
+                      start_rest: Callable[[], tuple[tuple[str, str], ...]]) -> None:
     """Wait until the emulator's lifecycle state is ``active`` (its kernels loaded and
-    exercised, its loop running) and, for each ``(topic, node)`` of ``subscribed``, that
-    node subscribes to that topic (the live view, so that it sees the ride from its
-    start), saying so; one line if a node dies or time runs out."""
+    exercised, its loop running), saying how long it took; then start the other nodes
+    (``start_rest``, which adds them to ``helpers``) and wait until, for each ``(topic,
+    node)`` it returns, that node subscribes to that topic (the recorder and the live
+    view, so that they see the ride from its start).  One line if a node dies or time runs
+    out.  The emulator starts alone (the others' start-up beside it on two cores slowed
+    it), and the time to active is the node's own (its log's stamp of ``active``, from its
+    launch): the demo's probe may see it a DDS discovery round later."""
     from damper_emulator.ros.emulator import NODE_NAME
     from damper_emulator.ros.readiness import NotReadyError, ReadinessProbe
 
@@ -67,6 +71,7 @@ def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
              f"kernels)")
     deadline = time.monotonic() + READY_TIMEOUT_S
     started = time.monotonic()
+    launched = time.time() - (started - helpers[0].started)
 
     def check_helpers() -> None:
         for node in helpers:
@@ -83,8 +88,12 @@ def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
             except NotReadyError as exc:
                 if time.monotonic() > deadline:
                     raise DemoError(f"{exc} (waited {READY_TIMEOUT_S:g} s)") from None
-        progress(f"      /{NODE_NAME} active after {time.monotonic() - started:.1f} s")
-        for topic, name in subscribed:
+        seen = time.monotonic() - started
+        own = _active_after(helpers[0], launched)
+        progress(f"      /{NODE_NAME} active after {own if own is not None else seen:.1f} s"
+                 + (f" (seen here after {seen:.1f} s: the discovery's)"
+                    if own is not None and seen - own >= 0.5 else ""))
+        for topic, name in start_rest():
             while not any(e.node_name == name
                           for e in probe.node.get_subscriptions_info_by_topic(topic)):
                 check_helpers()
@@ -93,6 +102,23 @@ def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
                                     f"{READY_TIMEOUT_S:g} s")
                 time.sleep(READY_POLL_S / 20)
             progress(f"      /{name} subscribed to {topic}")
+
+
+#: the emulator's log line that says it is active (:class:`EmulatorNode`), after the
+#: ``[LEVEL] [stamp] [name]: `` prefix of rclpy's console log
+ACTIVE_LINE = "]: active: publishing"
+
+
+def _active_after(emulator, launched_s: float) -> float | None:
+    """Seconds from the emulator's launch (``launched_s``, the wall clock) to its log's
+    stamp of becoming active, or None when its log does not say so."""
+    try:
+        for line in emulator.log_path.read_text(errors="replace").splitlines():
+            if ACTIVE_LINE in line:
+                return float(line.split("[")[2].split("]")[0]) - launched_s
+    except (OSError, IndexError, ValueError):
+        pass
+    return None
 
 
 def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
@@ -118,15 +144,20 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
     emulator_params = {"emulator.stats_file": str(stats)}
     if clock == "lockstep":
         emulator_params["emulator.trigger"] = "input"
-    progress(f"[1/4] starting recorder and emulator (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, "
+    progress(f"[1/4] starting the emulator (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, "
              f"localhost only; logs in {logs})")
-    rec = NodeProcess("recorder", node_command("record", extra=["--out", str(bag)]), env, logs)
-    emu = NodeProcess("emulator", node_command("emulate", emulator_params), env, logs)
-    helpers = [rec, emu]
+    helpers = [NodeProcess("emulator", node_command("emulate", emulator_params), env, logs)]
     ride = None
-    try:
-        progress(f"      CAN bridge (controller mode) on {bus.interface} {bus.channel}"
+
+    def start_rest() -> tuple[tuple[str, str], ...]:
+        from damper_emulator.ros.recorder import NODE_NAME as RECORDER
+
+        progress(f"      recorder, CAN bridge (controller mode) on {bus.interface} "
+                 f"{bus.channel}"
                  + (", skyhook controller on the bus" if control == "skyhook" else ""))
+        # the recorder first in the list: stopped last, it records everything
+        helpers.insert(0, NodeProcess("recorder", node_command(
+            "record", extra=["--out", str(bag)]), env, logs))
         helpers.append(NodeProcess("bridge", node_command("bridge", {
             "can_interface": bus.interface, "can_channel": bus.channel,
             "mode": "controller"}), env, logs))
@@ -134,16 +165,21 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
             helpers.append(NodeProcess("skyhook", node_command("skyhook", extra=[
                 "--can-interface", bus.interface, "--can-channel", bus.channel,
                 "--json", str(sky_json)]), env, logs))
+        # the recorder (its input node) and the live view see the ride from its start
+        subscribed = ((topics.RIDE_STATE, f"{RECORDER}_input"),
+                      (topics.FORCE, f"{RECORDER}_input"))
         if live_port is not None:
+            from damper_hil.live_node import INPUT_NODE_NAME
+
             progress(f"      live view on ws://127.0.0.1:{live_port} (Foxglove or Lichtblick, "
                      "layout config/foxglove_layout.json)")
             helpers.append(NodeProcess("live", node_command("live", extra=[
                 "--port", str(live_port)]), env, logs))
-        subscribed: tuple[tuple[str, str], ...] = ()
-        if live_port is not None:  # the live view sees the ride from its start
-            from damper_hil.live_node import INPUT_NODE_NAME
-            subscribed = ((topics.RIDE_STATE, INPUT_NODE_NAME),)
-        _wait_until_ready(env, helpers, progress, subscribed)
+            subscribed += ((topics.RIDE_STATE, INPUT_NODE_NAME),)
+        return subscribed
+
+    try:
+        _wait_until_ready(env, helpers, progress, start_rest)
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         ride = NodeProcess("ride", node_command("ride", {
             "ride.duration_s": float(duration_s), "ride.clock": clock,

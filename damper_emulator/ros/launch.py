@@ -11,6 +11,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -90,6 +91,8 @@ class NodeProcess:
         self.log_path = Path(log_dir) / f"{name}.log"
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self._log = self.log_path.open("wb")
+        #: when it was launched [s, ``time.monotonic``]
+        self.started = time.monotonic()
         self.proc = subprocess.Popen(list(command), env=dict(env), stdout=self._log,
                                      stderr=subprocess.STDOUT, start_new_session=True)
 

@@ -55,7 +55,8 @@ READY_POLL_S = 2.0
 
 
 def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
-                      start_rest: Callable[[], tuple[tuple[str, str], ...]]) -> None:
+                      start_rest: Callable[[], tuple[tuple[str, str], ...]]
+                      ) -> tuple[float | None, float]:
     """Wait until the emulator's lifecycle state is ``active`` (its kernels loaded and
     exercised, its loop running), saying how long it took; then start the other nodes
     (``start_rest``, which adds them to ``helpers``) and wait until, for each ``(topic,
@@ -63,7 +64,8 @@ def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
     view, so that they see the ride from its start).  One line if a node dies or time runs
     out.  The emulator starts alone (the others' start-up beside it on two cores slowed
     it), and the time to active is the node's own (its log's stamp of ``active``, from its
-    launch): the demo's probe may see it a DDS discovery round later."""
+    launch): the demo's probe may see it a DDS discovery round later.  Returns that time
+    (None where its log does not say) and the probe's [s]."""
     from damper_emulator.ros.emulator import NODE_NAME
     from damper_emulator.ros.readiness import NotReadyError, ReadinessProbe
 
@@ -102,6 +104,7 @@ def _wait_until_ready(env: dict, helpers: list, progress: Callable[[str], None],
                                     f"{READY_TIMEOUT_S:g} s")
                 time.sleep(READY_POLL_S / 20)
             progress(f"      /{name} subscribed to {topic}")
+    return own, seen
 
 
 #: the emulator's log line that says it is active (:class:`EmulatorNode`), after the
@@ -179,7 +182,7 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         return subscribed
 
     try:
-        _wait_until_ready(env, helpers, progress, start_rest)
+        active_after = _wait_until_ready(env, helpers, progress, start_rest)
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         ride = NodeProcess("ride", node_command("ride", {
             "ride.duration_s": float(duration_s), "ride.clock": clock,
@@ -224,4 +227,8 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         "ros_domain_id": int(env["ROS_DOMAIN_ID"]),
         "live_port": live_port,
         "elapsed_s": round(time.monotonic() - started, 1),
+        # the emulator's launch to its own stamp of active, and to the demo's probe seeing it
+        "emulator_active_after_s": (None if active_after[0] is None
+                                    else round(active_after[0], 2)),
+        "emulator_seen_active_after_s": round(active_after[1], 2),
     })

@@ -37,6 +37,7 @@ BENCHMARKS: dict[str, tuple[str, ...]] = {
     "fleet_bench": (),
     "tune_bench": (),
     "node_bench": (),
+    "replay_bench": (),
     "can_bench": (),
     "demo_bench": ("--runs", "3", "--host"),
     "hybrid_bench": ("--repeats", "2", "--twin-chain"),

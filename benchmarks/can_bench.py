@@ -455,7 +455,7 @@ def main() -> None:
         print(f"\n{r['case']}: sender {r['sender_realtime']}; bridge receive thread "
               f"{r['bridge_realtime']}"
               + ("; no emulator node" if r["trigger"] is None
-                 else f"; emulator {r['emulator_realtime']}"))
+                 else f"; emulator {r['emulator_realtime'] or 'without a loop (input)'}"))
     if args.json:
         doc = {"rows": rows, "bus_load": {str(b): v for b, v in loads.items()}}
         args.json.write_text(json.dumps(doc, indent=2) + "\n")

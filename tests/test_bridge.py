@@ -507,8 +507,9 @@ class TestDynoBridge:
 
 @pytest.fixture(scope="class")
 def model_bridge(tmp_path_factory, db):
-    """One bridge with ``model: true`` and the touring damper's params file, nothing else:
-    answering once its model is loaded."""
+    """One bridge with ``model: true``, the touring damper's params file and an emulator
+    check of its own (``|velocity|`` up to 1 m/s), nothing else: answering once its model
+    is loaded."""
     from sensor_msgs.msg import JointState
 
     from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
@@ -516,7 +517,8 @@ def model_bridge(tmp_path_factory, db):
     tmp = tmp_path_factory.mktemp("model")
     channel = udp_channel(OFFSETS["model"])
     node = NodeProcess("model_bridge", node_command(
-        "bridge", bridge_params(channel, model=True), [ROOT / "config" / "touring.yaml"]),
+        "bridge", bridge_params(channel, model=True, **{"emulator.max_velocity_m_s": 1.0}),
+        [ROOT / "config" / "touring.yaml"]),
         ros_environment(DOMAINS["model"]), tmp / "logs")
     tap, probe = None, None
     try:
@@ -607,6 +609,16 @@ class TestModelInTheBridge:
                      for m in rig.seen["force"]}
         np.testing.assert_allclose([published[round(xi / STROKE_STEP)] for xi in x], got,
                                    rtol=0, atol=resolution)
+        # a state the emulator group's check refuses (|velocity| above the fixture's
+        # 1 m/s) is answered too: the fault output (hold: the last force) with the
+        # "rejected" bit, not silence
+        beyond = _stream(tap, rig.enc, [0.03], 2.0)
+        assert tap.wait_for(lambda: any(round(v["StrokeUsed"] / STROKE_STEP) == 3000
+                                        for _, v in tap.decoded(FORCE, beyond)), 5.0)
+        (answer,) = [v for _, v in tap.decoded(FORCE, beyond)
+                     if round(v["StrokeUsed"] / STROKE_STEP) == 3000]
+        assert int(answer["Status"]) == int(ForceStatus.INPUT_REJECTED)
+        assert answer["Force"] == pytest.approx(got[-1], abs=resolution)
 
 
 # ======================================================================================

@@ -7,7 +7,8 @@ one directory per version of the sources) then holds the compiled kernels, and t
 warmed is what the nodes warm before they say they are ready: the emulator's core (the
 damper's step, every input and fault mode), the ride's session (the quarter car), the bag
 reader's helpers, and the batch loops over recorded samples that ``replay`` runs, with
-and without a valve command (about 1 s of a first replay's compiling otherwise).  Prints one line with the time it took.
+and without a valve command (about 1 s of a first replay's compiling otherwise).  Prints
+one line with the time it took.
 """
 
 from __future__ import annotations

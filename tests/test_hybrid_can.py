@@ -346,9 +346,13 @@ def test_a_stall_of_the_host_past_the_watchdog_stops_the_run_with_enable_clear(t
         else:
             raise AssertionError(f"the ride did not start: {''.join(seen)}")
         time.sleep(0.5)
+        stopped = time.monotonic()
         os.kill(proc.pid, signal.SIGSTOP)
         time.sleep(0.2)
         os.kill(proc.pid, signal.SIGCONT)
+        # as long as it really was: a VM that halts the test too makes it longer (1.5 s once
+        # in a clean clone's run here)
+        held_ms = (time.monotonic() - stopped) * 1e3
         rest = proc.stderr.read()
         assert proc.wait(120) == 3, rest
     finally:
@@ -364,12 +368,13 @@ def test_a_stall_of_the_host_past_the_watchdog_stops_the_run_with_enable_clear(t
     commands = [(t, rx.decode_values(i, d)["Enable"]) for t, i, d in tap.frames if i == cmd_id]
     times = np.array([t for t, _ in commands])
     gap = int(np.argmax(np.diff(times)))
-    # the stall, seen on the bus: past the watchdog, and as long as the run says it was
-    # (SIGSTOP takes hold when the kernel next runs the process: the gap is not the test's
-    # 200 ms to the millisecond; 105 ms once on a loaded machine)
+    # the stall, seen on the bus: past the watchdog, no longer than the process was held
+    # (and the next cycle's wait), and as long as the run says it was (SIGSTOP takes hold
+    # when the kernel next runs the process: the gap is not the test's 200 ms to the
+    # millisecond; 105 ms once on a loaded machine)
     said_ms = float(re.search(r"no DYNO_COMMAND for (\d+) ms", last).group(1))
     seen_ms = (times[gap + 1] - times[gap]) * 1e3
-    assert SafetyParams().watchdog_s * 1e3 < seen_ms < 500
+    assert SafetyParams().watchdog_s * 1e3 < seen_ms < held_ms + 300
     assert seen_ms == pytest.approx(said_ms, abs=5)
     assert all(enable for _, enable in commands[gap - 100: gap + 1])   # riding before it
     assert not any(enable for _, enable in commands[gap + 1:])

@@ -200,7 +200,12 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(sig, lambda *_: stop.set())
 
         def progress(phase: str) -> None:
-            say(f"hybrid: {phase}")
+            if phase == "rearm" and host.restarts:      # why, and how many are left
+                last = host.restarts[-1]
+                say(f"hybrid: stopped in {last['phase']} ({last['reason']}); starting "
+                    f"again, restart {len(host.restarts)} of {run_params.restarts}")
+            else:
+                say(f"hybrid: {phase}")
 
         if args.ros:
             from damper_emulator.ros.status_publisher import StatusPublisher

@@ -43,7 +43,8 @@ SHORT = """/**:
     hybrid: {ramp_s: 0.5, settle_s: 0.3, connect_timeout_s: 3.0}
     compensator: {identify_s: 1.5}
 """
-OFFSETS = {"ride": 0, "cut": 1, "unstable": 2, "nodyno": 3, "dyno": 4, "hoststall": 6}
+OFFSETS = {"ride": 0, "cut": 1, "unstable": 2, "nodyno": 3, "dyno": 4, "hoststall": 6,
+           "restart": 7}
 
 
 def udp_channel(offset: int) -> str:
@@ -378,6 +379,51 @@ def test_a_stall_of_the_host_past_the_watchdog_stops_the_run_with_enable_clear(t
     assert seen_ms == pytest.approx(said_ms, abs=5)
     assert all(enable for _, enable in commands[gap - 100: gap + 1])   # riding before it
     assert not any(enable for _, enable in commands[gap + 1:])
+
+
+def test_a_stall_of_the_host_before_the_ride_starts_it_again(tmp_path):
+    """The hybrid process held (SIGSTOP) for 200 ms in the transfer identification: the
+    host's own watchdog stops it; before the ride nothing is lost, so it clears Enable,
+    connects again and starts over, saying why, and the ride completes (exit 0) with the
+    restart in hybrid.json."""
+    import signal
+    import time
+
+    bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["restart"]))
+    bus_args = ["--can-interface", bus.interface, "--can-channel", bus.channel]
+    config = tmp_path / "short.yaml"
+    config.write_text(SHORT)
+    rig = start_rig([*bus_args, "--config", str(config)])
+    out = tmp_path / "out"
+    try:
+        proc = subprocess.Popen([*CLI, "hybrid", "--out", str(out), "--config", str(config),
+                                 *bus_args, "--duration", "2"], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+        assert proc.stderr is not None
+        seen = []
+        for line in proc.stderr:
+            seen.append(line)
+            if line.startswith("hybrid: identify"):
+                break
+        else:
+            raise AssertionError(f"the identification did not start: {''.join(seen)}")
+        time.sleep(0.4)
+        os.kill(proc.pid, signal.SIGSTOP)
+        time.sleep(0.2)
+        os.kill(proc.pid, signal.SIGCONT)
+        rest = proc.stderr.read()
+        assert proc.wait(120) == 0, rest
+    finally:
+        rig.send_signal(2)
+        rig.wait(timeout=20)
+    # in the identification (1.5 s), or its fit on a slow machine: both before the ride
+    assert re.search(r"hybrid: stopped in (identify|fit) \(the host stalled", rest), rest
+    assert "starting again, restart 1 of 2" in rest, rest
+    doc = json.loads((out / "hybrid.json").read_text())
+    assert doc["status"] == "completed"
+    (restart,) = doc["identification"]["restarts"]
+    assert restart["phase"] in ("identify", "fit")
+    assert restart["reason"].startswith("the host stalled")
 
 
 def test_unstable_setting_is_stopped_before_any_limit(tmp_path):

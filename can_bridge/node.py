@@ -40,8 +40,10 @@ from can_bridge.settings import (
 )
 from damper_emulator import force_message, topics
 from damper_emulator.bag.cdr_fast import JointStateSample
+from damper_emulator.model.compressible import DamperModel
 from damper_emulator.realtime.core import EmulatorCore, Output, Status
 from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, set_thread_name
+from damper_emulator.realtime.settings import EmulatorParams
 from damper_emulator.ros.common import (
     JointStateIn,
     JointStateOut,
@@ -85,19 +87,19 @@ class BridgeNode(ManagedNode):
         defaults = default_bridge_mapping()
         values = declare_parameters(self, defaults, {"": BridgeParams})
         p = self.params = bridge_params_from_mapping(values, f"node {NODE_NAME} parameters")
-        self._model = self._emulator_params = None
+        #: ``model: true``: the damper and the emulator group's settings it is stepped with
+        self._model_setup: tuple[DamperModel, EmulatorParams] | None = None
         if p.model:
             from damper_emulator.realtime.settings import (
-                EmulatorParams,
                 default_emulator_mapping,
                 emulator_params_from_mapping,
             )
             from damper_emulator.ros.emulator import load_node_model
 
-            emu_values, self._model = load_node_model(
+            emu_values, model = load_node_model(
                 self, {"emulator": default_emulator_mapping()}, {"emulator": EmulatorParams})
-            self._emulator_params = emulator_params_from_mapping(
-                emu_values["emulator"], f"node {NODE_NAME} parameters")
+            self._model_setup = (model, emulator_params_from_mapping(
+                emu_values["emulator"], f"node {NODE_NAME} parameters"))
         #: the model stepped in the receive thread (``model: true``), from configure on
         self.emulator: EmulatorCore | None = None
         self._force_pub = None
@@ -153,14 +155,15 @@ class BridgeNode(ManagedNode):
         if p.mode == "dyno":
             self._state_pub = self.create_lifecycle_publisher(JointState, topics.STATE, qos)
             self._state_out = JointStateOut(self._state_pub, [p.damper_name], (1, 1, 0))
-        if self._model is not None and self._emulator_params is not None:
-            # the model's compiled code loaded (or compiled) before any frame is answered
-            self.emulator = EmulatorCore(self._model, self._emulator_params)
-            self.emulator.warm_up()
-            self._force_pub = self.create_lifecycle_publisher(JointState, topics.FORCE, qos)
-            self._force_out = JointStateOut(self._force_pub,
-                                            force_message.names(p.damper_name),
-                                            force_message.COUNTS)
+            if self._model_setup is not None:
+                # the model's compiled code loaded (or compiled) before any frame is answered
+                self.emulator = EmulatorCore(*self._model_setup)
+                self.emulator.warm_up()
+                self._force_pub = self.create_lifecycle_publisher(JointState, topics.FORCE,
+                                                                  qos)
+                self._force_out = JointStateOut(self._force_pub,
+                                                force_message.names(p.damper_name),
+                                                force_message.COUNTS)
         else:
             self._valve_pub = self.create_lifecycle_publisher(Float64, topics.VALVE_COMMAND,
                                                               qos)
@@ -172,9 +175,6 @@ class BridgeNode(ManagedNode):
     def _activate(self) -> None:
         p = self.params
         controller = p.mode == "controller"
-        # the 1 kHz inputs on a thread of their own, without the executor, as CDR bytes;
-        # best effort: each frame carries the latest sample (topics.py).  Each force wakes
-        # the thread; the vehicle's motion is sampled at VEHICLE_MOTION's cycle.
         self._stop.clear()
         self._rx = threading.Thread(target=self._receive_loop, name="can-rx", daemon=True)
         if self.emulator is not None:       # the forces are the receive thread's own
@@ -182,6 +182,9 @@ class BridgeNode(ManagedNode):
             self._inactive_reason = ""
             self.get_logger().info("active: answering DAMPER_STATE with the model's force")
             return
+        # the 1 kHz inputs on a thread of their own, without the executor, as CDR bytes;
+        # best effort: each frame carries the latest sample (topics.py).  Each force wakes
+        # the thread; the vehicle's motion is sampled at VEHICLE_MOTION's cycle.
         self._ros_in = SubscriptionThread(
             self, [(JointState, topics.FORCE, self._on_force)],
             control_qos(topics.CONTROL_DEPTH, reliable=False), "ros-in",

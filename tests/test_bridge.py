@@ -291,6 +291,17 @@ class TestDynoBridge:
         checked = tap.checked(FORCE, t0, t1)
         assert checked.total.dropped == 0 and checked.total.accepted == len(forces)
 
+    def test_a_dyno_bridge_publishes_no_valve_command(self, dyno_rig):
+        """The valve command is the controller's: in dyno mode the bridge advertises
+        /damper/state only (and /damper/force with ``model: true``)."""
+        probe = dyno_rig.probe
+        probe.spin_for(0.5)
+        bridges = [i.node_name for i in probe.node.get_publishers_info_by_topic(
+            "/damper/valve_command")]
+        assert "can_bridge" not in bridges, bridges
+        assert any(i.node_name == "can_bridge"
+                   for i in probe.node.get_publishers_info_by_topic("/damper/state"))
+
     def test_every_parameter_is_described_over_the_services(self, dyno_rig):
         """``ros2 param describe`` over the real services: every parameter of both nodes
         has its real type, a description with its unit, its rule and its limits, and only

@@ -443,6 +443,15 @@ def test_a_timing_stop_before_the_ride_starts_the_run_again(model):
     assert final.identification_report()["restarts"] == [] and final.k == 0
 
 
+def test_each_restart_is_timed_from_the_runs_start(model):
+    """Two stalls, each in an identification: two restarts, each stamped with its time
+    into the run (not into the start before it), and the ride completes."""
+    host = _stalled_run(model, ((1.0, 0.2), (2.6, 0.2)))
+    assert host.phase == "done", host.reason
+    first, second = host.identification_report()["restarts"]
+    assert 0.99 < first["at_s"] < 1.3 and 2.59 < second["at_s"] < 2.9
+
+
 def test_a_feedback_cut_before_the_ride_stops_once_the_restart_finds_no_rig(model):
     """The feedback cut in the identification: the restart waits ``connect_timeout_s`` for
     the rig, then the watchdog's stop stands (a stop, not a failure to connect)."""

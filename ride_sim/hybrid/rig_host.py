@@ -297,12 +297,11 @@ class RigHost:
             safety = self.safety
         if self.phase == "rearm":
             if self._elapsed(t_s) >= safety.params.watchdog_s:
-                self.phase = "connect"
-                self._start_s = t_s
+                self._enter("connect", t_s)
             return Command(self._demand, 0.0, False)
         if self.phase == "connect":
             if feedback is None:
-                if t_s - self._start_s > self.run.connect_timeout_s:
+                if self._elapsed(t_s) > self.run.connect_timeout_s:
                     self._connect_timed_out(t_s)
                 return Command(self._demand, 0.0, False)
             self._demand = feedback.stroke_m

@@ -43,11 +43,9 @@ from can_bridge.bus import BusConfig, ResilientBus, receive_time
 from can_bridge.codec import Encoder, Receiver
 from damper_emulator.realtime.rt import RealtimeReport, RealtimeRequest, apply_realtime
 from ride_sim.hybrid.rig import Feedback
-from ride_sim.hybrid.rig_host import Command, RigHost
+from ride_sim.hybrid.rig_host import MISSED_FEEDBACK_PERIODS, Command, RigHost
 
 COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"
-#: A cycle whose feedback has not come this many periods after the last runs without it.
-MISSED_FEEDBACK_PERIODS = 1.5
 #: Python's GIL switch interval while the loop runs [s].
 GIL_SWITCH_INTERVAL_S = 1e-4
 #: The alive counter's cycle (4 bits: the DBC's ``Counter``).

@@ -362,14 +362,15 @@ def test_parameter_groups_refuse_bad_values_in_one_line():
 
 # -- stalls of the host during the identification ------------------------------------------
 
-def _stalled_run(model, stalls, compensator=None, run=None, cut_at_s=None):
+def _stalled_run(model, stalls, compensator=None, run=None, cut_at_s=None, backlog=None):
     """A short ride whose host stalls over ``stalls`` ((start, length) [s]): the
     identification runs from about 0.5 s to 3.5 s into the run."""
     host = HybridHost(run or HybridRunParams(duration_s=0.5), load_quarter_car(), model,
                       compensator or CompensatorParams(), SafetyParams())
     rig = VirtualRig(model, ActuatorParams(delay_s=0.004), RigParams())
     run_offline(host, rig, disturbance=Disturbance(host_stalls=stalls,
-                                                   feedback_cut_at_s=cut_at_s),
+                                                   feedback_cut_at_s=cut_at_s,
+                                                   backlog_frames=backlog),
                 max_time_s=30.0)
     return host
 
@@ -441,6 +442,17 @@ def test_a_timing_stop_before_the_ride_starts_the_run_again(model):
                                                                     restarts=0))
     assert final.phase == "stopped" and "the host stalled" in final.reason
     assert final.identification_report()["restarts"] == [] and final.k == 0
+
+
+def test_a_stall_whose_backlog_overflowed_restarts_once(model):
+    """A 200 ms stall whose socket kept only the first 150 ms of feedback (the newest
+    dropped): the frames that waited are stale, and their gap before the frames after the
+    stall is not the rig's silence.  One restart, and the ride completes (the gap once
+    tripped the new watchdog in ``rearm`` and spent every restart)."""
+    host = _stalled_run(model, ((1.0, 0.2),), backlog=150)
+    assert host.phase == "done", host.reason
+    (restart,) = host.identification_report()["restarts"]
+    assert "the host stalled" in restart["reason"]
 
 
 def test_each_restart_is_timed_from_the_runs_start(model):

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from ride_sim.hybrid.host import HybridHost
 from ride_sim.hybrid.rig import Feedback, VirtualRig
+from ride_sim.hybrid.rig_host import MISSED_FEEDBACK_PERIODS
 
 #: Frame times on a 500 kbit/s bus, about one 8-byte frame each way [s].
 FEEDBACK_LATENCY_S = 0.25e-3
@@ -35,6 +36,9 @@ class Disturbance:
     #: sends nothing, and at the stall's end runs a cycle on each feedback that arrived
     #: meanwhile, at its arrival time, its command sent then
     host_stalls: tuple[tuple[float, float], ...] = ()
+    #: the feedback frames a stall's backlog holds at most (a socket's receive buffer):
+    #: the newest beyond are dropped; None: all are kept
+    backlog_frames: int | None = None
 
     def stalled(self, t_s: float) -> float | None:
         """The end of the host stall ``t_s`` falls in, or None."""
@@ -73,6 +77,12 @@ def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0
             for arrived, feedback in queued:       # the stall ends: its backlog, at once
                 if not host.finished:
                     answer(arrived, feedback, released_at)
+            # a backlog that ends short of the stall's end (the newest frames dropped):
+            # the link's next read finds nothing past its deadline and runs a cycle
+            # without feedback then
+            if released_at - queued[-1][0] > MISSED_FEEDBACK_PERIODS * period \
+                    and not host.finished:
+                answer(released_at, None, released_at)
             queued.clear()
         if d.delay_change_at_s is not None and t >= d.delay_change_at_s:
             rig.set_delay(d.new_delay_s)
@@ -81,7 +91,8 @@ def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0
             d.feedback_cut_at_s is not None and t >= d.feedback_cut_at_s)
         end = d.stalled(t_host)
         if end is not None:
-            queued.append((t_host, None if lost else feedback))
+            if d.backlog_frames is None or len(queued) < d.backlog_frames:
+                queued.append((t_host, None if lost else feedback))
             released_at = end
         else:
             answer(t_host, None if lost else feedback, t_host)

@@ -68,6 +68,9 @@ from ride_sim.hybrid.transfer import (
 
 #: The host's cycle: one per cycle of a dyno at 1 kHz [s] (the hosts' default ``dt_s``).
 HOST_CYCLE_S = 1e-3
+#: A cycle whose feedback has not come this many periods after the last runs without it
+#: (the link's read times out; :mod:`ride_sim.hybrid.offline` models it).
+MISSED_FEEDBACK_PERIODS = 1.5
 #: A stall, in the identification [cycles]: a fresh feedback more than this many cycles
 #: later than a cycle after the last fresh one, or a command sent more than this many cycles
 #: after its feedback arrived.  Shorter jitter stays in the fit: it moves the demand the rig
@@ -163,6 +166,9 @@ class RigHost:
         self._attempts_from = 0     # the current start's first attempt in attempts
         #: each restart's account (:meth:`_restart`): the phase and the stop's reason
         self.restarts: list[dict[str, Any]] = []
+        #: feedback stamped before this [s, monotonic] is stale: the frames that waited in
+        #: the socket through the stall that began the last restart
+        self._stale_before_s = -math.inf
         self._last_fresh_s: float | None = None
         self._cycle_s = math.nan
         self._stalled = False
@@ -282,6 +288,9 @@ class RigHost:
         of a stall's backlog, which the run proper holds (:meth:`_hold`).  Returns the
         command to send now."""
         safety = self.safety
+        now = t_s if now_s is None else now_s
+        if feedback is not None and t_s < self._stale_before_s:
+            feedback = None
         self._cycles += 1
         self.after_send()
         self._watch_stall(t_s, feedback is not None)
@@ -293,11 +302,13 @@ class RigHost:
             self.measure(t_s, feedback)
         safety.watchdog(t_s)
         if not safety.enable and self._may_restart():
-            self._restart(t_s)
+            self._restart(t_s, now)
             safety = self.safety
         if self.phase == "rearm":
-            if self._elapsed(t_s) >= safety.params.watchdog_s:
-                self._enter("connect", t_s)
+            # by the host's clock: the cycles that drain the stall's backlog run on the
+            # frames' stamps, from before the restart
+            if self._elapsed(now) >= safety.params.watchdog_s:
+                self._enter("connect", now)
             return Command(self._demand, 0.0, False)
         if self.phase == "connect":
             if feedback is None:
@@ -344,10 +355,16 @@ class RigHost:
         return (self.safety.timing and len(self.restarts) < self.run.restarts
                 and self.phase not in (self.RUN_PHASE, "return", "done", "stopped"))
 
-    def _restart(self, t_s: float) -> None:
-        """The watchdog or a stall of the host stopped the run before the run proper:
-        account for it, take a new safety layer (its demands' clamp count carried over)
-        and forget the start (tare, identification, transfer system), then ``rearm``."""
+    def _restart(self, t_s: float, now_s: float) -> None:
+        """The watchdog or a stall of the host stopped the run before the run proper
+        (the cycle of ``t_s``, run at ``now_s``): account for it, take a new safety layer
+        (its demands' clamp count carried over) and forget the start (tare,
+        identification, transfer system), then ``rearm``.
+
+        The feedback stamped before ``now_s`` is left out from now on: the frames that
+        waited in the socket through a stall of the host are stale, and where the
+        socket's buffer overflowed they end in a gap (the newest frames were dropped)
+        that the new safety layer's watchdog would take for the rig's silence."""
         old = self.safety
         self.restarts.append({"phase": self.phase, "reason": old.reason,
                               "at_s": t_s - (self._start_s or t_s)})
@@ -361,7 +378,8 @@ class RigHost:
         self.transfer = None
         self.tracker = None
         self._attempts_from = len(self.attempts)
-        self._enter("rearm", t_s)
+        self._stale_before_s = now_s
+        self._enter("rearm", now_s)
 
     def _watch_stall(self, t_s: float, fresh: bool) -> None:
         """Whether this cycle comes after a stall: :data:`STALL_CYCLES` or more later than a

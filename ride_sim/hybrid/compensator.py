@@ -143,7 +143,14 @@ class Compensator:
         self.static_force_n = float(static_force_n)
         self._heights = np.ascontiguousarray(heights, dtype=float)
         self._car = QuarterCar(car, dt_s, static_force_n)
-        self._fraction_cars: dict[int, QuarterCar] = {}
+        # the car over each fraction of a cycle the horizon can end in, made here: made
+        # in the loop when the followed delay first reached it, its matrix exponential
+        # took tens of milliseconds on a loaded 2-core machine and stopped rides on the
+        # host's watchdog (the discretisations are cached: a second compensator for the
+        # same car and cycle, the ride's after the warm-up's, computes none)
+        self._fraction_cars = [self._car] + [
+            QuarterCar(car, steps * dt_s / FRACTION_STEPS, static_force_n)
+            for steps in range(1, FRACTION_STEPS)]
         a, b = continuous_model(car)
         self._a, self._b = np.ascontiguousarray(a), np.ascontiguousarray(b)
         self._mr = car.motion_ratio
@@ -159,13 +166,6 @@ class Compensator:
         self.on_target.reset(stroke_m, velocity_m_s)
         self._model_force = self.on_target.force_n
         self._correction = 0.0
-
-    def _fraction_car(self, steps: int) -> QuarterCar:
-        car = self._fraction_cars.get(steps)
-        if car is None:
-            car = QuarterCar(self.car, steps * self.dt_s / FRACTION_STEPS, self.static_force_n)
-            self._fraction_cars[steps] = car
-        return car
 
     def observe(self, stroke_m: float, velocity_m_s: float, force_measured_n: float) -> None:
         """Step the twin on the car's damper motion at this sample and update the
@@ -188,7 +188,7 @@ class Compensator:
         if fraction == FRACTION_STEPS:
             whole, fraction = whole + 1, 0
         car = self._car
-        d_fraction = self._fraction_car(fraction).matrix if fraction else car.matrix
+        d_fraction = self._fraction_cars[fraction].matrix
         self._s[:] = state
         self._twin[:] = self.on_target.state
         model = self.on_target.model

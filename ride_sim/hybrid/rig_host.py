@@ -113,6 +113,17 @@ class _Immediate:
         return future
 
 
+def _fit_and_tracker(demand: np.ndarray, measured: np.ndarray, dt_s: float,
+                     p: CompensatorParams, usable: np.ndarray
+                     ) -> tuple[TransferEstimate, TransferTracker]:
+    """The identification's fit and the tracker that follows its delay and gain, made
+    off the loop: the tracker's discretised servo (a matrix exponential) took tens of
+    milliseconds in a cycle on a loaded machine."""
+    estimate = identify(demand, measured, dt_s, p.max_delay_s, usable)
+    return estimate, TransferTracker(estimate, dt_s, p.adapt_window_s, p.adapt_period_s,
+                                     p.max_delay_s)
+
+
 class RigHost:
     """The phases every rig run shares (see the module docstring).
 
@@ -173,7 +184,7 @@ class RigHost:
         self._cycle_s = math.nan
         self._stalled = False
         self._j = 0
-        self._fit_job: Future[TransferEstimate] | None = None
+        self._fit_job: Future[tuple[TransferEstimate, TransferTracker]] | None = None
         self.transfer: TransferEstimate | None = None
         self.tracker: TransferTracker | None = None
         n = int(samples)
@@ -433,9 +444,9 @@ class RigHost:
             return self._again_or_stop(t_s, f"kept {np.mean(self.usable):.0%} of its cycles "
                                             f"from stalls (at least {MIN_USABLE_SHARE:.0%})")
         self._enter("fit", t_s)
-        self._fit_job = self.executor.submit(identify, self.identification[0],
-                                             self.identification[1], self.dt_s,
-                                             p.max_delay_s, self.usable)
+        self._fit_job = self.executor.submit(_fit_and_tracker, self.identification[0],
+                                             self.identification[1], self.dt_s, p,
+                                             self.usable)
         return self._fit_poll(t_s)
 
     def _account(self, estimate: TransferEstimate | None) -> None:
@@ -473,7 +484,7 @@ class RigHost:
         if not self._fit_job.done():
             return 0.0, 0.0
         try:
-            estimate = self._fit_job.result()
+            estimate, tracker = self._fit_job.result()
         except Exception as exc:  # noqa: BLE001 - any failed fit stops the ride safely
             self.safety.stop(t_s, f"the transfer system's identification failed: {exc}")
             self.phase = "stopped"
@@ -484,9 +495,7 @@ class RigHost:
                                             f"(limit {self.run.max_fit_nrms:.0%}): not the "
                                             "transfer system it models")
         self.transfer = estimate
-        p = self.compensator_params
-        self.tracker = TransferTracker(estimate, self.dt_s, p.adapt_window_s,
-                                       p.adapt_period_s, p.max_delay_s)
+        self.tracker = tracker
         self.tracker.start(self._demand)
         return self._after_fit(t_s)
 

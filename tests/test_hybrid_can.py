@@ -449,9 +449,12 @@ def test_a_stall_of_the_host_before_the_ride_starts_it_again(tmp_path):
         warnings.warn(f"the ride after the restart stopped: {doc['reason']}", stacklevel=1)
     else:
         assert run.proc.returncode == 0 and doc["status"] == "completed", run.rest
-    (restart,) = doc["identification"]["restarts"]
+    restart, *more = doc["identification"]["restarts"]
     assert restart["phase"] in ("identify", "fit")
     assert restart["reason"].startswith("the host stalled")
+    # a second restart only where a witness saw the machine stall (the restart's own
+    # stale frames once caused one)
+    assert not more or run.host_stalls or run.rig_stats.get("stalls"), more
 
 
 def test_unstable_setting_is_stopped_before_any_limit(tmp_path):

@@ -29,7 +29,7 @@ from ride_sim.hybrid.params import (
     SafetyParams,
     build,
 )
-from ride_sim.hybrid.rig import STATUS_AT_LIMIT, STATUS_ENABLED, VirtualRig
+from ride_sim.hybrid.rig import STATUS_AT_LIMIT, STATUS_ENABLED, Feedback, VirtualRig
 from ride_sim.hybrid.safety import WATCHDOG_TRIP, SafetyLayer
 from ride_sim.hybrid.transfer import TransferEstimate, excitation, identify
 from ride_sim.params import load_quarter_car
@@ -453,6 +453,30 @@ def test_a_stall_whose_backlog_overflowed_restarts_once(model):
     assert host.phase == "done", host.reason
     (restart,) = host.identification_report()["restarts"]
     assert "the host stalled" in restart["reason"]
+
+
+def test_stale_feedback_is_left_out_on_every_path_after_a_restart(model):
+    """The link hands a restart's stale frames (stamped before it) to the host as late
+    feedback, or as the newest measurement when its counter cannot place them, not only
+    through a cycle: none of them feeds the new watchdog, so a read that times out after
+    them does not stop the run again (it once spent the second restart in ``rearm``)."""
+    host = HybridHost(HybridRunParams(duration_s=0.5), load_quarter_car(), model,
+                      CompensatorParams(), SafetyParams())
+    dt = host.dt_s
+    feedback = Feedback(0.0, -400.0, 0, 25.0)
+    for k in range(50):                                 # connect, then settle
+        host.safety.host_wakes(k * dt)
+        host.cycle(k * dt, feedback, now_s=k * dt)
+    assert host.phase == "settle"
+    held_until = 0.3                                    # the host held for 250 ms
+    host.safety.host_wakes(held_until)
+    host.cycle(0.05, feedback, now_s=held_until)        # the first frame that waited
+    assert host.phase == "rearm" and len(host.restarts) == 1
+    host.late(0.10, feedback, 0)                        # the link's late path
+    host.measure(0.11, feedback)                        # its path past the counter
+    assert host.safety.last_valid_s is None
+    host.cycle(held_until + 2 * dt, None, now_s=held_until + 2 * dt)   # a read timed out
+    assert host.safety.enable and len(host.restarts) == 1
 
 
 def test_each_restart_is_timed_from_the_runs_start(model):

@@ -269,7 +269,10 @@ class RigHost:
     def measure(self, t_s: float, feedback: Feedback, cycles_back: int = 0) -> None:
         """A valid feedback received at ``t_s``, of the cycle ``cycles_back`` cycles before
         the latest: the newest measurement for the next cycle; the safety layer checks it
-        (its velocity over the cycles the frame's really are)."""
+        (its velocity over the cycles the frame's really are).  Feedback stamped before
+        the last restart is stale (:meth:`_restart`) and left out."""
+        if t_s < self._stale_before_s:
+            return
         self._measured, self._force = feedback.stroke_m, feedback.force_n
         self._temperature = feedback.temperature_c
         self.safety.feedback(t_s, feedback.stroke_m, feedback.force_n,
@@ -281,7 +284,7 @@ class RigHost:
         says which): the newest measurement for the next cycle (:meth:`measure`), and in
         the run proper the measurement of that cycle's sample, in its place."""
         self.measure(t_s, feedback, cycles_back)
-        if self.phase != self.RUN_PHASE:
+        if self.phase != self.RUN_PHASE:     # (a restart's stale frames among them)
             return
         k = self.k - 1 - int(cycles_back)
         if 0 <= k < self.fresh.size and not self.fresh[k]:

@@ -20,7 +20,7 @@ from damper_emulator.ros.live import CHANNELS
 pytestmark = pytest.mark.ros
 
 ROOT = Path(__file__).resolve().parents[1]
-#: away from the other tests' ROS domains
+#: away from the other tests' ROS domains (test_lifecycle.py: 150..152, 154..156)
 DOMAIN = 153
 
 
@@ -111,9 +111,9 @@ def test_the_emulator_serves_its_own_live_view(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    node = start_node("emulator", "emulate", DOMAIN + 1, tmp_path, {
+    node = start_node("emulator", "emulate", DOMAIN, tmp_path, {
         "emulator.live_port": port, "emulator.diagnostics_period_s": 0.2})
-    probe = Probe(DOMAIN + 1)
+    probe = Probe(DOMAIN)
     stop = threading.Event()
     try:
         states = probe.node.create_publisher(JointState, topics.STATE, control_qos(10))

@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parent.parent
 #: each test its own domain: 110 + offset (>= 102 would clash with the 0..101 range? no:
 #: the Linux limit is 232; stay well inside it and away from the demo's 40..89)
 DOMAINS = {"lockstep": 121, "stale": 122, "nan": 123, "kill": 124,
-           "params": 125, "badfile": 126, "dds": 127, "behind": 128}
+           "params": 125, "badfile": 126, "dds": 127, "behind": 128, "term": 129}
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 pytestmark = pytest.mark.ros
 
@@ -492,3 +492,45 @@ def test_node_runs_the_extension_a_diagnose_params_file_names(tmp_path):
     node_force = simulate(model, t, x).force_n
     np.testing.assert_array_equal(node_force, offline)
     assert np.sqrt(np.mean((offline - plain) ** 2)) > 50.0  # the spring matters here
+
+
+def test_a_killed_demo_stops_its_nodes_and_exits_143(tmp_path):
+    """SIGTERM to ``damper-hil demo`` mid-ride (a kill, a service manager's stop): it stops
+    its nodes as on Ctrl-C and exits 143 with one line, leaving no process behind.  (The
+    readiness probe's ``rclpy.init`` once replaced the process's handlers: the demo rode on
+    and then died with its nodes left running.)"""
+    import signal
+
+    out = tmp_path / "demo"
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "damper_hil.cli", "demo",
+                             "--duration", "60", "--out", str(out)],
+                            env=ros_environment(DOMAINS["term"]), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stderr is not None              # the demo's progress
+        seen = []
+        for line in proc.stderr:
+            seen.append(line)
+            if line.startswith("[2/4] ride"):
+                break
+        else:
+            raise AssertionError(f"the demo never rode: {''.join(seen)}")
+        proc.send_signal(signal.SIGTERM)
+        _, rest = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 128 + signal.SIGTERM, rest
+    assert "[3/4] stopping" in rest, rest
+    assert rest.strip().splitlines()[-1] == "damper-hil: terminated", rest
+    # every node it started has ended (each one's command line names the --out folder)
+    left = []
+    for pid in os.listdir("/proc"):
+        try:
+            args = Path("/proc", pid, "cmdline").read_bytes()
+        except OSError:
+            continue
+        if pid.isdigit() and str(out).encode() in args:
+            left.append(args.replace(b"\0", b" ")[:120])
+    assert not left, left

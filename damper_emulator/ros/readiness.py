@@ -107,9 +107,11 @@ class ReadinessProbe:
 
         from rclpy.context import Context
 
+        from damper_emulator.ros.common import init_keeping_signals
+
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         self.context = Context()
-        rclpy.init(context=self.context, domain_id=int(domain_id))
+        init_keeping_signals(self.context, domain_id=int(domain_id))
         self.node = rclpy.create_node(name, context=self.context)
 
     def wait(self, target: str, timeout_s: float,

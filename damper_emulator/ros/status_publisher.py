@@ -23,8 +23,11 @@ class StatusPublisher:
     """A node ``node_name`` with a ``/diagnostics`` publisher.  Use as a context manager."""
 
     def __init__(self, node_name: str) -> None:
+        from damper_emulator.ros.common import init_keeping_signals
+
         self.context = Context()
-        rclpy.init(context=self.context)
+        # ``hybrid`` stops its run in order on SIGINT and SIGTERM, by its own handlers
+        init_keeping_signals(self.context)
         self.node = rclpy.create_node(node_name, context=self.context)
         self._pub = self.node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
 

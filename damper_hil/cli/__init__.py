@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -67,6 +68,15 @@ def build_parser() -> argparse.ArgumentParser:
 #: finalisation (:func:`entry`): its parser's ``hard_exit`` default.
 _hard_exit = False
 
+
+class Terminated(BaseException):
+    """SIGTERM arrived (:func:`_terminated`): unwinds like ``KeyboardInterrupt``, past
+    ``except Exception``, through every ``finally``; exit 143."""
+
+
+def _terminated(signum: int, frame: object) -> None:
+    raise Terminated
+
 #: Printed under an unexpected exception (a bug, not a user error).
 BUG_HINT = "run again with --debug for the traceback, and please report it"
 
@@ -98,7 +108,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parameters, options, bag or bus; or an ``OSError`` on a file or device), one line;
     1 a failure that is not the input's (a node that never became ready: one line) or a bug
     (any other exception: one line and a hint; ``--debug`` shows the traceback); 130
-    interrupted.
+    interrupted (Ctrl-C); 143 terminated (SIGTERM).
     """
     _escape_terminal()
     parser = build_parser()
@@ -111,6 +121,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.ros_args = ros_args
     if ros_args and not getattr(args, "takes_ros_args", False):
         parser.error(f"{args.command} does not take --ros-args")
+    # SIGTERM (a kill, a service manager's stop) ends a command as Ctrl-C does: its
+    # cleanup runs (a demo stops its nodes, a run closes its recording); a command or
+    # node that handles it itself installs its own handler later
+    signal.signal(signal.SIGTERM, _terminated)
     try:
         status = args.handler(args)
         global _hard_exit
@@ -119,6 +133,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print(f"{PROG}: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except Exception as exc:
         if debug:
             raise

@@ -25,23 +25,6 @@ PROG = "damper-hil"
 GIL_SWITCH_INTERVAL_S = 1e-4
 
 
-def init_keeping_signals(context, **kwargs) -> None:
-    """``rclpy.init(context=context, **kwargs)`` in a process that is not a node (the demo's
-    readiness probe, ``hybrid``'s status publisher): its SIGINT and SIGTERM handlers stay
-    the process's own.  rclpy's handlers would replace them for good and swallow SIGTERM
-    (the demo rode on after a kill), and even with its handlers off, init leaves the
-    signals at their defaults."""
-    import signal
-
-    from rclpy.signals import SignalHandlerOptions
-
-    kept = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO, **kwargs)
-    for sig, handler in kept.items():
-        if handler is not None:
-            signal.signal(sig, handler)
-
-
 def executor_priority(loop_priority: int) -> int:
     """SCHED_FIFO priority of the executor (main) thread of a node whose real-time thread
     runs at ``loop_priority`` (``main_thread_priority``; see :func:`spin_node`): just below

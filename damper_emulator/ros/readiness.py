@@ -106,12 +106,14 @@ class ReadinessProbe:
         import os
 
         from rclpy.context import Context
-
-        from damper_emulator.ros.common import init_keeping_signals
+        from rclpy.signals import SignalHandlerOptions
 
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         self.context = Context()
-        init_keeping_signals(self.context, domain_id=int(domain_id))
+        # the process keeps its own signals: rclpy's handlers would replace them and
+        # swallow SIGTERM (the demo rode on after a kill, its nodes left running)
+        rclpy.init(context=self.context, domain_id=int(domain_id),
+                   signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(name, context=self.context)
 
     def wait(self, target: str, timeout_s: float,

@@ -23,11 +23,12 @@ class StatusPublisher:
     """A node ``node_name`` with a ``/diagnostics`` publisher.  Use as a context manager."""
 
     def __init__(self, node_name: str) -> None:
-        from damper_emulator.ros.common import init_keeping_signals
+        from rclpy.signals import SignalHandlerOptions
 
         self.context = Context()
-        # ``hybrid`` stops its run in order on SIGINT and SIGTERM, by its own handlers
-        init_keeping_signals(self.context)
+        # rclpy's handlers would replace the process's own: ``hybrid`` stops its run in
+        # order on SIGINT and SIGTERM
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(node_name, context=self.context)
         self._pub = self.node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
 

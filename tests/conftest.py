@@ -83,8 +83,8 @@ class DemoRun:
 def cold_demo_run(tmp_path_factory) -> DemoRun:
     """``damper-hil demo --duration 5 --live PORT`` as a new user runs it, nothing cached
     (an empty ``NUMBA_CACHE_DIR``), with a live-view client listening.  One run serves the
-    start-up and real-time checks (test_readiness), the bag's contents (test_nodes) and the
-    live view (test_live): a demo takes 30-50 s of the suite's 15 minutes."""
+    start-up checks, the bag's contents and the live view (tests/test_demo_run.py, one
+    module: one worker runs it once); a demo takes 30-50 s."""
     import socket
     import threading
 

@@ -1,9 +1,7 @@
-"""The live view.  ``damper-hil demo --live PORT`` runs the closed loop with the
-``live_view`` node; a WebSocket client in the test speaks the Foxglove WebSocket protocol
-to it while the demo runs (subscribes to every advertised channel, decodes the binary
-message frames and their JSON payloads) and checks what it receives against the demo's own
-bag, read back independently: the forces the view sent are forces the emulator published.
-The layout file's panels name only channels and fields the view serves."""
+"""The live view.  The emulator serves its own view; the layout file's panels name only
+channels and fields the view serves.  (``damper-hil demo --live PORT``, the closed loop
+with the ``live_view`` node, checked by a WebSocket client against the demo's own bag:
+tests/test_demo_run.py.)"""
 
 from __future__ import annotations
 
@@ -22,54 +20,6 @@ pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[1]
 #: away from the other tests' ROS domains (test_lifecycle.py: 150..152, 154..156)
 DOMAIN = 153
-
-
-def test_the_live_view_serves_the_running_demo(cold_demo_run):
-    """The shared cold run of ``damper-hil demo --live`` (conftest.py), with a WebSocket
-    client listening from its start to its end."""
-    pytest.importorskip("foxglove")
-    pytest.importorskip("websockets")
-    run = cold_demo_run
-    out, channels, got = run.out, run.channels, run.got
-    assert run.proc.returncode == 0, run.proc.stderr[-2000:]
-    assert not run.client_error, run.client_error
-    # every channel advertised with its JSON schema
-    advertised = {c["topic"]: c for c in channels}
-    assert set(advertised) == set(CHANNELS)
-    for topic, c in advertised.items():
-        assert c["encoding"] == "json" and c["schemaName"] == CHANNELS[topic][0]
-        assert set(json.loads(c["schema"])["properties"]) == set(CHANNELS[topic][1])
-    damper, ride, loop = got.get("/live/damper", []), got.get("/live/ride", []), \
-        got.get("/live/loop", [])
-    assert len(damper) > 200, {k: len(v) for k, v in got.items()}   # 250 Hz for seconds
-    assert len(ride) > 20 and loop
-    assert all(set(m) == set(CHANNELS["/live/damper"][1]) for m in damper)
-    assert all(math.isfinite(m["force_n"]) for m in damper)
-    # the ride's r.m.s. values accumulate: finite, and the sample count grows
-    counts = [m["samples"] for m in ride]
-    assert counts == sorted(counts) and counts[-1] > counts[0]
-    assert all(m["accel_w_rms_m_s2"] > 0 and m["dtl_rms_n"] > 0 for m in ride[5:])
-    # the emulator loop's figures (their values are the host's: benchmarks measure them)
-    assert any(m["achieved_rate_hz"] and m["achieved_rate_hz"] > 0 for m in loop)
-    # the forces the view sent are forces the emulator published: in the demo's bag, read
-    # back with rosbags (not the project's reader)
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import Stores, get_typestore
-
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    recorded = set()
-    with Reader(out / "bag") as reader:
-        conns = [c for c in reader.connections if c.topic == "/damper/force"]
-        for conn, _ts, data in reader.messages(connections=conns):
-            m = typestore.deserialize_cdr(data, conn.msgtype)
-            if len(m.position) and len(m.effort):
-                recorded.add((round(float(m.position[0]), 12), round(float(m.effort[0]), 9)))
-    live = [(round(m["stroke_m"], 12), round(m["force_n"], 9)) for m in damper
-            if m["stroke_m"] is not None]
-    found = sum(p in recorded for p in live)
-    assert found >= 0.95 * len(live), f"{found} of {len(live)} live samples in the bag"
-    summary = json.loads((out / "demo.json").read_text())
-    assert summary["live_port"] == run.port
 
 
 def test_the_layout_shows_what_the_view_serves():

@@ -20,8 +20,7 @@ from host_stalls import RUNS_THROUGH_STALLS, Sentinels
 rclpy = pytest.importorskip("rclpy")
 from rclpy.context import Context  # noqa: E402
 from ros_probe import Probe  # noqa: E402
-from rosbags.rosbag2 import Reader  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
+from rosbags_reader import read_bag  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from damper_emulator import topics  # noqa: E402
@@ -34,7 +33,6 @@ ROOT = Path(__file__).resolve().parent.parent
 #: the Linux limit is 232; stay well inside it and away from the demo's 40..89)
 DOMAINS = {"lockstep": 121, "stale": 122, "nan": 123, "kill": 124,
            "params": 125, "badfile": 126, "dds": 127, "behind": 128, "term": 129}
-TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 pytestmark = pytest.mark.ros
 
 
@@ -49,57 +47,6 @@ def state(x: float, v: float) -> JointState:
     msg.position = [x]
     msg.velocity = [v]
     return msg
-
-
-def read_bag(path: Path) -> dict[str, list]:
-    """Every message of a bag, decoded by rosbags alone (the independent reader)."""
-    out: dict[str, list] = {}
-    with Reader(path) as reader:
-        for conn, t, data in reader.messages():
-            out.setdefault(conn.topic, []).append(
-                (t, TYPESTORE.deserialize_cdr(data, conn.msgtype)))
-    return out
-
-
-def test_closed_loop_demo_writes_a_bag_rosbags_reads(cold_demo):
-    """The demo's closed loop (the ``cold_demo`` fixture's run, shared with
-    test_readiness) recorded every topic, and rosbags reads the bag."""
-    proc, out = cold_demo
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    summary = json.loads((out / "demo.json").read_text())
-    msgs = read_bag(out / "bag")
-    for topic in (topics.STATE, topics.FORCE, topics.RIDE_STATE, topics.DIAGNOSTICS):
-        assert msgs.get(topic), f"{topic} not recorded"
-    n_state = len(msgs[topics.STATE])
-    assert n_state == 6001, f"{n_state} /damper/state recorded"  # (5 s + 1 s lead-in) at 1 kHz
-    forces = np.array([m.effort[0] for _, m in msgs[topics.FORCE]])
-    assert np.isfinite(forces).all() and len(forces) >= 0.95 * n_state, len(forces)
-    with Reader(out / "bag") as reader:
-        for conn in reader.connections:
-            assert conn.ext.offered_qos_profiles, conn.topic
-            assert conn.ext.serialization_format == "cdr"
-    m = summary["ride"]["metrics"]
-    # the loop delay: every sample after the emulator's first force answers an earlier
-    # state (causality: at least one sample), and the verdict agrees with the figures
-    delay = summary["ride"]["loop_delay"]
-    assert delay["samples"] > 0.9 * n_state and delay["p50_ms"] >= 1.0, delay
-    assert delay["within_bound"] == (delay["max_ms"] <= delay["bound_ms"]), delay
-    # a real-time loop on a busy 2-core machine may see stale-input faults; the physics is
-    # checked exactly by the lockstep test.  Here: the closed loop rode the minor road
-    # (offline: SWS 32 mm, DTL 1.66 kN r.m.s.) and did not fall apart.
-    # (with the skyhook controller commanding the damper over CAN: SWS +11 %, DTL +21 %)
-    if not delay["within_bound"]:
-        assert "the loop delay exceeded its bound" in proc.stdout + proc.stderr, delay
-    if delay["p99_ms"] <= delay["bound_ms"]:
-        assert 0.016 < m["sws_rms"] < 0.064 and 800 < m["dtl_rms"] < 4000, m
-    # else: a slow host; the run says so (above) and its metrics are not the damper's.
-    # The case this guards: on a two-core machine the force the ride applied could answer
-    # a state up to 0.75 s old, which pumped the wheel hop, when the ride's DDS threads ran
-    # under normal scheduling behind the other nodes' SCHED_FIFO ones (ride.dds_priority)
-    assert summary["valve_command"]["count"] > 100, summary["valve_command"]
-    assert summary["bridge_diagnostics"], "no /diagnostics from the CAN bridge recorded"
-    for f in ("ride.png", "damper.png", "control.png", "loop.png", "report.md", "demo.json"):
-        assert (out / f).stat().st_size > 0
 
 
 def _fifo_permitted() -> bool:

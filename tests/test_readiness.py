@@ -13,7 +13,6 @@ compiled kernels are cached, and a first start with a cold cache.
 from __future__ import annotations
 
 import itertools
-import json
 import os
 import subprocess
 import sys
@@ -181,28 +180,3 @@ def test_ride_says_what_it_waits_for_and_fails_in_one_line(tmp_path):
     assert len(errors) == 1, log
     assert "/damper_emulator did not become active within 3 s" in errors[0], log
     assert "Traceback" not in log
-
-
-def test_demo_with_an_empty_numba_cache_runs_every_sample_compiled_before_ready(cold_demo):
-    """`damper-hil demo` as a new user runs it: nothing cached (the ``cold_demo``
-    fixture).  It exits 0, the ride runs every sample, and nothing is compiled once the
-    emulator is active: the start-up a compile would otherwise stall.  Whether the loops
-    then kept pace with the wall clock is a figure of the host (the report gives it;
-    benchmarks/demo_bench.py measures it, cold and warm), not a pass or fail here."""
-    proc, out = cold_demo
-    figures = ""
-    if (out / "demo.json").is_file():
-        doc = json.loads((out / "demo.json").read_text())
-        loop = doc.get("emulator_loop", {})
-        figures = (f"real-time factor {doc['ride'].get('real_time_factor')}, ride loop "
-                   f"{json.dumps(doc['ride'].get('loop'))}, emulator {json.dumps(loop)}, "
-                   f"fault outputs after the first input "
-                   f"{doc.get('fault_outputs_after_first_input')}")
-    assert proc.returncode == 0, f"{proc.stderr[-2000:]}\n{figures}"
-    doc = json.loads((out / "demo.json").read_text())
-    ride = doc["ride"]
-    assert ride["samples"] == 6001 and ride["lead_in_samples"] == 1000, ride
-    assert doc["kernels_compiled_after_ready"] == 0, figures
-    assert doc["emulator_loop"]["compiled_after_ready"] == 0, figures
-    assert 0 < ride["real_time_factor"] <= 1.01, figures
-    print(figures)

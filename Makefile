@@ -26,14 +26,17 @@ $(STAMP): $(BIN)/python pyproject.toml
 demo: $(STAMP)
 	$(BIN)/damper-hil demo --out demo_out
 
-# the tests in two parts: the cores in one process per core (pytest-xdist, each module
-# on one worker, its fixtures built once), then the ROS, CAN and timing tests alone: their
-# real-time, DDS, bus and wall-clock checks need the machine to themselves
+# the tests in three parts: the cores in one process per core (pytest-xdist, each module
+# on one worker, its fixtures built once); the ROS and CAN tests, each file on one of two
+# workers (--dist loadfile: a file's ROS domains, buses and shared runs stay on one
+# worker; the nodes' loops run under SCHED_FIFO and ride through a busy neighbour); then
+# the wall-clock checks that need the machine to themselves (timing), alone
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/python -m pytest -q --durations=10 -n 2 --dist loadscope -m "not ros and not can and not timing"
-	$(BIN)/python -m pytest -q --durations=10 -m "ros or can or timing"
+	$(BIN)/python -m pytest -q --durations=10 -n 2 --dist loadfile -m "(ros or can) and not timing"
+	$(BIN)/python -m pytest -q --durations=10 -m timing
 
 fuzz: $(STAMP)
 	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest -q --durations=15 tests/test_fuzz_*.py

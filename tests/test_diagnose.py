@@ -526,6 +526,54 @@ def test_the_jacobian_is_scipys_forward_difference_and_steps_back_where_refused(
     assert np.all(np.abs(jac) < 1e6)
 
 
+def test_a_jacobian_simulates_each_record_only_for_its_own_inputs(monkeypatch):
+    """A step of the rig's delay filters the forces at hand (no simulation), one of the
+    quasi-static friction ratio simulates the quasi-static record alone, any other both:
+    and the Jacobian is the forward difference of a space that keeps nothing between
+    evaluations (a new one for each)."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    from damper_emulator.diagnose.base import (
+        ACQUISITION_DELAY,
+        QUASI_STATIC_FRICTION_RATIO,
+        Record,
+        base_parameters,
+        make_record,
+    )
+    from damper_emulator.diagnose.joint import DIFF_STEP, Space
+
+    sheet, data = truth_session((), chain_given=False)
+    records = [make_record(d, False) for d in data[:2]]   # quasi-static, chirp
+    every = base_parameters(sheet, data[:2], delay=True)
+    free = [p for p in every if p.name in ("gas_pressure_static_pa", "rebound.k_port",
+                                           QUASI_STATIC_FRICTION_RATIO, ACQUISITION_DELAY)]
+    assert len(free) == 4
+    base = {p.name: p.start for p in every}
+    base[ACQUISITION_DELAY] = 1e-3
+    base[QUASI_STATIC_FRICTION_RATIO] = 0.8
+
+    def space() -> Space:
+        return Space(sheet, free, base, [], [], [], records, [1e-2, 1e-2])
+
+    fit = space()
+    s = fit.encode(base, [])
+    f0 = fit.residuals(s)
+    simulated: list[str] = []
+    simulate = Record.simulate
+
+    def counted(rec, model, fast=False, rig=None):
+        simulated.append(rec.name)
+        return simulate(rec, model, fast, rig)
+
+    monkeypatch.setattr(Record, "simulate", counted)
+    jac = fit.jacobian(s)
+    assert sorted(simulated) == sorted(["quasi_static.csv"] * 3 + ["chirp.csv"] * 2)
+    reference = approx_derivative(lambda x: space().residuals(x), s, method="2-point",
+                                  rel_step=DIFF_STEP, bounds=(0.0, 1.0), f0=f0)
+    np.testing.assert_array_equal(jac, reference)
+    assert np.all(np.any(jac != 0.0, axis=0))  # every column has a slope: a real test
+
+
 def test_sigma_is_the_covariance_of_the_resolved_parameters_and_infinite_for_the_rest(
         monkeypatch):
     """σ² (JᵀJ)⁻¹ on the parameters with a slope (an explicit inverse, a separate

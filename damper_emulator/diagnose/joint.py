@@ -20,7 +20,11 @@ and a gas volume that always leaves the rod room for the largest compression in 
 Slow records are simulated for the fit with a longer sub-step (:func:`fit_substep`): the
 quasi-static test at 4 mm/s on 5 ms sub-steps differs from the 0.5 ms reference by at most
 0.05 N r.m.s. (every extension), and costs a ninth.  Scores and the
-figures reported are always from the full model.
+figures reported are always from the full model.  A record is simulated only where one of
+its simulation's inputs changed: a Jacobian's column of the rig's delay or of a discovered
+term's coefficient filters and sums the forces at the Jacobian's point, one of the
+quasi-static friction ratio simulates the quasi-static records alone (the same numbers,
+fewer simulations).
 """
 
 from __future__ import annotations
@@ -133,6 +137,11 @@ class _Converged(Exception):
     """A joint fit's step gained too little to go on (:meth:`Space.solve`)."""
 
 
+#: one record's simulation at a point: that point's inputs of it (:meth:`Space._keys`),
+#: the model's force before the chain, and the discovered term's columns (or ``None``)
+_Simulated = tuple[np.ndarray, np.ndarray, "np.ndarray | None"]
+
+
 class Space:
     """The search space of a fit: the free parameters (paper's and each effect's), the
     held ones, and the residual function over the fit records."""
@@ -170,14 +179,22 @@ class Space:
         self._min_bic_step = JOINT_MIN_BIC_STEP
         #: where each record's residual ends in the concatenated vector
         self._ends = np.cumsum([r.counted for r in records])[:-1]
-        #: the model's forces (before the chain) and the discovered term's columns at the
-        #: last point simulated, with that point's other coordinates
-        self._raw: tuple[np.ndarray, list[np.ndarray], list[np.ndarray] | None] | None = None
+        #: each record's model force (before the chain) and the discovered term's columns
+        #: at the last point it was simulated at, with that point's coordinates that are
+        #: its simulation's inputs (:meth:`_keys`)
+        self._raw: list[_Simulated | None] = [None] * len(records)
+        #: the same at the point a Jacobian is taken (:meth:`jacobian`): a step of a
+        #: parameter that is no input of a record's simulation takes that record from here
+        self._anchor: list[_Simulated | None] = [None] * len(records)
         #: the free slots that are no simulation's input: the delay and the term's
         #: coefficients (a step of them alone filters and sums what the cache holds)
         self._output_slots = [k for k, (i, p) in enumerate(self.slots)
                               if i < 0 and (p.name == ACQUISITION_DELAY
                                             or p.name.startswith(TERM_PREFIX))]
+        #: the slot of the quasi-static friction ratio: an input of the quasi-static
+        #: records' simulations only (a step of it alone simulates them alone)
+        self._slow_slots = [k for k, (i, p) in enumerate(self.slots)
+                            if i < 0 and p.name == QUASI_STATIC_FRICTION_RATIO]
 
     def encode(self, base_values: Mapping[str, float], values: Sequence[Mapping[str, float]]
                ) -> np.ndarray:
@@ -243,34 +260,53 @@ class Space:
         self._last = (s.copy(), residuals, self.refused)
         return residuals
 
-    def _forces(self, s: np.ndarray) -> list[np.ndarray]:
-        """The model's force at ``s`` over each record as the record holds it: with the
-        discovered term's parts added and through the estimated chain.  From the cache
-        where only the delay or the term's coefficients changed since the last
-        simulation (counted in :attr:`evaluations` otherwise)."""
+    def _keys(self, s: np.ndarray) -> list[np.ndarray]:
+        """Each record's simulation inputs among the coordinates ``s``: every slot but
+        the output slots, and on a record past the quasi-static ones not the quasi-static
+        friction ratio either."""
         key = s.copy()
         key[self._output_slots] = 0.0
+        fast = key.copy()
+        fast[self._slow_slots] = 0.0
+        return [key if k < self.n_quasi_static else fast for k in range(len(self.records))]
+
+    def _forces(self, s: np.ndarray) -> list[np.ndarray]:
+        """The model's force at ``s`` over each record as the record holds it: with the
+        discovered term's parts added and through the estimated chain.  A record is
+        simulated again only where one of its simulation's inputs changed since it was
+        last simulated (:meth:`_keys`: not for a step of the delay or the term's
+        coefficients alone, and only the quasi-static records for a step of their
+        friction ratio); any simulation counts one in :attr:`evaluations`."""
         base = self.decode(s)[0]
         rig = delay_rig(base)
-        if self._raw is not None and np.array_equal(self._raw[0], key):
-            raws, cols = self._raw[1], self._raw[2]
-        else:
+        keys = self._keys(s)
+        for k, key in enumerate(keys):
+            anchor = self._anchor[k]
+            if anchor is not None and np.array_equal(anchor[0], key):
+                self._raw[k] = anchor
+        stale = [k for k, (cached, key) in enumerate(zip(self._raw, keys))
+                 if cached is None or not np.array_equal(cached[0], key)]
+        if stale:
             self.evaluations += 1
-            self._raw = None
             models = self.models(s)
-            if self.terms is None:
-                raws = [rec.simulate(m, fast=True) for rec, m in zip(self.records, models)]
-                cols = None
-            else:
-                pairs = [self.terms(m.with_max_substep(fit_substep(m, rec.velocity)), rec)
-                         for rec, m in zip(self.records, models)]
-                raws, cols = [p[0] for p in pairs], [p[1] for p in pairs]
-            self._raw = (key, raws, cols)
-        if cols is None:
-            return [rec.recorded(raw, rig) for rec, raw in zip(self.records, raws)]
+            for k in stale:
+                rec, m = self.records[k], models[k]
+                self._raw[k] = None
+                if self.terms is None:
+                    self._raw[k] = (keys[k], rec.simulate(m, fast=True), None)
+                else:
+                    raw, col = self.terms(m.with_max_substep(fit_substep(m, rec.velocity)),
+                                          rec)
+                    self._raw[k] = (keys[k], raw, col)
+        cached = [c for c in self._raw if c is not None]
+        assert len(cached) == len(self.records)  # every record simulated at its key
+        if self.terms is None:
+            return [rec.recorded(raw, rig) for rec, (_, raw, _) in zip(self.records, cached)]
+        cols = [c for _, _, c in cached if c is not None]
+        assert len(cols) == len(cached)  # the term's columns with every record's force
         coef = [base[f"{TERM_PREFIX}{k}"] for k in range(cols[0].shape[1])]
         return [rec.with_term(raw, c, coef, rig)
-                for rec, raw, c in zip(self.records, raws, cols)]
+                for rec, (_, raw, _), c in zip(self.records, cached, cols)]
 
     def jacobian(self, s: np.ndarray) -> np.ndarray:
         """Forward differences of :meth:`residuals` at ``s``, each parameter stepped by
@@ -290,6 +326,7 @@ class Space:
             self.residuals(s)
         assert self._last is not None  # set by every residuals()
         _, f0, base_refused = self._last
+        self._anchor = list(self._raw)  # each record as simulated at s
         jac = np.zeros((f0.size, s.size))
         for k in range(s.size):
             h = DIFF_STEP * s[k]

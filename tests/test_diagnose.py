@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from diagnose_support import (
     FEW_NFEV,
+    LONGER_PROTOCOL,
     NOISE_N,
     PARAMETER_TOLERANCE,
     PROTOCOL,
@@ -190,7 +191,8 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia(tmp_pat
     def inertia(t, x, v):
         return mass_kg * np.gradient(v, t)
 
-    sheet, data = truth_session(None, extra_force=inertia, chain_given=False)
+    sheet, data = truth_session(None, extra_force=inertia, chain_given=False,
+                                protocol=LONGER_PROTOCOL)
     # the two candidates that act on the force's phase most as a mass does (the benchmark
     # runs all nine)
     diag = identify_and_diagnose(sheet, data, ["valve_lag", "series_compliance"])

@@ -3,6 +3,7 @@ then diagnose (tests/test_diagnose.py, tests/test_diagnose_families.py)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from damper_emulator.diagnose.selection import diagnose
@@ -16,7 +17,7 @@ from damper_emulator.params import load_config
 PROTOCOL = Protocol(chirp=Chirp(duration_s=8.0), quasi_static=QuasiStatic(cycles=1))
 #: a longer chirp where a test asks more of each file: whether a discovered term is one
 #: over the files (on the 8 s chirp one file determines a mass of the other sign)
-LONGER_PROTOCOL = Protocol(chirp=Chirp(duration_s=12.0), quasi_static=QuasiStatic(cycles=1))
+LONGER_PROTOCOL = dataclasses.replace(PROTOCOL, chirp=Chirp(duration_s=12.0))
 NOISE_N = 4.0
 #: joint-fit evaluations where a test compares two runs rather than the fit's result
 FEW_NFEV = 6
@@ -48,8 +49,6 @@ def truth_session(effects, damper="sport", seed=3, extra_force=None, chain_given
     ``chain_given`` the test says so (``--rig`` of a rig without filter): the diagnosis
     then does not estimate the rig's delay, one fit fewer per round (the tests of the
     estimated chain are the load-cell filter's, the inertia's and the command line's)."""
-    import dataclasses
-
     from damper_emulator.acquisition.rig import RigParams
 
     sheet = load_config(f"config/{damper}.yaml")

@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test fuzz bench clean
+.PHONY: demo test test-cores test-nodes fuzz bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -26,17 +26,26 @@ $(STAMP): $(BIN)/python pyproject.toml
 demo: $(STAMP)
 	$(BIN)/damper-hil demo --out demo_out
 
-# the tests in three parts: the cores in one process per core (pytest-xdist, each module
-# on one worker, its fixtures built once); the ROS and CAN tests, each file on one of two
-# workers (--dist loadfile: a file's ROS domains, buses and shared runs stay on one
-# worker; the nodes' loops run under SCHED_FIFO and ride through a busy neighbour); then
-# the wall-clock checks that need the machine to themselves (timing), alone
+# the tests in three parts: the cores (one process per core, pytest-xdist, each module on
+# one worker, its fixtures built once) and, at the same time, the ROS and CAN tests (each
+# file on one of two workers, --dist loadfile: a file's ROS domains, buses and shared runs
+# stay on one worker); the ROS and CAN tests mostly wait on wall-clock runs, and the nodes'
+# loops run under SCHED_FIFO and ride through the cores' load; each part's output printed
+# whole when it ends (--output-sync); then the wall-clock checks that need the machine to
+# themselves (timing), alone
+PYTEST := $(BIN)/python -m pytest -q --durations=10
+
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	$(BIN)/python -m pytest -q --durations=10 -n 2 --dist loadscope -m "not ros and not can and not timing"
-	$(BIN)/python -m pytest -q --durations=10 -n 2 --dist loadfile -m "(ros or can) and not timing"
-	$(BIN)/python -m pytest -q --durations=10 -m timing
+	$(MAKE) --no-print-directory -j2 --output-sync=target test-cores test-nodes
+	$(PYTEST) -m timing
+
+test-cores: $(STAMP)
+	$(PYTEST) -n 2 --dist loadscope -m "not ros and not can and not timing"
+
+test-nodes: $(STAMP)
+	$(PYTEST) -n 2 --dist loadfile -m "(ros or can) and not timing"
 
 fuzz: $(STAMP)
 	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest -q --durations=15 tests/test_fuzz_*.py

@@ -1,6 +1,7 @@
 """The emulator's ROS-free core: input checks, hold / extrapolation, timeout and fault
 outputs, and the fixed-rate loop's deadline statistics."""
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -15,7 +16,7 @@ from damper_emulator.model.compressible import DamperStepper
 from damper_emulator.realtime import rt
 from damper_emulator.realtime.core import EmulatorCore, Status
 from damper_emulator.realtime.loop import LoopStats, PeriodicLoop, load_record
-from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime
+from damper_emulator.realtime.rt import RealtimeRequest, apply_realtime, normal_scheduling
 from damper_emulator.realtime.settings import default_emulator_mapping, emulator_params_from_mapping
 from damper_emulator.schema import ParameterError
 
@@ -255,3 +256,41 @@ def test_restore_gives_the_thread_its_policy_back_before_it_starts_another():
     assert seen["during"] == os.SCHED_FIFO
     assert seen["after"] == seen["before"]
     assert seen["child"] == seen["before"][0] != os.SCHED_FIFO
+
+
+def test_normal_scheduling_runs_a_block_off_sched_fifo_and_gives_it_back():
+    """A node's configure (its model compiled and exercised) runs under the normal policy
+    in a SCHED_FIFO executor thread, and the thread has its policy and priority back
+    afterwards, after a block that raised too; under the normal policy it does nothing."""
+    seen: dict[str, object] = {}
+
+    def fifo_thread() -> None:
+        report = apply_realtime(RealtimeRequest(sched_fifo=True, priority=12,
+                                                lock_memory=False))
+        seen["fifo"] = report.sched_fifo
+        with normal_scheduling():
+            seen["inside"] = os.sched_getscheduler(0)
+            child = threading.Thread(   # work the block starts inherits the normal policy
+                target=lambda: seen.__setitem__("child", os.sched_getscheduler(0)))
+            child.start()
+            child.join()
+        seen["after"] = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+        with contextlib.suppress(RuntimeError), normal_scheduling():
+            raise RuntimeError
+        seen["after_raise"] = (os.sched_getscheduler(0),
+                               os.sched_getparam(0).sched_priority)
+        report.restore()
+
+    def normal_thread() -> None:
+        with normal_scheduling():
+            seen["normal_inside"] = os.sched_getscheduler(0)
+
+    for target in (fifo_thread, normal_thread):
+        t = threading.Thread(target=target)
+        t.start()
+        t.join()
+    assert seen["normal_inside"] == os.SCHED_OTHER
+    if not seen["fifo"]:
+        pytest.skip("SCHED_FIFO not permitted here")
+    assert seen["inside"] == seen["child"] == os.SCHED_OTHER
+    assert seen["after"] == seen["after_raise"] == (os.SCHED_FIFO, 12)

@@ -21,7 +21,7 @@ import ctypes
 import ctypes.util
 import os
 import struct
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 #: ``mlockall`` flags (``<sys/mman.h>``): lock current and future pages; ``MCL_ONFAULT``
@@ -208,6 +208,34 @@ def set_threads_priority(tids: Iterable[int], priority: int) -> str:
             refused = getattr(exc, "strerror", None) or str(exc)
     what = f"SCHED_FIFO priority {priority}" if priority > 0 else "normal scheduling"
     return f"{done} of {len(tids)} threads at {what}" + (f" ({refused})" if refused else "")
+
+
+@contextlib.contextmanager
+def normal_scheduling() -> Iterator[None]:
+    """Run a block of the calling thread's work under the normal policy, and give the
+    thread its policy and priority back afterwards (also when the block raises).
+
+    For a real-time thread's long start-up work: a node's executor thread runs under
+    ``SCHED_FIFO`` (:func:`~damper_emulator.ros.common.executor_priority`), and its
+    ``configure`` builds the model and exercises its compiled code, seconds of CPU with an
+    empty kernel cache.  Under ``SCHED_FIFO`` that work takes a CPU from every thread of a
+    lower real-time priority (another process's control loop) until the kernel's real-time
+    throttling stops all of them together (50 ms of every second by default).  A thread
+    under the normal policy, or one whose policy cannot be read or set, runs the block
+    as it is."""
+    try:
+        policy = os.sched_getscheduler(0)
+        param = os.sched_getparam(0)
+        real_time = policy in (os.SCHED_FIFO, os.SCHED_RR)
+        if real_time:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        real_time = False
+    try:
+        yield
+    finally:
+        if real_time:
+            os.sched_setscheduler(0, policy, param)
 
 
 class ThreadInheritance:

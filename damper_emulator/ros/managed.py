@@ -51,6 +51,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_i
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from damper_emulator import topics
+from damper_emulator.realtime.rt import normal_scheduling
 from damper_emulator.ros.common import StopSignals
 from damper_emulator.ros.readiness import latched_qos, lifecycle_state_topic
 
@@ -218,7 +219,12 @@ class ManagedNode(LifecycleNode):
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
-            problem = self._configure()
+            # the build (the model's compiled code loaded or compiled, exercised) is not
+            # real-time work: under the executor's SCHED_FIFO it took a CPU from other
+            # processes' loops for seconds (a loop at priority 70 held up 3.7 s by a cold
+            # emulator's configure)
+            with normal_scheduling():
+                problem = self._configure()
         except Exception as exc:  # noqa: BLE001 - a bug: logged, then on_error
             return self._bug("configure", exc)
         if problem:
@@ -232,7 +238,10 @@ class ManagedNode(LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         result = super().on_activate(state)     # the lifecycle publishers
         try:
-            self._activate()
+            # nor is the start of the inputs and outputs (a full collection of the
+            # heap, then threads that set their own real-time policy)
+            with normal_scheduling():
+                self._activate()
         except Exception as exc:  # noqa: BLE001 - a bug: logged, then on_error
             return self._bug("activate", exc)
         self.announce("active")

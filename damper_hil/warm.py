@@ -7,23 +7,58 @@ one directory per version of the sources) then holds the compiled kernels, and t
 warmed is what the nodes warm before they say they are ready: the emulator's core (the
 damper's step, every input and fault mode), the ride's session (the quarter car), the bag
 reader's helpers, and the batch loops over recorded samples that ``replay`` runs, with
-and without a valve command (about 1 s of a first replay's compiling otherwise).  Prints
-one line with the time it took.
+and without a valve command (about 1 s of a first replay's compiling otherwise), and
+the damper over a recorded history (``identify``, ``validate``, ``diagnose``, ``dyno``).
+A second process warms, beside them, the quarter car's ride and the many-design kernel in
+its SIMD lanes and one by one (``tune``; about 11 s of a first run's compiling
+otherwise).  Prints one line with the time it took.
 """
 
 from __future__ import annotations
 
+import subprocess
 import sys
 import time
 
+#: The option that makes this module warm the batch kernels (the second process).
+BATCH = "--batch"
+
 
 def warm() -> float:
-    """Exercise the kernels (module docstring); returns the seconds it took."""
+    """Exercise the kernels (module docstring), the batch kernels in a second process;
+    returns the seconds it took."""
     start = time.monotonic()
+    batch = subprocess.Popen([sys.executable, "-m", "damper_hil.warm", BATCH])
+    warm_nodes()
+    if batch.wait() != 0:
+        raise RuntimeError(f"warming the batch kernels failed (status {batch.returncode})")
+    return time.monotonic() - start
+
+
+def warm_batch() -> None:
+    """The batch kernels (module docstring)."""
+    import numpy as np
+
+    from damper_emulator.model.compressible import DamperModel
+    from damper_emulator.model.lanes import LANES
+    from ride_sim.dampers import CompressiblePlugin
+    from ride_sim.many import simulate_many
+    from ride_sim.params import load_quarter_car
+    from ride_sim.quarter_car import simulate as ride
+
+    model = DamperModel()
+    car = load_quarter_car()
+    ride(car, CompressiblePlugin(model), np.zeros(64), 1e-3)
+    simulate_many(car, [model] * LANES, np.zeros(64), 1e-3)   # one block of lanes
+    simulate_many(car, [model] * 2, np.zeros(64), 1e-3, lanes=False)
+
+
+def warm_nodes() -> None:
+    """The kernels the nodes and ``replay`` run (module docstring)."""
     import numpy as np
 
     from damper_emulator.bag.raw_topics import warm_up as warm_bag
-    from damper_emulator.model.compressible import DamperModel
+    from damper_emulator.model.compressible import DamperModel, simulate
     from damper_emulator.realtime.core import EmulatorCore
     from damper_emulator.realtime.settings import EmulatorParams
     from damper_emulator.replay_emulation import run_model
@@ -38,10 +73,14 @@ def warm() -> float:
     stamps = np.array([0, 1_000_000], dtype=np.int64)
     run_model(model, stamps, np.zeros(2), np.zeros(2))
     run_model(model, stamps, np.zeros(2), np.zeros(2), np.ones(2))
-    return time.monotonic() - start
+    t = np.arange(64) * 1e-3
+    simulate(model, t, 0.01 * np.sin(2.0 * np.pi * t))
 
 
 def main() -> int:
+    if sys.argv[1:] == [BATCH]:
+        warm_batch()
+        return 0
     seconds = warm()
     print(f"damper-hil: kernels compiled and cached in {seconds:.1f} s", file=sys.stderr)
     return 0

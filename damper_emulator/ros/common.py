@@ -174,11 +174,11 @@ def _leave_refused() -> NoReturn:
     """End the process with status 2 after a node refused its parameters, without the
     middleware's teardown.  By then the DDS participant is in the domain (the middleware
     threads start with the first node, before the parameters can be read), and nothing
-    else is open: no node, file or thread of ours.  The teardown is what is left, and it
-    did not end once: one of eleven ``emulate`` processes refused at the same moment, on a
-    loaded machine, printed its line and was still running two minutes later.  A refusal
-    must not depend on the middleware's way out.  The price: the participants beside it
-    see this one, and the node it refused, until its lease runs out (Fast DDS: 20 s)."""
+    else is open: no node, file or thread of ours.  The teardown is all that is left, and
+    it can wait on the discovery of the processes starting beside it (a refused process
+    has been seen to hang there): a refusal must not depend on the middleware's way out.
+    The price: the participants beside it see this one, and the node it refused, until
+    its lease runs out (Fast DDS: 20 s)."""
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(2)

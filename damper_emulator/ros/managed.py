@@ -220,9 +220,8 @@ class ManagedNode(LifecycleNode):
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
             # the build (the model's compiled code loaded or compiled, exercised) is not
-            # real-time work: under the executor's SCHED_FIFO it took a CPU from other
-            # processes' loops for seconds (a loop at priority 70 held up 3.7 s by a cold
-            # emulator's configure)
+            # real-time work: under the executor's SCHED_FIFO it takes a CPU from other
+            # processes' loops for as long (seconds with an empty kernel cache)
             with normal_scheduling():
                 problem = self._configure()
         except Exception as exc:  # noqa: BLE001 - a bug: logged, then on_error

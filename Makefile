@@ -29,10 +29,10 @@ demo: $(STAMP)
 # the tests in three parts: the cores (one process per core, pytest-xdist, each module on
 # one worker, its fixtures built once) and, at the same time, the ROS and CAN tests (each
 # file on one of two workers, --dist loadfile: a file's ROS domains, buses and shared runs
-# stay on one worker); the ROS and CAN tests mostly wait on wall-clock runs, and the nodes'
-# loops run under SCHED_FIFO and ride through the cores' load; each part's output printed
-# whole when it ends (--output-sync); then the wall-clock checks that need the machine to
-# themselves (timing), alone
+# stay on one worker); the ROS and CAN tests leave part of the CPU idle while their runs
+# wait on the wall clock, and the nodes' loops run under SCHED_FIFO and ride through the
+# cores' load; each part's output printed whole when it ends (--output-sync); then the
+# wall-clock checks that need the machine to themselves (timing), alone
 PYTEST := $(BIN)/python -m pytest -q --durations=10
 
 test: $(STAMP)

@@ -54,7 +54,8 @@ def warm_batch() -> None:
 
 
 def warm_nodes() -> None:
-    """The kernels the nodes and ``replay`` run (module docstring)."""
+    """The kernels the nodes and ``replay`` run, and the damper's batch simulation
+    (module docstring)."""
     import numpy as np
 
     from damper_emulator.bag.raw_topics import warm_up as warm_bag

@@ -41,13 +41,16 @@ import numpy as np
 
 from can_bridge.bus import BusConfig, ResilientBus, receive_time
 from can_bridge.codec import Encoder, Receiver
-from damper_emulator.realtime.rt import RealtimeReport, RealtimeRequest, apply_realtime
+from damper_emulator.realtime.rt import (
+    GIL_SWITCH_INTERVAL_S,
+    RealtimeReport,
+    RealtimeRequest,
+    apply_realtime,
+)
 from ride_sim.hybrid.rig import Feedback
 from ride_sim.hybrid.rig_host import MISSED_FEEDBACK_PERIODS, Command, RigHost
 
 COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"
-#: Python's GIL switch interval while the loop runs [s].
-GIL_SWITCH_INTERVAL_S = 1e-4
 #: The alive counter's cycle (4 bits: the DBC's ``Counter``).
 COUNTER_CYCLES = 16
 #: Commands with Enable clear sent at the end.

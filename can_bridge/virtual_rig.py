@@ -33,8 +33,12 @@ import can
 
 from can_bridge.bus import BusConfig, ResilientBus, receive_time
 from can_bridge.codec import Encoder, Receiver
-from can_bridge.hybrid_link import GIL_SWITCH_INTERVAL_S
-from damper_emulator.realtime.rt import RealtimeReport, RealtimeRequest, apply_realtime
+from damper_emulator.realtime.rt import (
+    GIL_SWITCH_INTERVAL_S,
+    RealtimeReport,
+    RealtimeRequest,
+    apply_realtime,
+)
 from ride_sim.hybrid.rig import VirtualRig
 
 COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"

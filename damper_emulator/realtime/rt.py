@@ -31,6 +31,10 @@ from dataclasses import dataclass, field
 #: scipy's: never run by the loop) stays on disk.  On the emulator's process this took
 #: ``mlockall`` from 129 ms to 8 ms and its resident set from 521 to 228 MB, measured here.
 _MCL_CURRENT, _MCL_FUTURE, _MCL_ONFAULT = 1, 2, 4
+#: Python's GIL switch interval in a process whose real-time loop runs [s]: a thread that
+#: wants the lock asks the holder for it after this long (the default, 5 ms, is five of a
+#: loop's cycles).
+GIL_SWITCH_INTERVAL_S = 1e-4
 #: ``prctl`` option to set the calling thread's timer slack [ns] (``<linux/prctl.h>``).
 _PR_SET_TIMERSLACK = 29
 #: ``prctl`` option to name the calling thread (``comm``, 15 bytes; ``top -H`` shows it).

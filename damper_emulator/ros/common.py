@@ -18,13 +18,16 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from damper_emulator.bag import BagError
 from damper_emulator.bag.cdr_fast import JointStateCodec, JointStateDecoder, JointStateSample
-from damper_emulator.realtime.rt import RealtimeRequest, ThreadInheritance, apply_realtime
+from damper_emulator.realtime.rt import (
+    GIL_SWITCH_INTERVAL_S,
+    RealtimeRequest,
+    ThreadInheritance,
+    apply_realtime,
+)
 from damper_emulator.ros.parameters import flatten
 from damper_emulator.schema import ParameterError
 
 PROG = "damper-hil"
-#: Python's GIL switch interval in the node processes [s].
-GIL_SWITCH_INTERVAL_S = 1e-4
 
 
 def executor_priority(loop_priority: int) -> int:

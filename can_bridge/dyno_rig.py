@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 from typing import Any
 
@@ -27,7 +26,7 @@ from can_bridge.hybrid_link import FEEDBACK, run_hybrid_link
 from damper_emulator.realtime.rt import RealtimeRequest
 from ride_sim.hybrid.params import HybridConfig
 from ride_sim.hybrid.protocol_host import ProtocolHost
-from ride_sim.hybrid.rig_host import measured_samples
+from ride_sim.hybrid.rig_host import fit_worker, measured_samples
 from ride_sim.hybrid.safety import RunStopped
 
 
@@ -63,14 +62,11 @@ class RigEngine:
         period = cycle_time_s(db.get_message_by_name(FEEDBACK))
         self.dt_s = float(period) if period else 1e-3
         self.runs: list[dict[str, Any]] = []
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig-fit")
-        # the fit's thread starts under the normal policy, not the loop's (it would
-        # inherit SCHED_FIFO from it)
-        self._executor.submit(int).result()
+        self._executor = fit_worker("rig-fit")
         self.stop = threading.Event()
 
     def close(self) -> None:
-        self._executor.shutdown(wait=False, cancel_futures=True)
+        self._executor.close()
 
     def __call__(self, model: Any, t: Any, x: Any, v: Any) -> SimpleNamespace:
         t = np.asarray(t, dtype=float)

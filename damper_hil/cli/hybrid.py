@@ -134,7 +134,6 @@ def run(args: argparse.Namespace) -> int:
     import signal
     import threading
     import time
-    from concurrent.futures import ThreadPoolExecutor
 
     from can_bridge.dbc import HYBRID_SIGNALS, load_database
     from can_bridge.hybrid_link import run_hybrid_link
@@ -147,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     from ride_sim.hybrid.learn import LearnedTwin
     from ride_sim.hybrid.params import load_hybrid_config
     from ride_sim.hybrid.recorder import HybridRecorder, WriterProcess
-    from ride_sim.hybrid.rig_host import HOST_CYCLE_S
+    from ride_sim.hybrid.rig_host import HOST_CYCLE_S, fit_worker
     from ride_sim.params import load_quarter_car
 
     config = load_hybrid_config(args.config)
@@ -181,17 +180,15 @@ def run(args: argparse.Namespace) -> int:
     say(f"hybrid: {run_params.duration_s:g} s of an ISO 8608 class {run_params.road_class} "
         f"road at {run_params.speed_m_s:g} m/s, {compensator.mode} compensation, twin "
         f"{twin_file}, on {bus.interface} {bus.channel}")
-    # the record's writer starts up (imports, the bag) while the host builds and warms up
+    # the fit's worker and the record's writer start up (imports, the bag) while the
+    # host builds and warms up
+    executor = fit_worker("hybrid-fit")
     writer = WriterProcess(out, HOST_CYCLE_S, bag=not args.no_bag)
-    executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hybrid-fit")
     status = None
     # until the recorder takes the writer over, a failure (a host that cannot be built, a
     # ROS node that cannot start) must end it too: its pipe held open would keep the
     # writer, and so this process, waiting
     try:
-        # the fit's thread starts now, under the normal policy: started from the loop's
-        # thread it would inherit SCHED_FIFO and keep the loop off its CPU while it fits
-        executor.submit(int).result()
         host = HybridHost(run_params, car, twin, compensator, config.safety,
                           dt_s=HOST_CYCLE_S, executor=executor)
         host.warm_up()
@@ -226,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
             raise recorder.error
     finally:
         writer.close()          # idempotent: the recorder has closed it when it ran
-        executor.shutdown(wait=False, cancel_futures=True)
+        executor.close()
         if status is not None:
             status.close()
     doc = summary(host)

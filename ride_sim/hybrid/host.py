@@ -17,11 +17,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from damper_emulator.model.compressible import DamperModel, DamperStepper
+from damper_emulator.realtime.worker import Executor
 from ride_sim.dampers import CompressiblePlugin
 from ride_sim.hybrid.compensator import Compensator
 from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
@@ -101,7 +101,7 @@ class HybridHost(RigHost):
     safety : SafetyParams
     dt_s : float
         The rig's cycle [s] (the host runs once per feedback).
-    executor : object with ``submit(fn, *args) -> Future``, optional
+    executor : Executor, optional
         Runs the identification's fit off the loop (default: at once, in the cycle).
     """
 
@@ -109,7 +109,7 @@ class HybridHost(RigHost):
 
     def __init__(self, run: HybridRunParams, car: QuarterCarParams, twin: DamperModel,
                  compensator: CompensatorParams, safety: SafetyParams, dt_s: float = HOST_CYCLE_S,
-                 executor: Any = None) -> None:
+                 executor: Executor | None = None) -> None:
         road = hybrid_road(run, dt_s)
         super().__init__(run, compensator, safety, dt_s, road.heights.size, executor)
         self.car = car

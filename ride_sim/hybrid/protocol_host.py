@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from damper_emulator.realtime.worker import Executor
 from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
 from ride_sim.hybrid.rig_host import HOST_CYCLE_S, RigHost
 
@@ -49,7 +50,7 @@ class ProtocolHost(RigHost):
 
     def __init__(self, run: HybridRunParams, compensator: CompensatorParams,
                  safety: SafetyParams, stroke_m: Any, dt_s: float = HOST_CYCLE_S,
-                 executor: Any = None) -> None:
+                 executor: Executor | None = None) -> None:
         x = np.ascontiguousarray(stroke_m, dtype=float)
         if x.ndim != 1 or x.size < 3 or not np.isfinite(x).all():
             raise ValueError("the stroke history must be a finite 1-D array of 3 samples or "

@@ -52,6 +52,7 @@ import numpy as np
 
 from damper_emulator.dyno.measured import write_measured_csv
 from damper_emulator.errors import DamperHilError
+from damper_emulator.realtime.worker import Executor, OffLoopWorker, Pending
 from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
 from ride_sim.hybrid.rig import Feedback
 from ride_sim.hybrid.safety import SafetyLayer
@@ -113,6 +114,13 @@ class _Immediate:
         return future
 
 
+def fit_worker(name: str) -> OffLoopWorker:
+    """The process a run's identification fit runs in (:class:`RigHost`'s ``executor``),
+    started now: its own, off the loop's GIL, and it imports the fit's modules as it
+    starts."""
+    return OffLoopWorker(name, preload=(__name__,))
+
+
 def _fit_and_tracker(demand: np.ndarray, measured: np.ndarray, dt_s: float,
                      p: CompensatorParams, usable: np.ndarray
                      ) -> tuple[TransferEstimate, TransferTracker]:
@@ -137,8 +145,10 @@ class RigHost:
         The rig's cycle [s] (the host runs once per feedback).
     samples : int
         Cycles of the run proper (the record's length).
-    executor : object with ``submit(fn, *args) -> Future``, optional
-        Runs the identification's fit off the loop (default: at once, in the cycle).
+    executor : Executor, optional
+        Runs the identification's fit off the loop: an
+        :class:`~damper_emulator.realtime.worker.OffLoopWorker`, whose process does not
+        share the loop's GIL (default: at once, in the cycle).
     """
 
     #: the name of the run proper's phase
@@ -148,12 +158,12 @@ class RigHost:
 
     def __init__(self, run: HybridRunParams, compensator: CompensatorParams,
                  safety: SafetyParams, dt_s: float, samples: int,
-                 executor: Any = None) -> None:
+                 executor: Executor | None = None) -> None:
         self.run = run
         self.compensator_params = compensator
         self.dt_s = float(dt_s)
         self.safety = SafetyLayer(safety, dt_s)
-        self.executor = executor if executor is not None else _Immediate()
+        self.executor: Executor = executor if executor is not None else _Immediate()
         self.phase = "connect"
         self.failure: str | None = None
         self._phase_start_s: float | None = None
@@ -184,7 +194,7 @@ class RigHost:
         self._cycle_s = math.nan
         self._stalled = False
         self._j = 0
-        self._fit_job: Future[tuple[TransferEstimate, TransferTracker]] | None = None
+        self._fit_job: Pending[tuple[TransferEstimate, TransferTracker]] | None = None
         self.transfer: TransferEstimate | None = None
         self.tracker: TransferTracker | None = None
         n = int(samples)

@@ -41,6 +41,7 @@ BENCHMARKS: dict[str, tuple[str, ...]] = {
     "can_bench": (),
     "demo_bench": ("--runs", "3", "--host"),
     "hybrid_bench": ("--repeats", "2", "--twin-chain"),
+    "offloop_bench": (),
 }
 #: run only when named with ``--only`` (a long run: every truth scenario's diagnosis)
 BY_NAME_ONLY: dict[str, tuple[str, ...]] = {"diagnose_bench": ()}

@@ -52,6 +52,7 @@ from can_bridge.codec import Receiver
 from can_bridge.dbc import HYBRID_SIGNALS, load_database
 from can_bridge.tap import BusTap
 from damper_emulator.model.compressible import DamperModel
+from ride_sim.hybrid.criteria import TWIN_WINDOW_S
 from ride_sim.hybrid.host import RIDE_KEYS, HybridHost
 from ride_sim.hybrid.offline import run_offline
 from ride_sim.hybrid.params import (
@@ -102,14 +103,23 @@ def run_pair(tmp: Path, n: int, rig_args, hybrid_args, tap=False):
 
 
 def twin_cell(doc: dict, case: Path) -> str:
-    """The twin's residual over the ride [N], and over the measured force's r.m.s."""
-    twin = (doc.get("twin") or {}).get("residual_rms_n")
+    """The twin's residual [N] and its share of the measured force's r.m.s.: over the ride,
+    over its last 2 s (of the force there), and over its last 2 s without the online
+    correction (the twin as it came to the ride)."""
+    twin = doc.get("twin") or {}
     csv = case / "out" / "hybrid.csv"
-    if twin is None or not csv.exists():
+    if "residual_rms_n" not in twin or not csv.exists():
         return "–"
     rows = np.genfromtxt(csv, delimiter=",", names=True)
+    window = int(round(TWIN_WINDOW_S / np.median(np.diff(rows["time"]))))
     force = rows["force_measured"][np.isfinite(rows["force_measured"])]
-    return f"{twin:.0f} ({twin / np.sqrt(np.mean(force ** 2)) * 100:.1f} %)"
+    whole, last = np.sqrt(np.mean(force ** 2)), np.sqrt(np.mean(force[-window:] ** 2))
+    without = (twin.get("online") or {}).get("without", {}).get("residual_rms_last_n")
+    cell = (f"{twin['residual_rms_n']:.0f} ({twin['residual_rms_n'] / whole * 100:.1f} %); "
+            f"{twin['residual_rms_last_n']:.0f} ({twin['residual_rms_last_n'] / last * 100:.1f} %)")
+    if without is not None:
+        cell += f"; {without:.0f} ({without / last * 100:.1f} %)"
+    return cell
 
 
 def windows(out: Path, width_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
@@ -189,7 +199,7 @@ def run(args: argparse.Namespace) -> None:
     print("## On the same rig: the twin learned, as it is, uncompensated\n")
     print("| case | run | exit | NRMS [%] | peak [mm] | residual delay [ms] | "
           "rig delay followed [ms] | SWS / ref | Wk accel / ref | DTL / ref | "
-          "twin residual [N] (of the force) | "
+          "twin residual [N] (of the force): ride; last 2 s; last 2 s as it came | "
           "response p50 / p99 / max [µs] | of it, read p50 / p99 [µs] | force-path gain |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for mode, r, rc, doc, _ in rows:
@@ -375,7 +385,9 @@ def twin_chain(tmp: Path, duration_s: float) -> None:
     print(f"Ride with the identified twin: tracking NRMS {ride['tracking']['nrms'] * 100:.2f} "
           f"%, oil {ride['link']['temperature_c']:.1f} °C at the end; twin residual "
           f"{twin['residual_rms_first_n']:.0f} N r.m.s. over the ride's first 2 s, "
-          f"{twin['residual_rms_last_n']:.0f} N over its last.\n")
+          f"{twin['residual_rms_last_n']:.0f} N over its last (as it came, without the "
+          f"online correction: {twin['online']['without']['residual_rms_first_n']:.0f} and "
+          f"{twin['online']['without']['residual_rms_last_n']:.0f} N).\n")
     rms = diag.get("rms_before", {}), diag.get("rms_after", {})
     print(f"Diagnosis: **{diag.get('family', 'failed')}** "
           f"({diag.get('effect', proc.stderr.strip().splitlines()[-1:])}); held-out "

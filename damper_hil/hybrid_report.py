@@ -74,8 +74,13 @@ def plot_force(path: Path, host: HybridHost) -> Path:
     ax = axes[1]
     residual = rec[3] - rec[4]
     ax.plot(t, residual, lw=0.5, color="0.6", label="residual, measured − twin")
-    ax.plot(t, _running_rms(residual, int(RUNNING_RMS_S / host.dt_s)), lw=1.5,
-            color="tab:red", label=f"its r.m.s. over {RUNNING_RMS_S:g} s")
+    window = int(RUNNING_RMS_S / host.dt_s)
+    ax.plot(t, _running_rms(residual, window), lw=1.5, color="tab:red",
+            label=f"its r.m.s. over {RUNNING_RMS_S:g} s")
+    if host.online.enabled:
+        ax.plot(t, _running_rms(rec[3] - host.twin_raw[:k], window), lw=1.2,
+                color="tab:purple", ls=":",
+                label="the same, the twin as it came (no correction during the ride)")
     decorate(ax, "time [s]", "force [N]")
     fig.suptitle("damper in the loop: measured force and the twin's")
     return save(fig, path)
@@ -144,6 +149,19 @@ def write_report(out: Path, host: HybridHost, doc: dict[str, Any]) -> list[Path]
               f"{TWIN_WINDOW_S:g} s, "
               f"{_fmt(twin['residual_rms_last_n'], '.1f')} N over its last.", "",
               "![force](hybrid_force.png)", ""]
+    online = twin.get("online")
+    if online is not None and online["enabled"]:
+        without = online["without"]
+        lines += ["The twin kept learning during the ride (a bounded correction of its "
+                  "force map, `learn.online`), and each force above is its prediction "
+                  "before its own sample taught it. Without the correction, as the twin "
+                  f"came to the ride: {_fmt(without['residual_rms_n'], '.1f')} N over the "
+                  f"run, {_fmt(without['residual_rms_first_n'], '.1f')} N over the first "
+                  f"{TWIN_WINDOW_S:g} s, {_fmt(without['residual_rms_last_n'], '.1f')} N "
+                  "over the last. The correction at the end:", "",
+                  "| term | value |", "|---|---|"]
+        lines += [f"| {name} | {_fmt(value, '.4g')} |" for name, value in online["terms"].items()]
+        lines.append("")
     learned = doc.get("twin_learning")
     if learned is not None:
         lines += ["The twin learned the specimen before the ride (`--learn`) from the files "
@@ -161,7 +179,11 @@ def write_report(out: Path, host: HybridHost, doc: dict[str, Any]) -> list[Path]
                   f"{_fmt(st['at_hz'], '.1f')} Hz (damper slope "
                   f"{st['damper_slope_ns_m']:.0f} N s/m): "
                   + ("below one, stable by the small-gain theorem."
-                     if st["force_path_gain"] < 1 else "**not below one**."), "",
+                     if st["force_path_gain"] < 1 else "**not below one**.")
+                  + (f" With the twin's slope as the online correction left it "
+                     f"({_fmt(st['online']['damper_slope_ns_m'], '.0f')} N s/m), the margin "
+                     f"is {_fmt(st['online']['small_gain_margin'], '.2f')}."
+                     if "online" in st and st["force_path_gain"] > 0 else ""), "",
                   "![transfer](hybrid_transfer.png)", ""]
     files.append(write_text(out / "report.md", "\n".join(lines) + "\n"))
     return files

@@ -243,7 +243,13 @@ def test_compensated_ride_completes_and_tracks(ride):
         rows = np.genfromtxt(out / "hybrid.csv", delimiter=",", names=True)
         force = rows["force_measured"][np.isfinite(rows["force_measured"])]
         assert doc["twin"]["residual_rms_n"] <= 0.1 * np.sqrt(np.mean(force ** 2))
+        # the twin kept learning the warming prototype during the ride: by the end its
+        # prediction misses by less than the twin as it came to the ride
+        online = doc["twin"]["online"]
+        assert online["enabled"] and online["updates"] > 0.9 * tracked["samples"]
+        assert doc["twin"]["residual_rms_last_n"] < online["without"]["residual_rms_last_n"]
     assert doc["stability"]["force_path_gain"] < 1.0
+    assert doc["stability"]["online"]["small_gain_margin"] > 1.0
     # the rig's identified transfer system: its 4 ms, rounded up to whole cycles, plus the
     # feedback's way back
     assert 4.0 < doc["transfer"]["delay_ms"] < 7.0

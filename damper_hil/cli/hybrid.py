@@ -190,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
     # writer, and so this process, waiting
     try:
         host = HybridHost(run_params, car, twin, compensator, config.safety,
-                          dt_s=HOST_CYCLE_S, executor=executor)
+                          dt_s=HOST_CYCLE_S, executor=executor, learn=config.learn)
         host.warm_up()
         stop = threading.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):

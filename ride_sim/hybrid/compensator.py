@@ -37,6 +37,7 @@ from damper_emulator.model.compressible import DamperModel, DamperStepper
 from damper_emulator.model.jit import kernel
 from damper_emulator.model.step import step as damper_step
 from ride_sim.hybrid.actuator import frequency_response
+from ride_sim.hybrid.online import IDENTITY, OnlineTwin, mapped_force
 from ride_sim.hybrid.params import CompensatorParams
 from ride_sim.hybrid.transfer import TransferEstimate
 from ride_sim.params import QuarterCarParams
@@ -74,21 +75,26 @@ def road_at(heights: _Vec, k: float) -> float:
 @kernel
 def predict(d: _Vec, d_fraction: _Vec, q: _Vec, a: _Vec, b: _Vec, s: _Vec, heights: _Vec,
             k: int, whole: int, fraction: float, prm: _Vec, coef_r: _Vec, coef_c: _Vec,
-            twin: _Vec, correction: float) -> tuple[float, float, float]:
+            twin: _Vec, theta: _Vec, static_n: float, correction: float
+            ) -> tuple[float, float, float]:
     """The damper's stroke, velocity and acceleration ``whole + fraction`` cycles after the
     car's state ``s`` at sample ``k``: the car advanced exactly (``d``, and ``d_fraction``
     over the last ``fraction`` of a cycle) on the road ``heights``, with the twin's force
-    (damper state ``twin``, stepped on the car's motion) plus ``correction``; the
-    acceleration from the continuous model ``ṡ = A s + B (f_wheel, u, u̇)``.  ``s`` and
-    ``twin`` are scratch: both end at the horizon."""
+    (damper state ``twin``, stepped on the car's motion, through the online correction
+    ``theta`` about ``static_n``: :func:`~ride_sim.hybrid.online.mapped_force`) plus
+    ``correction``; the acceleration from the continuous model
+    ``ṡ = A s + B (f_wheel, u, u̇)``.  ``s`` and ``twin`` are scratch: both end at the
+    horizon."""
     dt = q[Q_DT]
     for j in range(whole):
         x, v = state_motion(q, s)
-        force = damper_step(prm, coef_r, coef_c, twin, x, v, dt)[0] + correction
+        force = mapped_force(theta, static_n, damper_step(prm, coef_r, coef_c, twin, x, v,
+                                                          dt)[0], x, v) + correction
         advance_state(d, s, wheel_force(force, q[Q_FSTATIC], q[Q_MR]),
                       road_at(heights, k + j), road_at(heights, k + j + 1))
     x, v = state_motion(q, s)
-    force = damper_step(prm, coef_r, coef_c, twin, x, v, dt)[0] + correction
+    force = mapped_force(theta, static_n, damper_step(prm, coef_r, coef_c, twin, x, v,
+                                                      dt)[0], x, v) + correction
     f_wheel = wheel_force(force, q[Q_FSTATIC], q[Q_MR])
     road0 = road_at(heights, k + whole)
     if fraction > 0.0:
@@ -133,10 +139,14 @@ class Compensator:
         The twin: the prediction's damper.
     heights : ndarray
         The road of the ride, one height per cycle (known ahead).
+    online : OnlineTwin, optional
+        The twin's online correction: the prediction's damper force passes through its
+        map, as it learns (default: the twin as it is).
     """
 
     def __init__(self, params: CompensatorParams, car: QuarterCarParams, dt_s: float,
-                 static_force_n: float, model: DamperModel, heights: np.ndarray) -> None:
+                 static_force_n: float, model: DamperModel, heights: np.ndarray,
+                 online: OnlineTwin | None = None) -> None:
         self.params = params
         self.car = car
         self.dt_s = float(dt_s)
@@ -158,6 +168,9 @@ class Compensator:
         self._s = np.zeros(4)
         self._twin = self.on_target.state.copy()
         self._model_force = self.on_target.force_n
+        # the map's coefficients, read in place: they follow the online correction
+        self._theta = online.theta if online is not None else np.array(IDENTITY)
+        self._static_n = online.static_n if online is not None else self._model_force
         self._correction = 0.0
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * params.force_correction_hz * dt_s)
 
@@ -170,7 +183,9 @@ class Compensator:
     def observe(self, stroke_m: float, velocity_m_s: float, force_measured_n: float) -> None:
         """Step the twin on the car's damper motion at this sample and update the
         measured-force correction with the force measured now."""
-        self._model_force, _ = self.on_target.step(stroke_m, velocity_m_s, self.dt_s)
+        raw, _ = self.on_target.step(stroke_m, velocity_m_s, self.dt_s)
+        self._model_force = float(mapped_force(self._theta, self._static_n, raw, stroke_m,
+                                               velocity_m_s))
         self._correction += self._alpha * (force_measured_n - self._model_force
                                            - self._correction)
 
@@ -195,7 +210,7 @@ class Compensator:
         x, v, a = predict(car.matrix, d_fraction, car.kernel_params, self._a, self._b,
                           self._s, self._heights, k, whole, fraction / FRACTION_STEPS,
                           model.prm, model.tables[0].coef, model.tables[1].coef,
-                          self._twin, self._correction)
+                          self._twin, self._theta, self._static_n, self._correction)
         w = 2.0 * math.pi * estimate.bandwidth_hz
         u = (x + 2.0 * estimate.damping / w * v + a / (w * w)) / gain
         # the demand's rate, for the rig to move on between commands (the jerk's term

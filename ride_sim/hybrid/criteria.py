@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ride_sim.hybrid.compensator import force_path_gain, steepest_slope
+from ride_sim.hybrid.compensator import force_path_gain
 from ride_sim.hybrid.host import RIDE_KEYS, HybridHost
 from ride_sim.hybrid.rig_host import RigHost
 from ride_sim.hybrid.transfer import stall_count, usable_cycles
@@ -118,22 +118,29 @@ def summary(host: HybridHost) -> dict[str, Any]:
     doc["ride_vs_reference"] = ({key: ride[key] / host.reference_metrics[key] - 1.0
                                  for key in RIDE_KEYS} if ride is not None else None)
     residual = rec[3, :k] - rec[4, :k]
-    ok = np.isfinite(residual)
     window = max(1, int(round(TWIN_WINDOW_S / host.dt_s)))
-    doc["twin"] = {"residual_rms_n": float(np.sqrt(np.mean(residual[ok] ** 2)))
-                   if ok.any() else math.nan,
-                   "residual_rms_first_n": _rms(residual[ridden][:window]),
-                   "residual_rms_last_n": _rms(residual[ridden][-window:])}
+    doc["twin"] = _residuals(residual, ridden, window)
+    online = host.online
+    doc["twin"]["online"] = {
+        "enabled": online.enabled, "updates": online.updates, "terms": online.terms(),
+        # the twin as it came to the ride, the online correction left out
+        "without": _residuals(rec[3, :k] - host.twin_raw[:k], ridden, window)}
     doc["static_force_n"] = host.static_force_n
     doc["identification"] = host.identification_report()
     if host.transfer is not None:
-        slope = steepest_slope(host.twin_model)
+        slope = host.twin_slope_ns_m
         gain, at_hz = force_path_gain(host.compensator_params, host.transfer, host.car, slope,
                                       host.dt_s)
         doc["transfer"] = host.transfer.to_dict()
         doc["stability"] = {"force_path_gain": gain, "at_hz": at_hz,
                             "damper_slope_ns_m": slope,
                             "small_gain_margin": (1.0 / gain if gain > 0 else math.inf)}
+        # the loop's gain is proportional to the damper's slope: the margin for the twin
+        # as the online correction left it
+        online_gain = gain * online.slope() / slope if slope > 0 else gain
+        doc["stability"]["online"] = {
+            "damper_slope_ns_m": online.slope(),
+            "small_gain_margin": 1.0 / online_gain if online_gain > 0 else math.inf}
     safety = host.safety
     doc["safety"] = {"clamped_demands": safety.clamped,
                      "error_ratio_max": max(safety.error_ratios, default=math.nan),
@@ -142,6 +149,14 @@ def summary(host: HybridHost) -> dict[str, Any]:
                      "stopped_at_s": safety.stopped_at_s,
                      "last_valid_feedback_s": safety.last_valid_s}
     return doc
+
+
+def _residuals(residual: np.ndarray, ridden: slice, window: int) -> dict[str, float]:
+    """The r.m.s. of a twin's ``residual`` over every sample, and over the ride's first
+    and last ``window`` samples [N]."""
+    return {"residual_rms_n": _rms(residual),
+            "residual_rms_first_n": _rms(residual[ridden][:window]),
+            "residual_rms_last_n": _rms(residual[ridden][-window:])}
 
 
 def _rms(x: np.ndarray) -> float:

@@ -23,8 +23,9 @@ import numpy as np
 from damper_emulator.model.compressible import DamperModel, DamperStepper
 from damper_emulator.realtime.worker import Executor
 from ride_sim.dampers import CompressiblePlugin
-from ride_sim.hybrid.compensator import Compensator
-from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
+from ride_sim.hybrid.compensator import Compensator, steepest_slope
+from ride_sim.hybrid.online import OnlineTwin
+from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, LearnParams, SafetyParams
 from ride_sim.hybrid.rig_host import HOST_CYCLE_S, RECORD_COLUMNS, Command, RigHost, export_measured
 
 __all__ = ["RECORD_COLUMNS", "RIDE_KEYS", "Command", "HybridHost", "HybridRoad",
@@ -103,13 +104,16 @@ class HybridHost(RigHost):
         The rig's cycle [s] (the host runs once per feedback).
     executor : Executor, optional
         Runs the identification's fit off the loop (default: at once, in the cycle).
+    learn : LearnParams, optional
+        The twin's online correction during the ride (``online``…; default: on).
     """
 
     RUN_PHASE = "ride"
 
     def __init__(self, run: HybridRunParams, car: QuarterCarParams, twin: DamperModel,
                  compensator: CompensatorParams, safety: SafetyParams, dt_s: float = HOST_CYCLE_S,
-                 executor: Executor | None = None) -> None:
+                 executor: Executor | None = None, learn: LearnParams | None = None
+                 ) -> None:
         road = hybrid_road(run, dt_s)
         super().__init__(run, compensator, safety, dt_s, road.heights.size, executor)
         self.car = car
@@ -119,6 +123,13 @@ class HybridHost(RigHost):
         self.session: RideSession | None = None
         self.comp: Compensator | None = None
         self.twin = DamperStepper(twin)
+        #: the twin's steepest slope (the force path's ``c``: :func:`steepest_slope`)
+        self.twin_slope_ns_m = steepest_slope(twin)
+        #: the twin's online correction (its map's force is ``force_model``)
+        self.online = OnlineTwin(learn if learn is not None else LearnParams(),
+                                 self.twin.force_n, self.twin_slope_ns_m, dt_s)
+        #: the twin's force before the online correction, at each sample of the ride [N]
+        self.twin_raw = np.full(road.heights.size, np.nan)
         self._prev_measured = (math.nan, math.nan)
 
     def warm_up(self) -> None:
@@ -131,7 +142,8 @@ class HybridHost(RigHost):
         static = stepper.force_n
         RideSession.on_road(self.car, self.road.heights, 0, self.dt_s, static).warm_up()
         comp = Compensator(self.compensator_params, self.car, self.dt_s, static,
-                           self.twin_model, self.road.heights)
+                           self.twin_model, self.road.heights, self.online)
+        self.online.warm_up()
         comp.reset(0.0, 0.0)
         comp.observe(0.0, 0.0, static)
         comp.demand(np.zeros(4), 0, NOMINAL_ESTIMATE, NOMINAL_ESTIMATE.delay_s, 1.0)
@@ -140,7 +152,8 @@ class HybridHost(RigHost):
         self.session = RideSession.on_road(self.car, self.road.heights, self.road.n_lead,
                                            self.dt_s, self.static_force_n)
         self.comp = Compensator(self.compensator_params, self.car, self.dt_s,
-                                self.static_force_n, self.twin_model, self.road.heights)
+                                self.static_force_n, self.twin_model, self.road.heights,
+                                self.online)
         x, v = self.session.motion()
         self.comp.reset(x, v)
         self.twin.reset(self._measured, 0.0)
@@ -170,12 +183,19 @@ class HybridHost(RigHost):
         # the twin one sample behind, at the central difference of the measured stroke
         x1, x2 = self._prev_measured
         if k >= 1 and math.isfinite(x2):
-            force_model, _ = self.twin.step(x1, (x_m - x2) / (2.0 * self.dt_s), self.dt_s)
+            v1 = (x_m - x2) / (2.0 * self.dt_s)
+            raw, _ = self.twin.step(x1, v1, self.dt_s)
             # a force from a held sample's motion is no prediction (half the velocity, a
             # spike of the damping force): NaN, and the residual leaves it out
             fresh = self.fresh
             predicted = fresh[k] and fresh[k - 1] and (k < 2 or fresh[k - 2])
-            self.record[4, k - 1] = force_model if predicted else math.nan
+            online = self.online
+            # the twin's prediction, then the sample it predicted teaches it
+            self.record[4, k - 1] = online.force(raw, x1, v1) if predicted else math.nan
+            self.twin_raw[k - 1] = raw if predicted else math.nan
+            measured = self.record[3, k - 1]
+            if predicted and math.isfinite(measured):
+                online.update(raw, x1, v1, measured)
         self._prev_measured = (x_m, x1)
         self.k = k + 1
         if not self.safety.enable:

@@ -137,11 +137,12 @@ class HybridRunParams:
 
 @dataclass(frozen=True)
 class LearnParams:
-    """The characterisation the twin learns the specimen from (``hybrid --learn``).
+    """How the twin learns the specimen: before the ride (``hybrid --learn``) and during it.
 
-    A quasi-static test and a chirp run on the rig under the safety layer before the ride,
-    and the paper's parameters are identified from them into the twin
-    (:mod:`ride_sim.hybrid.learn`)."""
+    Before: a quasi-static test and a chirp run on the rig under the safety layer, and the
+    paper's parameters are identified from them into the twin
+    (:mod:`ride_sim.hybrid.learn`).  During: a bounded recursive least-squares correction
+    of the twin's force map (:mod:`ride_sim.hybrid.online`)."""
 
     quasi_static_velocity_m_s: float = _rule(("range", 0.0, 0.5), "the quasi-static "
                                                                  "test's constant stroke "
@@ -161,6 +162,13 @@ class LearnParams:
                                                 "watchdog or a stall of the host stopped "
                                                 "runs again (a limit the specimen reached "
                                                 "stops the learning)", 3)
+    online: bool = _rule("bool", "the twin keeps learning during the ride (a bounded "
+                                 "correction of its force map)", True)
+    online_window_s: float = _rule(("range", 0.05, 60.0), "the online correction's memory "
+                                                         "(its forgetting) [s]", 2.0)
+    online_gain_bound: float = _rule(("range", 0.0, 0.9), "the online correction's valve "
+                                                         "gains stay within 1 ± this [-]",
+                                     0.5)
 
 
 def build(cls: type[_G], data: Any, prefix: str, where: str = "<memory>") -> _G:

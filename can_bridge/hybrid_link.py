@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from can_bridge.bus import BusConfig, ResilientBus, receive_time
+from can_bridge.bus import BusConfig, ResilientBus, open_bus, receive_time
 from can_bridge.codec import Encoder, Receiver
 from damper_emulator.realtime.rt import (
     GIL_SWITCH_INTERVAL_S,
@@ -111,6 +111,23 @@ def _receive(bus: ResilientBus, poll_from: float, deadline: float) -> can.Messag
     # past the deadline, a frame that came while this process was held up is still read:
     # without it, a stall of the host would run a cycle without the feedback that waited
     return bus.recv(0.0)
+
+
+def dyno_answers(bus_cfg: BusConfig, db, timeout_s: float) -> bool:
+    """Whether a ``DYNO_FEEDBACK`` comes on ``bus_cfg`` within ``timeout_s``: the check a
+    run makes before it builds anything (its host, a characterisation), so that a user
+    with no dyno on the bus hears so at once."""
+    frame_id = db.get_message_by_name(FEEDBACK).frame_id
+    bus = open_bus(dataclasses.replace(bus_cfg, receive_ids=(frame_id,)))
+    try:
+        deadline = time.monotonic() + timeout_s
+        while (left := deadline - time.monotonic()) > 0.0:
+            msg = bus.recv(left)
+            if msg is not None and msg.arbitration_id == frame_id:
+                return True
+        return False
+    finally:
+        bus.shutdown()
 
 
 def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event, *,

@@ -477,17 +477,24 @@ def test_unstable_setting_is_stopped_before_any_limit(tmp_path):
     assert np.nanmax(np.abs(data[:, 3])) <= limits.stroke_limit_m
 
 
-def test_no_dyno_is_one_line_and_exit_2(tmp_path):
+@pytest.mark.parametrize("learn", [[], ["--learn"]])
+def test_no_dyno_is_one_line_and_exit_2_before_anything_is_built(tmp_path, learn):
+    """No dyno on the bus: one line, status 2, before the host or a characterisation is
+    built and before the output directory is made."""
     config = tmp_path / "short.yaml"
     config.write_text(SHORT)
     proc = subprocess.run([*CLI, "hybrid", "--out", str(tmp_path / "out"), "--config",
                            str(config), "--can-interface", "udp_multicast",
                            "--can-channel", udp_channel(OFFSETS["nodyno"]),
-                           "--duration", "2"], capture_output=True, text=True, timeout=120)
+                           "--duration", "2", *learn], capture_output=True, text=True,
+                          timeout=120)
     assert proc.returncode == 2, proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
-    assert last.startswith("damper-hil: error: no DYNO_FEEDBACK within 3 s"), last
+    assert last.startswith("damper-hil: error: no DYNO_FEEDBACK within 3 s on "
+                           "udp_multicast"), last
     assert "Traceback" not in proc.stderr
+    assert "hybrid: " not in proc.stderr          # no phase of a run began
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize(("args", "says"), [

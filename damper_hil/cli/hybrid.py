@@ -136,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from can_bridge.dbc import HYBRID_SIGNALS, load_database
-    from can_bridge.hybrid_link import run_hybrid_link
+    from can_bridge.hybrid_link import dyno_answers, run_hybrid_link
     from damper_emulator.params import DEFAULT_PARAMS_FILE
     from damper_emulator.realtime.rt import RealtimeRequest
     from damper_hil.cli.common import load_model
@@ -168,6 +168,10 @@ def run(args: argparse.Namespace) -> int:
     if (out / "bag").exists():
         raise CliError(f"{out / 'bag'} exists: give a new --out directory (a run never "
                        "overwrites a recording)")
+    wait_s = config.hybrid.connect_timeout_s
+    if not dyno_answers(bus, db, wait_s):           # before the host's seconds of building
+        raise CliError(f"no DYNO_FEEDBACK within {wait_s:g} s on {bus.interface} "
+                       f"{bus.channel} (is a dyno on the bus?)")
     out.mkdir(parents=True, exist_ok=True)
     realtime = RealtimeRequest(priority=args.priority, cpu=args.cpu)
     learned = None

@@ -134,7 +134,9 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                 if time.monotonic() < deadline:
                     continue
                 t = deadline - t0
-                taken = math.inf if first_command is None else t - first_command
+                # the faults' clock starts with the first valid command: before it, none
+                # acts (the rig sends its feedback, at its first delay, as a dyno does)
+                taken = -math.inf if first_command is None else t - first_command
                 if (faults.delay_change_at_s is not None and not changed
                         and taken >= faults.delay_change_at_s):
                     rig.set_delay(faults.delay_change_to_s)

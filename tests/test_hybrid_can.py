@@ -45,7 +45,7 @@ SHORT = """/**:
     compensator: {identify_s: 1.5}
 """
 OFFSETS = {"ride": 0, "cut": 1, "unstable": 2, "nodyno": 3, "dyno": 4, "hoststall": 6,
-           "restart": 7}
+           "restart": 7, "faults": 8}
 
 
 def udp_channel(offset: int) -> str:
@@ -475,6 +475,30 @@ def test_unstable_setting_is_stopped_before_any_limit(tmp_path):
     assert np.nanmax(np.abs(data[:, 4])) < limits.stroke_limit_m
     assert np.nanmax(np.abs(data[:, 5])) < limits.force_limit_n
     assert np.nanmax(np.abs(data[:, 3])) <= limits.stroke_limit_m
+
+
+def test_the_rigs_faults_wait_for_a_host_and_its_feedback_does_not():
+    """Before the first valid command, a virtual rig with a delay change and a feedback
+    stop due at once sends its feedback at its first delay: the faults' clock starts
+    when a host takes the rig (a real bus, no host on it)."""
+    from can_bridge.virtual_rig import RigFaults, run_virtual_rig
+    from ride_sim.hybrid.params import ActuatorParams
+    from ride_sim.hybrid.rig import VirtualRig
+
+    bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["faults"]))
+    rig = VirtualRig(DamperModel.from_file("config/sport.yaml"), ActuatorParams(),
+                     RigParams())
+    delay = rig.delay.delay_s
+    stop = threading.Event()
+    timer = threading.Timer(0.5, stop.set)
+    timer.start()
+    stats = run_virtual_rig(bus, load_database(required=HYBRID_SIGNALS), rig, stop,
+                            faults=RigFaults(delay_change_at_s=0.0, delay_change_to_s=0.02,
+                                             feedback_stop_at_s=0.0))
+    timer.join()
+    assert stats.commands == 0 and stats.cycles > 100
+    assert stats.feedback_sent == stats.cycles
+    assert rig.delay.delay_s == delay
 
 
 @pytest.mark.parametrize("learn", [[], ["--learn"]])

@@ -85,6 +85,9 @@ class RigStats:
     dropped: int = 0                # invalid DYNO_COMMAND frames (length, CRC, counter)
     lost: int = 0                   # DYNO_COMMAND frames missing (counter jumps)
     following_cycles: int = 0       # cycles with Status.enabled
+    #: when the transport delay changed (``RigFaults.delay_change_at_s``), on the
+    #: monotonic clock [ns] (the host's ``t_monotonic_ns``'s, on one machine)
+    delay_changed_ns: int | None = None
     realtime: str = ""
 
     def as_dict(self) -> dict[str, object]:
@@ -141,6 +144,7 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                         and taken >= faults.delay_change_at_s):
                     rig.set_delay(faults.delay_change_to_s)
                     changed = True
+                    stats.delay_changed_ns = int(deadline * 1e9)
                     if log:
                         log(f"transport delay now {faults.delay_change_to_s * 1e3:g} ms")
                 fb = rig.step(t)

@@ -498,7 +498,7 @@ def test_the_rigs_faults_wait_for_a_host_and_its_feedback_does_not():
     timer.join()
     assert stats.commands == 0 and stats.cycles > 100
     assert stats.feedback_sent == stats.cycles
-    assert rig.delay.delay_s == delay
+    assert rig.delay.delay_s == delay and stats.delay_changed_ns is None
 
 
 @pytest.mark.parametrize("learn", [[], ["--learn"]])

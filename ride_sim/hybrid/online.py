@@ -15,11 +15,11 @@ oil's viscosity), a linear damping (``θ₃``), a spring rate (``θ₄``, the ga
 friction (``θ₅``).
 
 Each sample whose measurement came updates ``θ`` by recursive least squares with
-exponential forgetting (the memory :attr:`OnlineLearnParams.window_s`); the force used
+exponential forgetting (its memory ``learn.online_window_s``); the force used
 is the twin's prediction before its own sample updates it, so the residual reported is a
 prediction's.  Two guards keep the estimate physical where the motion does not excite
 every term (a smooth stretch of road): the covariance never grows past its start (no
-wind-up), and the valves' gains stay within ``1 ± gain_bound``.
+wind-up), and the valves' gains stay within ``1 ± learn.online_gain_bound``.
 
 The compensator's prediction uses the corrected force (:func:`mapped_force`), and the
 small-gain margin of its force path is recomputed for the corrected twin

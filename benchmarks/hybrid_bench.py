@@ -20,7 +20,7 @@ they do not compete for the cores):
    the ride (tracking NRMS over 2 s before the change, the first 0.5 s after it and the
    2 s after that, against the same stretch of a ride on a rig at 8 ms from its start);
    the feedback cut (Enable clear after the last
-   valid feedback, on the wire); a corrupted feedback frame in every 100; 30 ms
+   valid feedback, at the rig); a corrupted feedback frame in every 100; 30 ms
    uncompensated (stopped by the detector before any limit?);
 3. **offline**: the same host and rig on a simulated timeline (no bus, no clock): what the
    compensator reaches without jitter;
@@ -51,10 +51,6 @@ from pathlib import Path
 import numpy as np
 from machine import cpu_name
 
-from can_bridge.bus import BusConfig
-from can_bridge.codec import Receiver
-from can_bridge.dbc import HYBRID_SIGNALS, load_database
-from can_bridge.tap import BusTap
 from damper_emulator.model.compressible import DamperModel
 from ride_sim.hybrid.criteria import TWIN_WINDOW_S
 from ride_sim.hybrid.host import RIDE_KEYS, HybridHost
@@ -84,14 +80,13 @@ def channel(n: int) -> str:
 PINS = [PIN_HOST, PIN_RIG]
 
 
-def run_pair(tmp: Path, n: int, rig_args, hybrid_args, tap=False):
+def run_pair(tmp: Path, n: int, rig_args, hybrid_args):
     pin_host, pin_rig = PINS
     ch = channel(n)
     bus = ["--can-interface", "udp_multicast", "--can-channel", ch]
     rig = subprocess.Popen([*CLI, "virtual-rig", *bus, "--json", str(tmp / "rig.json"),
                             *pin_rig, *rig_args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                            text=True)
-    listener = BusTap(BusConfig(interface="udp_multicast", channel=ch)) if tap else None
     t0 = time.perf_counter()
     proc = subprocess.run([*CLI, "hybrid", "--out", str(tmp / "out"), *bus, *pin_host,
                            *hybrid_args],
@@ -99,11 +94,9 @@ def run_pair(tmp: Path, n: int, rig_args, hybrid_args, tap=False):
     elapsed = time.perf_counter() - t0
     rig.send_signal(2)
     rig.communicate(timeout=30)
-    if listener is not None:
-        listener.close()
     doc = json.loads((tmp / "out" / "hybrid.json").read_text()) \
         if (tmp / "out" / "hybrid.json").exists() else {}
-    return proc, doc, elapsed, listener
+    return proc, doc, elapsed
 
 
 def twin_cell(doc: dict, case: Path) -> str:
@@ -210,7 +203,7 @@ def run(args: argparse.Namespace) -> None:
             n += 1
             tmp = root / f"case{i}-{r}"
             tmp.mkdir()
-            proc, doc, elapsed, _ = run_pair(tmp, n, rig_args, [*dur, *hybrid_args])
+            proc, doc, elapsed = run_pair(tmp, n, rig_args, [*dur, *hybrid_args])
             if not doc:
                 print(f"{mode} run {r}: failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
@@ -267,7 +260,7 @@ def run(args: argparse.Namespace) -> None:
     n += 1
     tmp = root / "doubled"
     tmp.mkdir()
-    proc, doc, _, _ = run_pair(tmp, n, ["--delay-change-at", "12", "--delay-change-to-ms",
+    proc, doc, _ = run_pair(tmp, n, ["--delay-change-at", "12", "--delay-change-to-ms",
                                         "8"], dur)
     rig_doc = json.loads((tmp / "rig.json").read_text()) if (tmp / "rig.json").exists() \
         else {}
@@ -275,7 +268,7 @@ def run(args: argparse.Namespace) -> None:
     n += 1
     ref = root / "eight"
     ref.mkdir()
-    _, ref_doc, _, _ = run_pair(ref, n, ["--delay-ms", "8"], dur)
+    _, ref_doc, _ = run_pair(ref, n, ["--delay-ms", "8"], dur)
     if not doc or changed_ns is None or proc.returncode != 0:
         # a ride stopped (by the safety layer) before or after the change: say so
         print(f"| delay 4 → 8 ms mid-ride, adapted | {proc.returncode} | "
@@ -295,22 +288,20 @@ def run(args: argparse.Namespace) -> None:
     n += 1
     tmp = root / "cut"
     tmp.mkdir()
-    proc, doc, _, tap = run_pair(tmp, n, ["--feedback-stop-at", "10"], dur, tap=True)
-    db = load_database(required=HYBRID_SIGNALS)
-    fb = db.get_message_by_name("DYNO_FEEDBACK").frame_id
-    cmd = db.get_message_by_name("DYNO_COMMAND").frame_id
-    rx = Receiver(db, ["DYNO_COMMAND"])
-    last = max(t for t, i, _ in tap.frames if i == fb)
-    cleared = [t for t, i, d in tap.frames
-               if i == cmd and t > last and not rx.decode_values(i, d)["Enable"]]
-    # (a run stopped before the cut, by the machine's stall, sends its clear before it)
+    proc, doc, _ = run_pair(tmp, n, ["--feedback-stop-at", "10"], dur)
+    # at the rig (a real-time process that reads every command): its last feedback sent,
+    # the first command with Enable clear received
+    rig_doc = json.loads((tmp / "rig.json").read_text()) if (tmp / "rig.json").exists() \
+        else {}
+    sent, cleared = rig_doc.get("last_feedback_ns"), rig_doc.get("enable_cleared_ns")
     print(f"| feedback cut | {proc.returncode} | {doc.get('reason', '–')} | " + (
-        f"Enable clear {(cleared[0] - last) * 1e3:.1f} ms after the last feedback on the wire"
-        if cleared else "no command after the last feedback on the wire") + " |")
+        f"Enable clear {(cleared - sent) * 1e-6:.1f} ms after the last feedback, at the rig"
+        if sent is not None and cleared is not None
+        else "no command with Enable clear after the last feedback") + " |")
     n += 1
     tmp = root / "corrupt"
     tmp.mkdir()
-    proc, doc, _, _ = run_pair(tmp, n, ["--corrupt-every", "100"], dur)
+    proc, doc, _ = run_pair(tmp, n, ["--corrupt-every", "100"], dur)
     link = doc.get("link", {})
     print(f"| a corrupted feedback frame in 100 | {proc.returncode} | "
           f"{doc.get('reason') or '–'} | {link.get('dropped_checksum')} dropped of "
@@ -319,7 +310,7 @@ def run(args: argparse.Namespace) -> None:
     n += 1
     tmp = root / "unstable"
     tmp.mkdir()
-    proc, doc, _, _ = run_pair(tmp, n, ["--delay-ms", "30"], [*dur, "--compensation", "none"])
+    proc, doc, _ = run_pair(tmp, n, ["--delay-ms", "30"], [*dur, "--compensation", "none"])
     d = np.genfromtxt(tmp / "out" / "hybrid.csv", delimiter=",", skip_header=1)
     lim = SafetyParams()
     print(f"| 30 ms, uncompensated | {proc.returncode} | {doc.get('reason', '–')} | "

@@ -88,6 +88,11 @@ class RigStats:
     #: when the transport delay changed (``RigFaults.delay_change_at_s``), on the
     #: monotonic clock [ns] (the host's ``t_monotonic_ns``'s, on one machine)
     delay_changed_ns: int | None = None
+    #: with ``feedback_stop_at_s``: when the rig sent its last DYNO_FEEDBACK, and when the
+    #: first command with Enable clear after it reached the rig (its kernel's receive
+    #: stamp), on the monotonic clock [ns]: the host's watchdog as the rig saw it
+    last_feedback_ns: int | None = None
+    enable_cleared_ns: int | None = None
     realtime: str = ""
 
     def as_dict(self) -> dict[str, object]:
@@ -121,6 +126,7 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
             j = 0
             offset = time.time() - time.monotonic()
             held: can.Message | None = None     # a feedback frame sent a cycle late
+            stopped = False         # the feedback has stopped (RigFaults.feedback_stop_at_s)
             while not stop.is_set():
                 msg = bus.recv(max(0.0, deadline - time.monotonic()))
                 while msg is not None:      # every command that has come, at its time
@@ -131,8 +137,12 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                         if first_command is None:
                             first_command = time.monotonic() - t0
                         v = got.values
-                        rig.command(receive_time(msg, offset) - t0, float(v["StrokeDemand"]),
+                        at = receive_time(msg, offset)
+                        rig.command(at - t0, float(v["StrokeDemand"]),
                                     bool(v["Enable"]), float(v["VelocityDemand"]))
+                        if (stopped and not v["Enable"]
+                                and stats.enable_cleared_ns is None):
+                            stats.enable_cleared_ns = int(at * 1e9)
                     msg = bus.recv(0.0)
                 if time.monotonic() < deadline:
                     continue
@@ -151,7 +161,9 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                 stats.cycles += 1
                 if rig.following:
                     stats.following_cycles += 1
-                if faults.feedback_stop_at_s is None or not taken >= faults.feedback_stop_at_s:
+                stopped = (faults.feedback_stop_at_s is not None
+                           and taken >= faults.feedback_stop_at_s)
+                if not stopped:
                     data, _ = feedback_enc.encode(StrokeMeasured=fb.stroke_m,
                                                   Force=fb.force_n, Status=fb.status)
                     if faults.corrupt_every and stats.feedback_sent % faults.corrupt_every \
@@ -171,6 +183,8 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
                     for m in due:
                         if bus.send(m):
                             stats.feedback_sent += 1
+                            if faults.feedback_stop_at_s is not None:
+                                stats.last_feedback_ns = time.monotonic_ns()
                         else:
                             stats.send_failures += 1
                 if j % aux_every == 0:

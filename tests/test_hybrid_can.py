@@ -303,26 +303,29 @@ def test_csv_and_bag_hold_the_ride(ride):
 
 
 def test_feedback_cut_clears_enable_within_50_ms_and_exits_3(tmp_path, bus_db):
+    """The rig stops its feedback: the host clears Enable within the watchdog's 50 ms, as
+    the rig itself saw it (its last feedback sent, the first command with Enable clear
+    received: a real-time process that reads every command), and keeps it clear.  (A tap
+    of the bus in the test's process, under the suite's load, once lost frames past its
+    socket's buffer: it saw 61 ms where the host had stopped at 41.)"""
     bus = BusConfig(interface="udp_multicast", channel=udp_channel(OFFSETS["cut"]))
-    proc, out, _, tap = run_pair(tmp_path, bus, ["--feedback-stop-at", "3.0"],
-                                 ["--duration", "3"], tap=True)
+    proc, out, rig_stats, tap = run_pair(tmp_path, bus, ["--feedback-stop-at", "3.0"],
+                                         ["--duration", "3"], tap=True)
     assert proc.returncode == 3, proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("damper-hil: stopped: no valid DYNO_FEEDBACK"), last
     doc = json.loads((out / "hybrid.json").read_text())
     assert doc["status"] == "stopped" and "DYNO_FEEDBACK" in doc["reason"]
-    fb_id = bus_db.get_message_by_name("DYNO_FEEDBACK").frame_id
+    assert rig_stats["enable_cleared_ns"] is not None, \
+        "no command with Enable clear after the feedback stopped"
+    assert rig_stats["enable_cleared_ns"] - rig_stats["last_feedback_ns"] <= 50e6
+    # and every command after it keeps Enable clear (of those the tap saw)
     cmd_id = bus_db.get_message_by_name("DYNO_COMMAND").frame_id
     rx = Receiver(bus_db, ["DYNO_COMMAND"])
-    last_feedback = max(t for t, i, _ in tap.frames if i == fb_id)
-    cleared = [t for t, i, d in tap.frames
-               if i == cmd_id and t > last_feedback and not rx.decode_values(i, d)["Enable"]]
-    assert cleared, "no command with Enable clear after the feedback stopped"
-    assert cleared[0] - last_feedback <= 0.050
-    # and every command after it keeps Enable clear
+    cleared_s = rig_stats["enable_cleared_ns"] * 1e-9
     later = [rx.decode_values(i, d)["Enable"] for t, i, d in tap.frames
-             if i == cmd_id and t >= cleared[0]]
-    assert not any(later)
+             if i == cmd_id and t >= cleared_s]
+    assert later and not any(later)
 
 
 @dataclasses.dataclass

@@ -163,7 +163,7 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
 
     switch = sys.getswitchinterval()
     # a loop waiting for the GIL waits at most this long for a Python thread that holds it
-    # (the recorder, the fit; the default 5 ms is five cycles)
+    # (the recorder; the default 5 ms is five cycles)
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     gc.collect()
     gc.freeze()          # the start-up's objects: out of the collector's way

@@ -57,15 +57,24 @@ STROKE_SPREAD_M = 0.01
 
 
 @kernel
+def regressors(dynamic_n: float, x: float, v: float
+               ) -> tuple[float, float, float, float, float, float]:
+    """What each term of ``θ`` multiplies (the module docstring's map, :data:`TERMS`' order)
+    at the motion ``x``, ``v``, the twin's force being ``dynamic_n`` from ``F_s``."""
+    sign = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+    compression = dynamic_n if v < 0.0 else 0.0
+    return (1.0, compression, dynamic_n - compression, v, x, sign)
+
+
+@kernel
 def mapped_force(theta: _Vec, static_n: float, force_n: float, x: float, v: float
                  ) -> float:
     """The twin's force ``force_n`` at the motion ``x``, ``v`` through the map ``theta``
     (the module docstring's ``F̂``; ``F_s`` = ``static_n``)."""
-    dynamic = force_n - static_n
-    gain = theta[1] if v < 0.0 else theta[2]
-    sign = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-    out: float = (static_n + theta[0] + gain * dynamic + theta[3] * v + theta[4] * x
-                  + theta[5] * sign)
+    phi = regressors(force_n - static_n, x, v)
+    out: float = static_n
+    for i in range(len(phi)):
+        out += theta[i] * phi[i]
     return out
 
 
@@ -148,15 +157,8 @@ class OnlineTwin:
         measured there (a no-op when disabled)."""
         if not self.enabled:
             return
-        phi = self._phi
-        dynamic = force_n - self.static_n
-        phi[0] = 1.0
-        phi[1] = dynamic if v < 0.0 else 0.0
-        phi[2] = dynamic if v >= 0.0 else 0.0
-        phi[3] = v
-        phi[4] = x
-        phi[5] = math.copysign(1.0, v) if v != 0.0 else 0.0
-        rls_update(self.theta, self._p, self._p_start, self._lo, self._hi, phi,
+        self._phi[:] = regressors(force_n - self.static_n, x, v)
+        rls_update(self.theta, self._p, self._p_start, self._lo, self._hi, self._phi,
                    measured_n - self.static_n, self._forget, self._px)
         self.updates += 1
 
@@ -171,12 +173,8 @@ class OnlineTwin:
         return {name: float(value) for (name, _), value in zip(TERMS, self.theta)}
 
     def warm_up(self) -> None:
-        """Load or compile the kernels, and leave the estimate as it started."""
-        theta, p = self.theta.copy(), self._p.copy()
+        """Load or compile the kernels, on copies: the estimate stays as it is."""
         self.force(self.static_n, 0.0, 0.0)
-        enabled, self.enabled = self.enabled, True
-        self.update(self.static_n, 0.0, 0.1, self.static_n)
-        self.enabled = enabled
-        self.theta[:] = theta
-        self._p[:] = p
-        self.updates = 0
+        self._phi[:] = regressors(0.0, 0.0, 0.1)
+        rls_update(self.theta.copy(), self._p.copy(), self._p_start, self._lo, self._hi,
+                   self._phi, 0.0, self._forget, self._px)

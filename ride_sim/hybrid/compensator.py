@@ -37,7 +37,7 @@ from damper_emulator.model.compressible import DamperModel, DamperStepper
 from damper_emulator.model.jit import kernel
 from damper_emulator.model.step import step as damper_step
 from ride_sim.hybrid.actuator import frequency_response
-from ride_sim.hybrid.online import IDENTITY, OnlineTwin, mapped_force
+from ride_sim.hybrid.online import OnlineTwin, mapped_force
 from ride_sim.hybrid.params import CompensatorParams
 from ride_sim.hybrid.transfer import TransferEstimate
 from ride_sim.params import QuarterCarParams
@@ -139,14 +139,14 @@ class Compensator:
         The twin: the prediction's damper.
     heights : ndarray
         The road of the ride, one height per cycle (known ahead).
-    online : OnlineTwin, optional
+    online : OnlineTwin
         The twin's online correction: the prediction's damper force passes through its
-        map, as it learns (default: the twin as it is).
+        map, as it learns.
     """
 
     def __init__(self, params: CompensatorParams, car: QuarterCarParams, dt_s: float,
                  static_force_n: float, model: DamperModel, heights: np.ndarray,
-                 online: OnlineTwin | None = None) -> None:
+                 online: OnlineTwin) -> None:
         self.params = params
         self.car = car
         self.dt_s = float(dt_s)
@@ -169,8 +169,8 @@ class Compensator:
         self._twin = self.on_target.state.copy()
         self._model_force = self.on_target.force_n
         # the map's coefficients, read in place: they follow the online correction
-        self._theta = online.theta if online is not None else np.array(IDENTITY)
-        self._static_n = online.static_n if online is not None else self._model_force
+        self._theta = online.theta
+        self._static_n = online.static_n
         self._correction = 0.0
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * params.force_correction_hz * dt_s)
 

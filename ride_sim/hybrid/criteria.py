@@ -137,9 +137,10 @@ def summary(host: HybridHost) -> dict[str, Any]:
                             "small_gain_margin": (1.0 / gain if gain > 0 else math.inf)}
         # the loop's gain is proportional to the damper's slope: the margin for the twin
         # as the online correction left it
-        online_gain = gain * online.slope() / slope if slope > 0 else gain
+        online_slope = online.slope()
+        online_gain = gain * online_slope / slope if slope > 0 else gain
         doc["stability"]["online"] = {
-            "damper_slope_ns_m": online.slope(),
+            "damper_slope_ns_m": online_slope,
             "small_gain_margin": 1.0 / online_gain if online_gain > 0 else math.inf}
     safety = host.safety
     doc["safety"] = {"clamped_demands": safety.clamped,

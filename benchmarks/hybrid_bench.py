@@ -19,8 +19,8 @@ they do not compete for the cores):
 2. **robustness**: the delay doubled 12 s after the host's first command, some 8 s into
    the ride (tracking NRMS over 2 s before the change, the first 0.5 s after it and the
    2 s after that, against the same stretch of a ride on a rig at 8 ms from its start);
-   the feedback cut (Enable clear after the last
-   valid feedback, at the rig); a corrupted feedback frame in every 100; 30 ms
+   the feedback cut (Enable clear after the last valid feedback, at the rig); a corrupted
+   feedback frame in every 100; 30 ms
    uncompensated (stopped by the detector before any limit?);
 3. **offline**: the same host and rig on a simulated timeline (no bus, no clock): what the
    compensator reaches without jitter;
@@ -81,6 +81,9 @@ PINS = [PIN_HOST, PIN_RIG]
 
 
 def run_pair(tmp: Path, n: int, rig_args, hybrid_args):
+    """``virtual-rig RIG_ARGS`` and ``hybrid HYBRID_ARGS`` on bus ``n``, pinned; returns the
+    hybrid process, its ``hybrid.json``, the rig's statistics (``rig.json``; ``{}`` when a
+    file is missing) and the hybrid's wall time [s]."""
     pin_host, pin_rig = PINS
     ch = channel(n)
     bus = ["--can-interface", "udp_multicast", "--can-channel", ch]
@@ -94,9 +97,9 @@ def run_pair(tmp: Path, n: int, rig_args, hybrid_args):
     elapsed = time.perf_counter() - t0
     rig.send_signal(2)
     rig.communicate(timeout=30)
-    doc = json.loads((tmp / "out" / "hybrid.json").read_text()) \
-        if (tmp / "out" / "hybrid.json").exists() else {}
-    return proc, doc, elapsed
+    doc, rig_doc = (json.loads(path.read_text()) if path.exists() else {}
+                    for path in (tmp / "out" / "hybrid.json", tmp / "rig.json"))
+    return proc, doc, rig_doc, elapsed
 
 
 def twin_cell(doc: dict, case: Path) -> str:
@@ -203,7 +206,7 @@ def run(args: argparse.Namespace) -> None:
             n += 1
             tmp = root / f"case{i}-{r}"
             tmp.mkdir()
-            proc, doc, elapsed = run_pair(tmp, n, rig_args, [*dur, *hybrid_args])
+            proc, doc, _, elapsed = run_pair(tmp, n, rig_args, [*dur, *hybrid_args])
             if not doc:
                 print(f"{mode} run {r}: failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
@@ -260,15 +263,13 @@ def run(args: argparse.Namespace) -> None:
     n += 1
     tmp = root / "doubled"
     tmp.mkdir()
-    proc, doc, _ = run_pair(tmp, n, ["--delay-change-at", "12", "--delay-change-to-ms",
-                                        "8"], dur)
-    rig_doc = json.loads((tmp / "rig.json").read_text()) if (tmp / "rig.json").exists() \
-        else {}
+    proc, doc, rig_doc, _ = run_pair(tmp, n, ["--delay-change-at", "12",
+                                               "--delay-change-to-ms", "8"], dur)
     changed_ns = rig_doc.get("delay_changed_ns")
     n += 1
     ref = root / "eight"
     ref.mkdir()
-    _, ref_doc, _ = run_pair(ref, n, ["--delay-ms", "8"], dur)
+    _, ref_doc, _, _ = run_pair(ref, n, ["--delay-ms", "8"], dur)
     if not doc or changed_ns is None or proc.returncode != 0:
         # a ride stopped (by the safety layer) before or after the change: say so
         print(f"| delay 4 → 8 ms mid-ride, adapted | {proc.returncode} | "
@@ -288,11 +289,9 @@ def run(args: argparse.Namespace) -> None:
     n += 1
     tmp = root / "cut"
     tmp.mkdir()
-    proc, doc, _ = run_pair(tmp, n, ["--feedback-stop-at", "10"], dur)
+    proc, doc, rig_doc, _ = run_pair(tmp, n, ["--feedback-stop-at", "10"], dur)
     # at the rig (a real-time process that reads every command): its last feedback sent,
     # the first command with Enable clear received
-    rig_doc = json.loads((tmp / "rig.json").read_text()) if (tmp / "rig.json").exists() \
-        else {}
     sent, cleared = rig_doc.get("last_feedback_ns"), rig_doc.get("enable_cleared_ns")
     print(f"| feedback cut | {proc.returncode} | {doc.get('reason', '–')} | " + (
         f"Enable clear {(cleared - sent) * 1e-6:.1f} ms after the last feedback, at the rig"
@@ -301,7 +300,7 @@ def run(args: argparse.Namespace) -> None:
     n += 1
     tmp = root / "corrupt"
     tmp.mkdir()
-    proc, doc, _ = run_pair(tmp, n, ["--corrupt-every", "100"], dur)
+    proc, doc, _, _ = run_pair(tmp, n, ["--corrupt-every", "100"], dur)
     link = doc.get("link", {})
     print(f"| a corrupted feedback frame in 100 | {proc.returncode} | "
           f"{doc.get('reason') or '–'} | {link.get('dropped_checksum')} dropped of "
@@ -310,7 +309,7 @@ def run(args: argparse.Namespace) -> None:
     n += 1
     tmp = root / "unstable"
     tmp.mkdir()
-    proc, doc, _ = run_pair(tmp, n, ["--delay-ms", "30"], [*dur, "--compensation", "none"])
+    proc, doc, _, _ = run_pair(tmp, n, ["--delay-ms", "30"], [*dur, "--compensation", "none"])
     d = np.genfromtxt(tmp / "out" / "hybrid.csv", delimiter=",", skip_header=1)
     lim = SafetyParams()
     print(f"| 30 ms, uncompensated | {proc.returncode} | {doc.get('reason', '–')} | "

@@ -528,13 +528,16 @@ def test_the_jacobian_is_scipys_forward_difference_and_steps_back_where_refused(
     assert np.all(np.abs(jac) < 1e6)
 
 
-def test_a_jacobian_simulates_each_record_only_for_its_own_inputs(monkeypatch):
+@pytest.mark.parametrize("threads", [1, 3])
+def test_a_jacobian_simulates_each_record_only_for_its_own_inputs(monkeypatch, threads):
     """A step of the rig's delay filters the forces at hand (no simulation), one of the
     quasi-static friction ratio simulates the quasi-static record alone, any other both:
     and the Jacobian is the forward difference of a space that keeps nothing between
-    evaluations (a new one for each)."""
+    evaluations (a new one for each), bit for bit whether its columns run on one thread
+    or several."""
     from scipy.optimize._numdiff import approx_derivative
 
+    from damper_emulator.diagnose import joint
     from damper_emulator.diagnose.base import (
         ACQUISITION_DELAY,
         QUASI_STATIC_FRICTION_RATIO,
@@ -544,6 +547,7 @@ def test_a_jacobian_simulates_each_record_only_for_its_own_inputs(monkeypatch):
     )
     from damper_emulator.diagnose.joint import DIFF_STEP, Space
 
+    monkeypatch.setattr(joint, "JACOBIAN_THREADS", threads)
     sheet, data = truth_session((), chain_given=False)
     records = [make_record(d, False) for d in data[:2]]   # quasi-static, chirp
     every = base_parameters(sheet, data[:2], delay=True)
@@ -568,8 +572,10 @@ def test_a_jacobian_simulates_each_record_only_for_its_own_inputs(monkeypatch):
         return simulate(rec, model, fast, rig)
 
     monkeypatch.setattr(Record, "simulate", counted)
+    before = fit.evaluations
     jac = fit.jacobian(s)
     assert sorted(simulated) == sorted(["quasi_static.csv"] * 3 + ["chirp.csv"] * 2)
+    assert fit.evaluations - before == 3   # the columns that simulated anything
     reference = approx_derivative(lambda x: space().residuals(x), s, method="2-point",
                                   rel_step=DIFF_STEP, bounds=(0.0, 1.0), f0=f0)
     np.testing.assert_array_equal(jac, reference)

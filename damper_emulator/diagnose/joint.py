@@ -31,7 +31,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -66,6 +68,10 @@ from damper_emulator.schema import ParameterError
 DIFF_STEP = 1e-3
 #: ... and its least (√ε of a double, scipy's value).
 MIN_DIFF_STEP = float(np.sqrt(np.finfo(float).eps))
+#: Threads a Jacobian's columns run on (:meth:`Space.jacobian`): the CPUs this process may
+#: use.  Beside a diagnosis's other fits in a pool of processes they share the cores; alone
+#: (a round's last fit, the stages before and after the rounds) they fill them.
+JACOBIAN_THREADS = len(os.sched_getaffinity(0))
 #: Least-squares evaluations of the joint fit (Jacobians not counted).
 JOINT_NFEV = 25
 #: ... relative cost change below which it stops.
@@ -242,23 +248,36 @@ class Space:
 
     def residuals(self, s: np.ndarray) -> np.ndarray:
         """The weighted residual ``w_f (F_sim − F_meas)`` of every record at ``s``,
-        concatenated; ``FAILED_COST`` everywhere for parameters the model refuses."""
-        self.refused = True
-        try:
-            residuals: np.ndarray = np.concatenate(
-                [rec.counted_residual(force) * w
-                 for rec, w, force in zip(self.records, self.weights, self._forces(s))])
-        except (ParameterError, ValueError):
-            residuals = np.full(self.n, FAILED_COST)
-        else:
-            # a series spring with a nearly closed gas volume can run away on
-            # the 5 ms sub-step of a slow record (forces of 1e299 N); trf's Jacobian would
-            # overflow to inf and end the diagnosis with a traceback
-            self.refused = not np.all(np.abs(residuals) < FAILED_COST)
-            if self.refused:
-                residuals = np.full(self.n, FAILED_COST)
+        concatenated; ``FAILED_COST`` everywhere for parameters the model refuses.  Any
+        simulation counts one in :attr:`evaluations`."""
+        residuals, self.refused, simulated, fresh = self._evaluate(s, self._raw)
+        self.evaluations += fresh
+        if simulated is not None:
+            self._raw = list(simulated)
         self._last = (s.copy(), residuals, self.refused)
         return residuals
+
+    def _evaluate(self, s: np.ndarray, known: Sequence[_Simulated | None]
+                  ) -> tuple[np.ndarray, bool, list[_Simulated] | None, bool]:
+        """:meth:`residuals` at ``s`` without a change to the space: the residual, whether
+        it was refused, each record's simulation at ``s`` (``None`` where the model
+        refused), and whether any record had to be simulated (:meth:`_known`)."""
+        held = self._known(s, known)
+        fresh = any(h is None for h in held)
+        try:
+            simulated = self._simulated(s, held)
+            residuals: np.ndarray = np.concatenate(
+                [rec.counted_residual(force) * w
+                 for rec, w, force in zip(self.records, self.weights,
+                                          self._forces(s, simulated))])
+        except (ParameterError, ValueError):
+            return np.full(self.n, FAILED_COST), True, None, fresh
+        # a series spring with a nearly closed gas volume can run away on the 5 ms sub-step
+        # of a slow record (forces of 1e299 N); trf's Jacobian would overflow to inf and
+        # end the diagnosis with a traceback
+        if not np.all(np.abs(residuals) < FAILED_COST):
+            return np.full(self.n, FAILED_COST), True, simulated, fresh
+        return residuals, False, simulated, fresh
 
     def _keys(self, s: np.ndarray) -> list[np.ndarray]:
         """Each record's simulation inputs among the coordinates ``s``: every slot but
@@ -270,43 +289,48 @@ class Space:
         fast[self._slow_slots] = 0.0
         return [key if k < self.n_quasi_static else fast for k in range(len(self.records))]
 
-    def _forces(self, s: np.ndarray) -> list[np.ndarray]:
-        """The model's force at ``s`` over each record as the record holds it: with the
-        discovered term's parts added and through the estimated chain.  A record is
-        simulated again only where one of its simulation's inputs changed since it was
-        last simulated (:meth:`_keys`: not for a step of the delay or the term's
-        coefficients alone, and only the quasi-static records for a step of their
-        friction ratio); any simulation counts one in :attr:`evaluations`."""
-        base = self.decode(s)[0]
-        rig = delay_rig(base)
+    def _known(self, s: np.ndarray, known: Sequence[_Simulated | None]
+               ) -> list[_Simulated | None]:
+        """Each record's simulation at ``s`` where the Jacobian's anchor or ``known`` holds
+        one at the same inputs (:meth:`_keys`: none is needed again for a step of the
+        delay or the term's coefficients alone, and only the quasi-static records' for a
+        step of their friction ratio); ``None`` where the record must be simulated."""
+        return [next((c for c in (anchor, cached)
+                      if c is not None and np.array_equal(c[0], key)), None)
+                for key, anchor, cached in zip(self._keys(s), self._anchor, known)]
+
+    def _simulated(self, s: np.ndarray, held: Sequence[_Simulated | None]
+                   ) -> list[_Simulated]:
+        """``held`` with each missing record simulated at ``s``: the model's force before
+        the chain, and the discovered term's columns."""
+        models = self.models(s) if any(h is None for h in held) else []
         keys = self._keys(s)
-        for k, key in enumerate(keys):
-            anchor = self._anchor[k]
-            if anchor is not None and np.array_equal(anchor[0], key):
-                self._raw[k] = anchor
-        stale = [k for k, (cached, key) in enumerate(zip(self._raw, keys))
-                 if cached is None or not np.array_equal(cached[0], key)]
-        if stale:
-            self.evaluations += 1
-            models = self.models(s)
-            for k in stale:
-                rec, m = self.records[k], models[k]
-                self._raw[k] = None
+        out: list[_Simulated] = []
+        for k, (rec, key, hit) in enumerate(zip(self.records, keys, held)):
+            if hit is None:
+                m = models[k]
                 if self.terms is None:
-                    self._raw[k] = (keys[k], rec.simulate(m, fast=True), None)
+                    hit = (key, rec.simulate(m, fast=True), None)
                 else:
                     raw, col = self.terms(m.with_max_substep(fit_substep(m, rec.velocity)),
                                           rec)
-                    self._raw[k] = (keys[k], raw, col)
-        cached = [c for c in self._raw if c is not None]
-        assert len(cached) == len(self.records)  # every record simulated at its key
+                    hit = (key, raw, col)
+            out.append(hit)
+        return out
+
+    def _forces(self, s: np.ndarray, simulated: Sequence[_Simulated]) -> list[np.ndarray]:
+        """The model's force at ``s`` over each record as the record holds it, from its
+        simulation ``simulated`` at ``s``: with the discovered term's parts added and
+        through the estimated chain."""
+        base = self.decode(s)[0]
+        rig = delay_rig(base)
         if self.terms is None:
-            return [rec.recorded(raw, rig) for rec, (_, raw, _) in zip(self.records, cached)]
-        cols = [c for _, _, c in cached if c is not None]
-        assert len(cols) == len(cached)  # the term's columns with every record's force
+            return [rec.recorded(raw, rig) for rec, (_, raw, _) in zip(self.records, simulated)]
+        cols = [c for _, _, c in simulated if c is not None]
+        assert len(cols) == len(simulated)  # the term's columns with every record's force
         coef = [base[f"{TERM_PREFIX}{k}"] for k in range(cols[0].shape[1])]
         return [rec.with_term(raw, c, coef, rig)
-                for rec, (_, raw, _), c in zip(self.records, cached, cols)]
+                for rec, (_, raw, _), c in zip(self.records, simulated, cols)]
 
     def jacobian(self, s: np.ndarray) -> np.ndarray:
         """Forward differences of :meth:`residuals` at ``s``, each parameter stepped by
@@ -321,6 +345,10 @@ class Space:
         then take ``(FAILED_COST − r)/h``, a column of 10¹¹ against 10²–10³ of the
         others, and the covariance's pseudo-inverse would cut every other direction: each
         σ would come out 10⁻¹⁵ of its value.
+
+        The columns are independent: they run on :data:`JACOBIAN_THREADS` threads (the
+        compiled simulation releases the GIL), each from the records as simulated at
+        ``s``; the matrix is the same as one thread's, bit for bit.
         """
         if self._last is None or not np.array_equal(self._last[0], s):
             self.residuals(s)
@@ -328,22 +356,34 @@ class Space:
         _, f0, base_refused = self._last
         self._anchor = list(self._raw)  # each record as simulated at s
         jac = np.zeros((f0.size, s.size))
-        for k in range(s.size):
+
+        def column(k: int) -> int:
+            """Column ``k`` into ``jac``; the simulations it took."""
             h = DIFF_STEP * s[k]
             if (s[k] + h) - s[k] == 0.0:
                 h = MIN_DIFF_STEP * max(1.0, s[k])
             if s[k] + h > 1.0:
                 h = -h
+            taken = 0
             for step in (h, -h):
                 if not 0.0 <= s[k] + step <= 1.0:
                     continue
                 x = s.copy()
                 x[k] += step
-                fk = self.residuals(x)
-                if self.refused and not base_refused:
+                fk, refused, _, fresh = self._evaluate(x, self._anchor)
+                taken += fresh
+                if refused and not base_refused:
                     continue
                 jac[:, k] = (fk - f0) / (x[k] - s[k])  # the step as represented
                 break
+            return taken
+
+        threads = min(JACOBIAN_THREADS, s.size)
+        if threads > 1:
+            with ThreadPoolExecutor(threads, thread_name_prefix="jacobian") as pool:
+                self.evaluations += sum(pool.map(column, range(s.size)))
+        else:
+            self.evaluations += sum(column(k) for k in range(s.size))
         self._last = (s.copy(), f0, base_refused)
         return jac
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from damper_emulator.model.jit import kernel
+from damper_emulator.model.jit import batch_kernel
 from damper_emulator.model.layout import S_CMD, S_CMD_EFF, S_FORCE, S_P_COM, S_P_REB, S_TEMP_IN
 from damper_emulator.model.step import init_state, step
 
@@ -25,7 +25,7 @@ from damper_emulator.model.step import init_state, step
 _Vec = NDArray[np.float64]
 
 
-@kernel
+@batch_kernel
 def simulate_commanded_samples(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _Vec, x: _Vec,
                         v: _Vec, command: _Vec, temperature: _Vec, force: _Vec, p_reb: _Vec,
                         p_com: _Vec, command_eff: _Vec, flags: NDArray[np.int64]) -> None:
@@ -49,7 +49,7 @@ def simulate_commanded_samples(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Ve
         state[S_CMD] = command[i]
 
 
-@kernel
+@batch_kernel
 def simulate_samples(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, t: _Vec, x: _Vec, v: _Vec,
               force: _Vec, p_reb: _Vec, p_com: _Vec, flags: NDArray[np.int64]) -> None:
     """The batch loop at valve command 1 ('sport', bypass closed) throughout, whatever

@@ -132,6 +132,12 @@ def _registered(dispatcher: Any) -> Any:
 _physics = njit(cache=True, fastmath=set(FASTMATH_FLAGS),
                 _nrt=False)  # type: ignore[call-overload]
 _plain = njit(cache=True)
+#: :data:`_physics` that releases the GIL while it runs: the loops over a whole history,
+#: which a diagnosis's Jacobian runs on several threads at once.  Not the real-time step:
+#: a loop thread that let go of the lock at every step could wait for it back behind
+#: another thread of its process.
+_batch = njit(cache=True, fastmath=set(FASTMATH_FLAGS), _nrt=False,
+              nogil=True)  # type: ignore[call-overload]
 #: :data:`_physics` inlined into each caller by numba itself (its own IR, before LLVM),
 #: and so compiled under the caller's options: a small formula that both the one-design
 #: step and a loop over SIMD lanes use, or the body of such a loop (a call left
@@ -150,6 +156,12 @@ _lanes = njit(cache=True, fastmath=set(FASTMATH_FLAGS), _nrt=False,
 def kernel(func: _F) -> _F:
     """Decorator for every compiled physics kernel (fast-math, cached, registered)."""
     return cast(_F, _registered(_physics(func)))
+
+
+def batch_kernel(func: _F) -> _F:
+    """Decorator for a compiled loop over a whole history (:data:`_batch`: as
+    :func:`kernel`, and the GIL released while it runs)."""
+    return cast(_F, _registered(_batch(func)))
 
 
 def inlined_kernel(func: _F) -> _F:

@@ -824,11 +824,7 @@ class _JointFit:
         or the re-identified ones); ``cands`` in place of the fit's own (some of their
         parameters held), ``nfev`` in place of its evaluations."""
         cands = self.cands if cands is None else cands
-        free = base_parameters(config_with(self.cfg, bv), [r.data for r in self.records],
-                               [c.effect for c in cands], ACQUISITION_DELAY in bv,
-                               self.cfg.damper.oil_compressibility_per_pa
-                               if OIL_COMPRESSIBILITY in bv else None)
-        free += self.term_parameters
+        free = [*free_parameters(self.cfg, bv, self.records, cands), *self.term_parameters]
         space = Space(self.cfg, free, bv, cands, vals, [True] * len(cands),
                       self.records, self.weights, self.n_quasi_static, self.terms)
         return space, space.solve(space.encode(bv, vals), nfev or self.nfev,
@@ -883,6 +879,37 @@ class _JointFit:
         if delta_bic([(sol.fun.size, rho, sol.cost, sol2.cost)], len(loose)) < 0.0:
             return space, sol, std, space2.evaluations
         return space2, sol2, space2.std(sol2, _rho(space2, sol2)), space2.evaluations
+
+
+def free_parameters(cfg: ModelConfig, base_values: Mapping[str, float],
+                    records: Sequence[Record], cands: Sequence[Candidate]) -> list[Parameter]:
+    """The paper's parameters a joint fit frees at ``base_values`` with the effects
+    ``cands`` in the model (:func:`base_parameters`: the rig's delay where it is among
+    the values, the oil's compressibility where the force's scale was taken)."""
+    return base_parameters(config_with(cfg, base_values), [r.data for r in records],
+                           [c.effect for c in cands], ACQUISITION_DELAY in base_values,
+                           cfg.damper.oil_compressibility_per_pa
+                           if OIL_COMPRESSIBILITY in base_values else None)
+
+
+def model_jacobians(cfg: ModelConfig, base_values: Mapping[str, float],
+                    accepted: Sequence[tuple[Candidate, Mapping[str, float]]],
+                    fit: Sequence[Record], held: Sequence[Record], weights: Sequence[float],
+                    n_quasi_static: int) -> tuple[np.ndarray, np.ndarray]:
+    """The slopes of a fitted model's force with respect to every parameter a joint fit
+    frees there (the paper's, the effects', in normalised coordinates): over the
+    identification records ``fit`` weighted as the fit weighs them (the weighted
+    residual's Jacobian, :meth:`Space.jacobian`), and over the held-out records
+    unweighted, each a matrix of the records' counted samples concatenated."""
+    cands = [c for c, _ in accepted]
+    values = [dict(v) for _, v in accepted]
+    free = free_parameters(cfg, base_values, fit, cands)
+    on_fit = Space(cfg, free, base_values, cands, values, [True] * len(cands), fit,
+                   weights, n_quasi_static)
+    on_held = Space(cfg, free, base_values, cands, values, [True] * len(cands), held,
+                    [1.0] * len(held), 0)
+    s = on_fit.encode(base_values, values)
+    return on_fit.jacobian(s), on_held.jacobian(s)
 
 
 def _rho(space: Space, sol: OptimizeResult) -> float:

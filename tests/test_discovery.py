@@ -188,3 +188,39 @@ def test_a_known_form_of_the_wrong_sign_is_not_that_physics(sport_cfg):
     found = discover(DamperModel(sport_cfg), None, fit, held, _weights(fit), 0.0, 10.0,
                      1.5, MIN_SCORE, MAX_DELTA_BIC)
     assert all(f.symbol != "ẍ" for f in found.features), found.expression
+
+
+def test_a_zone_behind_a_bent_valve_is_found_with_the_models_parameters_free(sport_cfg):
+    """The zone of the test above, on a model whose rebound valve's port is 2.5 times too
+    stiff (a fit that bent it towards what it lacked): the residual is the zone and that
+    bend.  With the model's parameters free to first order beside the term (their slopes
+    at the bent model, ``ModelFree``), the term is the zone alone, with the truth's centre,
+    width and damping, closer than without them, where the bend leaves its mark on the
+    zone's profile."""
+    from damper_emulator.diagnose.base import base_parameters, config_with
+    from damper_emulator.diagnose.discovery import ModelFree
+    from damper_emulator.diagnose.joint import model_jacobians
+
+    c0, x0, w = 600.0, 0.008, 0.006
+
+    def zone(t, x, v):
+        return c0 * np.exp(-0.5 * ((x - x0) / w) ** 2) * v
+
+    fit, held = _records(sport_cfg, extra=zone)
+    bent = config_with(sport_cfg, {"rebound.k_port": 2.5 * sport_cfg.damper.rebound.k_port})
+    values = {p.name: p.start for p in base_parameters(bent, [r.data for r in fit])}
+    weights = _weights(fit)
+    on_fit, on_held = model_jacobians(bent, values, [], fit, held, weights, 1)
+    assert on_fit.shape == (sum(r.counted for r in fit), len(values))
+    assert on_held.shape == (sum(r.counted for r in held), len(values))
+    found, plain = (discover(DamperModel(bent), None, fit, held, weights, 0.0, 10.0, 1.5,
+                             MIN_SCORE, MAX_DELTA_BIC, free=free)
+                    for free in (ModelFree(on_fit, on_held), None))
+    assert found.significant and len(found.features) == 1, found.expression
+    (feature,) = found.features
+    assert feature.profile is not None, found.expression
+    centre, width = feature.profile
+    assert centre == pytest.approx(x0, abs=2e-4) and width == pytest.approx(w, rel=0.03)
+    assert found.coefficients[0] == pytest.approx(c0, rel=0.02)
+    assert plain.significant and len(plain.features) == 1, plain.expression
+    assert abs(found.coefficients[0] - c0) < abs(plain.coefficients[0] - c0)

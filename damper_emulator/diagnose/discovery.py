@@ -36,6 +36,10 @@ diagnose.selection.diagnose`):
 6. **Reading.**  The expression with units, the variables it depends on and the family
    hint of its largest part (:data:`HINTS`).
 
+With ``free`` (:class:`ModelFree`) the model's own parameters are free to first order
+beside the term in steps 3–5: their slopes are projected out of the target and of every
+column, and each term is scored with the parameters' step that goes with it.
+
 The term is additive on the damper's force and linear in its coefficients; the
 coefficients' σ are the least-squares ones inflated for the residual's lag-1
 autocorrelation, as the joint fits' are.
@@ -89,7 +93,8 @@ from damper_emulator.model.discovered import (
 from damper_emulator.params import DiscoveredTermParams, ExtensionParams
 from damper_emulator.validation import simulate_measured
 
-__all__ = ["FEATURES", "Discovery", "Feature", "Motion", "discover", "features"]
+__all__ = ["FEATURES", "Discovery", "Feature", "ModelFree", "Motion", "discover",
+           "features"]
 
 #: the smooth sign of velocity: ``tanh(ẋ / V_SIGN)`` [m/s] (a seal's pre-sliding range)
 V_SIGN_M_S = 0.005
@@ -542,6 +547,42 @@ def _bic(fit_res: Sequence[np.ndarray], ref_res: Sequence[np.ndarray], k: int) -
                       for r, r0 in zip(fit_res, ref_res)), k)
 
 
+def _split_rows(rows: np.ndarray, like: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """``rows`` (the records' samples concatenated) split as ``like`` is."""
+    return np.split(rows, np.cumsum([r.size for r in like])[:-1])
+
+
+@dataclass(frozen=True)
+class ModelFree:
+    """The model's own parameters free to first order beside a term: its force's slopes
+    with respect to every parameter a joint fit frees (:func:`~damper_emulator.diagnose.
+    joint.model_jacobians`), over the identification rows weighted as the regression
+    weighs them (``fit``) and over the held-out records (``held``), counted samples
+    concatenated.
+
+    A regression with them (:func:`discover`'s ``free``) solves every term together
+    with a linear step of the model's parameters (``δ``), and scores it so: the term must
+    explain what a refit of the model could not.  A model whose fit bent its parameters
+    towards a missing effect (a cavity's gas volume four times softer, to follow part of a
+    damping zone) leaves a residual that shows the bend, not the effect; with the
+    parameters free, the effect's own form is what is left."""
+
+    fit: np.ndarray
+    held: np.ndarray
+
+    def step(self, target: np.ndarray) -> np.ndarray:
+        """The least-squares ``δ`` of the weighted identification rows ``target``
+        (a vector or columns)."""
+        out: np.ndarray = np.linalg.lstsq(self.fit, target, rcond=None)[0]
+        return out
+
+    def left(self, target: np.ndarray) -> np.ndarray:
+        """``target`` (weighted identification rows) less what a step of the parameters
+        explains."""
+        out: np.ndarray = target - self.fit @ self.step(target)
+        return out
+
+
 @dataclass
 class _Regression:
     """One dictionary's regression (steps 3–6): the features, their columns per record
@@ -557,31 +598,61 @@ class _Regression:
     x: np.ndarray
     y: np.ndarray
     max_delta_bic: float
+    #: the model's parameters free to first order beside the term (``fit_res``,
+    #: ``held_res`` are then the residuals after the model's own step, ``δ₀``)
+    free: ModelFree | None = None
 
     @classmethod
     def of(cls, feats: list[Feature], fit_mats: list[np.ndarray],
            held_mats: list[np.ndarray], fit_res: list[np.ndarray],
            held_res: list[np.ndarray], weights: Sequence[float],
-           max_delta_bic: float) -> _Regression:
+           max_delta_bic: float, free: ModelFree | None = None) -> _Regression:
         """The rows weighted as the joint fits weigh the files; ``y`` the missing force
-        ``F_meas − F_model``."""
+        ``F_meas − F_model`` (with ``free``: after the model's own step ``δ₀``, which the
+        term's must then beat)."""
         w_rows = np.concatenate([np.full(r.size, w) for r, w in zip(fit_res, weights)])
+        if free is not None:
+            delta0 = free.step(-np.concatenate(fit_res) * w_rows)
+            fit_res = _split_rows(np.concatenate(fit_res)
+                                  + (free.fit @ delta0) / w_rows, fit_res)
+            held_res = _split_rows(np.concatenate(held_res) + free.held @ delta0, held_res)
         return cls(feats, fit_mats, held_mats, fit_res, held_res, w_rows,
                    np.vstack(fit_mats) * w_rows[:, None], -np.concatenate(fit_res) * w_rows,
-                   max_delta_bic)
+                   max_delta_bic, free)
+
+    def design(self, cols: Sequence[int]) -> np.ndarray:
+        """The weighted columns ``cols``, less what the model's free parameters explain
+        of them (with :attr:`free`; the target :attr:`y` already is)."""
+        a = self.x[:, cols]
+        return a if self.free is None else self.free.left(a)
+
+    def beside(self, cols: Sequence[int]) -> np.ndarray:
+        """The weighted columns ``cols`` and the model's free parameters' (with
+        :attr:`free`): what a refinement solves together with the column it refines."""
+        a = self.x[:, cols]
+        return a if self.free is None else np.column_stack([a, self.free.fit])
 
     def solve(self, cols: Sequence[int]) -> np.ndarray:
-        """Least squares of the columns ``cols`` on the weighted identification rows."""
-        beta, *_ = np.linalg.lstsq(self.x[:, cols], self.y, rcond=None)
+        """Least squares of the columns ``cols`` on the weighted identification rows
+        (with the model's free parameters beside them: their coefficients only)."""
+        beta, *_ = np.linalg.lstsq(self.design(cols), self.y, rcond=None)
         out: np.ndarray = beta
         return out
 
     def after(self, cols: Sequence[int], beta: np.ndarray, held: bool = False
               ) -> list[np.ndarray]:
-        """The residuals with the term ``Σ βₖ fₖ`` (of ``cols``) added."""
+        """The residuals with the term ``Σ βₖ fₖ`` (of ``cols``) added (and the model's
+        parameters' step that goes with it, with :attr:`free`)."""
         mats, res = (self.held_mats, self.held_res) if held else (self.fit_mats,
                                                                    self.fit_res)
-        return [r + m[:, cols] @ beta for r, m in zip(res, mats)]
+        out = [r + m[:, cols] @ beta for r, m in zip(res, mats)]
+        if self.free is None or not cols:
+            return out
+        # the parameters' step with the term: δ − δ₀ = −P x β (P the parameters' least
+        # squares on the weighted rows; the target after δ₀ is orthogonal to them)
+        delta = -self.free.step(self.x[:, cols] @ beta)
+        step = self.free.held @ delta if held else (self.free.fit @ delta) / self.w_rows
+        return _split_rows(np.concatenate(out) + step, out)
 
     def bic(self, cols: Sequence[int]) -> float:
         """The effective ΔBIC of the least-squares term of ``cols`` (none: 0 terms)."""
@@ -617,12 +688,13 @@ class _Regression:
 
     def std(self, cols: Sequence[int], beta: np.ndarray) -> np.ndarray:
         """σ of the coefficients: ``(XᵀX)⁻¹ s²``, inflated for an AR(1) residual."""
-        resid = self.y - self.x[:, cols] @ beta
+        a = self.design(cols)
+        resid = self.y - a @ beta
         rho = max(lag1(r) for r in self.after(cols, beta))
         s2 = float(np.dot(resid, resid)) / max(resid.size - len(cols), 1) \
             * (1 + rho) / (1 - rho)
         try:
-            cov = np.linalg.inv(self.x[:, cols].T @ self.x[:, cols]) * s2
+            cov = np.linalg.inv(a.T @ a) * s2
         except np.linalg.LinAlgError:
             return np.full(len(cols), math.inf)
         out: np.ndarray = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -633,10 +705,21 @@ def _stable(reg: _Regression, fit: Sequence[Record], say: Callable[[str], None]
             ) -> tuple[list[int], dict[str, float]]:
     """Step 3: the stable features (at most :data:`MAX_TERMS`, one of each kind), and the
     six most frequent features' selection frequencies."""
-    keep = np.any(reg.x != 0.0, axis=0)
+    keep = [int(j) for j in np.flatnonzero(np.any(reg.x != 0.0, axis=0))]
     freq = np.zeros(len(reg.feats))
-    freq[keep] = stability(reg.x[:, keep], reg.y, _blocks(fit), np.random.default_rng(SEED))
-    chosen = _one_of_each([j for j in np.argsort(-freq) if freq[j] >= MIN_FREQUENCY],
+    design = reg.design(keep)
+    freq[keep] = stability(design, reg.y, _blocks(fit), np.random.default_rng(SEED))
+    order = [int(j) for j in np.argsort(-freq)]
+    if reg.free is not None:
+        # of equal frequency, the feature that explains more of the missing force alone
+        # first: with the model's parameters free, several zones are chosen in every
+        # subsample, and the one kept must be where the force is (the plain discovery
+        # keeps its order, which the benchmark's answers were measured with)
+        alone = np.zeros(len(reg.feats))
+        norms = np.einsum("ij,ij->j", design, design)
+        alone[keep] = (design.T @ reg.y) ** 2 / np.where(norms > 0.0, norms, 1.0)
+        order = sorted(order, key=lambda j: (-freq[j], -alone[j]))
+    chosen = _one_of_each([j for j in order if freq[j] >= MIN_FREQUENCY],
                           reg.feats)[:MAX_TERMS]
     frequency = {reg.feats[j].symbol: float(freq[j]) for j in np.argsort(-freq)[:6]}
     say("discovery: selection frequencies " + ", ".join(
@@ -651,7 +734,7 @@ def _refine_profiles(reg: _Regression, chosen: list[int], fit: Sequence[Record],
     for j in chosen:
         f = reg.feats[j]
         if f.profile is not None:
-            refined = refine_profile(f, reg.x[:, [k for k in chosen if k != j]], reg.y,
+            refined = refine_profile(f, reg.beside([k for k in chosen if k != j]), reg.y,
                                      reg.w_rows, fit, fit_motion, rig)
             reg.replace(j, refined, fit, fit_motion, held, held_motion, rig)
 
@@ -669,7 +752,7 @@ def _refine_sign(reg: _Regression, chosen: list[int], fit: Sequence[Record],
     signs = [j for j in chosen if reg.feats[j].sign_m_s is not None]
     if not signs:
         return
-    others = reg.x[:, [j for j in chosen if j not in signs]]
+    others = reg.beside([j for j in chosen if j not in signs])
 
     def columns(v_sign: float) -> np.ndarray:
         return np.column_stack([np.concatenate([
@@ -741,7 +824,8 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
              held: Sequence[Record], weights: Sequence[float], floor: float,
              structure: float, structure_limit: float, min_score: float,
              max_delta_bic: float, progress: Callable[[str], None] | None = None,
-             dictionaries: Sequence[bool] = (False,)) -> Discovery:
+             dictionaries: Sequence[bool] = (False,), free: ModelFree | None = None
+             ) -> Discovery:
     """Discover a term in the residual of ``model`` (with the estimated chain ``rig``) on
     the identification records ``fit`` (weighted by ``weights``), scored on ``held``;
     the gate's ``floor`` and ``structure`` (held-out r.m.s. over its noise level) against
@@ -750,7 +834,8 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
     or not (local: without :data:`POLYNOMIAL_DAMPING`, a damping that changes over the
     stroke as the zones only, bounded where the files did not go), from one computation
     of the features; the term of the largest held-out gain is returned (of equal gains the
-    first)."""
+    first).  ``free``: the model's parameters free to first order beside the term
+    (:class:`ModelFree`, their slopes at ``model``)."""
     import time
 
     t0 = time.perf_counter()
@@ -796,7 +881,7 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
         one = regress(_Regression.of([all_feats[j] for j in cols],
                                      [m[:, cols] for m in all_fit],
                                      [m[:, cols] for m in all_held], fit_res, held_res,
-                                     weights, max_delta_bic))
+                                     weights, max_delta_bic, free))
         if best is None or (one.features and (
                 not best.features or one.held_out_gain > best.held_out_gain)):
             if best is not None:

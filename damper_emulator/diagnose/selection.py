@@ -318,21 +318,7 @@ def discover_with_model_free(diag: Diagnosis, session: Session, found: Discovery
                      dictionaries=(False, True), free=ModelFree(on_fit, on_held))
     if not again.features:
         return found
-    # the term, and where it has several parts each of them left out: the refit with the
-    # model decides, on the held-out files (a part the linear step needed may only
-    # extrapolate once the model's own parameters move)
-    tries = [again] + [dataclasses.replace(
-        again, features=[f for j, f in enumerate(again.features) if j != k],
-        coefficients=np.delete(again.coefficients, k), std=np.delete(again.std, k))
-        for k in range(len(again.features)) if len(again.features) > 1]
-    refits = []
-    for t in tries:
-        say(f"discovery: {t.expression} refitted with the model")
-        refits.append(refit_with_term(t, session.base.cfg, final.out["base_values"],
-                                      accepted, fit, held, weights, fit_before,
-                                      held_before, MIN_SCORE, MAX_DELTA_BIC,
-                                      session.n_quasi_static, session.nfev, say))
-    again = min(refits, key=lambda r: (not r.significant, pooled_rms(held_with_term(r))))
+    again = best_refit(again, session, final)
     if not again.significant or (found.significant and pooled_rms(held_with_term(again))
                                  > (1.0 - MIN_SCORE) * pooled_rms(now)):
         say("discovery: the term found with the model's parameters free is not taken")
@@ -345,6 +331,29 @@ def discover_with_model_free(diag: Diagnosis, session: Session, found: Discovery
         diag.explained = explained_fraction(cast(StepFit, diag.refit).residuals(held),
                                             held_with_term(again))
     return again
+
+
+def best_refit(found: Discovery, session: Session, final: StepFit) -> Discovery:
+    """``found`` refitted with the model ``final`` (:func:`refit_with_term`), and where
+    it has several parts, each of them left out and the rest refitted: the significant
+    one that leaves least held out (else the least of all).  The joint refit decides on
+    the held-out files: a part that the discovery's linear step of the parameters needed
+    may only extrapolate once the parameters themselves move."""
+    say = session.say
+    tries = [found] + [dataclasses.replace(
+        found, features=[f for j, f in enumerate(found.features) if j != k],
+        coefficients=np.delete(found.coefficients, k), std=np.delete(found.std, k))
+        for k in range(len(found.features)) if len(found.features) > 1]
+    accepted = list(zip(final.candidates, final.out["values"]))
+    fit_before, held_before = final.residuals(session.fit), final.residuals(session.held)
+    refits = []
+    for t in tries:
+        say(f"discovery: {t.expression} refitted with the model")
+        refits.append(refit_with_term(t, session.base.cfg, final.out["base_values"],
+                                      accepted, session.fit, session.held, session.weights,
+                                      fit_before, held_before, MIN_SCORE, MAX_DELTA_BIC,
+                                      session.n_quasi_static, session.nfev, say))
+    return min(refits, key=lambda r: (not r.significant, pooled_rms(held_with_term(r))))
 
 
 def beside_dropped(diag: Diagnosis, session: Session, alone: Discovery) -> Discovery:

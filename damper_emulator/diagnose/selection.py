@@ -318,7 +318,7 @@ def discover_with_model_free(diag: Diagnosis, session: Session, found: Discovery
                      dictionaries=(False, True), free=ModelFree(on_fit, on_held))
     if not again.features:
         return found
-    again = best_refit(again, session, final)
+    again = best_refit(again, session, final, fit_before, held_before)
     if not again.significant or (found.significant and pooled_rms(held_with_term(again))
                                  > (1.0 - MIN_SCORE) * pooled_rms(now)):
         say("discovery: the term found with the model's parameters free is not taken")
@@ -333,8 +333,11 @@ def discover_with_model_free(diag: Diagnosis, session: Session, found: Discovery
     return again
 
 
-def best_refit(found: Discovery, session: Session, final: StepFit) -> Discovery:
-    """``found`` refitted with the model ``final`` (:func:`refit_with_term`), and where
+def best_refit(found: Discovery, session: Session, final: StepFit,
+               fit_before: Sequence[np.ndarray], held_before: Sequence[np.ndarray]
+               ) -> Discovery:
+    """``found`` refitted with the model ``final`` (its residuals ``fit_before``,
+    ``held_before``: the refits' reference) (:func:`refit_with_term`), and where
     it has several parts, each of them left out and the rest refitted: the significant
     one that leaves least held out (else the least of all).  The joint refit decides on
     the held-out files: a part that the discovery's linear step of the parameters needed
@@ -345,7 +348,6 @@ def best_refit(found: Discovery, session: Session, final: StepFit) -> Discovery:
         coefficients=np.delete(found.coefficients, k), std=np.delete(found.std, k))
         for k in range(len(found.features)) if len(found.features) > 1]
     accepted = list(zip(final.candidates, final.out["values"]))
-    fit_before, held_before = final.residuals(session.fit), final.residuals(session.held)
     refits = []
     for t in tries:
         say(f"discovery: {t.expression} refitted with the model")

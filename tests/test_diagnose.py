@@ -290,23 +290,28 @@ def test_the_fits_run_on_any_executor_in_self_contained_tasks():
     assert remote.rms_after == pytest.approx(local.rms_after, rel=1e-4)
 
 
+def blas_threads() -> list[int]:
+    """The threads of each BLAS library loaded in this process."""
+    from threadpoolctl import threadpool_info
+
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+class Stop(Exception):
+    """Raised by a stand-in to end the call under test where it was seen."""
+
+
 def test_a_fit_task_runs_blas_on_one_thread_and_gives_the_caller_its_threads_back(
         monkeypatch):
     """Each fit task is one core's work: BLAS threads of its own would compete with the
     other workers' fits (a diagnosis 1.4x slower on 2 cores) and make its arithmetic
     depend on the machine's core count."""
-    from threadpoolctl import threadpool_info, threadpool_limits
+    from threadpoolctl import threadpool_limits
 
     from damper_emulator.diagnose import tasks
     from damper_emulator.diagnose.tasks import FIT_BLAS_THREADS, FitTask, run_fit_task
 
-    def blas_threads() -> list[int]:
-        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
-
     seen: list[list[int]] = []
-
-    class Stop(Exception):
-        pass
 
     def joint_fit(*args, **kwargs):
         seen.append(blas_threads())
@@ -320,6 +325,33 @@ def test_a_fit_task_runs_blas_on_one_thread_and_gives_the_caller_its_threads_bac
         assert before and all(n == 2 for n in before)  # numpy's and scipy's OpenBLAS
         with pytest.raises(Stop):
             run_fit_task(task)
+        assert blas_threads() == before
+    assert seen == [[FIT_BLAS_THREADS] * len(before)]
+
+
+def test_a_diagnosis_runs_blas_on_one_thread_in_its_own_process_too(monkeypatch):
+    """The fits a diagnosis runs in the caller's process (a discovered term's refits, the
+    model-free stage) take one BLAS thread, as each fit task: OpenBLAS's spinning threads
+    would compete with the Jacobian's threads and the pool's fits.  The caller gets its
+    threads back."""
+    from threadpoolctl import threadpool_limits
+
+    from damper_emulator.diagnose import selection
+    from damper_emulator.diagnose.tasks import FIT_BLAS_THREADS
+
+    seen: list[list[int]] = []
+
+    def check_inputs(*args, **kwargs):
+        seen.append(blas_threads())
+        raise Stop
+
+    monkeypatch.setattr(selection, "check_inputs", check_inputs)
+    _, data = truth_session("valve_lag")
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        assert before and all(n == 2 for n in before)
+        with pytest.raises(Stop):
+            diagnose(DamperModel(load_config()), data[:2], data[2:])
         assert blas_threads() == before
     assert seen == [[FIT_BLAS_THREADS] * len(before)]
 

@@ -25,7 +25,7 @@ from can_bridge.core import STATE
 from can_bridge.dbc import load_database
 from can_bridge.dyno_client import OverCanError, run_over_can
 from damper_emulator.model.compressible import DamperModel, simulate
-from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
+from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment, signals_held
 
 #: interface-local IPv6 multicast groups (never leave the host) for private loopback runs
 PRIVATE_GROUP_PREFIX = "ff11::d4"
@@ -92,11 +92,20 @@ class Loopback:
             self.progress(f"      starting emulator (trigger: input) and bridge (dyno) on "
                           f"{self.bus.interface} {self.bus.channel}, ROS_DOMAIN_ID "
                           f"{env['ROS_DOMAIN_ID']}; logs in {logs}")
-            self._nodes.append(NodeProcess("emulator", node_command(
-                "emulate", {"emulator.trigger": "input"}, params_files=files), env, logs))
-            self._nodes.append(NodeProcess("bridge", node_command(
-                "bridge", {"can_interface": self.bus.interface,
-                           "can_channel": self.bus.channel, "mode": "dyno"}), env, logs))
+            try:
+                with signals_held():
+                    self._nodes.append(NodeProcess("emulator", node_command(
+                        "emulate", {"emulator.trigger": "input"}, params_files=files), env,
+                        logs))
+                with signals_held():
+                    self._nodes.append(NodeProcess("bridge", node_command(
+                        "bridge", {"can_interface": self.bus.interface,
+                                   "can_channel": self.bus.channel, "mode": "dyno"}), env,
+                        logs))
+            except BaseException:
+                # no __exit__ after a failed __enter__: the node started first is stopped
+                self.__exit__()
+                raise
         return self
 
     def __exit__(self, *exc) -> None:

@@ -24,7 +24,7 @@ from can_bridge.loopback import default_bus
 from damper_emulator import topics
 from damper_emulator.errors import DamperHilError
 from damper_emulator.recording import read_recording
-from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
+from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment, signals_held
 from damper_hil.hil_report import write_report
 from ride_sim import loop_delay
 from ride_sim.params import load_ride_config
@@ -149,7 +149,9 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         emulator_params["emulator.trigger"] = "input"
     progress(f"[1/4] starting the emulator (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, "
              f"localhost only; logs in {logs})")
-    helpers = [NodeProcess("emulator", node_command("emulate", emulator_params), env, logs)]
+    # every node is started under signals_held: a Ctrl-C or a kill that lands as one starts
+    # still finds it in helpers (or ride) when the finally below stops them
+    helpers: list[NodeProcess] = []
     ride = None
 
     def start_rest() -> tuple[tuple[str, str], ...]:
@@ -159,15 +161,18 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
                  f"{bus.channel}"
                  + (", skyhook controller on the bus" if control == "skyhook" else ""))
         # the recorder first in the list: stopped last, it records everything
-        helpers.insert(0, NodeProcess("recorder", node_command(
-            "record", extra=["--out", str(bag)]), env, logs))
-        helpers.append(NodeProcess("bridge", node_command("bridge", {
-            "can_interface": bus.interface, "can_channel": bus.channel,
-            "mode": "controller"}), env, logs))
+        with signals_held():
+            helpers.insert(0, NodeProcess("recorder", node_command(
+                "record", extra=["--out", str(bag)]), env, logs))
+        with signals_held():
+            helpers.append(NodeProcess("bridge", node_command("bridge", {
+                "can_interface": bus.interface, "can_channel": bus.channel,
+                "mode": "controller"}), env, logs))
         if control == "skyhook":
-            helpers.append(NodeProcess("skyhook", node_command("skyhook", extra=[
-                "--can-interface", bus.interface, "--can-channel", bus.channel,
-                "--json", str(sky_json)]), env, logs))
+            with signals_held():
+                helpers.append(NodeProcess("skyhook", node_command("skyhook", extra=[
+                    "--can-interface", bus.interface, "--can-channel", bus.channel,
+                    "--json", str(sky_json)]), env, logs))
         # the recorder (its input node) and the live view see the ride from its start
         subscribed = ((topics.RIDE_STATE, f"{RECORDER}_input"),
                       (topics.FORCE, f"{RECORDER}_input"))
@@ -176,18 +181,23 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
 
             progress(f"      live view on ws://127.0.0.1:{live_port} (Foxglove or Lichtblick, "
                      "layout config/foxglove_layout.json)")
-            helpers.append(NodeProcess("live", node_command("live", extra=[
-                "--port", str(live_port)]), env, logs))
+            with signals_held():
+                helpers.append(NodeProcess("live", node_command("live", extra=[
+                    "--port", str(live_port)]), env, logs))
             subscribed += ((topics.RIDE_STATE, INPUT_NODE_NAME),)
         return subscribed
 
     try:
+        with signals_held():
+            helpers.append(NodeProcess("emulator", node_command("emulate", emulator_params),
+                                       env, logs))
         active_after = _wait_until_ready(env, helpers, progress, start_rest)
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
-        ride = NodeProcess("ride", node_command("ride", {
-            "ride.duration_s": float(duration_s), "ride.clock": clock,
-            "ride.metrics_file": str(metrics),
-            "ride.state_subscribers": 3}), env, logs)   # emulator, recorder and bridge
+        with signals_held():
+            ride = NodeProcess("ride", node_command("ride", {
+                "ride.duration_s": float(duration_s), "ride.clock": clock,
+                "ride.metrics_file": str(metrics),
+                "ride.state_subscribers": 3}), env, logs)   # emulator, recorder and bridge
         limit = time.monotonic() + duration_s + START_STOP_ALLOWANCE_S
         last = time.monotonic()
         while ride.poll() is None:

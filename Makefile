@@ -32,8 +32,10 @@ demo: $(STAMP)
 # stay on one worker); the ROS and CAN tests leave part of the CPU idle while their runs
 # wait on the wall clock, and the nodes' loops run under SCHED_FIFO and ride through the
 # cores' load; each part's output printed whole when it ends (--output-sync); then the
-# wall-clock checks that need the machine to themselves (timing), alone
-PYTEST := $(BIN)/python -m pytest -q --durations=10
+# wall-clock checks that need the machine to themselves (timing), alone.  Each test process
+# takes one BLAS thread: four of them share two cores, and OpenBLAS's threads spin before
+# they sleep (with a thread per core the cores stage took a tenth more CPU time)
+PYTEST := OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q --durations=10
 
 test: $(STAMP)
 	$(BIN)/ruff check .

@@ -55,14 +55,24 @@ CASES = (
 TARGET_LATENCY_P99_US = {"timer": 1000.0, "input": 500.0}
 INPUT_RATE_HZ = 1000.0
 VELOCITY_TAG = 1e-6          # sample k carries velocity k * VELOCITY_TAG [m/s]
+#: the two consumers of /damper/force, both in each run, and their columns' key suffix:
+#: rclpy's executor (a callback served by ``spin_once``), and a real-time one (a wait set)
+RECEIVERS = {"executor": "", "waitset": "_waitset"}
+#: the wait-set receiver's SCHED_FIFO priority (below the emulator's loop, 80)
+RECEIVER_PRIORITY = 70
 
 
-def receive(domain: int, n_max: int, duration_s: float, out: str, ready) -> None:
+def receive(domain: int, n_max: int, duration_s: float, out: str, ready,
+            waitset: bool = False) -> None:
     """Child process: record when each tagged force arrives (CLOCK_MONOTONIC is shared by
-    all processes of the machine)."""
+    all processes of the machine).  A consumer as rclpy's examples write one (a callback
+    served by ``rclpy.spin_once``: the executor's Python on every message), or, with
+    ``waitset``, as a real-time one would (SCHED_FIFO, messages taken from rclpy's wait set
+    without an executor)."""
     os.environ.update({"ROS_DOMAIN_ID": str(domain),
                        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
     import rclpy
+    from rclpy.impl.implementation_singleton import rclpy_implementation as impl
     from sensor_msgs.msg import JointState
 
     from damper_emulator import topics
@@ -79,14 +89,30 @@ def receive(domain: int, n_max: int, duration_s: float, out: str, ready) -> None
         if 0 < k < n_max and received[k] == 0:
             received[k] = now
 
-    node.create_subscription(JointState, topics.FORCE, on_force,
-                             control_qos(topics.CONTROL_DEPTH))
+    sub = node.create_subscription(JointState, topics.FORCE, on_force,
+                                   control_qos(topics.CONTROL_DEPTH))
     while node.count_publishers(topics.FORCE) == 0:
         rclpy.spin_once(node, timeout_sec=0.05)
-    ready.set()
     end = time.monotonic() + duration_s + 5.0
-    while time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
+    if waitset:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RECEIVER_PRIORITY))
+        wait_set = impl.WaitSet(1, 0, 0, 0, 0, 0, node.context.handle)
+        ready.set()
+        while time.monotonic() < end:
+            wait_set.clear_entities()
+            with sub.handle:
+                wait_set.add_subscription(sub.handle)
+            wait_set.wait(50_000_000)
+            while True:
+                with sub.handle:
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                if taken is None:
+                    break
+                on_force(taken[0])
+    else:
+        ready.set()
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
     np.save(out, received)
     node.destroy_node()
     rclpy.shutdown()
@@ -106,7 +132,8 @@ def measure(rate_hz: float, fifo: bool, latency_us: int, duration_s: float, work
 
     tag = f"{int(rate_hz)}_{int(fifo)}_{latency_us}_{trigger}"
     stats_file = workdir / f"stats_{tag}.npz"
-    recv_file = workdir / f"recv_{tag}.npy"
+    #: the two consumers' records, by kind (RECEIVERS)
+    recv_files = {kind: workdir / f"recv_{tag}_{kind}.npy" for kind in RECEIVERS}
     env = ros_environment(domain)
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     emu = NodeProcess("emulator", node_command("emulate", {
@@ -116,15 +143,18 @@ def measure(rate_hz: float, fifo: bool, latency_us: int, duration_s: float, work
         "emulator.input_timeout_s": 1.0}), env, workdir)
     n_max = int(duration_s * INPUT_RATE_HZ) + 10
     ctx = multiprocessing.get_context("spawn")
-    ready = ctx.Event()
-    receiver = ctx.Process(target=receive, args=(domain, n_max, duration_s, str(recv_file),
-                                                 ready))
-    receiver.start()
+    readies = {kind: ctx.Event() for kind in RECEIVERS}
+    receivers = [ctx.Process(target=receive, args=(
+        domain, n_max, duration_s, str(recv_files[kind]), readies[kind], kind == "waitset"))
+        for kind in RECEIVERS]
+    for receiver in receivers:
+        receiver.start()
     rclpy.init()
     node = rclpy.create_node("node_bench_sender")
     pub = node.create_publisher(JointState, topics.STATE, control_qos(topics.CONTROL_DEPTH))
     deadline = time.monotonic() + 60
-    while node.count_subscribers(topics.STATE) == 0 or not ready.is_set():
+    while node.count_subscribers(topics.STATE) == 0 or not all(
+            r.is_set() for r in readies.values()):
         time.sleep(0.05)
         if time.monotonic() > deadline or emu.poll() is not None:
             raise SystemExit(f"emulator or receiver did not start:\n{emu.log_tail()}")
@@ -153,14 +183,11 @@ def measure(rate_hz: float, fifo: bool, latency_us: int, duration_s: float, work
     loop.start()
     time.sleep(duration_s)
     loop.stop()
-    receiver.join(duration_s + 30)
+    for receiver in receivers:
+        receiver.join(duration_s + 30)
     node.destroy_node()
     rclpy.shutdown()
     emu.stop()
-    received = np.load(recv_file)
-    ok = (sent > 0) & (received > 0)
-    lat_us = (received[ok] - sent[ok]) / 1e3
-    lost = int(((sent > 0) & (received == 0)).sum())
     row: dict = {"rate_hz": rate_hz, "sched_fifo": fifo, "trigger": trigger, "realtime": "",
                  "ticks": None}
     if trigger == "timer":           # the input trigger has no loop, and no record of it
@@ -175,12 +202,16 @@ def measure(rate_hz: float, fifo: bool, latency_us: int, duration_s: float, work
             "overruns": s.overruns,
             "overrun_percent": 100.0 * s.overruns / z["periods_ns"].size,
             "skipped": s.skipped})
-    return {
-        **row,
-        "latency_p50_us": float(np.percentile(lat_us, 50)) if lat_us.size else float("nan"),
-        "latency_p99_us": float(np.percentile(lat_us, 99)) if lat_us.size else float("nan"),
-        "samples_without_force": lost, "samples": int((sent > 0).sum()),
-    }
+    for kind, suffix in RECEIVERS.items():
+        received = np.load(recv_files[kind])
+        ok = (sent > 0) & (received > 0)
+        lat_us = (received[ok] - sent[ok]) / 1e3
+        row[f"latency{suffix}_p50_us"] = (float(np.percentile(lat_us, 50)) if lat_us.size
+                                          else float("nan"))
+        row[f"latency{suffix}_p99_us"] = (float(np.percentile(lat_us, 99)) if lat_us.size
+                                          else float("nan"))
+        row[f"samples_without_force{suffix}"] = int(((sent > 0) & (received == 0)).sum())
+    return {**row, "samples": int((sent > 0).sum())}
 
 
 def main() -> None:
@@ -204,9 +235,10 @@ def main() -> None:
           f"a separate process; {cpu_name()}, {os.cpu_count()} cores, "
           f"Python {platform.python_version()}\n")
     print("| case | achieved rate | period p50 / p99 / max | p99 period error | overruns "
-          "(> 2 periods) | wake-up latency p50 / p99 | tick work p99 / max | state→force latency "
-          "p50 / p99 | input samples superseded before a tick |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "(> 2 periods) | wake-up latency p50 / p99 | tick work p99 / max | state→force "
+          "p50 / p99, executor consumer | state→force p50 / p99, real-time consumer | input "
+          "samples superseded before a tick |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         loop = (f"{r['achieved_rate_hz']:.2f} Hz | {r['period_p50_us']:.0f} / "
                 f"{r['period_p99_us']:.0f} / {r['period_max_us']:.0f} µs | "
@@ -216,13 +248,16 @@ def main() -> None:
                 if r["ticks"] is not None else "– | – | – | – | – | –")
         print(f"| {r['case']} | {loop} | "
               f"{r['latency_p50_us']:.0f} / {r['latency_p99_us']:.0f} µs | "
+              f"{r['latency_waitset_p50_us']:.0f} / {r['latency_waitset_p99_us']:.0f} µs | "
               f"{r['samples_without_force']} of {r['samples']} |")
     print()
     for r in rows:
         if r["sched_fifo"] and r["rate_hz"] == INPUT_RATE_HZ:
             target = TARGET_LATENCY_P99_US[r["trigger"]]
-            print(f"- {r['case']}: state→force p99 {r['latency_p99_us']:.0f} µs, target "
-                  f"≤ {target:g} µs: {'met' if r['latency_p99_us'] <= target else 'NOT met'}")
+            for kind, suffix in RECEIVERS.items():
+                p99 = r[f"latency{suffix}_p99_us"]
+                print(f"- {r['case']}, {kind} consumer: state→force p99 {p99:.0f} µs, target "
+                      f"≤ {target:g} µs: {'met' if p99 <= target else 'NOT met'}")
     for r in rows:
         if r["realtime"]:
             print(f"\n{r['case']}: real-time settings {r['realtime']}")

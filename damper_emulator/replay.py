@@ -107,6 +107,7 @@ Here: the command (:func:`run_replay`) and the emulator parameters it reads
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import gc
 import math
@@ -120,6 +121,7 @@ import numpy as np
 
 from damper_emulator.bag import raw_topics
 from damper_emulator.model.compressible import DamperModel, DamperStepper
+from damper_emulator.plot_process import PlotProcess
 from damper_emulator.realtime.settings import (
     DEFAULT_EMULATOR_FILE,
     EmulatorParams,
@@ -127,8 +129,9 @@ from damper_emulator.realtime.settings import (
     emulator_params_from_mapping,
 )
 from damper_emulator.replay_emulation import emulate, run_model
+from damper_emulator.replay_figure import PRELOAD
 from damper_emulator.replay_input import JOINT_STATE, read_bag
-from damper_emulator.replay_report import compare, plot_replay, write_replay_bag
+from damper_emulator.replay_report import compare, replay_traces, write_replay_bag
 from damper_emulator.schema import node_parameters, read_yaml
 
 __all__ = [
@@ -202,19 +205,24 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
     """
     from damper_emulator.outputs import Outputs
 
-    with Outputs(say=progress, inputs=[bag, params_file, emulator_params_file]) as outputs:
+    # the figure's process first: it imports matplotlib on another core while this one
+    # loads the model and replays the bag
+    with (PlotProcess("damper_emulator.replay_figure", "plot_replay", PRELOAD) if plot
+          else contextlib.nullcontext()) as painter, \
+            Outputs(say=progress, inputs=[bag, params_file, emulator_params_file]) as outputs:
         staged = outputs.folder(Path(out))
         json_at = outputs.file(Path(json_path)) if json_path is not None else None
         return _replay(Path(bag), Path(out), staged, json_at, params_file,
-                       emulator_params_file, plot, progress)
+                       emulator_params_file, painter, progress)
 
 
 def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
             params_file: str | os.PathLike[str] | None,
-            emulator_params_file: str | os.PathLike[str] | None, plot: bool,
-            progress: Callable[[str], None] | None) -> dict[str, Any]:
+            emulator_params_file: str | os.PathLike[str] | None,
+            painter: PlotProcess | None, progress: Callable[[str], None] | None
+            ) -> dict[str, Any]:
     """:func:`run_replay`, its outputs written into ``staged`` (named as in ``out``) and
-    ``json_at``."""
+    ``json_at``; the figure drawn by ``painter`` (None: no figure)."""
     import json
 
     from damper_emulator.bag import messages
@@ -289,14 +297,14 @@ def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
         "setup_s": round(setup_s, 6),
         "timings_s": {k: round(v, 6) for k, v in timings.items()},
     }
-    if plot:
+    if painter is not None:
         t5 = time.perf_counter()
         rms = (f"r.m.s. {cmp.rms_n:.3g} N ({100 * cmp.relative_rms:.3g} % of the recorded)"
                if cmp.rms_n is not None and cmp.relative_rms is not None else
                f"r.m.s. {cmp.rms_n:.3g} N" if cmp.rms_n is not None else "nothing compared")
-        plot_replay(staged / REPLAY_PNG, data, rep, cmp,
-                    f"Replay of {bag} ({rep.trigger} trigger, damper "
-                    f"'{model.cfg.damper.name}'): {rms}")
+        painter.call(staged / REPLAY_PNG, replay_traces(data, rep, cmp),
+                     f"Replay of {bag} ({rep.trigger} trigger, damper "
+                     f"'{model.cfg.damper.name}'): {rms}")
         doc["timings_s"]["plot"] = round(time.perf_counter() - t5, 6)
         doc["files"].insert(1, REPLAY_PNG)
     doc["command_s"] = round(_process_age_s(t_setup), 3)

@@ -21,6 +21,7 @@ from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages
 from damper_emulator.realtime.core import FAULT_OUTPUT
 from damper_emulator.realtime.settings import EmulatorParams
 from damper_emulator.replay_emulation import Replayed
+from damper_emulator.replay_figure import ReplayTraces
 from damper_emulator.replay_input import JOINT_STATE, BagData
 from damper_emulator.topics import FORCE, STATE, VALVE_COMMAND
 
@@ -124,61 +125,11 @@ def write_replay_bag(path: str | os.PathLike[str], data: BagData, rep: Replayed,
     return path
 
 
-def plot_replay(path: str | os.PathLike[str], data: BagData, rep: Replayed,
-                cmp: Comparison, title: str, zoom_s: float = 0.25) -> Path:
-    """Recorded and replayed force against time, their difference, and a ``zoom_s`` detail
-    around the largest difference (PNG).  The axes are placed, and the legends put in
-    their corners, by hand: a replay is a command users wait for, and matplotlib's
-    constrained layout and best-place legends would double the drawing's time."""
-    from damper_emulator.dyno.plots import decorate, new_figure, save
-
+def replay_traces(data: BagData, rep: Replayed, cmp: Comparison) -> ReplayTraces:
+    """The arrays :func:`plot_replay` draws from a replay and its comparison."""
     t0 = int(min(data.state.stamp_ns.min(), data.force.stamp_ns.min()))
-    fig = new_figure(11.0, 9.5, layout=None)
-    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.06, top=0.95, hspace=0.42)
-    ax, ax_d, ax_z = fig.subplots(3, 1, height_ratios=(3, 2, 2.4))
-    ax_d.sharex(ax)
-    t_rec = (data.force.stamp_ns - t0) * 1e-9
-    t_rep = (rep.stamp_ns - t0) * 1e-9
-    f_rec = data.force.effort[:, 0]
-    fault = np.flatnonzero(~rep.model)
-
-    def overlay(a, faults: np.ndarray) -> None:
-        a.plot(t_rec, f_rec * 1e-3, color="tab:blue", linewidth=2.2, alpha=0.45,
-               label="recorded /damper/force")
-        a.plot(t_rep, rep.force_n * 1e-3, color="black", linewidth=0.7,
-               label="replayed (model and fault outputs)")
-        if faults.size:
-            a.plot(t_rep[faults], rep.force_n[faults] * 1e-3, linestyle="none", marker="|",
-                   color="tab:red", markersize=8, label=f"fault outputs ({faults.size})")
-
-    overlay(ax, fault)
-    decorate(ax, "", "force [kN, rebound +]", legend="upper right")
-    ax.set_title(title, fontsize="medium")
-    if cmp.compared:
-        ax_d.plot(t_rep[cmp.index], cmp.difference_n, color="tab:purple", linewidth=0.7,
-                  label=f"r.m.s. {cmp.rms_n:.3g} N, max |·| {cmp.max_abs_n:.3g} N over "
-                        f"{cmp.compared} model outputs")
-        worst = cmp.index[int(np.argmax(np.abs(cmp.difference_n)))]
-        centre = float(t_rep[worst])
-    else:
-        centre = float(t_rep[0]) if t_rep.size else 0.0
-    decorate(ax_d, "time [s] (from the first stamp)", "replayed − recorded [N]",
-             legend="upper right")
-    first = float(min(t_rec.min(), t_rep.min() if t_rep.size else t_rec.min()))
-    last = float(max(t_rec.max(), t_rep.max() if t_rep.size else t_rec.max()))
-    lo = min(max(centre - zoom_s / 2, first), max(last - zoom_s, first))
-    hi = lo + zoom_s
-    overlay(ax_z, fault[(t_rep[fault] >= lo) & (t_rep[fault] <= hi)])
-    inside = (t_rec >= lo) & (t_rec <= hi)
-    ax_z.plot(t_rec[inside], f_rec[inside] * 1e-3, linestyle="none", marker=".",
-              markersize=3, color="tab:blue", label="recorded samples")
-    ax_z.set_xlim(lo, hi)
-    near = np.concatenate([f_rec[inside], rep.force_n[(t_rep >= lo) & (t_rep <= hi)]])
-    if near.size:
-        pad = 0.08 * max(float(np.ptp(near)), 1.0)
-        ax_z.set_ylim((near.min() - pad) * 1e-3, (near.max() + pad) * 1e-3)
-    ax_z.set_title(f"detail: {zoom_s * 1e3:g} ms around the largest difference",
-                   fontsize="small")
-    decorate(ax_z, "time [s] (from the first stamp)", "force [kN, rebound +]",
-             legend="upper right")
-    return save(fig, path)
+    label = (f"r.m.s. {cmp.rms_n:.3g} N, max |·| {cmp.max_abs_n:.3g} N over {cmp.compared} "
+             "model outputs" if cmp.compared else "")
+    return ReplayTraces((data.force.stamp_ns - t0) * 1e-9, data.force.effort[:, 0].copy(),
+                        (rep.stamp_ns - t0) * 1e-9, rep.force_n, np.flatnonzero(~rep.model),
+                        cmp.index, cmp.difference_n, label)

@@ -25,7 +25,8 @@ from can_bridge.core import STATE
 from can_bridge.dbc import load_database
 from can_bridge.dyno_client import OverCanError, run_over_can
 from damper_emulator.model.compressible import DamperModel, simulate
-from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment, signals_held
+from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
+from damper_emulator.signals import signals_held
 
 #: interface-local IPv6 multicast groups (never leave the host) for private loopback runs
 PRIVATE_GROUP_PREFIX = "ff11::d4"

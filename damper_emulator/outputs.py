@@ -33,13 +33,12 @@ import ctypes
 import os
 import re
 import shutil
-import signal
-import threading
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
 
 from damper_emulator.errors import ESCAPE, UserError
+from damper_emulator.signals import signals_held
 
 __all__ = ["MARKER", "OutputError", "Outputs", "atomic_path", "write_bytes", "write_text"]
 
@@ -138,26 +137,6 @@ def write_text(path: str | os.PathLike[str], text: str) -> Path:
     r""":func:`write_bytes` of ``text`` in UTF-8, lone surrogates (names that are not UTF-8)
     escaped as ``\xNN``.  Returns ``path``."""
     return write_bytes(path, text.encode("utf-8", ESCAPE))
-
-
-@contextlib.contextmanager
-def _signals_held() -> Iterator[None]:
-    """SIGINT and SIGTERM wait until the block is done (main thread only; elsewhere the
-    block runs as it is)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    pending: list[int] = []
-    held = (signal.SIGINT, signal.SIGTERM)
-    previous = {s: signal.signal(s, lambda signum, _frame: pending.append(signum))
-                for s in held}
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-        for signum in pending:
-            signal.raise_signal(signum)
 
 
 def _exchange(a: Path, b: Path) -> bool:
@@ -344,7 +323,7 @@ class Outputs:
         if self._done:
             return []
         done: list[Path] = []
-        with _signals_held():
+        with signals_held():
             for target, staging in self._files.items():
                 os.replace(staging, target)
                 done.append(target)

@@ -24,7 +24,8 @@ from can_bridge.loopback import default_bus
 from damper_emulator import topics
 from damper_emulator.errors import DamperHilError
 from damper_emulator.recording import read_recording
-from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment, signals_held
+from damper_emulator.ros.launch import NodeProcess, node_command, ros_environment
+from damper_emulator.signals import signals_held
 from damper_hil.hil_report import write_report
 from ride_sim import loop_delay
 from ride_sim.params import load_ride_config

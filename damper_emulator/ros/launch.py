@@ -11,10 +11,8 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import yaml
@@ -72,38 +70,11 @@ def _yaml_scalar(value: object) -> str:
     return str(value)
 
 
-#: the signals whose handlers :func:`signals_held` holds: Ctrl-C and a kill
-HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-@contextmanager
-def signals_held() -> Iterator[None]:
-    """Hold SIGINT's and SIGTERM's Python handlers while the body runs, then run them for
-    each that arrived.  Around a node's start and the statement that puts it where the
-    caller's stop finds it: a Ctrl-C or a kill between the two (its handler raises, as
-    the command line's do) would leave a started node that nobody stops.  Signals with
-    no Python handler, and calls from another thread than the main one (where Python
-    runs no handler), are left alone."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    held = {s: signal.getsignal(s) for s in HELD_SIGNALS}
-    held = {s: h for s, h in held.items() if h is not None}
-    for s in held:
-        signal.signal(s, lambda signum, frame: caught.append(signum))
-    try:
-        yield
-    finally:
-        for s, handler in held.items():
-            signal.signal(s, handler)
-        for s in caught:
-            signal.raise_signal(s)
-
-
 class NodeProcess:
     """One node in its own process, output to a log file.  Start it under
-    :func:`signals_held` where a signal's handler is to stop it.
+    :func:`~damper_emulator.signals.signals_held`, together with the statement that keeps
+    it, where a signal's handler is to stop it: a Ctrl-C or a kill between the two would
+    leave a started node that nobody stops.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""``damper_emulator.ros.launch.signals_held``: a node started as a kill lands is still
+"""``damper_emulator.signals.signals_held``: a node started as a kill lands is still
 stopped (the demo's nodes, the loopback's)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import threading
 
 import pytest
 
-from damper_emulator.ros.launch import signals_held
+from damper_emulator.signals import signals_held
 
 
 class Killed(BaseException):

@@ -1,9 +1,11 @@
-"""The replay's results: the comparison with the recording, the output bag and the plot.
+"""The replay's results: the comparison with the recording, the output bag and the
+figure's data.
 
 :func:`compare` measures replayed − recorded force over the model outputs with a recorded
 counterpart (a :class:`Comparison`, item 5 of :mod:`damper_emulator.replay`);
 :func:`write_replay_bag` writes ``/damper/state`` copied and the replayed ``/damper/force``
-to a new bag (item 4); :func:`plot_replay` draws recorded and replayed force, their
+to a new bag (item 4); :func:`replay_traces` gives the arrays
+:func:`damper_emulator.replay_figure.plot_replay` draws: recorded and replayed force, their
 difference and a detail around the largest difference.
 """
 
@@ -126,7 +128,8 @@ def write_replay_bag(path: str | os.PathLike[str], data: BagData, rep: Replayed,
 
 
 def replay_traces(data: BagData, rep: Replayed, cmp: Comparison) -> ReplayTraces:
-    """The arrays :func:`plot_replay` draws from a replay and its comparison."""
+    """The arrays :func:`damper_emulator.replay_figure.plot_replay` draws from a replay and
+    its comparison."""
     t0 = int(min(data.state.stamp_ns.min(), data.force.stamp_ns.min()))
     label = (f"r.m.s. {cmp.rms_n:.3g} N, max |·| {cmp.max_abs_n:.3g} N over {cmp.compared} "
              "model outputs" if cmp.compared else "")

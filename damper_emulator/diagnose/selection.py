@@ -110,7 +110,6 @@ from concurrent.futures import Executor
 from typing import cast
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from damper_emulator.diagnose.base import Record
 from damper_emulator.diagnose.discovery import Discovery, ModelFree, discover, refit_with_term
@@ -142,7 +141,7 @@ from damper_emulator.diagnose.scale import scale_findings, weigh_scale
 from damper_emulator.diagnose.series import SeriesResult
 from damper_emulator.diagnose.series_stage import follow_series
 from damper_emulator.diagnose.session import Say, Session, check_inputs, prepare, records_of
-from damper_emulator.diagnose.tasks import FIT_BLAS_THREADS
+from damper_emulator.diagnose.tasks import one_blas_thread
 from damper_emulator.diagnose.undetermined import (
     MIN_UNDETERMINED_SHARE,
     determined_masks,
@@ -447,6 +446,7 @@ def held_with_term(found: Discovery) -> list[np.ndarray]:
     return [term - missing for term, missing, _ in found.series.values()]
 
 
+@one_blas_thread
 def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
              held_out_data: Sequence[MeasuredData], effects: Sequence[str] | None = None,
              progress: Progress = None, jobs: int | None = None,
@@ -466,7 +466,9 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
 
     The fits run on ``executor`` (any :class:`concurrent.futures.Executor`, e.g. a Dask
     client's ``get_executor()``) or, without one, in ``jobs`` forked processes (default
-    one: in this process).
+    one: in this process); those in this process on one BLAS thread, as each task's
+    (:func:`~damper_emulator.diagnose.tasks.one_blas_thread`: OpenBLAS's threads spin
+    before they sleep, against the Jacobian's threads and the pool's fits).
 
     Raises
     ------
@@ -474,55 +476,51 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
         One line: no held-out file, duplicate file names, a series order that does not
         name every file once, or a file the model cannot simulate (naming it).
     """
-    # this process's fits (the discovered term's refits, the model-free stage) on one
-    # BLAS thread, as each fit task's (tasks.FIT_BLAS_THREADS): OpenBLAS's threads spin
-    # before they sleep, against the Jacobian's threads and the pool's fits
-    with threadpool_limits(limits=FIT_BLAS_THREADS, user_api="blas"):
-        say: Say = progress or (lambda msg: None)
-        t_start = time.perf_counter()
-        check_inputs(base, fit_data, held_out_data)
-        recorded = records_of(fit_data, held_out_data)
-        check_series(series, [r.name for r in recorded])
-        rms_recorded = {r.name: rms(r.residual(base)) for r in recorded}
-        first_look = screen_delay(base, recorded)
-        lines, cleaned = take_out_lines(base, recorded, say, first_look)
-        session = prepare(base, [cleaned[r.name] for r in recorded if not r.held_out],
-                          [cleaned[r.name] for r in recorded if r.held_out], effects,
-                          n_quasi_static, nfev, say, t_start)
-        say("identified model: held-out r.m.s. "
-            + ", ".join(f"{r.name} {session.rms_before[r.name]:.1f} N" for r in session.held))
+    say: Say = progress or (lambda msg: None)
+    t_start = time.perf_counter()
+    check_inputs(base, fit_data, held_out_data)
+    recorded = records_of(fit_data, held_out_data)
+    check_series(series, [r.name for r in recorded])
+    rms_recorded = {r.name: rms(r.residual(base)) for r in recorded}
+    first_look = screen_delay(base, recorded)
+    lines, cleaned = take_out_lines(base, recorded, say, first_look)
+    session = prepare(base, [cleaned[r.name] for r in recorded if not r.held_out],
+                      [cleaned[r.name] for r in recorded if r.held_out], effects,
+                      n_quasi_static, nfev, say, t_start)
+    say("identified model: held-out r.m.s. "
+        + ", ".join(f"{r.name} {session.rms_before[r.name]:.1f} N" for r in session.held))
+    if session.estimate:
+        say("no measurement chain given (--rig): the rig's delay of the force against the "
+            "displacement competes with the effects (the chain candidate)")
+    jobs_ = max(1, int(jobs or 1))
+    with LocalPool(jobs_ if executor is None else 1) as local:
+        rounds = LibraryRounds(session, local, executor, max_effects)
+        chain_first = None
         if session.estimate:
-            say("no measurement chain given (--rig): the rig's delay of the force against the "
-                "displacement competes with the effects (the chain candidate)")
-        jobs_ = max(1, int(jobs or 1))
-        with LocalPool(jobs_ if executor is None else 1) as local:
-            rounds = LibraryRounds(session, local, executor, max_effects)
-            chain_first = None
-            if session.estimate:
-                # the rig's delay first (the chain candidate of round 1): what moves over the
-                # series is weighed on the paper's model refitted with it, not on an
-                # identification that took a load-cell filter's lag into its valves
-                (chain_first,) = rounds.run(None, [CHAIN], "the rig's delay, first")
-            drift = follow_series(session, series, rounds, first_look, chain_first)
-            present = chain_first if not drift.taken else None
-            scale = weigh_scale(session, rounds, present)
-            found = rounds.select(present if scale is None or not scale.taken else None)
-        diag = answer(session, found, drift)
-        diag.rms_before = rms_recorded
-        diag.rms_before_rig = dict(session.rms_before)
-        diag.lines = lines
-        if discovery:
-            discover_term(diag, session)
-        drift.refresh(session.records, diag.model_after(), diag.rig_after())
-        diag.scale = scale
-        diag.measurement = [*line_findings(lines), *drift_findings(drift.taken),
-                            *scale_findings(scale),
-                            *chain_findings(diag.acquisition_json(),
-                                            recorded[0].data.acquisition)]
-        diag.seconds = time.perf_counter() - t_start
-        say(f"diagnosis: {diag.family}" + (f" ({', '.join(s._added.effect for s in diag.steps)})"
-                                           if diag.steps else "") + f" in {diag.seconds:.1f} s")
-        return diag
+            # the rig's delay first (the chain candidate of round 1): what moves over the
+            # series is weighed on the paper's model refitted with it, not on an
+            # identification that took a load-cell filter's lag into its valves
+            (chain_first,) = rounds.run(None, [CHAIN], "the rig's delay, first")
+        drift = follow_series(session, series, rounds, first_look, chain_first)
+        present = chain_first if not drift.taken else None
+        scale = weigh_scale(session, rounds, present)
+        found = rounds.select(present if scale is None or not scale.taken else None)
+    diag = answer(session, found, drift)
+    diag.rms_before = rms_recorded
+    diag.rms_before_rig = dict(session.rms_before)
+    diag.lines = lines
+    if discovery:
+        discover_term(diag, session)
+    drift.refresh(session.records, diag.model_after(), diag.rig_after())
+    diag.scale = scale
+    diag.measurement = [*line_findings(lines), *drift_findings(drift.taken),
+                        *scale_findings(scale),
+                        *chain_findings(diag.acquisition_json(),
+                                        recorded[0].data.acquisition)]
+    diag.seconds = time.perf_counter() - t_start
+    say(f"diagnosis: {diag.family}" + (f" ({', '.join(s._added.effect for s in diag.steps)})"
+                                       if diag.steps else "") + f" in {diag.seconds:.1f} s")
+    return diag
 
 
 def check_series(order: Sequence[str] | None, names: Sequence[str]) -> None:

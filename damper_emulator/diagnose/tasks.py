@@ -4,10 +4,11 @@ its runner (:func:`run_fit_task`), for any executor: a process pool, Dask worker
 
 from __future__ import annotations
 
+import functools
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -61,15 +62,26 @@ class FitTask:
 FIT_BLAS_THREADS = 1
 
 
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def one_blas_thread(fn: Callable[_P, _R]) -> Callable[_P, _R]:
+    """``fn`` run with :data:`FIT_BLAS_THREADS` BLAS threads, the caller's given back after
+    (each fit task, and a diagnosis's own process: its refits beside the Jacobian's
+    threads and the pool's fits)."""
+    @functools.wraps(fn)
+    def limited(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        with threadpool_limits(limits=FIT_BLAS_THREADS, user_api="blas"):
+            return fn(*args, **kwargs)
+    return limited
+
+
+@one_blas_thread
 def run_fit_task(task: FitTask) -> dict[str, Any]:
     """Run one :class:`FitTask` (in any process, with :data:`FIT_BLAS_THREADS` BLAS
     threads): the joint fit and the plain figures the selection needs (per file: MSE,
     lag-1 autocorrelation and samples of the fit files, SSE of the held-out files)."""
-    with threadpool_limits(limits=FIT_BLAS_THREADS, user_api="blas"):
-        return _run_fit_task(task)
-
-
-def _run_fit_task(task: FitTask) -> dict[str, Any]:
     t0 = time.perf_counter()
     per_file = dict(task.per_file)
     fit = [make_record(d, False, per_file.get(d.name or d.path)) for d in task.fit]

@@ -205,15 +205,15 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
     """
     from damper_emulator.outputs import Outputs
 
-    # the figure's process first: it imports matplotlib on another core while this one
-    # loads the model and replays the bag
-    with (PlotProcess("damper_emulator.replay_figure", "plot_replay", PRELOAD) if plot
-          else contextlib.nullcontext()) as painter, \
-            Outputs(say=progress, inputs=[bag, params_file, emulator_params_file]) as outputs:
+    with Outputs(say=progress, inputs=[bag, params_file, emulator_params_file]) as outputs:
         staged = outputs.folder(Path(out))
         json_at = outputs.file(Path(json_path)) if json_path is not None else None
-        return _replay(Path(bag), Path(out), staged, json_at, params_file,
-                       emulator_params_file, painter, progress)
+        # the figure's process once the outputs are checked, before the work: it imports
+        # matplotlib on another core while this one loads the model and replays the bag
+        with (PlotProcess("damper_emulator.replay_figure", "plot_replay", PRELOAD) if plot
+              else contextlib.nullcontext()) as painter:
+            return _replay(Path(bag), Path(out), staged, json_at, params_file,
+                           emulator_params_file, painter, progress)
 
 
 def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,

@@ -150,10 +150,16 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         emulator_params["emulator.trigger"] = "input"
     progress(f"[1/4] starting the emulator (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, "
              f"localhost only; logs in {logs})")
-    # every node is started under signals_held: a Ctrl-C or a kill that lands as one starts
-    # still finds it in helpers (or ride) when the finally below stops them
     helpers: list[NodeProcess] = []
     ride = None
+
+    def start(name: str, command: list[str], first: bool = False) -> None:
+        """Start a node into ``helpers`` (``first``: at its head, stopped last) under
+        signals_held: a Ctrl-C or a kill that lands as it starts still finds it there when
+        the finally below stops them."""
+        with signals_held():
+            node = NodeProcess(name, command, env, logs)
+            helpers.insert(0 if first else len(helpers), node)
 
     def start_rest() -> tuple[tuple[str, str], ...]:
         from damper_emulator.ros.recorder import NODE_NAME as RECORDER
@@ -162,18 +168,14 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
                  f"{bus.channel}"
                  + (", skyhook controller on the bus" if control == "skyhook" else ""))
         # the recorder first in the list: stopped last, it records everything
-        with signals_held():
-            helpers.insert(0, NodeProcess("recorder", node_command(
-                "record", extra=["--out", str(bag)]), env, logs))
-        with signals_held():
-            helpers.append(NodeProcess("bridge", node_command("bridge", {
-                "can_interface": bus.interface, "can_channel": bus.channel,
-                "mode": "controller"}), env, logs))
+        start("recorder", node_command("record", extra=["--out", str(bag)]), first=True)
+        start("bridge", node_command("bridge", {
+            "can_interface": bus.interface, "can_channel": bus.channel,
+            "mode": "controller"}))
         if control == "skyhook":
-            with signals_held():
-                helpers.append(NodeProcess("skyhook", node_command("skyhook", extra=[
-                    "--can-interface", bus.interface, "--can-channel", bus.channel,
-                    "--json", str(sky_json)]), env, logs))
+            start("skyhook", node_command("skyhook", extra=[
+                "--can-interface", bus.interface, "--can-channel", bus.channel,
+                "--json", str(sky_json)]))
         # the recorder (its input node) and the live view see the ride from its start
         subscribed = ((topics.RIDE_STATE, f"{RECORDER}_input"),
                       (topics.FORCE, f"{RECORDER}_input"))
@@ -182,16 +184,12 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
 
             progress(f"      live view on ws://127.0.0.1:{live_port} (Foxglove or Lichtblick, "
                      "layout config/foxglove_layout.json)")
-            with signals_held():
-                helpers.append(NodeProcess("live", node_command("live", extra=[
-                    "--port", str(live_port)]), env, logs))
+            start("live", node_command("live", extra=["--port", str(live_port)]))
             subscribed += ((topics.RIDE_STATE, INPUT_NODE_NAME),)
         return subscribed
 
     try:
-        with signals_held():
-            helpers.append(NodeProcess("emulator", node_command("emulate", emulator_params),
-                                       env, logs))
+        start("emulator", node_command("emulate", emulator_params))
         active_after = _wait_until_ready(env, helpers, progress, start_rest)
         progress(f"[2/4] ride: {duration_s:g} s of minor road, clock {clock}")
         with signals_held():

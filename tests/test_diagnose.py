@@ -301,32 +301,41 @@ class Stop(Exception):
     """Raised by a stand-in to end the call under test where it was seen."""
 
 
+def assert_one_blas_thread_inside(monkeypatch, module, name: str, call) -> None:
+    """``call()`` reaches ``module.name`` (replaced by a stand-in that records the BLAS
+    threads there, then stops the call) with :data:`FIT_BLAS_THREADS` threads in every
+    BLAS library, from a caller at two, who has its two back after."""
+    from threadpoolctl import threadpool_limits
+
+    from damper_emulator.diagnose.tasks import FIT_BLAS_THREADS
+
+    seen: list[list[int]] = []
+
+    def stand_in(*args, **kwargs):
+        seen.append(blas_threads())
+        raise Stop
+
+    monkeypatch.setattr(module, name, stand_in)
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        assert before and all(n == 2 for n in before)  # numpy's and scipy's OpenBLAS
+        with pytest.raises(Stop):
+            call()
+        assert blas_threads() == before
+    assert seen == [[FIT_BLAS_THREADS] * len(before)]
+
+
 def test_a_fit_task_runs_blas_on_one_thread_and_gives_the_caller_its_threads_back(
         monkeypatch):
     """Each fit task is one core's work: BLAS threads of its own would compete with the
     other workers' fits (a diagnosis 1.4x slower on 2 cores) and make its arithmetic
     depend on the machine's core count."""
-    from threadpoolctl import threadpool_limits
-
     from damper_emulator.diagnose import tasks
-    from damper_emulator.diagnose.tasks import FIT_BLAS_THREADS, FitTask, run_fit_task
+    from damper_emulator.diagnose.tasks import FitTask, run_fit_task
 
-    seen: list[list[int]] = []
-
-    def joint_fit(*args, **kwargs):
-        seen.append(blas_threads())
-        raise Stop
-
-    monkeypatch.setattr(tasks, "joint_fit", joint_fit)
     _, data = truth_session("valve_lag")
     task = FitTask(load_config(), (data[0], data[1]), (data[2],), (1.0, 1.0), {}, (), None)
-    with threadpool_limits(limits=2, user_api="blas"):
-        before = blas_threads()
-        assert before and all(n == 2 for n in before)  # numpy's and scipy's OpenBLAS
-        with pytest.raises(Stop):
-            run_fit_task(task)
-        assert blas_threads() == before
-    assert seen == [[FIT_BLAS_THREADS] * len(before)]
+    assert_one_blas_thread_inside(monkeypatch, tasks, "joint_fit", lambda: run_fit_task(task))
 
 
 def test_a_diagnosis_runs_blas_on_one_thread_in_its_own_process_too(monkeypatch):
@@ -334,26 +343,12 @@ def test_a_diagnosis_runs_blas_on_one_thread_in_its_own_process_too(monkeypatch)
     model-free stage) take one BLAS thread, as each fit task: OpenBLAS's spinning threads
     would compete with the Jacobian's threads and the pool's fits.  The caller gets its
     threads back."""
-    from threadpoolctl import threadpool_limits
-
     from damper_emulator.diagnose import selection
-    from damper_emulator.diagnose.tasks import FIT_BLAS_THREADS
 
-    seen: list[list[int]] = []
-
-    def check_inputs(*args, **kwargs):
-        seen.append(blas_threads())
-        raise Stop
-
-    monkeypatch.setattr(selection, "check_inputs", check_inputs)
     _, data = truth_session("valve_lag")
-    with threadpool_limits(limits=2, user_api="blas"):
-        before = blas_threads()
-        assert before and all(n == 2 for n in before)
-        with pytest.raises(Stop):
-            diagnose(DamperModel(load_config()), data[:2], data[2:])
-        assert blas_threads() == before
-    assert seen == [[FIT_BLAS_THREADS] * len(before)]
+    assert_one_blas_thread_inside(
+        monkeypatch, selection, "check_inputs",
+        lambda: diagnose(DamperModel(load_config()), data[:2], data[2:]))
 
 
 def test_noise_level_and_structure_ratio_follow_their_definitions():

@@ -95,7 +95,16 @@ def run_model(model: DamperModel, stamp_ns: np.ndarray, x: np.ndarray, v: np.nda
 
 def detect_trigger(data: BagData) -> str:
     """``"input"`` if every recorded force stamp is a state stamp, else ``"timer"``."""
-    return "input" if np.isin(data.force.stamp_ns, data.state.stamp_ns).all() else "timer"
+    # a binary search in the sorted state stamps: np.isin sorts both sides and took
+    # 1 ms of the 5 ms that emulate() spends on bags/demo_5s
+    states = data.state.stamp_ns
+    if np.any(states[1:] < states[:-1]):
+        states = np.sort(states)
+    forces = data.force.stamp_ns
+    if states.size == 0:
+        return "input" if forces.size == 0 else "timer"
+    pos = np.minimum(np.searchsorted(states, forces), states.size - 1)
+    return "input" if bool((states[pos] == forces).all()) else "timer"
 
 
 def emulate(data: BagData, model: DamperModel, params: EmulatorParams,

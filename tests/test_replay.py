@@ -15,9 +15,12 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from damper_emulator.bag import BagError, BagWriter, cdr_fast, messages, open_bag, raw_topics
 from damper_emulator.model.compressible import DamperStepper
@@ -25,6 +28,7 @@ from damper_emulator.realtime.core import Status
 from damper_emulator.realtime.settings import default_emulator_mapping
 from damper_emulator.recording import read_recording
 from damper_emulator.replay import REPLAY_BAG, load_emulator_params, run_replay
+from damper_emulator.replay_emulation import detect_trigger
 from damper_emulator.replay_input import read_bag
 from damper_hil.cli import main
 
@@ -280,6 +284,19 @@ def test_fast_reader_reads_an_unclosed_bag(tmp_path):
 
 # ------------------------------------------------------------------------------------------
 # replay
+
+_stamps = st.lists(st.integers(-5, 40), max_size=30).map(lambda v: np.array(v, np.int64))
+
+
+@given(_stamps, _stamps)
+def test_trigger_is_input_exactly_when_every_force_stamp_is_a_state_stamp(states, forces):
+    """The trigger's binary search against its definition (set membership), on unsorted,
+    repeated and empty stamps."""
+    data = SimpleNamespace(state=SimpleNamespace(stamp_ns=states),
+                           force=SimpleNamespace(stamp_ns=forces))
+    expected = "input" if set(forces.tolist()) <= set(states.tolist()) else "timer"
+    assert detect_trigger(data) == expected  # type: ignore[arg-type]
+
 
 
 @pytest.mark.slow

@@ -4,7 +4,9 @@ Deadlines are ``t0 + k·period`` on ``CLOCK_MONOTONIC`` (``time.sleep`` sleeps w
 ``clock_nanosleep`` on Linux), so the rate does not drift with the work done per tick.  A
 tick that ends after its successor's deadline runs the successor at once; when the loop has
 fallen more than one period behind it skips the missed deadlines (counted) instead of
-running a burst of catch-up ticks.
+running a burst of catch-up ticks.  A tick may move the next deadline (and so all later
+ones) by :meth:`PeriodicLoop.shift_next` (a phase lock to the input,
+:mod:`damper_emulator.realtime.phase_lock`).
 """
 
 from __future__ import annotations
@@ -174,6 +176,7 @@ class PeriodicLoop:
         self.stats = LoopStats(self.period_ns, capacity)
         self.report = RealtimeReport()
         self.error: BaseException | None = None
+        self._shift_ns = 0
         self._stop = threading.Event()
         self._started = threading.Event()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -186,6 +189,11 @@ class PeriodicLoop:
         self._stop.set()
         if self._thread.is_alive() and threading.current_thread() is not self._thread:
             self._thread.join(timeout_s)
+
+    def shift_next(self, shift_ns: int) -> None:
+        """Move the next deadline, and every later one, by ``shift_ns`` (+: later).  Called
+        from ``tick`` (the loop's thread); the shifts of one tick add up."""
+        self._shift_ns += int(shift_ns)
 
     @property
     def running(self) -> bool:
@@ -215,7 +223,8 @@ class PeriodicLoop:
                 previous = now
                 self._tick(now)
                 stats.record_tick(now - deadline, clock() - now)
-                deadline += period
+                deadline += period + self._shift_ns
+                self._shift_ns = 0
                 behind = clock() - deadline
                 if behind > period:
                     missed = behind // period

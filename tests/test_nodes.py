@@ -9,6 +9,7 @@ import math
 import os
 import subprocess
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -32,7 +33,8 @@ ROOT = Path(__file__).resolve().parent.parent
 #: each test its own domain: 110 + offset (>= 102 would clash with the 0..101 range? no:
 #: the Linux limit is 232; stay well inside it and away from the demo's 40..89)
 DOMAINS = {"lockstep": 121, "stale": 122, "nan": 123, "kill": 124,
-           "params": 125, "badfile": 126, "dds": 127, "behind": 128, "term": 129}
+           "params": 125, "badfile": 126, "dds": 127, "behind": 128, "term": 129,
+           "phase": 130}
 pytestmark = pytest.mark.ros
 
 
@@ -148,6 +150,66 @@ def test_stale_input_gives_the_fault_output_within_two_timeouts(tmp_path):
     assert (t_fault - last_sent) * 1e-9 >= timeout
     assert all(s & Status.TIMEOUT for t, _, s in got if t >= t_fault)
     assert all(f == 0.0 for _, f, _ in faults)                 # fault_mode zero
+
+
+def _tick_phase_ns(stamps_ns: list[int], period_ns: int) -> float:
+    """The circular mean of ``stamps_ns`` modulo ``period_ns`` (the phase of a loop's ticks
+    on the wall clock) [ns]."""
+    angles = 2 * np.pi * (np.asarray(stamps_ns, dtype=np.int64) % period_ns) / period_ns
+    return float(np.angle(np.exp(1j * angles).mean()) % (2 * np.pi) / (2 * np.pi) * period_ns)
+
+
+def test_the_timer_loop_moves_its_ticks_to_follow_the_input(tmp_path):
+    """The phase lock (damper_emulator/realtime/phase_lock.py) wired into the node.  The
+    emulator's ticks (its forces' stamps) are found before any input; the test then sends
+    1 kHz input a quarter period after them, so that each input would wait about 0.6 ms
+    for the next tick.  With the lock the ticks move to 0.2 ms after each arrival, about
+    0.4 ms earlier; without it they stay where they were (the same clocks)."""
+    d = DOMAINS["phase"]
+    period = 1_000_000
+    emu = start("emulator", "emulate", d, tmp_path)
+    probe = Probe(d)
+    stamps: list[tuple[int, int]] = []             # (header stamp ns, status)
+    probe.node.create_subscription(
+        JointState, topics.FORCE,
+        lambda m: stamps.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec,
+                                 int(m.effort[1]))), control_qos(100))
+    pub = probe.node.create_publisher(JointState, topics.STATE, control_qos(10))
+    stop = threading.Event()
+
+    def send(first_ns: int) -> None:
+        k, due = 0, first_ns
+        while not stop.is_set():
+            delay = due - time.time_ns()
+            if delay > 0:
+                time.sleep(delay * 1e-9)
+            k += 1
+            pub.publish(state(0.01 * math.sin(k * 2e-3), 0.02))
+            due += period
+
+    sender = None
+    try:
+        assert probe.spin_until(lambda: pub.get_subscription_count() > 0 and len(stamps) > 300,
+                                60), emu.log_tail()
+        before = _tick_phase_ns([t for t, _ in stamps[-300:]], period)
+        now = time.time_ns()
+        first = now - now % period + period * 50 + int(before + period // 4)
+        sender = threading.Thread(target=send, args=(first,), daemon=True)
+        sender.start()
+        probe.spin_for(3.0)
+    finally:
+        stop.set()
+        if sender is not None:
+            sender.join(2.0)
+        probe.close()
+        emu.stop()
+    answered = [t for t, status in stamps[-1000:] if not status & Status.NO_INPUT]
+    assert len(answered) > 500, emu.log_tail()
+    after = _tick_phase_ns(answered, period)
+    moved = (after - before + period / 2) % period - period / 2     # wrapped into ±P/2
+    print(f"ticks at {before / 1e3:.0f} µs of the period before the input, "
+          f"{after / 1e3:.0f} µs after: moved {moved / 1e3:+.0f} µs")
+    assert abs(moved) > 200_000
 
 
 def test_nan_input_never_reaches_the_force(tmp_path):

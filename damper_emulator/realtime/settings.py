@@ -14,7 +14,14 @@ from pathlib import Path
 from typing import Any
 
 from damper_emulator.realtime.rt import RealtimeRequest
-from damper_emulator.schema import build_group, check_value, node_parameters, read_yaml, rule
+from damper_emulator.schema import (
+    ParameterError,
+    build_group,
+    check_value,
+    node_parameters,
+    read_yaml,
+    rule,
+)
 
 #: Default emulator node parameters.
 DEFAULT_EMULATOR_FILE = Path(__file__).resolve().parents[2] / "config" / "emulator.yaml"
@@ -35,6 +42,11 @@ class EmulatorParams:
                         "timer: fixed-rate loop at rate_hz (hardware in the loop); input: one "
                         "force per input sample, the model advanced by the difference of the "
                         "samples' stamps (lockstep simulation, replay)", "timer")
+    phase_lock_us: float = rule("non-negative",
+                                "timer trigger: move the loop's ticks, a little per tick, to "
+                                "follow each input's arrival by this lag, shorter than a "
+                                "period (the rate stays rate_hz, or follows the input's clock "
+                                "within 2 %; 0: ticks on the loop's own phase) [µs]", 200.0)
     input_mode: str = rule(("choices", INPUT_MODES),
                            "between input samples: hold the stroke, or extrapolate it with "
                            "the sample's velocity (at most max_extrapolation_s)", "hold",
@@ -85,6 +97,14 @@ class EmulatorParams:
                           "serve the live view (Foxglove WebSocket on 127.0.0.1, channels "
                           "/live/damper and /live/loop) on this port, fed from the executor "
                           "thread, never the loop; needs foxglove-sdk (0 = off)", 0)
+
+    def __post_init__(self) -> None:
+        period_us = 1e6 / self.rate_hz if self.rate_hz > 0 else float("inf")
+        if self.trigger == "timer" and self.phase_lock_us >= period_us:
+            raise ParameterError(
+                f"emulator.phase_lock_us = {self.phase_lock_us:g} must be shorter than the "
+                f"loop's period ({period_us:g} µs at rate_hz {self.rate_hz:g}); 0 turns the "
+                "lock off")
 
     def realtime_request(self) -> RealtimeRequest:
         return RealtimeRequest(sched_fifo=self.sched_fifo, priority=self.priority,

@@ -50,6 +50,7 @@ from damper_emulator.params import (
 )
 from damper_emulator.realtime.core import EmulatorCore, Output, Status
 from damper_emulator.realtime.loop import LoopStats, PeriodicLoop
+from damper_emulator.realtime.phase_lock import PhaseLock
 from damper_emulator.realtime.rt import unlock_memory
 from damper_emulator.realtime.settings import (
     RUNTIME_PARAMETERS,
@@ -189,6 +190,8 @@ class EmulatorNode(ManagedNode):
         #: why the node is not active (after a deactivation: in /diagnostics)
         self._inactive_reason = ""
         self._live: LiveServer | None = None
+        #: the timer loop's lock to the input's arrivals (None: off, or not active)
+        self._phase_lock: PhaseLock | None = None
         self._memory_locked = False
         self._live_timer = None
         if p.live_port:
@@ -259,6 +262,9 @@ class EmulatorNode(ManagedNode):
                 for _ in take_all(sub):
                     pass
             capacity = max(4096, int(p.rate_hz * p.stats_window_s))
+            period_ns = round(1e9 / p.rate_hz)
+            self._phase_lock = (PhaseLock(period_ns, round(p.phase_lock_us * 1e3))
+                                if p.phase_lock_us > 0 else None)
             self._loop = PeriodicLoop(1.0 / p.rate_hz, self._tick,
                                       realtime=p.realtime_request(), capacity=capacity,
                                       name="emulator-loop")
@@ -371,13 +377,17 @@ class EmulatorNode(ManagedNode):
         if reason:
             self.get_logger().warning(f"valve command refused: {reason}")
 
-    def _take_inputs(self, now_ns: int) -> None:
+    def _take_inputs(self, now_ns: int) -> tuple[int, int]:
         """Every sample that arrived since the last tick, oldest first; each is received
-        at its DDS reception time (mapped onto the monotonic clock)."""
+        at its DDS reception time (mapped onto the monotonic clock).  Returns how many
+        were taken and the newest one's time since its arrival [ns] (0: unknown)."""
+        taken = delay = 0
         for msg, info in take_all(self._state_sub):
             received = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
-            delay = time.time_ns() - received if received else 0
-            self._on_state(msg, now_ns - max(0, delay))
+            delay = max(0, time.time_ns() - received) if received else 0
+            self._on_state(msg, now_ns - delay)
+            taken += 1
+        return taken, delay
 
     def _take_valve_commands(self) -> None:
         """Every valve command that arrived since the last tick, in order (the last wins)."""
@@ -386,7 +396,9 @@ class EmulatorNode(ManagedNode):
 
     def _tick(self, now_ns: int) -> None:
         self._take_valve_commands()
-        self._take_inputs(now_ns)
+        taken, lag_ns = self._take_inputs(now_ns)
+        if self._phase_lock is not None and lag_ns and self._loop is not None:
+            self._loop.shift_next(self._phase_lock.shift_ns(taken, lag_ns))
         out = self.core.tick(now_ns)
         self._publish(out, time.time_ns())
         if self._first_input_tick < 0 and not out.status & Status.NO_INPUT:
@@ -475,6 +487,8 @@ class EmulatorNode(ManagedNode):
                 "skipped_deadlines": str(s.skipped),
                 "realtime": loop.report.summary(),
             })
+            if self._phase_lock is not None:
+                values["phase_lock_error_us"] = f"{self._phase_lock.error_ns / 1e3:.1f}"
             if s.overruns:
                 level, message = DiagnosticStatus.WARN, f"{s.overruns} loop overruns"
         if c.rejected:

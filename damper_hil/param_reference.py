@@ -30,6 +30,7 @@ def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
     """``(group, params file, who reads it, dataclass, loader of the defaults)``."""
     from can_bridge.settings import BridgeParams, bridge_params_from_mapping
     from damper_emulator.acquisition.rig import DisplacementChannel, ForceChannel, load_rig
+    from damper_emulator.managed_settings import ManagedNodeParams
     from damper_emulator.params import DamperParams, NumericsParams, load_config
     from damper_emulator.realtime.settings import EmulatorParams
     from ride_sim.hybrid.params import GROUPS as HYBRID_GROUPS
@@ -57,6 +58,9 @@ def _groups() -> list[tuple[str, str, str, type, Callable[[], Any]]]:
          EmulatorParams, EmulatorParams),
         ("", "config/bridge.yaml", "the `can_bridge` node (parameters without a group)",
          BridgeParams, lambda: bridge_params_from_mapping(None)),
+        ("", "",
+         "the managed nodes `damper_emulator` and `can_bridge` (without a group)",
+         ManagedNodeParams, ManagedNodeParams),
         ("quarter_car", "config/quarter_car.yaml", "the ride node and `ride-study`",
          QuarterCarParams, lambda: ride().quarter_car),
         ("simulation", "config/quarter_car.yaml", "the ride node and `ride-study`",
@@ -123,8 +127,11 @@ def render() -> str:
     for group, path, who, cls, defaults in _groups():
         specs: list[FieldSpec] = field_specs(cls, group)
         obj = defaults()
-        lines += [f"## `{group or 'can_bridge'}`", "",
-                  f"In `{path}`; read by {who}. "
+        heading = group or ("managed nodes" if cls.__name__ == "ManagedNodeParams"
+                            else "can_bridge")
+        lines += [f"## `{heading}`", "",
+                  (f"In `{path}`" if path else "On the node's command line "
+                   "(`-p autostart:=false`), in no params file") + f"; read by {who}. "
                   f"{_cell((cls.__doc__ or '').strip().splitlines()[0])}", "",
                   "| parameter | type | unit | rule | default | run time | description |",
                   "|---|---|---|---|---|---|---|"]

@@ -44,18 +44,21 @@ from functools import partial
 from lifecycle_msgs.msg import State as LifecycleStateMsg
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from damper_emulator import topics
+from damper_emulator.managed_settings import ManagedNodeParams
+from damper_emulator.params import field_specs
 from damper_emulator.realtime.rt import normal_scheduling
 from damper_emulator.ros.common import StopSignals
+from damper_emulator.ros.parameters import parameter_descriptor
 from damper_emulator.ros.readiness import latched_qos, lifecycle_state_topic
 
-#: The managed nodes' own parameter: configure and activate at start.
+#: The managed nodes' own parameter: configure and activate at start
+#: (:class:`~damper_emulator.managed_settings.ManagedNodeParams`).
 AUTOSTART = "autostart"
 
 #: rclpy's own topics, which the safe output does not wait for.
@@ -112,11 +115,9 @@ class ManagedNode(LifecycleNode):
 
     def __init__(self, name: str, **kwargs: object) -> None:
         super().__init__(name, **kwargs)
+        spec = field_specs(ManagedNodeParams, "")[0]
         self.autostart = bool(self.declare_parameter(
-            AUTOSTART, True, ParameterDescriptor(
-                type=ParameterType.PARAMETER_BOOL, read_only=True,
-                description="configure and activate at start (false: wait for a lifecycle "
-                            "manager's transitions)")).value)
+            AUTOSTART, ManagedNodeParams().autostart, parameter_descriptor(spec)).value)
         self.exit_status = 0
         self.lifecycle_state = "unconfigured"
         #: the stop signals, once :meth:`run` has installed their handlers

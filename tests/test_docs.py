@@ -153,3 +153,104 @@ def test_the_benchmark_driver_rewrites_a_section_and_keeps_the_rest(tmp_path):
     run_all.write_section(page, "b", "new")
     assert page.read_text(encoding="utf-8") == (
         "intro\n\n<!-- a -->\nsecond\n<!-- /a -->\n\ntail\n\n<!-- b -->\nnew\n<!-- /b -->\n\n")
+
+
+# ------------------------------------------------------------------------------------------
+# The command lines of the README and docs parse with the command line's own parser
+
+#: fence languages whose lines are commands (```text holds usage synopses and output)
+SHELL_FENCES = {"", "sh", "bash", "shell", "console"}
+#: a variable set in a block (``BUS="--can-interface ..."``), used by later lines
+ASSIGNMENT = re.compile(r"^([A-Z_][A-Z0-9_]*)=(.*)$")
+
+
+def _shell_blocks(text: str) -> list[list[tuple[int, str]]]:
+    """The shell blocks of a Markdown text, each its (line number, line) pairs: fenced
+    blocks of :data:`SHELL_FENCES`, and indented blocks outside fences (only their
+    command lines: a list item's indented paragraphs are text)."""
+    blocks: list[list[tuple[int, str]]] = []
+    fence: str | None = None
+    indented: list[tuple[int, str]] = []
+    for number, line in enumerate(text.splitlines(), 1):
+        stripped = line.strip()
+        if fence is None and stripped.startswith("```"):
+            fence = stripped[3:].strip()
+            blocks.append([])
+            continue
+        if fence is not None:
+            if stripped.startswith("```"):
+                if fence not in SHELL_FENCES:
+                    blocks.pop()
+                fence = None
+            else:
+                blocks[-1].append((number, line))
+            continue
+        continued = bool(indented) and indented[-1][1].rstrip().endswith("\\")
+        if line.startswith("    ") and (continued or stripped.split(" ")[0].endswith(
+                "damper-hil")):
+            indented.append((number, line))
+        elif indented:
+            blocks.append(indented)
+            indented = []
+    if indented:
+        blocks.append(indented)
+    return blocks
+
+
+def documented_commands() -> list[tuple[str, list[str]]]:
+    """Every ``damper-hil …`` command line of README.md and docs/ as ``(file:line,
+    arguments after damper-hil)``: continuation lines joined, comments and a trailing
+    ``&`` dropped, the block's variables expanded as the shell would."""
+    import shlex
+
+    found = []
+    for path in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        for block in _shell_blocks(path.read_text(encoding="utf-8")):
+            variables: dict[str, list[str]] = {}
+            lines = iter(block)
+            for number, line in lines:
+                text = line.strip()
+                while text.endswith("\\"):
+                    text = text[:-1] + " " + next(lines)[1].strip()
+                assignment = ASSIGNMENT.match(text)
+                if assignment:
+                    # an unquoted $NAME splits into words at blanks
+                    variables[assignment[1]] = " ".join(
+                        shlex.split(assignment[2], comments=True)).split()
+                    continue
+                words = []
+                for word in shlex.split(text, comments=True):
+                    name = word[1:].strip("{}") if word.startswith("$") else None
+                    words.extend(variables[name] if name in variables else [word])
+                if not words or not words[0].endswith("damper-hil"):
+                    continue
+                if words[-1] == "&":
+                    words.pop()
+                found.append((f"{path.relative_to(REPO)}:{number}", words[1:]))
+    return found
+
+
+def test_every_documented_command_line_parses():
+    """Each parses with the command line's parser (nothing runs): an option renamed, a
+    subcommand removed or a placeholder left in a command fails here."""
+    from damper_hil.cli import build_parser
+
+    commands = documented_commands()
+    assert len(commands) > 40            # the README's and the docs' examples were found
+    reference = (REPO / "docs" / "parameters.md").read_text(encoding="utf-8")
+    bad = []
+    for where, argv in commands:
+        head = argv[:argv.index("--ros-args")] if "--ros-args" in argv else argv
+        try:
+            args = build_parser().parse_args(head)
+        except SystemExit:
+            bad.append(f"{where}: damper-hil {' '.join(argv)}")
+            continue
+        if len(head) < len(argv) and not getattr(args, "takes_ros_args", False):
+            bad.append(f"{where}: {args.command} takes no --ros-args")
+        # every node parameter set with -p is one the parameter reference lists
+        ros_args = argv[len(head):]
+        for flag, value in zip(ros_args, ros_args[1:]):
+            if flag == "-p" and f"| `{value.split(':=')[0]}` |" not in reference:
+                bad.append(f"{where}: -p {value}: not in docs/parameters.md")
+    assert not bad, "\n".join(bad)

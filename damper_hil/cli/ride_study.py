@@ -50,7 +50,7 @@ def add_parser(sub) -> None:
                     "paper's values and ratios); a table is printed on stdout.  See\n"
                     "docs/ride_study.md.",
         epilog="examples:\n"
-               f"  {PROG} ride-study --figure 10 --json fig10.json --report docs/ride_study\n"
+               f"  {PROG} ride-study --figure 10 --json fig10.json --report fig10\n"
                f"  {PROG} ride-study --figure 11 --seeds 5 --workers 2 --json fig11.json\n"
                f"  {PROG} ride-study --figure 13 --speed 10 --json fig13.json\n"
                f"  {PROG} ride-study --figure adaptive --json adaptive.json --out "

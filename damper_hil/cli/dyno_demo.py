@@ -23,8 +23,10 @@ def add_parser(sub) -> None:
     dyno_demo.add_argument("--duration", metavar="S", type=positive_float,
                            default=Chirp.duration_s,
                            help=f"chirp duration [s] (default: {Chirp.duration_s:g})")
-    dyno_demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
-                           help="output directory (created if missing; default: demo_out)")
+    # not the HIL demo's demo_out/: both write a demo.json
+    dyno_demo.add_argument("--out", metavar="DIR", type=Path, default=Path("dyno_demo_out"),
+                           help="output directory (created if missing; default: "
+                                "dyno_demo_out)")
     dyno_demo.set_defaults(handler=run)
 
 

@@ -3,6 +3,7 @@ measured data, which we may not copy), and every relative link in the Markdown r
 
 from __future__ import annotations
 
+import itertools
 import re
 import subprocess
 from pathlib import Path
@@ -197,36 +198,39 @@ def _shell_blocks(text: str) -> list[list[tuple[int, str]]]:
     return blocks
 
 
-def documented_commands() -> list[tuple[str, list[str]]]:
+def documented_commands() -> list[tuple[str, list[str], int]]:
     """Every ``damper-hil …`` command line of README.md and docs/ as ``(file:line,
-    arguments after damper-hil)``: continuation lines joined, comments and a trailing
-    ``&`` dropped, the block's variables expanded as the shell would."""
+    arguments after damper-hil, number of its block)``: continuation lines joined,
+    comments and a trailing ``&`` dropped, the block's variables expanded as the shell
+    would."""
     import shlex
 
     found = []
-    for path in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
-        for block in _shell_blocks(path.read_text(encoding="utf-8")):
-            variables: dict[str, list[str]] = {}
-            lines = iter(block)
-            for number, line in lines:
-                text = line.strip()
-                while text.endswith("\\"):
-                    text = text[:-1] + " " + next(lines)[1].strip()
-                assignment = ASSIGNMENT.match(text)
-                if assignment:
-                    # an unquoted $NAME splits into words at blanks
-                    variables[assignment[1]] = " ".join(
-                        shlex.split(assignment[2], comments=True)).split()
-                    continue
-                words = []
-                for word in shlex.split(text, comments=True):
-                    name = word[1:].strip("{}") if word.startswith("$") else None
-                    words.extend(variables[name] if name in variables else [word])
-                if not words or not words[0].endswith("damper-hil"):
-                    continue
-                if words[-1] == "&":
-                    words.pop()
-                found.append((f"{path.relative_to(REPO)}:{number}", words[1:]))
+    blocks = [(path, block)
+              for path in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+              for block in _shell_blocks(path.read_text(encoding="utf-8"))]
+    for block_number, (path, block) in enumerate(blocks):
+        variables: dict[str, list[str]] = {}
+        lines = iter(block)
+        for number, line in lines:
+            text = line.strip()
+            while text.endswith("\\"):
+                text = text[:-1] + " " + next(lines)[1].strip()
+            assignment = ASSIGNMENT.match(text)
+            if assignment:
+                # an unquoted $NAME splits into words at blanks
+                variables[assignment[1]] = " ".join(
+                    shlex.split(assignment[2], comments=True)).split()
+                continue
+            words = []
+            for word in shlex.split(text, comments=True):
+                name = word[1:].strip("{}") if word.startswith("$") else None
+                words.extend(variables.get(name, [word]))
+            if not words or not words[0].endswith("damper-hil"):
+                continue
+            if words[-1] == "&":
+                words.pop()
+            found.append((f"{path.relative_to(REPO)}:{number}", words[1:], block_number))
     return found
 
 
@@ -239,7 +243,16 @@ def test_every_documented_command_line_parses():
     assert len(commands) > 40            # the README's and the docs' examples were found
     reference = (REPO / "docs" / "parameters.md").read_text(encoding="utf-8")
     bad = []
-    for where, argv in commands:
+    written: dict[tuple[int, str], str] = {}     # (block, folder) → where
+    for where, argv, block in commands:
+        # a block's commands, run in turn, must not write one folder twice: a folder
+        # output is replaced as a whole
+        for flag, value in itertools.pairwise(argv):
+            if flag in ("--out", "--report") and not value.endswith((".csv", ".json")):
+                key = (block, value.rstrip("/"))
+                if key in written:
+                    bad.append(f"{where}: {flag} {value} again (also {written[key]})")
+                written[key] = where
         head = argv[:argv.index("--ros-args")] if "--ros-args" in argv else argv
         try:
             args = build_parser().parse_args(head)
@@ -250,7 +263,7 @@ def test_every_documented_command_line_parses():
             bad.append(f"{where}: {args.command} takes no --ros-args")
         # every node parameter set with -p is one the parameter reference lists
         ros_args = argv[len(head):]
-        for flag, value in zip(ros_args, ros_args[1:]):
+        for flag, value in itertools.pairwise(ros_args):
             if flag == "-p" and f"| `{value.split(':=')[0]}` |" not in reference:
                 bad.append(f"{where}: -p {value}: not in docs/parameters.md")
     assert not bad, "\n".join(bad)

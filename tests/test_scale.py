@@ -77,3 +77,22 @@ def test_a_gain_of_every_file_on_a_speed_series_is_the_rigs_and_the_damper_none(
     assert gain["value"] == pytest.approx(1.05, rel=0.02)
     assert "cannot be told apart" in gain["evidence"]
     assert pooled(diag.rms_after, diag.held_out) < 3.0 * NOISE_N
+
+
+@pytest.mark.parametrize(("ratio", "bound"), [(0.8, "stiffer"), (0.5, "stiffer"),
+                                              (0.81, ""), (1.0, ""), (1.23, ""),
+                                              (1.25, "softer"), (3.0, "softer")])
+def test_a_scale_at_its_bound_says_which_way_and_what_to_do(ratio, bound):
+    """The bound is a gain's range (OIL_COMPRESSIBILITY_FACTOR either side, within
+    BOUND_MARGIN of it): beyond, the note names the direction and --fit-alpha; within,
+    nothing is said and the scale may be taken."""
+    from damper_emulator.diagnose.base import OIL_COMPRESSIBILITY_FACTOR
+    from damper_emulator.diagnose.scale import BOUND_MARGIN, ScaleResult
+
+    alpha = 1.5e-9
+    result = ScaleResult(alpha, ratio * alpha, -50.0, 0.5, False)
+    edge = OIL_COMPRESSIBILITY_FACTOR / BOUND_MARGIN
+    assert (ratio <= 1 / edge or ratio >= edge) == bool(bound)
+    assert result.at_bound == bound and result.to_json()["at_bound"] == bound
+    note = result.bound_note()
+    assert (f"an oil {bound} than" in note and "--fit-alpha" in note) if bound else not note

@@ -63,6 +63,29 @@ class ScaleResult:
     taken: bool
 
     @property
+    def at_bound(self) -> str:
+        """``"stiffer"`` or ``"softer"`` where the freed α went to its bound (the data
+        want the oil stiffer or softer than the data sheet's by more than a load cell's
+        gain explains), else ``""``."""
+        factor = OIL_COMPRESSIBILITY_FACTOR / BOUND_MARGIN
+        if self.alpha_fitted <= self.alpha_model / factor:
+            return "stiffer"
+        return "softer" if self.alpha_fitted >= self.alpha_model * factor else ""
+
+    def bound_note(self) -> str:
+        """What a scale at its bound tells the user (``""`` where it is not)."""
+        if not self.at_bound:
+            return ""
+        return (f"The paper's model refitted with the oil's compressibility freed took it "
+                f"to its bound ({self.alpha_fitted:.3g} against the identified model's "
+                f"{self.alpha_model:.3g} 1/Pa, the most a load cell's gain explains): the "
+                f"data want an oil {self.at_bound} than the model's by more than a gain. "
+                "The diagnosis frees α only within a gain's range, so the rest goes to the "
+                "effects. A valve lag or cavitation does this too; but where the model's α "
+                "is a data sheet's, not the damper's, `identify --fit-alpha` fits it "
+                "first.")
+
+    @property
     def gain(self) -> float:
         """The force channel's gain that the fitted α stands for: ``α_model/α_fitted``."""
         return self.alpha_model / self.alpha_fitted
@@ -86,7 +109,7 @@ class ScaleResult:
         return {"alpha_model_per_pa": self.alpha_model,
                 "alpha_fitted_per_pa": self.alpha_fitted, "gain": self.gain,
                 "delta_bic": self.delta_bic, "explained": self.explained,
-                "taken": self.taken}
+                "taken": self.taken, "at_bound": self.at_bound}
 
 
 def weigh_scale(session: Session, rounds: LibraryRounds, present: StepFit | None
@@ -110,8 +133,8 @@ def weigh_scale(session: Session, rounds: LibraryRounds, present: StepFit | None
     dbic, explained = refit_evidence(sigmas, without.residuals(records),
                                      with_alpha.residuals(records), 1)
     fitted = float(with_alpha.out["base_values"][OIL_COMPRESSIBILITY])
-    inside = (alpha / OIL_COMPRESSIBILITY_FACTOR * BOUND_MARGIN < fitted
-              < alpha * OIL_COMPRESSIBILITY_FACTOR / BOUND_MARGIN)
+    result = ScaleResult(alpha, fitted, dbic, explained, False)
+    inside = not result.at_bound
     taken = bool(dbic <= SERIES_MAX_DELTA_BIC and explained >= MIN_SERIES_EXPLAINED
                  and inside)
     result = ScaleResult(alpha, fitted, dbic, explained, taken)
@@ -120,6 +143,8 @@ def weigh_scale(session: Session, rounds: LibraryRounds, present: StepFit | None
         "refit without it leaves" + ("; taken: every later fit frees it" if taken else
                                      "; not taken" + ("" if inside else
                                                       " (at its bound: no gain)")))
+    if result.at_bound:
+        say(f"the force's scale: {result.bound_note()}")
     if taken:
         # the later fits start from the refit's paper's parameters (the delay competes
         # in the rounds as ever)

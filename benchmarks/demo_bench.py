@@ -49,6 +49,10 @@ ROOT = Path(__file__).resolve().parent.parent
 #: stopped when the demo ends
 SENTINEL_MARGIN_S = 120.0
 SENTINEL = ROOT / "benchmarks" / "host_sentinel.py"
+#: the targets of the module docstring
+TARGET_RTF = 0.99
+TARGET_P99_ERROR_US = 100.0
+TARGET_ACTIVE_S = 2.0
 
 
 def _start_sentinels(seconds: float, out: Path) -> list[tuple[subprocess.Popen, Path]]:
@@ -195,9 +199,28 @@ def main() -> int:
           f"{_spread([r['p99_error_us'] for r in ok])} µs; overruns "
           f"{_spread([r['overruns'] for r in ok])}; emulator active after launch "
           f"{_spread([r['active_after_s'] for r in ok if not r['cold']])} s (warm runs)")
+    print()
+    for what, holds, runs in _verdicts(ok):
+        print(f"- {what}: met in {holds} of {runs} runs{'' if holds == runs else ': NOT met'}")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")
     return 1 if any(r.get("failed") for r in rows) else 0
+
+
+def _verdicts(ok: list[dict]) -> list[tuple[str, int, int]]:
+    """Each target of the module docstring: how many runs hold it, of how many."""
+    warm = [r for r in ok if not r["cold"]]
+    checks = [
+        (f"real-time factor ≥ {TARGET_RTF:g}", ok, lambda r: r["real_time_factor"] >= TARGET_RTF),
+        ("no overrun", ok, lambda r: r["overruns"] == 0),
+        (f"p99 period error ≤ {TARGET_P99_ERROR_US:g} µs", ok,
+         lambda r: r["p99_error_us"] <= TARGET_P99_ERROR_US),
+        ("no fault output in the ride", ok, lambda r: r["faults_in_ride"] == 0),
+        (f"emulator active ≤ {TARGET_ACTIVE_S:g} s after its launch (warm runs)", warm,
+         lambda r: r["active_after_s"] is not None and r["active_after_s"] <= TARGET_ACTIVE_S),
+    ]
+    return [(what, sum(1 for r in runs if test(r)), len(runs)) for what, runs, test in checks
+            if runs]
 
 
 if __name__ == "__main__":

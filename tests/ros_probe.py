@@ -3,6 +3,7 @@ node tests to publish, subscribe and spin with."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from pathlib import Path
@@ -51,3 +52,43 @@ def cold_environment(root: Path, domain: int) -> dict:
     env = ros_environment(domain)
     env["NUMBA_CACHE_DIR"] = str(root / "numba-cache")
     return env
+
+
+def send_states_on_a_grid(domain: int, first_ns: int, period_ns: int, duration_s: float,
+                          priority: int = 60) -> None:
+    """A child process's sender of ``/damper/state`` (``multiprocessing`` spawn): one
+    sample at each wall-clock instant ``first_ns + k·period_ns`` for ``duration_s``, from a
+    thread under SCHED_FIFO at ``priority`` where permitted, in a process with no other
+    Python (a sender in the test's own process shares the GIL with its probe's executor,
+    and on a loaded machine came milliseconds late)."""
+    import math
+
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    import rclpy
+    from rclpy.context import Context
+    from sensor_msgs.msg import JointState
+
+    from damper_emulator import topics
+    from damper_emulator.ros.common import control_qos
+
+    with contextlib.suppress(PermissionError, OSError):
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    node = rclpy.create_node("grid_sender", context=context)
+    pub = node.create_publisher(JointState, topics.STATE, control_qos(10))
+    msg = JointState()
+    msg.name = ["damper"]
+    end = first_ns + int(duration_s * 1e9)
+    due, k = first_ns, 0
+    while due < end:
+        delay = due - time.time_ns()
+        if delay > 0:
+            time.sleep(delay * 1e-9)
+        k += 1
+        msg.position = [0.01 * math.sin(k * 2e-3)]
+        msg.velocity = [0.02]
+        pub.publish(msg)
+        due += period_ns
+    node.destroy_node()
+    rclpy.shutdown(context=context)

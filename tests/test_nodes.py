@@ -9,7 +9,6 @@ import math
 import os
 import subprocess
 import sys
-import threading
 import time
 import warnings
 from pathlib import Path
@@ -161,10 +160,15 @@ def _tick_phase_ns(stamps_ns: list[int], period_ns: int) -> float:
 
 def test_the_timer_loop_moves_its_ticks_to_follow_the_input(tmp_path):
     """The phase lock (damper_emulator/realtime/phase_lock.py) wired into the node.  The
-    emulator's ticks (its forces' stamps) are found before any input; the test then sends
-    1 kHz input a quarter period after them, so that each input would wait about 0.6 ms
-    for the next tick.  With the lock the ticks move to 0.2 ms after each arrival, about
-    0.4 ms earlier; without it they stay where they were (the same clocks)."""
+    emulator's ticks (its forces' stamps) are found before any input; a sender process
+    then sends 1 kHz input a quarter period after them, so that each input would wait
+    about 0.6 ms for the next tick.  With the lock the ticks move to 0.2 ms after each
+    arrival, about 0.4 ms earlier; without it they stay where they were (the same
+    clocks)."""
+    import multiprocessing
+
+    from ros_probe import send_states_on_a_grid
+
     d = DOMAINS["phase"]
     period = 1_000_000
     emu = start("emulator", "emulate", d, tmp_path)
@@ -174,35 +178,26 @@ def test_the_timer_loop_moves_its_ticks_to_follow_the_input(tmp_path):
         JointState, topics.FORCE,
         lambda m: stamps.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec,
                                  int(m.effort[1]))), control_qos(100))
-    pub = probe.node.create_publisher(JointState, topics.STATE, control_qos(10))
-    stop = threading.Event()
-
-    def send(first_ns: int) -> None:
-        k, due = 0, first_ns
-        while not stop.is_set():
-            delay = due - time.time_ns()
-            if delay > 0:
-                time.sleep(delay * 1e-9)
-            k += 1
-            pub.publish(state(0.01 * math.sin(k * 2e-3), 0.02))
-            due += period
-
     sender = None
     try:
-        assert probe.spin_until(lambda: pub.get_subscription_count() > 0 and len(stamps) > 300,
-                                60), emu.log_tail()
+        assert probe.spin_until(lambda: len(stamps) > 300, 60), emu.log_tail()
         before = _tick_phase_ns([t for t, _ in stamps[-300:]], period)
         now = time.time_ns()
-        first = now - now % period + period * 50 + int(before + period // 4)
-        sender = threading.Thread(target=send, args=(first,), daemon=True)
+        # two seconds on: time for the sender's process to start and find the emulator
+        first = now - now % period + 2000 * period + int(before + period // 4)
+        sender = multiprocessing.get_context("spawn").Process(
+            target=send_states_on_a_grid, args=(d, first, period, 3.0))
         sender.start()
-        probe.spin_for(3.0)
+        probe.spin_until(lambda: not sender.is_alive(), 30)
+        probe.spin_for(0.2)
     finally:
-        stop.set()
         if sender is not None:
-            sender.join(2.0)
+            sender.join(5.0)
+            if sender.is_alive():
+                sender.kill()
         probe.close()
         emu.stop()
+    assert sender.exitcode == 0
     answered = [t for t, status in stamps[-1000:] if not status & Status.NO_INPUT]
     assert len(answered) > 500, emu.log_tail()
     after = _tick_phase_ns(answered, period)

@@ -6,6 +6,7 @@ and never copied into it; the tests that need them skip when that folder is abse
 synthetic-file tests always run.
 """
 
+import dataclasses
 import gzip
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -243,3 +244,30 @@ def test_vendor_file_missing_column_or_empty(tmp_path):
         read_fsae_ttx25(e)
     with pytest.raises(MeasuredDataError, match="cannot read"):
         read_fsae_ttx25(tmp_path / "absent.csv.gz")
+
+
+def test_a_column_map_alone_reads_every_top_level_run_as_the_fsae_reader(runs):
+    """issue: the FSAE runs go through identify and diagnose with a map alone.  The map
+    (the vendor's converted columns, its ISO stamps, mid-stroke zero, the reader's
+    velocity filter) gives the same arrays, bit for bit, where Force (N) is the
+    rebound-positive one (the top-level files); in pressure_testing/ its slope has the
+    other sign, and the energy check refuses it, naming --force-sign -1."""
+    from damper_emulator.dyno.column_map import ColumnMap, read_mapped_csv
+
+    cmap = ColumnMap(columns={"time": "Timestamp", "displacement": "Displacement (mm)",
+                              "force": "Force (N)", "temperature": "Temperature (C)"},
+                     displacement_zero="mid-stroke", velocity_window=25)
+    top = [k for k in runs if "/" not in k]
+    assert top
+    for name in top:
+        mapped, reader = read_mapped_csv(DATA / name, cmap), runs[name]
+        for q in ("time", "displacement", "force", "velocity", "temperature"):
+            np.testing.assert_array_equal(getattr(mapped, q), getattr(reader, q),
+                                          err_msg=f"{name}: {q}")
+    flipped = [k for k in runs if k.startswith("pressure_testing/")]
+    for name in flipped[:1]:
+        with pytest.raises(MeasuredDataError, match="--force-sign -1"):
+            read_mapped_csv(DATA / name, cmap)
+        np.testing.assert_array_equal(
+            read_mapped_csv(DATA / name, dataclasses.replace(cmap, force_sign=-1.0)).force,
+            runs[name].force)

@@ -208,3 +208,50 @@ def test_measured_csv_gzip(workdir, blob):
     path.write_bytes(blob)
     check_measured(path)
     check_table(path)
+
+
+#: column names as labs write them, with units pint knows, does not know, or of another
+#: dimension, and ISO-looking stamps among the fields
+mapped_names = st.sampled_from(("Timestamp", "Force (N)", "Force_lbf", "force_kN",
+                                "Position [in]", "Displacement (mm)", "Temp (F)",
+                                "Temperature (C)", "x (furlong/s)", "F (blorts)", "t (ms)",
+                                "F (m)", "v [mm/s]", "T [K]", "F ()", "F (1/0)", "F [**]",
+                                "F ((N)", "F_(N", "F (N/0)", "F (1e5 N)", "F (-)"))
+stamps = st.datetimes(allow_imaginary=False).map(lambda d: d.isoformat(" "))
+
+
+@st.composite
+def mapped_files(draw: st.DrawFn) -> tuple[bytes, dict[str, str]]:
+    """A CSV-like file with lab column names, and a map of some of them."""
+    names = draw(st.lists(mapped_names, min_size=1, max_size=5, unique=True))
+    quantities = draw(st.permutations(["time", "displacement", "force", "velocity",
+                                       "temperature"]))
+    cmap = dict(zip(quantities, names))
+    rows = [[draw(st.one_of(fields, stamps)) for _ in names]
+            for _ in range(draw(st.integers(0, 8)))]
+    text = "\n".join([",".join(names)] + [",".join(r) for r in rows])
+    return text.encode("utf-8", errors="replace"), cmap
+
+
+@given(file=mapped_files(), sign=st.sampled_from((1.0, -1.0)),
+       zero=st.sampled_from(("file", "mid-stroke")),
+       window=st.sampled_from((None, 5, 25)))
+def test_mapped_csv_any_lab_file(workdir, file, sign, zero, window):
+    """Through a column map (damper_emulator/dyno/column_map.py): the data or a one-line
+    user error (MeasuredDataError, ColumnMapError), never another exception."""
+    from damper_emulator.dyno.column_map import ColumnMap, read_mapped_csv
+    from damper_emulator.errors import UserError
+
+    blob, columns = file
+    path = workdir / "lab.csv"
+    path.write_bytes(blob)
+    with time_limit(10):
+        try:
+            data = read_mapped_csv(path, ColumnMap(columns=columns, force_sign=sign,
+                                                   displacement_zero=zero,
+                                                   velocity_window=window))
+        except UserError as exc:
+            assert "\n" not in str(exc)
+            return
+    assert len(data) >= 2 and np.all(np.diff(data.time) > 0)
+    assert np.isfinite(data.force).all() and np.isfinite(data.displacement).all()

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
+from damper_emulator.dyno.column_map import SAVGOL_ORDER, mid_stroke, savgol_velocity
 from damper_emulator.dyno.measured import (
     MeasuredData,
     check_measured,
@@ -70,7 +71,7 @@ DISPLACEMENT_SIGN = +1.0
 SAMPLE_RATE_HZ = 300.0
 #: Savitzky–Golay window [samples] and polynomial order of the velocity
 SAVGOL_WINDOW = 25
-SAVGOL_POLYORDER = 3
+SAVGOL_POLYORDER = SAVGOL_ORDER
 #: slider-crank rig: crank radius and connecting rod [m]; stroke = 2 × crank radius
 CRANK_RADIUS_M = 0.75 * 0.0254
 CONNECTING_ROD_M = 6.0 * 0.0254
@@ -198,10 +199,8 @@ def read_fsae_ttx25(path: str | Path) -> MeasuredData:
                    f"then {stamps[i].isoformat(sep=' ')})", i + 1)
 
     reading = DISPLACEMENT_MM_PER_V * np.asarray(cols[DISPLACEMENT_COLUMN]) * 1e-3  # m
-    smooth = savgol_filter(reading, SAVGOL_WINDOW, SAVGOL_POLYORDER)
-    reference = 0.5 * (smooth.min() + smooth.max())
-    x = DISPLACEMENT_SIGN * (reading - reference)
-    v = _derivative(x, t)
+    x = DISPLACEMENT_SIGN * (reading - mid_stroke(reading, SAVGOL_WINDOW))
+    v = savgol_velocity(x, t, SAVGOL_WINDOW)
     force = FORCE_SIGN * FORCE_N_PER_V * np.asarray(cols[FORCE_COLUMN])
     data = MeasuredData(time=t, displacement=x, force=force, velocity=v,
                         temperature=np.asarray(cols[TEMPERATURE_COLUMN]),
@@ -217,16 +216,6 @@ def _parse_timestamp(text: str, column: str, row: int, fail) -> datetime:
         return datetime.fromisoformat(text)
     except ValueError:
         raise fail(f"{column} is '{short_text(text)}', not an ISO date-time", row) from None
-
-
-def _derivative(x: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Savitzky–Golay derivative; on irregular sampling (any interval more than 1 % off
-    the median), the gradient of the smoothed signal against the time stamps."""
-    dt = np.diff(t)
-    h = float(np.median(dt))
-    if np.all(np.abs(dt - h) <= 0.01 * h):
-        return savgol_filter(x, SAVGOL_WINDOW, SAVGOL_POLYORDER, deriv=1, delta=h)
-    return np.gradient(savgol_filter(x, SAVGOL_WINDOW, SAVGOL_POLYORDER), t)
 
 
 # --------------------------------------------------------------------------------------

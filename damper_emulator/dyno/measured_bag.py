@@ -20,6 +20,7 @@ import numpy as np
 from damper_emulator import force_message
 from damper_emulator.bag import BagError, cdr_fast
 from damper_emulator.bag.raw_topics import read_raw
+from damper_emulator.dyno.column_map import SIDECAR, ColumnMap, load_column_map, read_mapped_csv
 from damper_emulator.dyno.measured import (
     MeasuredData,
     MeasuredDataError,
@@ -79,6 +80,16 @@ def read_measured_bag(path: str | os.PathLike[str]) -> MeasuredData:
     return data
 
 
-def read_measured(path: str | os.PathLike[str]) -> MeasuredData:
-    """Measured data from a CSV (``.csv``, ``.csv.gz``) or a bag directory."""
-    return read_measured_bag(path) if is_bag(path) else read_measured_csv(Path(path))
+def read_measured(path: str | os.PathLike[str], columns: ColumnMap | None = None
+                  ) -> MeasuredData:
+    """Measured data from a CSV (``.csv``, ``.csv.gz``) or a bag directory.  A CSV is
+    read through ``columns``, or else through the column map of a
+    :data:`~damper_emulator.dyno.column_map.SIDECAR` file beside it, where there is one
+    (:mod:`damper_emulator.dyno.column_map`)."""
+    if is_bag(path):
+        return read_measured_bag(path)
+    path = Path(path)
+    sidecar = path.parent / SIDECAR
+    if columns is None and sidecar.is_file():
+        columns = load_column_map(sidecar)
+    return read_measured_csv(path) if columns is None else read_mapped_csv(path, columns)

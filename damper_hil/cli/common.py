@@ -138,9 +138,68 @@ def add_rig_option(parser: argparse.ArgumentParser) -> None:
                              "force passes through it before it is compared with the data")
 
 
-def read_data(paths: Sequence[Path], rig: Path | None) -> list[Any]:
-    """The measured-data files ``paths`` (each read and checked before any work), with
-    the rig file ``rig``'s chain attached when given."""
+def add_columns_options(parser: argparse.ArgumentParser) -> None:
+    """How the data files' columns are read: ``--columns QUANTITY=COLUMN ...`` and the
+    rest of a column map (:mod:`damper_emulator.dyno.column_map`)."""
+    from damper_emulator.dyno.column_map import SIDECAR, ZEROS
+
+    group = parser.add_argument_group(
+        "data columns (a lab's export: names, units, time stamps, signs; default: the "
+        f"map of a {SIDECAR} beside the files, else time,displacement,force in SI)")
+    group.add_argument("--columns", metavar="QUANTITY=COLUMN", nargs="+", default=None,
+                       help="the column of each quantity (time, displacement, force, "
+                            "velocity, temperature), e.g. time=Timestamp "
+                            "displacement='Displacement (mm)' force='Force (N)'; the "
+                            "unit at the end of a name, (mm), [in], _kN, is converted to SI, "
+                            "time may be ISO 8601 stamps")
+    group.add_argument("--column-map", metavar="MAP.yaml", type=Path, default=None,
+                       help=f"the column map as a YAML file (the keys of {SIDECAR}: "
+                            "columns, sample_rate_hz, force_sign, displacement_sign, "
+                            "displacement_zero)")
+    group.add_argument("--sample-rate", metavar="HZ", type=positive_float, default=None,
+                       help="no time column: samples at this rate [Hz]")
+    group.add_argument("--force-sign", type=int, choices=(1, -1), default=None,
+                       help="-1: the file's force is compression-positive (the project's "
+                            "is rebound-positive)")
+    group.add_argument("--displacement-sign", type=int, choices=(1, -1), default=None,
+                       help="-1: the file's displacement is compression-positive (the "
+                            "project's is extension-positive)")
+    group.add_argument("--displacement-zero", choices=ZEROS, default=None,
+                       help="mid-stroke: the stroke's zero halfway between the file's "
+                            "extremes (default: file, as recorded)")
+    group.add_argument("--velocity-window", metavar="N", type=int, default=None,
+                       help="no velocity column: the displacement's cubic Savitzky-Golay "
+                            "derivative over N samples (odd), not the plain derivative")
+
+
+def columns_of(args: argparse.Namespace) -> Any:
+    """The column map the options of :func:`add_columns_options` give (None: none)."""
+    from damper_emulator.dyno.column_map import ColumnMap, load_column_map, parse_assignments
+
+    given = {"sample_rate_hz": args.sample_rate, "force_sign": args.force_sign,
+             "displacement_sign": args.displacement_sign,
+             "displacement_zero": args.displacement_zero,
+             "velocity_window": args.velocity_window}
+    if args.columns is None and args.column_map is None and all(
+            v is None for v in given.values()):
+        return None
+    base = load_column_map(args.column_map) if args.column_map is not None else ColumnMap()
+    columns = dict(base.columns)
+    if args.columns is not None:
+        columns.update(parse_assignments(args.columns))
+    return dataclasses.replace(base, columns=columns,
+                               **{k: float(v) if k in FLOAT_KEYS else v
+                                  for k, v in given.items() if v is not None})
+
+
+#: the column map's options that are numbers of a float field
+FLOAT_KEYS = ("sample_rate_hz", "force_sign", "displacement_sign")
+
+
+def read_data(paths: Sequence[Path], rig: Path | None, columns: Any = None) -> list[Any]:
+    """The measured-data files ``paths`` (each read and checked before any work), read
+    through the column map ``columns`` (None: each file's sidecar, or none), with the
+    rig file ``rig``'s chain attached when given."""
     from damper_emulator.dyno.measured_bag import read_measured
 
     chain = None
@@ -148,7 +207,7 @@ def read_data(paths: Sequence[Path], rig: Path | None) -> list[Any]:
         from damper_emulator.acquisition.rig import load_rig
 
         chain = load_rig(rig)
-    data = [read_measured(p) for p in paths]
+    data = [read_measured(p, columns) for p in paths]
     return [dataclasses.replace(d, acquisition=chain) for d in data] if chain else data
 
 

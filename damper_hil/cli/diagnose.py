@@ -11,8 +11,10 @@ from damper_hil.cli.common import (
     PROG,
     CliError,
     Formatter,
+    add_columns_options,
     add_rig_option,
     check_unique_names,
+    columns_of,
     json_text,
     load_model,
     parse_effects,
@@ -81,6 +83,7 @@ def add_parser(sub) -> None:
                            "moves over the series is weighed in this order; default: the "
                            "files' own time columns where they are one clock, else the "
                            "quasi-static, chirp and held-out files as given)")
+    add_columns_options(diag)
     add_rig_option(diag)
     diag.set_defaults(handler=run)
 
@@ -128,8 +131,9 @@ def _diagnose(args: argparse.Namespace, effects: list[str] | None, json_at: Path
         raise CliError(f"{params_file}: already holds damper.extensions "
                        f"({', '.join(model.cfg.damper.extensions.active())}); diagnose needs "
                        "the identified model without them")
-    fit = read_data([*args.quasi_static, *args.chirp], args.rig)
-    held = read_data(args.validate, args.rig)
+    columns = columns_of(args)
+    fit = read_data([*args.quasi_static, *args.chirp], args.rig, columns)
+    held = read_data(args.validate, args.rig, columns)
     # by file name, as the records are named
     series = [p.name for p in args.series] if args.series else None
     check_series(series, [d.name for d in (*fit, *held)])

@@ -9,7 +9,16 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from damper_hil.cli.common import CliError, Formatter, add_rig_option, json_text, read_data, say
+from damper_hil.cli.common import (
+    CliError,
+    Formatter,
+    add_columns_options,
+    add_rig_option,
+    columns_of,
+    json_text,
+    read_data,
+    say,
+)
 
 #: identify warns when a quasi-static file moves faster than this [m/s] (99th percentile):
 #: twice the FSAE slow run's 26 mm/s, twelve times the paper's 4 mm/s
@@ -68,6 +77,7 @@ def add_parser(sub) -> None:
                             "moves both valves' pressure drops by the difference")
     ident.add_argument("--no-compressibility-correction", action="store_true",
                        help="use the rigid-oil valve flow |v|(A_pt − A_rod) as the paper does")
+    add_columns_options(ident)
     add_rig_option(ident)
     ident.set_defaults(handler=run)
 
@@ -104,8 +114,9 @@ def _identify(args: argparse.Namespace, started: float, params_at: Path,
 
     base = load_config(args.base)
     fixed = _fixed_valve_parameters(args.fix)
-    qs = read_data(args.quasi_static, args.rig)
-    chirp = read_data(args.chirp, args.rig)
+    columns = columns_of(args)
+    qs = read_data(args.quasi_static, args.rig, columns)
+    chirp = read_data(args.chirp, args.rig, columns)
     print(f"identifying from {', '.join(d.name for d in qs)} "
           f"({sum(len(d) for d in qs)} samples) and {', '.join(d.name for d in chirp)} "
           f"({sum(len(d) for d in chirp)} samples) ...", file=sys.stderr, flush=True)

@@ -9,8 +9,10 @@ from typing import Any
 from damper_hil.cli.common import (
     PROG,
     Formatter,
+    add_columns_options,
     add_rig_option,
     check_unique_names,
+    columns_of,
     json_text,
     load_model,
     read_data,
@@ -54,6 +56,7 @@ def add_parser(sub) -> None:
                                "validate_<name>.png (measured and simulated force-velocity "
                                "and force-displacement loops, force error vs time) and "
                                "validation_summary.png (relative r.m.s. per file)")
+    add_columns_options(validate)
     add_rig_option(validate)
     validate.set_defaults(handler=run)
 
@@ -74,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
                                else None)
         json_at = outputs.file(json_path)
         model, params_file = load_model(args.params)
-        datasets = read_data(paths, args.rig)  # a bad file fails before work
+        columns = columns_of(args)
+        datasets = read_data(paths, args.rig, columns)  # a bad file fails before work
         results: dict[str, Any] = {}
         n = len(datasets)
         for k, data in enumerate(datasets, 1):

@@ -1,0 +1,211 @@
+"""Lab exports through a column map (damper_emulator/dyno/column_map.py): renamed columns,
+units converted by pint, ISO time stamps, signs and zero, the energy check; the same
+identification as from the project's own CSV.  The exports are written here with the
+csv module (not the project's writer), in units the project does not use."""
+
+from __future__ import annotations
+
+import csv
+import gzip
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from damper_emulator.dyno import protocols
+from damper_emulator.dyno.column_map import (
+    ColumnMap,
+    ColumnMapError,
+    dissipated_fraction,
+    parse_assignments,
+    read_mapped_csv,
+    unit_in_name,
+)
+from damper_emulator.dyno.measured import MeasuredDataError, read_measured_csv, write_measured_csv
+from damper_emulator.dyno.measured_bag import read_measured
+from damper_emulator.errors import UserError
+from damper_emulator.identify.pipeline import identify
+from damper_emulator.model.compressible import simulate
+
+MM, INCH, LBF = 1e-3, 0.0254, 4.4482216152605
+START = datetime(2025, 11, 14, 20, 7, 10, 531160)
+#: the lab's export of the SI file's columns: its header and how it writes each value
+LAB = {"time": ("Timestamp", lambda t: (START + timedelta(seconds=float(t))).isoformat(" ")),
+       "displacement": ("Position [in]", lambda x: repr(-x / INCH)),   # compression +
+       "force": ("Force_lbf", lambda f: repr(f / LBF)),
+       "temperature": ("Oil temp (degF)", lambda c: repr(c * 9 / 5 + 32))}
+LAB_MAP = ColumnMap(columns={q: name for q, (name, _) in LAB.items()},
+                    displacement_sign=-1.0)
+
+
+def lab_export(si: Path, out: Path, gz: bool = False) -> Path:
+    """The SI file ``si`` as a lab writes it (:data:`LAB`), with a column the map does not
+    name in front and the columns in another order."""
+    with open(si, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    opener = gzip.open if gz else open
+    with opener(out, "wt", newline="") as fh:
+        w = csv.writer(fh)
+        order = ["force", "time", "temperature", "displacement"]
+        w.writerow(["Force (V)", *[LAB[q][0] for q in order]])
+        for r in rows:
+            w.writerow(["0.31", *[LAB[q][1](float(r[q])) for q in order]])
+    return out
+
+
+def _sine(n: int = 2001, rate: float = 1000.0) -> tuple[np.ndarray, ...]:
+    """A damper-like record: a 2 Hz sine, viscous and Coulomb force about a gas force."""
+    t = np.arange(n) / rate
+    x = 0.02 * np.sin(2 * np.pi * 2 * t)
+    v = 0.02 * 2 * np.pi * 2 * np.cos(2 * np.pi * 2 * t)
+    f = 3000.0 * v + 40.0 * np.tanh(v / 0.01) - 300.0
+    return t, x, f, v, 25.0 + 10.0 * t
+
+
+@pytest.fixture
+def si_file(tmp_path) -> Path:
+    t, x, f, _v, temp = _sine()
+    path = tmp_path / "si.csv"
+    write_measured_csv(path, t, x, f, temperature=temp)
+    return path
+
+
+@pytest.mark.parametrize("gz", [False, True])
+def test_a_lab_export_reads_as_the_si_file(si_file, tmp_path, gz):
+    plain = read_measured_csv(si_file)
+    lab = read_mapped_csv(lab_export(si_file, tmp_path / ("lab.csv" + ".gz" * gz), gz),
+                          LAB_MAP)
+    # ISO stamps carry microseconds: the 1 ms samples are exact; units to rounding
+    np.testing.assert_allclose(lab.time, plain.time, rtol=0, atol=1e-9)
+    for q in ("displacement", "force", "temperature"):
+        np.testing.assert_allclose(getattr(lab, q), getattr(plain, q), rtol=1e-12,
+                                   atol=1e-12, err_msg=q)
+
+
+def test_units_from_the_names():
+    assert [unit_in_name(n) for n in ("Force (N)", "Position [in]", "force_kN", "Temp_degF",
+                                      "Displacement (mm)", "time", "Timestamp")] == \
+        ["N", "in", "kN", "degF", "mm", None, None]
+
+
+def test_an_identification_from_the_export_is_the_one_from_the_si_files(
+        tmp_path, sport_cfg, sport_model):
+    """The done-when of the column map: the same identification, to 1e-9."""
+    rng = np.random.default_rng(3)
+    si, lab = [], []
+    for name, (t, x, v) in (("qs", protocols.quasi_static()),
+                            ("chirp", protocols.chirp(duration_s=20.0))):
+        r = simulate(sport_model, t, x, v)
+        path = tmp_path / f"{name}.csv"
+        write_measured_csv(path, t, x, r.force_n + rng.normal(0, 4.0, t.size),
+                           temperature=np.full(t.size, 25.0))
+        si.append(read_measured_csv(path))
+        lab.append(read_mapped_csv(lab_export(path, tmp_path / f"{name}_lab.csv"), LAB_MAP))
+    a = identify([si[0]], [si[1]], sport_cfg).config.damper
+    b = identify([lab[0]], [lab[1]], sport_cfg).config.damper
+    # the units' round trip (inches, pounds-force) moves the data by an ulp; the fits
+    # stop within their tolerances of the optimum: 4e-9 apart at most, measured
+    for side in ("rebound", "compression"):
+        np.testing.assert_allclose(tuple(getattr(b, side)), tuple(getattr(a, side)),
+                                   rtol=1e-8)
+    for key in ("gas_pressure_static_pa", "gas_volume_static_m3", "friction_force_n"):
+        assert getattr(b, key) == pytest.approx(getattr(a, key), rel=1e-8), key
+
+
+@pytest.mark.parametrize(("columns", "words"), [
+    ({"force": "Force (blorts)"}, "unknown unit 'blorts'"),
+    ({"force": "Force (1/0)"}, "cannot read the unit '1/0'"),
+    ({"force": "Force [(N]"}, r"cannot read the unit '\(N'"),
+    ({"force": "Force (1e5 N)"}, "cannot read the unit"),
+    ({"force": "Force (mm)"}, "'mm' is not a unit of force"),
+    ({"displacement": "x [lbf]"}, "'lbf' is not a unit of displacement"),
+])
+def test_an_unknown_or_wrong_unit_is_one_line(tmp_path, columns, words):
+    t, x, f, _v, _ = _sine(200)
+    path = tmp_path / "f.csv"
+    names = {"time": "time", "displacement": "displacement", "force": "force", **columns}
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow([names["time"], names["displacement"], names["force"]])
+        w.writerows(zip(t, x, f))
+    with pytest.raises(ColumnMapError, match=words) as err:
+        read_mapped_csv(path, ColumnMap(columns=columns))
+    assert isinstance(err.value, UserError) and "\n" not in str(err.value)
+
+
+def test_a_flipped_force_is_refused_and_the_flag_puts_it_right(si_file, tmp_path):
+    plain = read_measured_csv(si_file)
+    flipped = tmp_path / "flipped.csv"
+    write_measured_csv(flipped, plain.time, plain.displacement, -plain.force)
+    with pytest.raises(MeasuredDataError, match="--force-sign -1") as err:
+        read_mapped_csv(flipped, ColumnMap())
+    assert "\n" not in str(err.value)
+    fixed = read_mapped_csv(flipped, ColumnMap(force_sign=-1.0))
+    np.testing.assert_array_equal(fixed.force, plain.force)
+    # the energy measure itself: +1 for a force that only resists, -1 flipped
+    v = plain.velocity_or_derivative()
+    resisting = 500.0 * v
+    assert dissipated_fraction(plain.time, v, resisting) == pytest.approx(1.0)
+    assert dissipated_fraction(plain.time, v, -resisting) == pytest.approx(-1.0)
+
+
+def test_sample_rate_and_mid_stroke_zero(tmp_path):
+    t, x, f, _v, _ = _sine()
+    path = tmp_path / "no_time.csv"
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["Stroke (mm)", "Load (kN)"])
+        w.writerows(zip((x + 0.05) / MM, f / 1000.0))
+    data = read_mapped_csv(path, ColumnMap(
+        columns={"displacement": "Stroke (mm)", "force": "Load (kN)"}, sample_rate_hz=1000.0,
+        displacement_zero="mid-stroke"))
+    np.testing.assert_allclose(data.time, t, rtol=0, atol=1e-15)
+    mid = 0.5 * (x.min() + x.max())
+    np.testing.assert_allclose(data.displacement, x - mid, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(data.force, f, rtol=1e-12)
+
+
+def test_a_sidecar_beside_the_files_is_their_map(si_file, tmp_path):
+    folder = tmp_path / "exports"
+    folder.mkdir()
+    lab = lab_export(si_file, folder / "run1.csv")
+    (folder / "columns.yaml").write_text(
+        "columns:\n" + "".join(f"  {q}: '{name}'\n" for q, (name, _) in LAB.items())
+        + "displacement_sign: -1\n")
+    via_sidecar = read_measured(lab)
+    np.testing.assert_array_equal(via_sidecar.force, read_mapped_csv(lab, LAB_MAP).force)
+    (folder / "columns.yaml").write_text("columns: {force: F}\nforce_sing: -1\n")
+    with pytest.raises(ColumnMapError, match="unknown key 'force_sing'"):
+        read_measured(lab)
+
+
+def test_bad_maps_are_one_line():
+    for make, words in ((lambda: ColumnMap(columns={"forces": "F"}), "unknown quantity"),
+                        (lambda: ColumnMap(force_sign=2.0), "force_sign must be 1 or -1"),
+                        (lambda: ColumnMap(columns={"time": "t"}, sample_rate_hz=100.0),
+                         "give one"),
+                        (lambda: parse_assignments(["force"]), "not QUANTITY=COLUMN"),
+                        (lambda: parse_assignments(["force=a", "FORCE=b"]), "given twice")):
+        with pytest.raises(ColumnMapError, match=words):
+            make()
+
+
+def test_the_command_line_takes_a_map(si_file, tmp_path, capsys):
+    from damper_hil.cli import main
+
+    lab = lab_export(si_file, tmp_path / "lab.csv")
+    params = str(Path(__file__).resolve().parents[1] / "config" / "sport.yaml")
+    columns = [f"{q}={name}" for q, (name, _) in LAB.items()]
+    args = ["validate", "--params", params, str(lab), "--json", str(tmp_path / "v.json"),
+            "--displacement-sign", "-1", "--columns", *columns]
+    assert main(args) == 0
+    # the same export with its force in an unknown unit: one line, exit 2
+    bad = tmp_path / "bad.csv"
+    bad.write_text(lab.read_text().replace("Force_lbf", "Force (blorts)", 1))
+    capsys.readouterr()
+    bad_columns = [c if not c.startswith("force=") else "force=Force (blorts)"
+                   for c in columns]
+    assert main([*args[:3], str(bad), *args[4:-len(columns)], *bad_columns]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "unknown unit 'blorts'" in err and "\n" not in err

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.integrate import trapezoid
 
 from damper_emulator.dyno import protocols
 from damper_emulator.dyno.column_map import (
@@ -146,8 +147,29 @@ def test_a_flipped_force_is_refused_and_the_flag_puts_it_right(si_file, tmp_path
     # the energy measure itself: +1 for a force that only resists, -1 flipped
     v = plain.velocity_or_derivative()
     resisting = 500.0 * v
-    assert dissipated_fraction(plain.time, v, resisting) == pytest.approx(1.0)
-    assert dissipated_fraction(plain.time, v, -resisting) == pytest.approx(-1.0)
+    x = plain.displacement
+    assert dissipated_fraction(plain.time, v, resisting, x) == pytest.approx(1.0, abs=1e-3)
+    assert dissipated_fraction(plain.time, v, -resisting, x) == pytest.approx(-1.0, abs=1e-3)
+
+
+def test_a_slow_test_that_ends_elsewhere_is_not_refused_for_its_gas_force(tmp_path):
+    """A quasi-static triangle 0 → +A → 0 → −A → 0 → +A, cut at +A: the gas force
+    (−400 N and a spring) does −400 N·A of net work, more than the friction's 44 N over
+    the 5 A travelled; taken out, the friction alone remains, which dissipates."""
+    speed, amplitude = 0.004, 0.05
+    legs = np.concatenate([np.linspace(0, amplitude, 101), np.linspace(amplitude, -amplitude,
+                           201)[1:], np.linspace(-amplitude, amplitude, 201)[1:]])
+    t = np.arange(legs.size) * (amplitude / 100) / speed       # 0.5 mm steps at 4 mm/s
+    v = np.gradient(legs, t)
+    force = -400.0 - 3000.0 * legs + 44.0 * np.sign(v)
+    good, flipped = tmp_path / "qs.csv", tmp_path / "qs_flipped.csv"
+    write_measured_csv(good, t, legs, force)
+    write_measured_csv(flipped, t, legs, -force)
+    raw = force * v
+    assert trapezoid(raw, t) < -0.1 * trapezoid(np.abs(raw), t)  # the case at issue
+    read_mapped_csv(good, ColumnMap())
+    with pytest.raises(MeasuredDataError, match="--force-sign -1"):
+        read_mapped_csv(flipped, ColumnMap())
 
 
 def test_sample_rate_and_mid_stroke_zero(tmp_path):

@@ -25,7 +25,9 @@ A dyno's export rarely reads ``time,displacement,force`` in SI units.  A
   (:func:`savgol_velocity`; a noisy potentiometer's plain derivative is mostly noise), else
   the plain derivative.
 * **The convention checked with energy**: a damper dissipates, so the force times the
-  velocity integrates positive over the file in the project's convention
+  velocity integrates positive over the file in the project's convention, once the work
+  of the force's part that depends on the stroke alone (the gas spring's, which a file
+  that does not end where it began leaves uncancelled) is taken out
   (:func:`dissipated_fraction`).  A file whose integral is clearly negative is refused,
   with the flag that would put it right.
 """
@@ -243,12 +245,18 @@ def mid_stroke(x: np.ndarray, window: int | None) -> float:
     return float(0.5 * (smooth.min() + smooth.max()))
 
 
-def dissipated_fraction(time: np.ndarray, velocity: np.ndarray, force: np.ndarray) -> float:
-    """``∫ F·v dt / ∫ |F·v| dt`` over the file (trapezoids): +1 where the force always
-    opposes the motion in the project's convention, −1 where always along it."""
+def dissipated_fraction(time: np.ndarray, velocity: np.ndarray, force: np.ndarray,
+                        displacement: np.ndarray) -> float:
+    """``∫ F_d·v dt / ∫ |F_d·v| dt`` over the file (trapezoids), ``F_d`` the force less its
+    least-squares line in the displacement (a spring and a static force, whose work a
+    file that ends elsewhere than it began does not cancel: on a slow test the gas force
+    is ten times the friction): +1 where that force always opposes the motion in the
+    project's convention, −1 where always along it."""
     from scipy.integrate import trapezoid
 
-    power = force * velocity
+    basis = np.column_stack([np.ones_like(displacement), displacement])
+    coef, *_ = np.linalg.lstsq(basis, force, rcond=None)
+    power = (force - basis @ coef) * velocity
     total = float(trapezoid(np.abs(power), time))
     return float(trapezoid(power, time)) / total if total > 0 else 0.0
 
@@ -315,7 +323,8 @@ def read_mapped_csv(path: str | Path, cmap: ColumnMap) -> MeasuredData:
 
 def _check_convention(data: MeasuredData, fail: Any) -> None:
     """Refuse a file whose force works along its motion (module docstring)."""
-    fraction = dissipated_fraction(data.time, data.velocity_or_derivative(), data.force)
+    fraction = dissipated_fraction(data.time, data.velocity_or_derivative(), data.force,
+                                   data.displacement)
     if fraction < MIN_DISSIPATED_FRACTION:
         raise fail(f"the force times the velocity integrates to {100 * fraction:.0f} % of "
                    "its magnitude: the force drives the motion instead of resisting it, so "

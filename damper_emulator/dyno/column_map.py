@@ -140,7 +140,8 @@ def parse_assignments(items: Iterable[str]) -> dict[str, str]:
         key, sep, value = item.partition("=")
         key, value = key.strip().lower(), value.strip()
         if not sep or not key or not value:
-            raise ColumnMapError(f"column map: {item!r} is not QUANTITY=COLUMN")
+            raise ColumnMapError(f"column map: {item!r} is not QUANTITY=COLUMN (a data file? "
+                                 "give the files before --columns, or end its list with --)")
         if key in out:
             raise ColumnMapError(f"column map: '{key}' given twice")
         out[key] = value

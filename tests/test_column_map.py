@@ -231,3 +231,23 @@ def test_the_command_line_takes_a_map(si_file, tmp_path, capsys):
     assert main([*args[:3], str(bad), *args[4:-len(columns)], *bad_columns]) == 2
     err = capsys.readouterr().err.strip()
     assert "unknown unit 'blorts'" in err and "\n" not in err
+
+
+def test_fleet_reads_a_damper_folder_of_exports_through_its_sidecar(si_file, tmp_path):
+    from damper_hil.fleet.inputs import find_dampers
+    from damper_hil.fleet.runner import load_job
+
+    folder = tmp_path / "batch" / "unit_01"
+    folder.mkdir(parents=True)
+    for name in ("quasi_static.csv", "chirp.csv", "sine_1hz.csv"):
+        lab_export(si_file, folder / name)
+    (folder / "columns.yaml").write_text(
+        "columns:\n" + "".join(f"  {q}: '{name}'\n" for q, (name, _) in LAB.items())
+        + "displacement_sign: -1\n")
+    (damper,) = find_dampers(tmp_path / "batch")
+    job = load_job(damper, False, None)
+    expected = read_measured_csv(si_file)
+    for data in (*job.quasi_static, *job.chirp, *job.validate):
+        np.testing.assert_allclose(data.force, expected.force, rtol=1e-12)
+        np.testing.assert_allclose(data.displacement, expected.displacement, rtol=1e-12,
+                                   atol=1e-15)

@@ -79,8 +79,9 @@ def _save(out: Path, damper_id: str, result: DamperResult) -> dict[str, Any]:
 
 
 def load_job(d: DamperInputs, diagnose: bool, effects: Sequence[str] | None) -> DamperJob:
-    """Read one damper's files and data sheet (a :class:`UserError` names the bad one)."""
-    from damper_emulator.dyno.measured import read_measured_csv
+    """Read one damper's files (through the column map of a ``columns.yaml`` in its
+    folder, where there is one) and data sheet (a :class:`UserError` names the bad one)."""
+    from damper_emulator.dyno.measured_bag import read_measured
     from damper_emulator.params import DEFAULT_PARAMS_FILE, load_config
 
     problem = d.problem()
@@ -90,7 +91,7 @@ def load_job(d: DamperInputs, diagnose: bool, effects: Sequence[str] | None) -> 
     if len({n.lower() for n in names}) != len(names):
         raise UserError(f"{d.folder}: two files share a name")
     base = load_config(d.base)
-    read = [tuple(read_measured_csv(p) for p in paths)
+    read = [tuple(read_measured(p) for p in paths)
             for paths in (d.quasi_static, d.chirp, d.validate)]
     return DamperJob(d.id, *read, base=base,
                      base_file=str(d.base if d.base is not None else DEFAULT_PARAMS_FILE),

@@ -6,16 +6,21 @@ whole period, set by where the sender's and the loop's phases happened to start.
 that sends a stroke every cycle and reads the force on its next one sees that wait in
 full.  The lock moves the loop's ticks, a little at a time, to follow each input's arrival
 by a set lag, as a fieldbus slave follows its master's cycle: the rate stays the loop's
-(or, if the input's clock runs slightly faster or slower, follows it within
-:data:`MAX_STEP_FRACTION`), only the phase moves.
+(or, if the input's clock runs slightly faster or slower, follows it: up to about 1 %,
+the lag then off the target by the closed form below), only the phase moves.
 
 The lock is a first-order loop on the phase error ``e = wrap(lag − target)`` (``lag``: from
 the input's arrival to the tick that took it; ``wrap`` into ``[−P/2, P/2)`` of the period
 ``P``, so that an input that arrived just after a tick moves the ticks later, not a whole
 period earlier): each tick that took exactly one new input shifts the next deadline by
 ``−gain·e``, at most :data:`MAX_STEP_FRACTION` of a period.  A constant error decays as
-``(1 − gain)^n`` over ``n`` such ticks.  Ticks that took no input or several (an input
-faster than the loop, or a burst) carry no phase and leave the ticks where they are.
+``(1 − gain)^n`` over ``n`` such ticks; an input period ``P_in`` off the loop's leaves a
+standing error ``(P − P_in)/gain`` (1 % of a 1 ms period: 0.1 ms), so that beyond about
+1 % the lag leaves the period and inputs slip a tick.  Only a tick that took one input
+after a tick that took one input corrects: the input then comes at the loop's rate.  Ticks
+that took none or several, and a single input between such ticks (an input at another
+rate, 1.5 or 0.3 times the loop's, or a burst), carry no phase and leave the ticks where
+they are.
 """
 
 from __future__ import annotations
@@ -58,13 +63,15 @@ class PhaseLock:
         self.target_lag_ns = int(target_lag_ns)
         self.gain = gain
         self.max_step_ns = int(max_step_fraction * period_ns)
-        #: phase error of the latest tick that took one input [ns] (0 before any)
+        #: phase error of the latest tick that corrected [ns] (0 before any)
         self.error_ns = 0
+        self._previous_inputs = 0
 
     def shift_ns(self, inputs: int, lag_ns: int) -> int:
         """The shift of the next deadline [ns] after a tick that took ``inputs`` new inputs,
-        the newest of them ``lag_ns`` after its arrival (+: later)."""
-        if inputs != 1:
+        the newest of them ``lag_ns`` after its arrival (+: later); call it every tick."""
+        previous, self._previous_inputs = self._previous_inputs, inputs
+        if inputs != 1 or previous != 1:
             return 0
         self.error_ns = wrap(lag_ns - self.target_lag_ns, self.period_ns)
         step = int(round(-self.gain * self.error_ns))

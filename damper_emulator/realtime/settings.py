@@ -45,8 +45,8 @@ class EmulatorParams:
     phase_lock_us: float = rule("non-negative",
                                 "timer trigger: move the loop's ticks, a little per tick, to "
                                 "follow each input's arrival by this lag, shorter than a "
-                                "period (the rate stays rate_hz, or follows the input's clock "
-                                "within 2 %; 0: ticks on the loop's own phase) [µs]", 200.0)
+                                "period (the rate stays rate_hz, or follows an input clock up to "
+                                "about 1 % off; 0: ticks on the loop's own phase) [µs]", 200.0)
     input_mode: str = rule(("choices", INPUT_MODES),
                            "between input samples: hold the stroke, or extrapolate it with "
                            "the sample's velocity (at most max_extrapolation_s)", "hold",

@@ -397,8 +397,9 @@ class EmulatorNode(ManagedNode):
     def _tick(self, now_ns: int) -> None:
         self._take_valve_commands()
         taken, lag_ns = self._take_inputs(now_ns)
-        if self._phase_lock is not None and lag_ns and self._loop is not None:
-            self._loop.shift_next(self._phase_lock.shift_ns(taken, lag_ns))
+        lock, loop = self._phase_lock, self._loop    # (None once the loop is stopped)
+        if lock is not None and loop is not None:
+            loop.shift_next(lock.shift_ns(taken if lag_ns else 0, lag_ns))
         out = self.core.tick(now_ns)
         self._publish(out, time.time_ns())
         if self._first_input_tick < 0 and not out.status & Status.NO_INPUT:

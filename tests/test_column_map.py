@@ -251,3 +251,60 @@ def test_fleet_reads_a_damper_folder_of_exports_through_its_sidecar(si_file, tmp
         np.testing.assert_allclose(data.force, expected.force, rtol=1e-12)
         np.testing.assert_allclose(data.displacement, expected.displacement, rtol=1e-12,
                                    atol=1e-15)
+
+
+def test_names_that_end_in_a_word_and_stamps_as_labs_write_them(tmp_path):
+    """A _word that is not a unit of the quantity is part of the name; upper-case units
+    are read; ISO stamps with a Z, a decimal comma or seven digits, and a zone in the
+    time column's name, read as seconds since the first."""
+    from damper_emulator.dyno.column_map import column_units
+
+    for quantity, name, expected in (("displacement", "piston_position", None),
+                                     ("force", "load_cell", None),
+                                     ("displacement", "disp_ch2", None),
+                                     ("time", "time_a", None),
+                                     ("force", "FORCE_KN", (1000.0, 0.0)),
+                                     ("displacement", "DISP_MM", (0.001, 0.0))):
+        assert column_units(quantity, name) == expected, name
+    t, x, f, _v, _ = _sine(200)
+    path = tmp_path / "stamps.csv"
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["Timestamp (UTC)", "piston_position", "load_cell"])
+        for k, (xi, fi) in enumerate(zip(x, f)):
+            stamp = (START + timedelta(milliseconds=k)).isoformat("T")
+            stamp = stamp.replace(".", ",") + "1Z" if k % 2 else stamp + "Z"
+            w.writerow([stamp, xi, fi])
+    data = read_mapped_csv(path, ColumnMap(columns={"time": "Timestamp (UTC)",
+                                                    "displacement": "piston_position",
+                                                    "force": "load_cell"}))
+    np.testing.assert_allclose(data.time, t, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(data.force, f)
+
+
+def test_one_stroke_is_not_judged_and_command_line_settings_join_the_sidecar(tmp_path):
+    """Within one stroke the friction is the line's offset and the rest tells little: a
+    file that moves one way only is read as it is, even with its force's sign wrong (the
+    measure would refuse it: checked).  A --force-sign on the command line is laid over
+    the folder's sidecar, whose column names stay."""
+    from damper_emulator.dyno.column_map import ColumnOptions
+
+    w = 2 * np.pi * 0.5
+    t = np.linspace(-0.5, 0.5, 501)
+    x, v = 0.03 * np.sin(w * t), 0.03 * w * np.cos(w * t)       # compression → extension
+    force = -400.0 / (1 + x / 0.08) ** 1.4 + 44.0 + 1000.0 * v  # gas, friction, valves
+    assert dissipated_fraction(t, v, -force, x) < -0.1
+    folder = tmp_path / "exports"
+    folder.mkdir()
+    path = folder / "stroke.csv"
+    with open(path, "w", newline="") as fh:
+        w_ = csv.writer(fh)
+        w_.writerow(["t (s)", "x (mm)", "v (mm/s)", "F (N)"])
+        w_.writerows(zip(t + 0.5, x / MM, v / MM, -force))        # compression-positive
+    (folder / "columns.yaml").write_text("columns: {time: t (s), displacement: x (mm), "
+                                         "velocity: v (mm/s), force: F (N)}\n")
+    assert np.array_equal(read_measured(path).force, -force)     # one way: not judged
+    options = ColumnOptions(settings={"force_sign": -1.0})
+    data = read_measured(path, options.for_file(path))
+    np.testing.assert_allclose(data.force, force, rtol=1e-12)
+    np.testing.assert_allclose(data.displacement, x, rtol=1e-12, atol=1e-15)

@@ -8,14 +8,18 @@ A dyno's export rarely reads ``time,displacement,force`` in SI units.  A
 
 * **Units** from the column's name: a trailing ``(unit)`` or ``[unit]``, or a last
   ``_unit`` (``Force (N)``, ``Position [in]``, ``force_kN``, ``Temp_degF``), converted to
-  SI by ``pint``.  A unit that ``pint`` does not know, or of the wrong dimension, is one
-  line naming the column.  A column without a unit is taken as SI, and the plain
-  reader's checks for a wrong unit (millimetres, kilonewtons, ...) apply to it.
+  SI by ``pint``.  A bracketed unit that ``pint`` does not know, or of the wrong
+  dimension, is one line naming the column; a ``_word`` that is not a unit of the
+  quantity is part of the name (``piston_position``, ``load_cell``; one letter counts
+  only as the quantity's SI symbol, or C, F, K for a temperature).  A column without a
+  unit is taken as SI, and the plain reader's checks for a wrong unit (millimetres,
+  kilonewtons, ...) apply to it.
   Temperatures: ``C``/``°C``/``degC`` (not the coulomb), ``F``/``°F``/``degF``, ``K``.
 * **Time** in seconds (or a unit), or ISO 8601 wall-clock stamps (``2025-11-14
-  20:07:10.531160``: seconds since the first), or, with no time column, the sample index
-  at :attr:`ColumnMap.sample_rate_hz`.  Stamps that do not strictly increase are refused
-  with the row named (:func:`~damper_emulator.dyno.measured.check_measured`).
+  20:07:10.531160``, a ``Z``, a decimal comma: seconds since the first; a unit in the
+  column's name, ``Timestamp (UTC)``, is then ignored), or, with no time column, the
+  sample index at :attr:`ColumnMap.sample_rate_hz`.  Stamps that do not strictly
+  increase are refused with the row named (:func:`~damper_emulator.dyno.measured.check_measured`).
 * **Signs and zero**: :attr:`ColumnMap.force_sign` and :attr:`ColumnMap.displacement_sign`
   (±1) turn the file's into the project's convention (extension and rebound force
   positive, docs/model.md §1); ``displacement_zero="mid-stroke"`` puts the stroke's zero
@@ -29,11 +33,14 @@ A dyno's export rarely reads ``time,displacement,force`` in SI units.  A
   of the force's part that depends on the stroke alone (the gas spring's, which a file
   that does not end where it began leaves uncancelled) is taken out
   (:func:`dissipated_fraction`).  A file whose integral is clearly negative is refused,
-  with the flag that would put it right.
+  with the flag that would put it right.  Only a file that moves both ways about alike
+  (:data:`MIN_TRAVEL_BALANCE`) is checked: within one stroke the friction is the line's
+  offset, and what is left tells nothing.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -69,6 +76,9 @@ _TEMPERATURE_ALIASES = {"c": "degC", "°c": "degC", "degc": "degC", "celsius": "
 #: project's convention gives +0.3 … +1 (friction and valves dissipate; the gas spring's
 #: work cancels over whole cycles), one with a flipped sign as much below zero
 MIN_DISSIPATED_FRACTION = -0.1
+#: a file is checked for its convention only where its shorter way (extension or
+#: compression travel) is at least this fraction of its longer
+MIN_TRAVEL_BALANCE = 0.5
 #: the displacement's zero settings
 ZEROS = ("file", "mid-stroke")
 #: the sidecar a folder of exports carries: the column map of every CSV in it
@@ -132,6 +142,25 @@ class ColumnMap:
         return self.columns.get(quantity, quantity)
 
 
+@dataclass(frozen=True)
+class ColumnOptions:
+    """A command line's column options: a map file's map (None: each file's sidecar, or
+    none), and the columns and settings given beside it, laid over that map."""
+
+    base: ColumnMap | None = None
+    columns: Mapping[str, str] = field(default_factory=dict)
+    settings: Mapping[str, Any] = field(default_factory=dict)
+
+    def for_file(self, path: str | Path) -> ColumnMap:
+        """The map ``path`` is read through."""
+        base = self.base
+        if base is None:
+            sidecar = Path(path).parent / SIDECAR
+            base = load_column_map(sidecar) if sidecar.is_file() else ColumnMap()
+        return dataclasses.replace(base, columns={**base.columns, **self.columns},
+                                   **self.settings)
+
+
 def parse_assignments(items: Iterable[str]) -> dict[str, str]:
     """``["force=Force (N)", ...]`` (a command line's ``--columns``) as a mapping;
     one-line :class:`ColumnMapError` for an item without ``=`` or a quantity named twice."""
@@ -149,12 +178,47 @@ def parse_assignments(items: Iterable[str]) -> dict[str, str]:
 
 
 def unit_in_name(column: str) -> str | None:
-    """The unit written at the end of a column's name (``"Force (N)"`` → ``"N"``), or
-    None."""
+    """The unit written at the end of a column's name (``"Force (N)"`` → ``"N"``,
+    ``"force_kN"`` → ``"kN"``), or None."""
+    found = _unit_and_form(column)
+    return None if found is None else found[0]
+
+
+def _unit_and_form(column: str) -> tuple[str, bool] | None:
+    """The unit at the end of a column's name and whether it is bracketed (a ``_word``
+    may be part of the name instead)."""
     match = _UNIT_IN_NAME.search(column.strip())
     if match is None:
         return None
-    return next(g for g in match.groups() if g is not None).strip()
+    paren, bracket, suffix = match.groups()
+    return ((paren or bracket).strip(), True) if suffix is None else (suffix, False)
+
+
+#: the one-letter ``_x`` suffixes taken as units, per quantity
+_ONE_LETTER_UNITS = {"time": {"s"}, "displacement": {"m"}, "force": {"N"},
+                     "velocity": set(), "temperature": {"C", "F", "K"}}
+
+
+def column_units(quantity: str, column: str) -> tuple[float, float] | None:
+    """``(scale, offset)`` to SI from the unit in ``column``'s name, or None (no unit:
+    SI).  A bracketed unit must be one of ``quantity`` (:func:`si_factor` says why not);
+    a ``_word`` that is not is part of the name."""
+    found = _unit_and_form(column)
+    if found is None:
+        return None
+    unit, bracketed = found
+    if bracketed:
+        return si_factor(quantity, unit, column)
+    if len(unit) == 1 and unit not in _ONE_LETTER_UNITS[quantity]:
+        return None
+    # upper-case exports: FORCE_KN is kN, DISP_MM mm (the first spelling of the quantity's
+    # dimension wins; KN as written is no unit, kn the knot)
+    for spelling in dict.fromkeys((unit, unit[0].lower() + unit[1:], unit.lower())):
+        try:
+            return si_factor(quantity, spelling, column)
+        except ColumnMapError:
+            continue
+    return None
 
 
 @cache
@@ -197,10 +261,24 @@ def _number_or_stamp(text: str, column: str, row: int, fail: Any) -> float | dat
     except MeasuredDataError:
         pass
     try:
-        return datetime.fromisoformat(text.strip())
+        return _parse_iso(text)
     except ValueError:
         raise fail(f"column '{column}': {short_text(text)!r} is neither a number nor an "
                    "ISO 8601 time stamp", row) from None
+
+
+def _parse_iso(text: str) -> datetime:
+    """An ISO 8601 stamp as Python 3.11's ``datetime.fromisoformat`` reads it, also on
+    3.10 (whose parser takes neither a ``Z``, a decimal comma, nor more than six
+    fraction digits)."""
+    text = text.strip()
+    if text[-1:] in ("Z", "z"):
+        text = text[:-1] + "+00:00"
+    match = re.search(r"(\d{2}:\d{2}:\d{2})[.,](\d+)", text)
+    if match:
+        digits = (match.group(2) + "000000")[:6]
+        text = text[:match.start()] + f"{match.group(1)}.{digits}" + text[match.end():]
+    return datetime.fromisoformat(text)
 
 
 def _stamp_seconds(values: Any, column: str, fail: Any) -> np.ndarray:
@@ -289,12 +367,12 @@ def read_mapped_csv(path: str | Path, cmap: ColumnMap) -> MeasuredData:
         if column not in table.values:
             continue
         raw = table.values[column]
+        stamped = quantity == "time" and any(isinstance(v, datetime) for v in raw)
         values = (_stamp_seconds(raw, column, fail) if quantity == "time"
                   else np.asarray(raw, dtype=float))
-        unit = unit_in_name(column)
-        if unit is not None:
-            scale, offset = si_factor(quantity, unit, column)
-            values = values * scale + offset
+        factor = None if stamped else column_units(quantity, column)
+        if factor is not None:
+            values = values * factor[0] + factor[1]
         arrays[quantity] = values
     if "time" in arrays:
         arrays["time"] = arrays["time"] - arrays["time"][0]
@@ -324,8 +402,13 @@ def read_mapped_csv(path: str | Path, cmap: ColumnMap) -> MeasuredData:
 
 def _check_convention(data: MeasuredData, fail: Any) -> None:
     """Refuse a file whose force works along its motion (module docstring)."""
-    fraction = dissipated_fraction(data.time, data.velocity_or_derivative(), data.force,
-                                   data.displacement)
+    from scipy.integrate import trapezoid
+
+    v = data.velocity_or_derivative()
+    ways = sorted(float(trapezoid(np.maximum(s * v, 0.0), data.time)) for s in (1.0, -1.0))
+    if ways[1] <= 0 or ways[0] < MIN_TRAVEL_BALANCE * ways[1]:
+        return
+    fraction = dissipated_fraction(data.time, v, data.force, data.displacement)
     if fraction < MIN_DISSIPATED_FRACTION:
         raise fail(f"the force times the velocity integrates to {100 * fraction:.0f} % of "
                    "its magnitude: the force drives the motion instead of resisting it, so "

@@ -173,8 +173,15 @@ def add_columns_options(parser: argparse.ArgumentParser) -> None:
 
 
 def columns_of(args: argparse.Namespace) -> Any:
-    """The column map the options of :func:`add_columns_options` give (None: none)."""
-    from damper_emulator.dyno.column_map import ColumnMap, load_column_map, parse_assignments
+    """The column options of :func:`add_columns_options`
+    (:class:`~damper_emulator.dyno.column_map.ColumnOptions`; None: none given, each
+    file read through its sidecar, or as the project's CSV)."""
+    from damper_emulator.dyno.column_map import (
+        ColumnMap,
+        ColumnOptions,
+        load_column_map,
+        parse_assignments,
+    )
 
     given = {"sample_rate_hz": args.sample_rate, "force_sign": args.force_sign,
              "displacement_sign": args.displacement_sign,
@@ -183,13 +190,14 @@ def columns_of(args: argparse.Namespace) -> Any:
     if args.columns is None and args.column_map is None and all(
             v is None for v in given.values()):
         return None
-    base = load_column_map(args.column_map) if args.column_map is not None else ColumnMap()
-    columns = dict(base.columns)
-    if args.columns is not None:
-        columns.update(parse_assignments(args.columns))
-    return dataclasses.replace(base, columns=columns,
-                               **{k: float(v) if k in FLOAT_KEYS else v
-                                  for k, v in given.items() if v is not None})
+    options = ColumnOptions(
+        base=load_column_map(args.column_map) if args.column_map is not None else None,
+        columns=parse_assignments(args.columns) if args.columns is not None else {},
+        settings={k: float(v) if k in FLOAT_KEYS else v for k, v in given.items()
+                  if v is not None})
+    # a bad map fails here, before any file is read (a sidecar's, when its file is)
+    dataclasses.replace(options, base=options.base or ColumnMap()).for_file(".")
+    return options
 
 
 #: the column map's options that are numbers of a float field
@@ -198,8 +206,8 @@ FLOAT_KEYS = ("sample_rate_hz", "force_sign", "displacement_sign")
 
 def read_data(paths: Sequence[Path], rig: Path | None, columns: Any = None) -> list[Any]:
     """The measured-data files ``paths`` (each read and checked before any work), read
-    through the column map ``columns`` (None: each file's sidecar, or none), with the
-    rig file ``rig``'s chain attached when given."""
+    through the column options ``columns`` (:func:`columns_of`; None: each file's
+    sidecar, or none), with the rig file ``rig``'s chain attached when given."""
     from damper_emulator.dyno.measured_bag import read_measured
 
     chain = None
@@ -207,7 +215,8 @@ def read_data(paths: Sequence[Path], rig: Path | None, columns: Any = None) -> l
         from damper_emulator.acquisition.rig import load_rig
 
         chain = load_rig(rig)
-    data = [read_measured(p, columns) for p in paths]
+    data = [read_measured(p, None if columns is None else columns.for_file(p))
+            for p in paths]
     return [dataclasses.replace(d, acquisition=chain) for d in data] if chain else data
 
 

@@ -277,7 +277,10 @@ def main() -> None:
     print("# The emulator node over DDS\n")
     print(f"Emulator node, {args.duration:g} s per case, input at {INPUT_RATE_HZ:g} Hz "
           f"(its clock one period slow over the run: an unlocked timer meets every phase) from "
-          f"a separate process, one consumer per run; {cpu_name()}, {os.cpu_count()} cores, "
+          f"a separate process, one consumer per run; the latency from the serialized "
+          f"sample handed to DDS to the consumer's take (earlier versions of this benchmark "
+          f"timed from before the sender's serialization, two consumers at once); "
+          f"{cpu_name()}, {os.cpu_count()} cores, "
           f"Python {platform.python_version()}\n")
     print("| case | achieved rate | period p50 / p99 / max | p99 period error | overruns "
           "(> 2 periods) | wake-up latency p50 / p99 | tick work p99 / max | state→force "

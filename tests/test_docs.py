@@ -163,6 +163,8 @@ def test_the_benchmark_driver_rewrites_a_section_and_keeps_the_rest(tmp_path):
 SHELL_FENCES = {"", "sh", "bash", "shell", "console"}
 #: a variable set in a block (``BUS="--can-interface ..."``), used by later lines
 ASSIGNMENT = re.compile(r"^([A-Z_][A-Z0-9_]*)=(.*)$")
+#: words that end one command of a line and start the next
+SEPARATORS = ("&&", "||", ";", "|")
 
 
 def _shell_blocks(text: str) -> list[list[tuple[int, str]]]:
@@ -213,24 +215,34 @@ def documented_commands() -> list[tuple[str, list[str], int]]:
         variables: dict[str, list[str]] = {}
         lines = iter(block)
         for number, line in lines:
-            text = line.strip()
+            text = line.strip().removeprefix("$ ")
             while text.endswith("\\"):
-                text = text[:-1] + " " + next(lines)[1].strip()
+                following = next(lines, None)
+                assert following is not None, f"{path.name}:{number}: a block ends in \\"
+                text = text[:-1] + " " + following[1].strip()
+            words = shlex.split(text, comments=True)
             assignment = ASSIGNMENT.match(text)
-            if assignment:
+            if assignment and len(words) == 1:
                 # an unquoted $NAME splits into words at blanks
                 variables[assignment[1]] = " ".join(
                     shlex.split(assignment[2], comments=True)).split()
                 continue
-            words = []
-            for word in shlex.split(text, comments=True):
+            expanded: list[str] = []
+            for word in words:
                 name = word[1:].strip("{}") if word.startswith("$") else None
-                words.extend(variables.get(name, [word]))
-            if not words or not words[0].endswith("damper-hil"):
-                continue
-            if words[-1] == "&":
-                words.pop()
-            found.append((f"{path.relative_to(REPO)}:{number}", words[1:], block_number))
+                expanded.extend(variables.get(name, [word]))
+            # each command of the line (cd x && damper-hil ...), past VAR=1 prefixes
+            command: list[str] = []
+            for word in [*expanded, ";"]:
+                if word not in SEPARATORS and word != "&":
+                    command.append(word)
+                    continue
+                while command and ASSIGNMENT.match(command[0]):
+                    command.pop(0)
+                if command and command[0].endswith("damper-hil"):
+                    found.append((f"{path.relative_to(REPO)}:{number}", command[1:],
+                                  block_number))
+                command = []
     return found
 
 
@@ -245,6 +257,11 @@ def test_every_documented_command_line_parses():
     bad = []
     written: dict[tuple[int, str], str] = {}     # (block, folder) → where
     for where, argv, block in commands:
+        if any(w == "..." or (w.startswith("[") and w.endswith("]")) for w in argv):
+            bad.append(f"{where}: a usage synopsis in a shell block (use a text block)")
+            continue
+        argv = [part for w in argv
+                for part in (w.split("=", 1) if w.startswith("--") and "=" in w else [w])]
         # a block's commands, run in turn, must not write one folder twice: a folder
         # output is replaced as a whole
         for flag, value in itertools.pairwise(argv):

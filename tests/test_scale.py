@@ -96,3 +96,6 @@ def test_a_scale_at_its_bound_says_which_way_and_what_to_do(ratio, bound):
     assert result.at_bound == bound and result.to_json()["at_bound"] == bound
     note = result.bound_note()
     assert (f"an oil {bound} than" in note and "--fit-alpha" in note) if bound else not note
+    # a fit that gave no α is neither inside the bounds (it is not taken) nor a note
+    nan = ScaleResult(alpha, float("nan"), -50.0, 0.5, False)
+    assert nan.at_bound == "undetermined" and not nan.bound_note()

@@ -283,7 +283,7 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                   + ("  What the identified model missed was the rig's (section What the "
                      "rig did)." if any(f["kind"] not in ("filter", "skew", "delay")
                                         for f in doc["measurement"]) else ""), ""]
-    if diag.scale is not None and diag.scale.at_bound:
+    if diag.scale is not None and diag.scale.bound_note():
         lines += ["**The oil's stiffness.** " + diag.scale.bound_note(), ""]
     for u in diag.undetermined:
         lines += ["**What these files cannot tell.** " + u.sentence()

@@ -24,6 +24,7 @@ chain given (``--rig``) the force's gain is known and the stage does not run.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -66,15 +67,17 @@ class ScaleResult:
     def at_bound(self) -> str:
         """``"stiffer"`` or ``"softer"`` where the freed α went to its bound (the data
         want the oil stiffer or softer than the data sheet's by more than a load cell's
-        gain explains), else ``""``."""
+        gain explains), ``"undetermined"`` where the fit gave none, else ``""``."""
         factor = OIL_COMPRESSIBILITY_FACTOR / BOUND_MARGIN
+        if not math.isfinite(self.alpha_fitted):
+            return "undetermined"
         if self.alpha_fitted <= self.alpha_model / factor:
             return "stiffer"
         return "softer" if self.alpha_fitted >= self.alpha_model * factor else ""
 
     def bound_note(self) -> str:
         """What a scale at its bound tells the user (``""`` where it is not)."""
-        if not self.at_bound:
+        if self.at_bound in ("", "undetermined"):
             return ""
         return (f"The paper's model refitted with the oil's compressibility freed took it "
                 f"to its bound ({self.alpha_fitted:.3g} against the identified model's "
@@ -143,7 +146,7 @@ def weigh_scale(session: Session, rounds: LibraryRounds, present: StepFit | None
         "refit without it leaves" + ("; taken: every later fit frees it" if taken else
                                      "; not taken" + ("" if inside else
                                                       " (at its bound: no gain)")))
-    if result.at_bound:
+    if result.bound_note():
         say(f"the force's scale: {result.bound_note()}")
     if taken:
         # the later fits start from the refit's paper's parameters (the delay competes

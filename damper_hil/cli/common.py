@@ -215,6 +215,11 @@ def read_data(paths: Sequence[Path], rig: Path | None, columns: Any = None) -> l
         from damper_emulator.acquisition.rig import load_rig
 
         chain = load_rig(rig)
+    from damper_emulator.dyno.column_map import SIDECAR
+
+    for folder in dict.fromkeys(Path(p).parent for p in paths):
+        if (folder / SIDECAR).is_file() and (columns is None or columns.base is None):
+            say(f"reading the files of {folder} through its {SIDECAR}")
     data = [read_measured(p, None if columns is None else columns.for_file(p))
             for p in paths]
     return [dataclasses.replace(d, acquisition=chain) for d in data] if chain else data

@@ -255,3 +255,49 @@ def test_mapped_csv_any_lab_file(workdir, file, sign, zero, window):
             return
     assert len(data) >= 2 and np.all(np.diff(data.time) > 0)
     assert np.isfinite(data.force).all() and np.isfinite(data.displacement).all()
+
+
+def _valid_tdms() -> bytes:
+    """A small TDMS file as nptdms writes it: a force and a displacement channel with a
+    waveform time."""
+    import io
+
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    t = np.arange(50) / 100.0
+    buffer = io.BytesIO()
+    with TdmsWriter(buffer) as writer:
+        writer.write_segment([RootObject(), GroupObject("g"), ChannelObject(
+            "g", "force", 500.0 * np.cos(t), properties={"unit_string": "N",
+                                                          "wf_increment": 0.01}),
+            ChannelObject("g", "displacement", 0.01 * np.sin(t))])
+    return buffer.getvalue()
+
+
+@st.composite
+def tdms_files(draw: st.DrawFn) -> bytes:
+    """A TDMS file whole, damaged, or random bytes after the TDMS lead-in."""
+    kind = draw(st.sampled_from(("mutated", "mutated", "whole", "junk")))
+    if kind == "junk":
+        return b"TDSm" + draw(junk_bytes)
+    valid = _valid_tdms()
+    return valid if kind == "whole" else draw(mutated_bytes(valid))
+
+
+@given(blob=tdms_files())
+def test_tdms_any_bytes(workdir, blob):
+    """A TDMS file (damper_emulator/dyno/tdms.py): the data or a one-line user error."""
+    pytest.importorskip("nptdms")
+    from damper_emulator.dyno.column_map import ColumnMap
+    from damper_emulator.dyno.tdms import read_mapped_tdms
+    from damper_emulator.errors import UserError
+
+    path = workdir / "data.tdms"
+    path.write_bytes(blob)
+    with time_limit(10):
+        try:
+            data = read_mapped_tdms(path, ColumnMap())
+        except UserError as exc:
+            assert "\n" not in str(exc)
+            return
+    assert len(data) >= 2 and np.all(np.diff(data.time) > 0)

@@ -374,14 +374,24 @@ def read_mapped_csv(path: str | Path, cmap: ColumnMap) -> MeasuredData:
         if factor is not None:
             values = values * factor[0] + factor[1]
         arrays[quantity] = values
+    return assemble(arrays, table.rows, cmap, fail, path)
+
+
+def assemble(arrays: dict[str, np.ndarray], rows: int, cmap: ColumnMap, fail: Any,
+             path: Path) -> MeasuredData:
+    """The quantities of a file read through ``cmap`` (SI values; ``time`` absent where
+    the map gives a sample rate) as checked :class:`MeasuredData`: time from the first
+    sample, the signs, the zero, the velocity (module docstring), the plain reader's
+    checks and the convention's."""
     if "time" in arrays:
         arrays["time"] = arrays["time"] - arrays["time"][0]
+    elif cmap.sample_rate_hz is not None:
+        arrays["time"] = np.arange(rows) / cmap.sample_rate_hz
     else:
-        assert cmap.sample_rate_hz is not None
-        arrays["time"] = np.arange(table.rows) / cmap.sample_rate_hz
+        raise fail("no time: map a time column, or give a sample rate")
     window = cmap.velocity_window
-    if window is not None and table.rows < window:
-        raise fail(f"{table.rows} data rows; need at least {window} for the velocity filter")
+    if window is not None and rows < window:
+        raise fail(f"{rows} data rows; need at least {window} for the velocity filter")
     reading = arrays["displacement"]
     if cmap.displacement_zero == "mid-stroke":
         reading = reading - mid_stroke(reading, window)

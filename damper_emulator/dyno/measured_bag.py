@@ -28,6 +28,7 @@ from damper_emulator.dyno.measured import (
     failure,
     read_measured_csv,
 )
+from damper_emulator.dyno.tdms import is_tdms, read_mapped_tdms
 
 #: The topic read.
 FORCE_TOPIC = "/damper/force"
@@ -82,14 +83,16 @@ def read_measured_bag(path: str | os.PathLike[str]) -> MeasuredData:
 
 def read_measured(path: str | os.PathLike[str], columns: ColumnMap | None = None
                   ) -> MeasuredData:
-    """Measured data from a CSV (``.csv``, ``.csv.gz``) or a bag directory.  A CSV is
-    read through ``columns``, or else through the column map of a
-    :data:`~damper_emulator.dyno.column_map.SIDECAR` file beside it, where there is one
-    (:mod:`damper_emulator.dyno.column_map`)."""
+    """Measured data from a CSV (``.csv``, ``.csv.gz``), a TDMS file (``.tdms``) or a bag
+    directory.  A CSV or TDMS file is read through ``columns``, or else through the column
+    map of a :data:`~damper_emulator.dyno.column_map.SIDECAR` file beside it, where there
+    is one (:mod:`damper_emulator.dyno.column_map`, :mod:`damper_emulator.dyno.tdms`)."""
     if is_bag(path):
         return read_measured_bag(path)
     path = Path(path)
     sidecar = path.parent / SIDECAR
     if columns is None and sidecar.is_file():
         columns = load_column_map(sidecar)
+    if is_tdms(path):
+        return read_mapped_tdms(path, columns if columns is not None else ColumnMap())
     return read_measured_csv(path) if columns is None else read_mapped_csv(path, columns)

@@ -23,7 +23,7 @@ import math
 import numpy as np
 import pytest
 from fuzz_support import junk_bytes, junk_text, mutated_bytes, time_limit
-from hypothesis import assume, example, given
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from damper_emulator.dyno.measured import (
@@ -297,6 +297,57 @@ def test_tdms_any_bytes(workdir, blob):
     with time_limit(10):
         try:
             data = read_mapped_tdms(path, ColumnMap())
+        except UserError as exc:
+            assert "\n" not in str(exc)
+            return
+    assert len(data) >= 2 and np.all(np.diff(data.time) > 0)
+
+
+def _valid_mf4() -> bytes:
+    """A small MF4 file as asammdf writes it: a force and a displacement channel."""
+    import tempfile
+    from pathlib import Path
+
+    from asammdf import MDF, Signal
+
+    t = np.arange(50) / 100.0
+    mdf = MDF(version="4.10")
+    mdf.append([Signal(500.0 * np.cos(t), t, name="force", unit="N"),
+                Signal(0.01 * np.sin(t), t, name="displacement", unit="m")])
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "valid.mf4"
+        mdf.save(path, overwrite=True)
+        mdf.close()
+        return path.read_bytes()
+
+
+@st.composite
+def mf4_files(draw: st.DrawFn) -> bytes:
+    """An MF4 file whole, damaged, or random bytes after the MDF lead-in."""
+    kind = draw(st.sampled_from(("mutated", "mutated", "whole", "junk")))
+    if kind == "junk":
+        return b"MDF     4.10    " + draw(junk_bytes)
+    valid = _valid_mf4()
+    return valid if kind == "whole" else draw(mutated_bytes(valid))
+
+
+#: each MDF read runs in a child process (asammdf segfaults on some damaged files), about
+#: 2 s: a twelfth of the profile's examples (5 in make test, 208 in make fuzz)
+@settings(max_examples=max(5, settings.default.max_examples // 12))
+@given(blob=mf4_files())
+def test_mf4_any_bytes(workdir, blob):
+    """An MDF file (damper_emulator/dyno/mdf.py): the data or a one-line user error, also
+    where asammdf crashes its process."""
+    pytest.importorskip("asammdf")
+    from damper_emulator.dyno.column_map import ColumnMap
+    from damper_emulator.dyno.mdf import read_mapped_mdf
+    from damper_emulator.errors import UserError
+
+    path = workdir / "data.mf4"
+    path.write_bytes(blob)
+    with time_limit(10):
+        try:
+            data = read_mapped_mdf(path, ColumnMap())
         except UserError as exc:
             assert "\n" not in str(exc)
             return

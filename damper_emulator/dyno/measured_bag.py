@@ -21,6 +21,7 @@ from damper_emulator import force_message
 from damper_emulator.bag import BagError, cdr_fast
 from damper_emulator.bag.raw_topics import read_raw
 from damper_emulator.dyno.column_map import SIDECAR, ColumnMap, load_column_map, read_mapped_csv
+from damper_emulator.dyno.mdf import is_mdf, read_mapped_mdf
 from damper_emulator.dyno.measured import (
     MeasuredData,
     MeasuredDataError,
@@ -83,10 +84,11 @@ def read_measured_bag(path: str | os.PathLike[str]) -> MeasuredData:
 
 def read_measured(path: str | os.PathLike[str], columns: ColumnMap | None = None
                   ) -> MeasuredData:
-    """Measured data from a CSV (``.csv``, ``.csv.gz``), a TDMS file (``.tdms``) or a bag
-    directory.  A CSV or TDMS file is read through ``columns``, or else through the column
-    map of a :data:`~damper_emulator.dyno.column_map.SIDECAR` file beside it, where there
-    is one (:mod:`damper_emulator.dyno.column_map`, :mod:`damper_emulator.dyno.tdms`)."""
+    """Measured data from a CSV (``.csv``, ``.csv.gz``), a TDMS (``.tdms``) or MDF
+    (``.mf4``, ``.mdf``) file, or a bag directory.  A file is read through ``columns``, or
+    else through the column map of a :data:`~damper_emulator.dyno.column_map.SIDECAR`
+    file beside it, where there is one (:mod:`damper_emulator.dyno.column_map`,
+    :mod:`damper_emulator.dyno.tdms`, :mod:`damper_emulator.dyno.mdf`)."""
     if is_bag(path):
         return read_measured_bag(path)
     path = Path(path)
@@ -95,4 +97,6 @@ def read_measured(path: str | os.PathLike[str], columns: ColumnMap | None = None
         columns = load_column_map(sidecar)
     if is_tdms(path):
         return read_mapped_tdms(path, columns if columns is not None else ColumnMap())
+    if is_mdf(path):
+        return read_mapped_mdf(path, columns if columns is not None else ColumnMap())
     return read_measured_csv(path) if columns is None else read_mapped_csv(path, columns)

@@ -105,13 +105,15 @@ def test_an_identification_from_the_export_is_the_one_from_the_si_files(
         lab.append(read_mapped_csv(lab_export(path, tmp_path / f"{name}_lab.csv"), LAB_MAP))
     a = identify([si[0]], [si[1]], sport_cfg).config.damper
     b = identify([lab[0]], [lab[1]], sport_cfg).config.damper
-    # the units' round trip (inches, pounds-force) moves the data by an ulp; the fits
-    # stop within their tolerances of the optimum: 4e-9 apart at most, measured
+    # the units' round trip (inches, pounds-force) moves the data by an ulp, and the
+    # valve fit's leak constant lies along a flat direction of its cost: an ulp moves it
+    # by 4e-9 to 1.3e-8 (measured; the reader's data agree to 1e-12 above), while a unit
+    # wrong by a percent moves it by far more
     for side in ("rebound", "compression"):
         np.testing.assert_allclose(tuple(getattr(b, side)), tuple(getattr(a, side)),
-                                   rtol=1e-8)
+                                   rtol=1e-7)
     for key in ("gas_pressure_static_pa", "gas_volume_static_m3", "friction_force_n"):
-        assert getattr(b, key) == pytest.approx(getattr(a, key), rel=1e-8), key
+        assert getattr(b, key) == pytest.approx(getattr(a, key), rel=1e-7), key
 
 
 @pytest.mark.parametrize(("columns", "words"), [

@@ -31,7 +31,8 @@ ROSDEP = {"numpy": "python3-numpy", "scipy": "python3-scipy", "numba": "python3-
           "msgpack": "python3-msgpack", "rosbags": "python3-rosbags-pip",
           "ros-jazzy-rclpy": "rclpy", "ros-jazzy-common-interfaces": "sensor_msgs",
           "scikit-learn": "python3-sklearn",
-          "dask": None, "pyarrow": None, "threadpoolctl": None}
+          "dask": None, "pyarrow": None, "threadpoolctl": None, "pint": None, "nptdms": None,
+          "asammdf": None}
 
 
 def test_package_xml_is_valid_and_declares_every_dependency():

@@ -332,8 +332,8 @@ def mf4_files(draw: st.DrawFn) -> bytes:
 
 
 #: each MDF read runs in a child process (asammdf segfaults on some damaged files), about
-#: 2 s: a twelfth of the profile's examples (5 in make test, 208 in make fuzz)
-@settings(max_examples=max(5, settings.default.max_examples // 12))
+#: 2 s: a thirtieth of the profile's examples (2 in make test, 83 in make fuzz)
+@settings(max_examples=max(2, settings.default.max_examples // 30))
 @given(blob=mf4_files())
 def test_mf4_any_bytes(workdir, blob):
     """An MDF file (damper_emulator/dyno/mdf.py): the data or a one-line user error, also

@@ -9,14 +9,12 @@ import pytest
 
 asammdf = pytest.importorskip("asammdf")
 from asammdf import MDF, Signal  # noqa: E402
+from measured_support import assert_same_identification, protocol_records  # noqa: E402
 
-from damper_emulator.dyno import protocols  # noqa: E402
 from damper_emulator.dyno.column_map import ColumnMap, ColumnMapError  # noqa: E402
 from damper_emulator.dyno.mdf import read_mapped_mdf  # noqa: E402
 from damper_emulator.dyno.measured import MeasuredData, MeasuredDataError  # noqa: E402
 from damper_emulator.dyno.measured_bag import read_measured  # noqa: E402
-from damper_emulator.identify.pipeline import identify  # noqa: E402
-from damper_emulator.model.compressible import simulate  # noqa: E402
 
 INCH, LBF = 0.0254, 4.4482216152605
 MAP = ColumnMap(columns={"displacement": "DamperTravel", "force": "LoadCell",
@@ -56,19 +54,11 @@ def test_an_mf4_file_reads_as_its_record(tmp_path):
 
 def test_an_identification_from_an_mf4_file_is_the_one_from_its_record(
         tmp_path, sport_cfg, sport_model):
-    rng = np.random.default_rng(5)
     si, mdf = [], []
-    for name, (t, x, v) in (("qs", protocols.quasi_static()),
-                            ("chirp", protocols.chirp(duration_s=20.0))):
-        f = simulate(sport_model, t, x, v).force_n + rng.normal(0, 4.0, t.size)
-        temp = np.full(t.size, 25.0)
+    for name, t, x, f, temp in protocol_records(sport_model, 5):
         si.append(MeasuredData(t, x, f, temperature=temp))
         mdf.append(read_mapped_mdf(write_mf4(tmp_path / f"{name}.mf4", t, x, f, temp), MAP))
-    a = identify([si[0]], [si[1]], sport_cfg).config.damper
-    b = identify([mdf[0]], [mdf[1]], sport_cfg).config.damper
-    for side in ("rebound", "compression"):
-        np.testing.assert_allclose(tuple(getattr(b, side)), tuple(getattr(a, side)),
-                                   rtol=1e-7)
+    assert_same_identification(si, mdf, sport_cfg)
 
 
 def test_bad_mdf_files_are_one_line(tmp_path):

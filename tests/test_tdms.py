@@ -11,15 +11,13 @@ import numpy as np
 import pytest
 
 nptdms = pytest.importorskip("nptdms")
+from measured_support import assert_same_identification, protocol_records  # noqa: E402
 from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter  # noqa: E402
 
-from damper_emulator.dyno import protocols  # noqa: E402
 from damper_emulator.dyno.column_map import ColumnMap, ColumnMapError  # noqa: E402
 from damper_emulator.dyno.measured import MeasuredData, MeasuredDataError  # noqa: E402
 from damper_emulator.dyno.measured_bag import read_measured  # noqa: E402
 from damper_emulator.dyno.tdms import read_mapped_tdms  # noqa: E402
-from damper_emulator.identify.pipeline import identify  # noqa: E402
-from damper_emulator.model.compressible import simulate  # noqa: E402
 
 INCH, LBF = 0.0254, 4.4482216152605
 MAP = ColumnMap(columns={"displacement": "Dyno/Pos", "force": "Load", "temperature": "Oil"},
@@ -81,23 +79,13 @@ def test_a_tdms_file_reads_as_its_si_record(tmp_path):
 
 def test_an_identification_from_a_tdms_file_is_the_one_from_its_si_record(
         tmp_path, sport_cfg, sport_model):
-    rng = np.random.default_rng(4)
     cmap = ColumnMap(columns={**MAP.columns, "force": "Dyno/Load"}, displacement_sign=-1.0)
     si, tdms = [], []
-    for name, (t, x, v) in (("qs", protocols.quasi_static()),
-                            ("chirp", protocols.chirp(duration_s=20.0))):
-        f = simulate(sport_model, t, x, v).force_n + rng.normal(0, 4.0, t.size)
-        temp = np.full(t.size, 25.0)
+    for name, t, x, f, temp in protocol_records(sport_model, 4):
         si.append(MeasuredData(t, x, f, temperature=temp))
         tdms.append(read_mapped_tdms(write_tdms(tmp_path / f"{name}.tdms", t, x, f, temp),
                                      cmap))
-    a = identify([si[0]], [si[1]], sport_cfg).config.damper
-    b = identify([tdms[0]], [tdms[1]], sport_cfg).config.damper
-    # the units' round trip moves the data by an ulp; the fits stop within their
-    # tolerance of the optimum (as for a CSV export: test_column_map.py)
-    for side in ("rebound", "compression"):
-        np.testing.assert_allclose(tuple(getattr(b, side)), tuple(getattr(a, side)),
-                                   rtol=1e-7)
+    assert_same_identification(si, tdms, sport_cfg)
 
 
 def test_bad_tdms_files_are_one_line(tmp_path):

@@ -410,6 +410,19 @@ def assemble(arrays: dict[str, np.ndarray], rows: int, cmap: ColumnMap, fail: An
     return data
 
 
+def sample_fail(path: Path) -> Any:
+    """``fail(message, sample=None)``: the one-line error of a binary file's reader
+    (TDMS, MDF), naming the file and the sample (a damaged file's names and its
+    library's messages may hold any character: made one line)."""
+    from damper_emulator.errors import one_line
+
+    def fail(message: str, row: int | None = None) -> MeasuredDataError:
+        where = f"{path}: sample {row}: " if row is not None else f"{path}: "
+        return MeasuredDataError(where + one_line(message))
+
+    return fail
+
+
 def _check_convention(data: MeasuredData, fail: Any) -> None:
     """Refuse a file whose force works along its motion (module docstring)."""
     from scipy.integrate import trapezoid

@@ -23,14 +23,10 @@ from damper_emulator.dyno.column_map import (
     ColumnMapError,
     assemble,
     column_units,
+    sample_fail,
     si_factor,
 )
-from damper_emulator.dyno.measured import (
-    OPTIONAL_COLUMNS,
-    REQUIRED_COLUMNS,
-    MeasuredData,
-    MeasuredDataError,
-)
+from damper_emulator.dyno.measured import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, MeasuredData
 from damper_emulator.errors import one_line
 
 #: the file names read as MDF
@@ -62,10 +58,7 @@ def read_mapped_mdf(path: str | Path, cmap: ColumnMap) -> MeasuredData:
     from concurrent.futures.process import BrokenProcessPool
 
     path = Path(path)
-
-    def fail(message: str, row: int | None = None) -> MeasuredDataError:
-        where = f"{path}: sample {row}: " if row is not None else f"{path}: "
-        return MeasuredDataError(where + one_line(message))
+    fail = sample_fail(path)
 
     if not path.is_file():
         raise fail("cannot read the MDF file: no such file")

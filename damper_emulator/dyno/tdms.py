@@ -22,14 +22,10 @@ from damper_emulator.dyno.column_map import (
     ColumnMapError,
     assemble,
     column_units,
+    sample_fail,
     si_factor,
 )
-from damper_emulator.dyno.measured import (
-    OPTIONAL_COLUMNS,
-    REQUIRED_COLUMNS,
-    MeasuredData,
-    MeasuredDataError,
-)
+from damper_emulator.dyno.measured import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, MeasuredData
 from damper_emulator.errors import one_line
 
 #: the channel property LabVIEW and NI DAQ write a channel's unit into
@@ -55,11 +51,7 @@ def read_mapped_tdms(path: str | Path, cmap: ColumnMap) -> MeasuredData:
     from nptdms import TdmsFile
 
     path = Path(path)
-
-    def fail(message: str, row: int | None = None) -> MeasuredDataError:
-        # (a damaged file's names and nptdms's messages may hold any character)
-        where = f"{path}: sample {row}: " if row is not None else f"{path}: "
-        return MeasuredDataError(where + one_line(message))
+    fail = sample_fail(path)
 
     try:
         tdms = TdmsFile.open(path)

@@ -217,3 +217,17 @@ def test_pchip_coefficients_are_scipys_bit_for_bit(steps, x0, flats):
     assert got.shape == expected.shape
     assert np.array_equal(got, expected), np.max(np.abs(got - expected))
 
+
+
+@pytest.mark.parametrize("velocity", [5e-324, 1e-320])
+def test_a_table_velocity_too_small_to_tabulate_is_one_line(sport_cfg, velocity):
+    """A positive but subnormal largest velocity passes the parameter's rule; the table's
+    monotonicity check then had geometric flows from zero (numpy's ValueError, a
+    traceback: found by the parameter fuzzing)."""
+    from damper_emulator.model.valve_table import ValveTableError
+
+    cfg = dataclasses.replace(sport_cfg, numerics=dataclasses.replace(
+        sport_cfg.numerics, valve_table_max_velocity_m_s=velocity))
+    with pytest.raises(ValveTableError, match="too small to tabulate") as err:
+        valve_tables(cfg)
+    assert "\n" not in str(err.value)

@@ -245,6 +245,12 @@ def build_valve_table(valve: Iterable[float], annulus_area_m2: float, nu_m2_s: f
         ``max_velocity_m_s``.
     """
     q_max = max_velocity_m_s * annulus_area_m2
+    if not (np.isfinite(q_max) and q_max * 1e-9 > 0.0):
+        # (a positive but subnormal velocity passes the parameter's rule: the check's
+        # geometric flows would start at zero)
+        raise ValveTableError(
+            f"{label}: the table's largest flow {q_max:.3g} m³/s (velocity "
+            f"{max_velocity_m_s:.3g} m/s) is too small to tabulate")
     q = np.concatenate(([0.0], np.geomspace(q_max * 1e-9, q_max, MONOTONIC_CHECK_POINTS)))
     dp = pressure_drop_array(q, valve, nu_m2_s, form)
     bad = ~np.isfinite(dp)

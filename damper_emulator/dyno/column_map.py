@@ -153,12 +153,16 @@ class ColumnOptions:
 
     def for_file(self, path: str | Path) -> ColumnMap:
         """The map ``path`` is read through."""
-        base = self.base
-        if base is None:
-            sidecar = Path(path).parent / SIDECAR
-            base = load_column_map(sidecar) if sidecar.is_file() else ColumnMap()
+        base = self.base or sidecar_map(path) or ColumnMap()
         return dataclasses.replace(base, columns={**base.columns, **self.columns},
                                    **self.settings)
+
+
+def sidecar_map(path: str | Path) -> ColumnMap | None:
+    """The column map of the :data:`SIDECAR` beside ``path``, or None where there is
+    none."""
+    sidecar = Path(path).parent / SIDECAR
+    return load_column_map(sidecar) if sidecar.is_file() else None
 
 
 def parse_assignments(items: Iterable[str]) -> dict[str, str]:
@@ -282,12 +286,10 @@ def _parse_iso(text: str) -> datetime:
 
 
 def _stamp_seconds(values: Any, column: str, fail: Any) -> np.ndarray:
-    """Time fields as seconds: numbers as they are, ISO stamps as the seconds since the
-    first, counted in whole microseconds (as POSIX seconds, a float has only about 0.2 µs
-    of resolution left)."""
+    """ISO stamps as the seconds since the first, counted in whole microseconds (as POSIX
+    seconds, a float has only about 0.2 µs of resolution left); a number among them is
+    refused."""
     stamps = [isinstance(v, datetime) for v in values]
-    if not any(stamps):
-        return np.asarray(values, dtype=float)
     if not all(stamps):
         row = stamps.index(not stamps[0]) + 1
         raise fail(f"column '{column}': numbers and ISO time stamps mixed", row)
@@ -367,10 +369,11 @@ def read_mapped_csv(path: str | Path, cmap: ColumnMap) -> MeasuredData:
         if column not in table.values:
             continue
         raw = table.values[column]
-        stamped = quantity == "time" and any(isinstance(v, datetime) for v in raw)
-        values = (_stamp_seconds(raw, column, fail) if quantity == "time"
-                  else np.asarray(raw, dtype=float))
-        factor = None if stamped else column_units(quantity, column)
+        if quantity == "time" and any(isinstance(v, datetime) for v in raw):
+            arrays[quantity] = _stamp_seconds(raw, column, fail)   # no unit to apply
+            continue
+        values = np.asarray(raw, dtype=float)
+        factor = column_units(quantity, column)
         if factor is not None:
             values = values * factor[0] + factor[1]
         arrays[quantity] = values

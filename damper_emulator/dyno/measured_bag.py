@@ -20,7 +20,7 @@ import numpy as np
 from damper_emulator import force_message
 from damper_emulator.bag import BagError, cdr_fast
 from damper_emulator.bag.raw_topics import read_raw
-from damper_emulator.dyno.column_map import SIDECAR, ColumnMap, load_column_map, read_mapped_csv
+from damper_emulator.dyno.column_map import ColumnMap, read_mapped_csv, sidecar_map
 from damper_emulator.dyno.mdf import is_mdf, read_mapped_mdf
 from damper_emulator.dyno.measured import (
     MeasuredData,
@@ -92,9 +92,8 @@ def read_measured(path: str | os.PathLike[str], columns: ColumnMap | None = None
     if is_bag(path):
         return read_measured_bag(path)
     path = Path(path)
-    sidecar = path.parent / SIDECAR
-    if columns is None and sidecar.is_file():
-        columns = load_column_map(sidecar)
+    if columns is None:
+        columns = sidecar_map(path)
     if is_tdms(path):
         return read_mapped_tdms(path, columns if columns is not None else ColumnMap())
     if is_mdf(path):

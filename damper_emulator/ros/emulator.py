@@ -262,12 +262,11 @@ class EmulatorNode(ManagedNode):
                 for _ in take_all(sub):
                     pass
             capacity = max(4096, int(p.rate_hz * p.stats_window_s))
-            period_ns = round(1e9 / p.rate_hz)
-            self._phase_lock = (PhaseLock(period_ns, round(p.phase_lock_us * 1e3))
-                                if p.phase_lock_us > 0 else None)
             self._loop = PeriodicLoop(1.0 / p.rate_hz, self._tick,
                                       realtime=p.realtime_request(), capacity=capacity,
                                       name="emulator-loop")
+            self._phase_lock = (PhaseLock(self._loop.period_ns, round(p.phase_lock_us * 1e3))
+                                if p.phase_lock_us > 0 else None)
             self._stats = self._loop.stats
             self._loop.start()
             report = self._loop.report

@@ -127,10 +127,11 @@ def _active_after(emulator, launched_s: float) -> float | None:
 
 def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
              control: str = "skyhook", domain_id: int | None = None,
-             live_port: int | None = None,
+             live_port: int | None = None, mf4: bool = False,
              progress: Callable[[str], None] = print) -> dict:
     """Run the demo into ``out`` and return its summary (also ``out/demo.json``); with
-    ``live_port``, also the live view (``damper-hil live``) on that port."""
+    ``live_port``, also the live view (``damper-hil live``) on that port; with ``mf4``, the
+    recording's time series as ``out/demo.mf4`` too."""
     started = time.monotonic()
     out.mkdir(parents=True, exist_ok=True)
     bag = out / "bag"
@@ -240,4 +241,4 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
         "emulator_active_after_s": (None if active_after[0] is None
                                     else round(active_after[0], 2)),
         "emulator_seen_active_after_s": round(active_after[1], 2),
-    })
+    }, mf4=mf4)

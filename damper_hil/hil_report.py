@@ -165,10 +165,16 @@ def _delay_line(delay: dict[str, Any] | None) -> str:
 
 
 def write_report(out: Path, rec: Recording, ride_doc: dict[str, Any],
-                 stats_file: Path, sprung_mass_kg: float, extra: dict[str, Any]
-                 ) -> dict[str, Any]:
-    """Plots, ``demo.json`` and ``report.md`` under ``out``; returns the summary."""
+                 stats_file: Path, sprung_mass_kg: float, extra: dict[str, Any],
+                 mf4: bool = False) -> dict[str, Any]:
+    """Plots, ``demo.json`` and ``report.md`` under ``out`` (and with ``mf4`` the
+    recording's time series as ``demo.mf4``); returns the summary."""
     files = []
+    if mf4:
+        from damper_emulator.recording_mdf import write_recording_mdf
+
+        files.append(write_recording_mdf(rec, out / "demo.mf4", "damper-hil demo: "
+                                         f"{extra.get('mode', 'the HIL demo')}").name)
     if rec.ride is not None:
         files.append(plot_ride(out / "ride.png", rec, sprung_mass_kg).name)
     if rec.force is not None:

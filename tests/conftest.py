@@ -81,7 +81,8 @@ class DemoRun:
 
 @pytest.fixture(scope="session")
 def cold_demo_run(tmp_path_factory) -> DemoRun:
-    """``damper-hil demo --duration 5 --live PORT`` as a new user runs it, nothing cached
+    """``damper-hil demo --duration 5 --live PORT --format mf4`` as a new user runs it,
+    nothing cached
     (an empty ``NUMBA_CACHE_DIR``), with a live-view client listening.  One run serves the
     start-up checks, the bag's contents and the live view (tests/test_demo_run.py, one
     module: one worker runs it once); a demo takes 30-50 s."""
@@ -108,7 +109,8 @@ def cold_demo_run(tmp_path_factory) -> DemoRun:
     client = threading.Thread(target=listen, daemon=True)
     client.start()
     run.proc = subprocess.run([sys.executable, "-m", "damper_hil.cli", "demo", "--duration",
-                               "5", "--live", str(port), "--out", str(out)], cwd=ROOT,
+                               "5", "--live", str(port), "--format", "mf4", "--out",
+                               str(out)], cwd=ROOT,
                               env=env, capture_output=True, text=True, timeout=600)
     client.join(30)
     return run

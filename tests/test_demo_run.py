@@ -85,6 +85,35 @@ def test_closed_loop_demo_writes_a_bag_rosbags_reads(cold_demo):
         assert (out / f).stat().st_size > 0
 
 
+def test_the_demos_time_series_as_mdf4_are_the_bags(cold_demo):
+    """``--format mf4``: demo.mf4 holds the recorded topics, a channel group each, with
+    units and comments; read by asammdf, its forces and ride are the bag's as rosbags
+    decodes them, on the bag's stamps."""
+    from asammdf import MDF
+
+    proc, out = cold_demo
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    msgs = read_bag(out / "bag")
+    mdf = MDF(out / "demo.mf4")
+    try:
+        comments = [g.channel_group.comment for g in mdf.groups]
+        assert comments[:3] == [topics.STATE, topics.FORCE, topics.RIDE_STATE], comments
+        force = mdf.get("force")
+        assert force.unit == "N" and "rebound positive" in force.comment
+        recorded = msgs[topics.FORCE]
+        assert np.array_equal(force.samples, [m.effort[0] for _, m in recorded])
+        stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+                           for _, m in recorded])
+        assert np.allclose(np.diff(force.timestamps), np.diff(stamps) * 1e-9, atol=1e-9)
+        assert "NO_INPUT" in mdf.get("status").comment
+        assert np.array_equal(mdf.get("stroke").samples,
+                              [m.position[0] for _, m in msgs[topics.STATE]])
+        assert mdf.get("dtl").unit == "N" and mdf.get("wheel").unit == "m"
+        assert mdf.get("valve_command").samples.size > 100
+    finally:
+        mdf.close()
+
+
 def test_the_live_view_serves_the_running_demo(cold_demo_run):
     """The shared cold run of ``damper-hil demo --live`` (conftest.py), with a WebSocket
     client listening from its start to its end."""

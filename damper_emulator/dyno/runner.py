@@ -3,9 +3,10 @@
 The simulations themselves are :mod:`damper_emulator.dyno.simulated`'s (re-exported here).
 Each ``run_*`` function simulates one protocol (docs/model.md §3–4) on a :class:`DamperModel`,
 optionally adds Gaussian force noise (a seeded :class:`numpy.random.Generator`, like a load
-cell's), writes the measured-data CSV (docs/interfaces.md) and its PNG plot into ``out_dir`` and
-returns a small JSON-ready summary: ``files`` (names written, relative to ``out_dir``),
-peak forces [N], peak velocities [m/s] and, for sines, the dissipated energy per cycle [J].
+cell's), writes the measured data (a CSV, docs/interfaces.md, an MDF4 file or both) and
+its PNG plot into ``out_dir`` and returns a small JSON-ready summary: ``files`` (names
+written, relative to ``out_dir``), peak forces [N], peak velocities [m/s] and, for sines,
+the dissipated energy per cycle [J].
 
 ``progress``, when given, is called with the path of every file as soon as it is written.
 ``engine``, when given, replaces the offline model as the source of the forces (:data:`Engine`).
@@ -21,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.dyno import protocols
-from damper_emulator.dyno.measured import MeasuredData, check_measured, failure, write_measured_csv
+from damper_emulator.dyno.formats import DEFAULT_FORMAT, write_measured
+from damper_emulator.dyno.measured import MeasuredData, check_measured, failure
 from damper_emulator.dyno.protocols import Chirp, FourteenSpeed, QuasiStatic, Sine
 from damper_emulator.dyno.simulated import (
     FOURTEEN_SPEED_COLUMNS,
@@ -56,18 +58,22 @@ def _energy(x: np.ndarray, f: np.ndarray) -> float:
     return float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(x)))
 
 
-def _write(out_dir: Path, name: str, progress: Progress, t, x, v, f) -> Path:
-    """Write the measured-data CSV, then check it as every reader does
+def _write(out_dir: Path, name: str, progress: Progress, fmt: str, comment: str,
+           t, x, v, f) -> list[Path]:
+    """Write the measured data in the format ``fmt`` (:mod:`~damper_emulator.dyno.formats`:
+    ``NAME.csv``, ``NAME.mf4`` or both), then check them as every reader does
     (:func:`~damper_emulator.dyno.measured.check_measured`): a dyno over CAN whose samples
     no dyno produces is refused naming the row, and its recording is kept for a look."""
-    path = write_measured_csv(out_dir / name, t, x, f, velocity=v)
-    if progress:
-        progress(path)
+    paths = write_measured(out_dir / name, fmt, t, x, f, velocity=v,
+                           comment=f"damper-hil dyno: {comment}")
+    for path in paths:
+        if progress:
+            progress(path)
     data = MeasuredData(time=np.asarray(t, dtype=float), displacement=np.asarray(x, float),
                         force=np.asarray(f, dtype=float), velocity=np.asarray(v, float),
-                        name=path.name, path=str(path))
-    check_measured(data, failure(path))
-    return path
+                        name=paths[0].name, path=str(paths[0]))
+    check_measured(data, failure(paths[0]))
+    return paths
 
 
 def _plot(plot: bool, path: Path, progress: Progress, name: str, *args: Any,
@@ -105,9 +111,11 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
              cycles: int = Sine.cycles, rate: float = Sine.rate_hz,
              settle_cycles: int = Sine.settle_cycles,
              noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
-             engine: Engine = None, plot: bool = True) -> dict[str, Any]:
-    """Sine test ``x = A sin(2π f t)``: writes ``sine_<f>hz.csv`` and ``sine_<f>hz.png``
-    (the plot unless ``plot`` is false).
+             engine: Engine = None, plot: bool = True,
+             fmt: str = DEFAULT_FORMAT) -> dict[str, Any]:
+    """Sine test ``x = A sin(2π f t)``: writes ``sine_<f>hz.csv`` (``.mf4``, or both, by
+    ``fmt``: :mod:`~damper_emulator.dyno.formats`) and ``sine_<f>hz.png`` (the plot unless
+    ``plot`` is false).
 
     ``settle_cycles`` lead-in periods are simulated but not recorded; the file's time
     starts at 0.  Summary: peak forces and velocities, dissipated energy per cycle
@@ -119,11 +127,12 @@ def run_sine(model: DamperModel, out_dir: str | Path, frequency: float, amplitud
                                        settle_cycles, engine)
     f = add_noise(f, noise_std, rng)
     name = sine_file_name(frequency)
-    csv_path = _write(out, name, progress, t, x, v, f)
-    png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
-                f"Sine {frequency:g} Hz, amplitude {amplitude * 1e3:g} mm "
-                f"({model.cfg.damper.name} damper, compressible model)", cfg=model.cfg)
-    return {"protocol": "sine", "files": [csv_path.name, *png],
+    title = (f"Sine {frequency:g} Hz, amplitude {amplitude * 1e3:g} mm "
+             f"({model.cfg.damper.name} damper, compressible model)")
+    paths = _write(out, name, progress, fmt, title, t, x, v, f)
+    png = _plot(plot, paths[0].with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
+                title, cfg=model.cfg)
+    return {"protocol": "sine", "files": [*(p.name for p in paths), *png],
             "frequency_hz": float(frequency), "amplitude_m": float(amplitude),
             "cycles": cycles, "settle_cycles": settle_cycles, "rate_hz": float(rate),
             "samples": int(t.size), "duration_s": float(t[-1]),
@@ -137,9 +146,11 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path,
                      amplitude: float = QuasiStatic.amplitude_m,
                      cycles: int = QuasiStatic.cycles, rate: float = QuasiStatic.rate_hz,
                      noise_std: float = 0.0, seed: int | None = 0, progress: Progress = None,
-                     engine: Engine = None, plot: bool = True) -> dict[str, Any]:
+                     engine: Engine = None, plot: bool = True,
+             fmt: str = DEFAULT_FORMAT) -> dict[str, Any]:
     """Quasi-static test (constant-velocity triangle, docs/model.md §3): writes
-    ``quasi_static.csv`` and ``quasi_static.png`` (the plot unless ``plot`` is false).
+    ``quasi_static.csv`` (``.mf4``, or both, by ``fmt``) and ``quasi_static.png`` (the plot
+    unless ``plot`` is false).
 
     Summary adds ``friction_estimate_n``: half the difference between the mean forces
     while extending and while compressing (the gas force cancels over the symmetric
@@ -153,14 +164,14 @@ def run_quasi_static(model: DamperModel, out_dir: str | Path,
     check_travel(model, x, f"quasi-static amplitude {amplitude:g} m")
     t, x, v, f, faults = measured_samples((engine or simulate)(model, t, x, v), t, x, v)
     f = add_noise(f, noise_std, rng)
-    csv_path = _write(out, "quasi_static.csv", progress, t, x, v, f)
-    png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
-                f"Quasi-static test, {velocity * 1e3:g} mm/s, ±{amplitude * 1e3:g} mm "
-                f"({model.cfg.damper.name} damper)", cfg=model.cfg, time_series=True,
-                velocity_points=True)
+    title = (f"Quasi-static test, {velocity * 1e3:g} mm/s, ±{amplitude * 1e3:g} mm "
+             f"({model.cfg.damper.name} damper)")
+    paths = _write(out, "quasi_static.csv", progress, fmt, title, t, x, v, f)
+    png = _plot(plot, paths[0].with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
+                title, cfg=model.cfg, time_series=True, velocity_points=True)
     ext, com = v > 0, v < 0
     friction = 0.5 * (float(f[ext].mean()) - float(f[com].mean()))
-    return {"protocol": "quasi-static", "files": [csv_path.name, *png],
+    return {"protocol": "quasi-static", "files": [*(p.name for p in paths), *png],
             "velocity_m_s": float(velocity), "amplitude_m": float(amplitude),
             "cycles": cycles, "rate_hz": float(rate), "samples": int(t.size),
             "duration_s": float(t[-1] - t[0]), **_force_summary(v, f),
@@ -172,9 +183,11 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_
               v_start: float = Chirp.v_start_m_s, v_end: float = Chirp.v_end_m_s,
               rate: float = Chirp.rate_hz, noise_std: float = 0.0,
               seed: int | None = 0, progress: Progress = None,
-              engine: Engine = None, plot: bool = True) -> dict[str, Any]:
+              engine: Engine = None, plot: bool = True,
+             fmt: str = DEFAULT_FORMAT) -> dict[str, Any]:
     """Exponential sine chirp with growing velocity amplitude (docs/model.md §3): writes
-    ``chirp.csv`` and ``chirp.png`` (the plot unless ``plot`` is false)."""
+    ``chirp.csv`` (``.mf4``, or both, by ``fmt``) and ``chirp.png`` (the plot unless
+    ``plot`` is false)."""
     rng = _rng(noise_std, seed)
     protocols.checked(Chirp, "dyno", f_start_hz=f_start, f_end_hz=f_end, duration_s=duration,
                       v_start_m_s=v_start, v_end_m_s=v_end, rate_hz=rate)
@@ -183,12 +196,12 @@ def run_chirp(model: DamperModel, out_dir: str | Path, f_start: float = Chirp.f_
     check_travel(model, x, "chirp displacement")
     t, x, v, f, faults = measured_samples((engine or simulate)(model, t, x, v), t, x, v)
     f = add_noise(f, noise_std, rng)
-    csv_path = _write(out, "chirp.csv", progress, t, x, v, f)
-    png = _plot(plot, csv_path.with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
-                f"Chirp {f_start:g}–{f_end:g} Hz in {duration:g} s, velocity amplitude "
-                f"{v_start:g}–{v_end:g} m/s ({model.cfg.damper.name} damper)", cfg=model.cfg,
-                time_series=True)
-    return {"protocol": "chirp", "files": [csv_path.name, *png],
+    title = (f"Chirp {f_start:g}–{f_end:g} Hz in {duration:g} s, velocity amplitude "
+             f"{v_start:g}–{v_end:g} m/s ({model.cfg.damper.name} damper)")
+    paths = _write(out, "chirp.csv", progress, fmt, title, t, x, v, f)
+    png = _plot(plot, paths[0].with_suffix(".png"), progress, "plot_loops", (t, x, v, f),
+                title, cfg=model.cfg, time_series=True)
+    return {"protocol": "chirp", "files": [*(p.name for p in paths), *png],
             "f_start_hz": float(f_start), "f_end_hz": float(f_end),
             "duration_s": float(duration), "v_start_m_s": float(v_start),
             "v_end_m_s": float(v_end), "rate_hz": float(rate), "samples": int(t.size),

@@ -22,7 +22,8 @@ def add_parser(sub) -> None:
                     "vcan0 where the kernel has it, else a private udp_multicast group), runs\n"
                     "DURATION seconds of road, and writes under DIR: bag/ (rosbag2, MCAP),\n"
                     "ride_metrics.json, skyhook.json, demo.json, report.md, ride.png,\n"
-                    "damper.png, control.png, loop.png and logs/.")
+                    "damper.png, control.png, loop.png and logs/ (and demo.mf4 with\n"
+                    "--format mf4).")
     demo.add_argument("--duration", metavar="S", type=positive_float,
                       default=RideRunParams.duration_s,
                       help=f"road time [s] (default: ride.duration_s, "
@@ -38,6 +39,10 @@ def add_parser(sub) -> None:
                       help="also serve the live view (damper-hil live) on ws://127.0.0.1:PORT "
                            "(default port 8765): open it in Foxglove or Lichtblick with "
                            "config/foxglove_layout.json")
+    demo.add_argument("--format", dest="fmt", choices=("bag", "mf4"), default="bag",
+                      help="the time series as the bag only (bag/, MCAP), or also as ASAM "
+                           "MDF4 (demo.mf4: one channel group per topic, with units and "
+                           "comments, for asammdf, CANape, INCA; default: bag)")
     demo.add_argument("--out", metavar="DIR", type=Path, default=Path("demo_out"),
                       help="output directory (created if missing; default: demo_out)")
     demo.set_defaults(handler=run)
@@ -51,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         summary = run_demo(args.out, args.duration, clock=args.clock, control=args.control,
-                           live_port=args.live, progress=progress)
+                           live_port=args.live, mf4=args.fmt == "mf4", progress=progress)
     except DemoError as exc:
         raise CliError(str(exc)) from None
     m = summary["ride"]["metrics"]

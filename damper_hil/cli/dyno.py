@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from damper_emulator.dyno.formats import DEFAULT_FORMAT, FORMAT_HELP, FORMATS
 from damper_emulator.dyno.protocols import PROTOCOLS
 from damper_emulator.schema import field_spec
 from damper_hil.cli.common import (
@@ -67,8 +68,9 @@ def add_parser(sub) -> None:
         "dyno", formatter_class=Formatter,
         help="virtual dyno: run a test protocol on the model, write CSV + plots",
         description="Run a dyno test protocol on the compressible (hysteretic) damper model\n"
-                    "and write into --out DIR: the measured-data CSV (time [s], displacement\n"
-                    "[m, extension +], velocity [m/s], force [N, rebound +]), its\n"
+                    "and write into --out DIR: the measured data (time [s], displacement\n"
+                    "[m, extension +], velocity [m/s], force [N, rebound +]; CSV, MDF4 with\n"
+                    "--format mf4, or both), its\n"
                     "force–velocity / force–displacement plot (PNG) and dyno.json\n"
                     "(protocol, options, parameter file, files written, summary).",
         epilog="files written per protocol:\n"
@@ -96,6 +98,8 @@ def add_parser(sub) -> None:
                            "(default: 0, no noise)")
     dyno.add_argument("--seed", metavar="S", type=non_negative_int, default=0,
                       help="seed of the force-noise generator (default: 0)")
+    dyno.add_argument("--format", dest="fmt", choices=list(FORMATS), default=DEFAULT_FORMAT,
+                      help=FORMAT_HELP + "; the 14-speed table is CSV")
     dyno.add_argument("--no-plot", dest="plot", action="store_false",
                       help="write the CSV and dyno.json only, no PNG (faster: plotting is "
                       "most of a short run's time)")
@@ -224,21 +228,23 @@ def _run_dyno(args: argparse.Namespace, opts: dict, model, params_file, engine=N
     if args.protocol == "sine":
         summary = runner.run_sine(model, out, opts["frequency"], opts["amplitude"],
                                   opts["cycles"], opts["rate"], opts["settle_cycles"],
-                                  **common)
+                                  fmt=args.fmt, **common)
     elif args.protocol == "quasi-static":
         summary = runner.run_quasi_static(model, out, opts["velocity"], opts["amplitude"],
-                                          opts["cycles"], opts["rate"], **common)
+                                          opts["cycles"], opts["rate"], fmt=args.fmt,
+                                          **common)
     elif args.protocol == "chirp":
         summary = runner.run_chirp(model, out, opts["f_start"], opts["f_end"],
                                    opts["duration"], opts["v_start"], opts["v_end"],
-                                   opts["rate"], **common)
+                                   opts["rate"], fmt=args.fmt, **common)
     else:
         summary = runner.run_fourteen_speed(model, out, opts["points"], opts["amplitude"],
                                             opts["v_min"], opts["v_max"], opts["cycles"],
                                             opts["rate"], **common)
     write_json(out / "dyno.json", {
         "protocol": args.protocol,
-        "options": {**opts, "noise_std_n": args.noise_std, "seed": args.seed},
+        "options": {**opts, "noise_std_n": args.noise_std, "seed": args.seed,
+                    "format": args.fmt},
         "params_file": params_file,
         "damper": model.cfg.damper.name,
         "files": summary["files"] + ["dyno.json"],

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from damper_emulator.dyno.formats import DEFAULT_FORMAT, FORMAT_HELP, FORMATS
 from damper_hil.cli.common import (
     PROG,
     CliError,
@@ -43,7 +44,8 @@ def add_parser(sub) -> None:
                     "The safety layer clamps every demand into the limits, clears Enable\n"
                     "within 50 ms of the last valid feedback and stops a loop going\n"
                     "unstable.  Writes into --out DIR: hybrid.csv, hybrid.json, bag/ (rosbag2,\n"
-                    "MCAP), report.md and its plots.  Exit status 0 completed, 3 stopped by\n"
+                    "MCAP), ride_measured.csv (--format: or .mf4, with hybrid.mf4),\n"
+                    "report.md and its plots.  Exit status 0 completed, 3 stopped by\n"
                     "the safety layer (the reason on stderr), 2 bad input or no dyno.",
         epilog="examples (two shells):\n"
                f"  {PROG} virtual-rig --can-interface udp_multicast "
@@ -89,6 +91,9 @@ def add_parser(sub) -> None:
     hy.add_argument("--json", metavar="FILE", type=Path, default=None,
                     help="also write hybrid.json's content to FILE")
     hy.add_argument("--no-bag", action="store_true", help="do not record the bag")
+    hy.add_argument("--format", dest="fmt", choices=list(FORMATS), default=DEFAULT_FORMAT,
+                    help=FORMAT_HELP + ": ride_measured.csv/.mf4, and hybrid.mf4 beside "
+                         "hybrid.csv (the live record, always written)")
     hy.add_argument("--ros", action="store_true",
                     help="publish the twin's residual, the tracking and the rig's delay on "
                          "/diagnostics once a second (node damper_hil_hybrid; ROS_DOMAIN_ID "
@@ -146,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
     from ride_sim.hybrid.learn import LearnedTwin
     from ride_sim.hybrid.params import load_hybrid_config
     from ride_sim.hybrid.recorder import HybridRecorder, WriterProcess
-    from ride_sim.hybrid.rig_host import HOST_CYCLE_S, fit_worker
+    from ride_sim.hybrid.rig_host import HOST_CYCLE_S, export_record_mdf, fit_worker
     from ride_sim.params import load_quarter_car
 
     config = load_hybrid_config(args.config)
@@ -245,8 +250,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, doc)
     say_wrote(out / "hybrid.csv")
-    measured = export_measured(host, out / "ride_measured.csv")
-    if measured is not None:
+    if ".mf4" in FORMATS[args.fmt]:
+        say_wrote(export_record_mdf(host, out / "hybrid.mf4"))
+    for measured in export_measured(host, out / "ride_measured.csv", args.fmt):
         say_wrote(measured)
     if not args.no_bag:
         say_wrote(out / "bag")

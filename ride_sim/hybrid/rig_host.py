@@ -50,7 +50,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from damper_emulator.dyno.measured import write_measured_csv
+from damper_emulator.dyno.formats import DEFAULT_FORMAT, write_measured
 from damper_emulator.errors import DamperHilError
 from damper_emulator.realtime.worker import Executor, OffLoopWorker, Pending
 from ride_sim.hybrid.params import CompensatorParams, HybridRunParams, SafetyParams
@@ -588,18 +588,50 @@ def measured_samples(host: RigHost) -> np.ndarray:
     return np.flatnonzero(host.fresh[:host.k])
 
 
-def export_measured(host: RigHost, path: Path) -> Path | None:
-    """The run's measured samples (:func:`measured_samples`) as a measured-data CSV
-    (docs/interfaces.md §2): ``time`` (the sample's cycle times the rig's period),
-    ``displacement`` (the measured stroke), ``velocity`` (its derivative), ``force``
-    (measured) and, when the dyno reported it, ``temperature``: held-out data for
+def export_measured(host: RigHost, path: Path, fmt: str = DEFAULT_FORMAT) -> list[Path]:
+    """The run's measured samples (:func:`measured_samples`) as measured data
+    (docs/interfaces.md §2; CSV, MDF4 or both by ``fmt``,
+    :mod:`~damper_emulator.dyno.formats`): ``time`` (the sample's cycle times the rig's
+    period), ``displacement`` (the measured stroke), ``velocity`` (its derivative),
+    ``force`` (measured) and, when the dyno reported it, ``temperature``: held-out data for
     ``validate`` and ``diagnose``.  A cycle without its own measurement is left out, not
-    held.  None when fewer than 3 samples of the run proper were measured."""
+    held.  Nothing (an empty list) when fewer than 3 samples of the run proper were
+    measured."""
     k = measured_samples(host)
     if k.size < 3:
-        return None
+        return []
     x = host.record[2, k]
     t = k * host.dt_s
     temperature = host.temperature_c[k]
-    return write_measured_csv(path, t, x, host.record[3, k], np.gradient(x, t),
-                              temperature if np.isfinite(temperature).all() else None)
+    return write_measured(path, fmt, t, x, host.record[3, k], np.gradient(x, t),
+                          temperature if np.isfinite(temperature).all() else None,
+                          comment="damper-hil hybrid: the damper's measured samples")
+
+
+#: the record's channels in an MDF4 file: unit, comment (``RECORD_COLUMNS``' order)
+RECORD_MDF = {
+    "stroke_target": ("m", "the quarter car's damper stroke (the target)"),
+    "stroke_command": ("m", "the stroke demand sent to the dyno (lag compensated)"),
+    "stroke_measured": ("m", "the dyno's measured stroke"),
+    "force_measured": ("N", "the dyno's measured force, rebound positive"),
+    "force_model": ("N", "the twin's force on the measured motion"),
+}
+
+
+def export_record_mdf(host: RigHost, path: Path) -> Path:
+    """The run's record (what ``hybrid.csv`` holds) as an MDF4 file: time [s] from the
+    ride's start, ``t_monotonic`` (the host's clock when the command went: raw ns, shown
+    in s), the strokes and forces, ``enable`` (a state: ``disabled``/``enabled``)."""
+    from damper_emulator.dyno.mdf_writer import MdfChannel, MdfGroup, write_mdf
+
+    k = host.k
+    channels = [MdfChannel("t_monotonic", host.t_ns[:k].copy(), "s",
+                           "CLOCK_MONOTONIC when the command was sent", linear=(1e-9, 0.0))]
+    channels += [MdfChannel(name, host.record[i, :k].copy(), unit, comment)
+                 for i, (name, (unit, comment)) in enumerate(RECORD_MDF.items())]
+    enable = np.nan_to_num(host.record[RECORD_COLUMNS.index("enable"), :k]).astype(np.uint8)
+    channels.append(MdfChannel("enable", enable, "", "the dyno's drive enable",
+                               states={0: "disabled", 1: "enabled"}))
+    return write_mdf(path, [MdfGroup(np.arange(k) * host.dt_s, channels,
+                                     "the hybrid ride, one sample per dyno cycle")],
+                     "damper-hil hybrid: a physical damper in the quarter car's loop")

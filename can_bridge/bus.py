@@ -23,11 +23,14 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 
 from damper_emulator.errors import UserError, one_line
+
+if TYPE_CHECKING:
+    from can_bridge.can_log import CanLog
 
 __all__ = [
     "BusConfig",
@@ -270,6 +273,9 @@ class ResilientBus:
         Longest wait [s].
     clock : callable
         Monotonic clock [s] of the backoff schedule (receive timeouts use real time).
+    log : CanLog, optional
+        Every frame sent and received is handed to it
+        (:class:`~can_bridge.can_log.CanLog`: a BLF or ASC file).
 
     Attributes
     ----------
@@ -291,7 +297,8 @@ class ResilientBus:
 
     def __init__(self, cfg: BusConfig, *, backoff_initial_s: float = 0.1,
                  backoff_max_s: float = 5.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 log: CanLog | None = None) -> None:
         if not (math.isfinite(backoff_initial_s) and backoff_initial_s >= 0):
             raise UserError(f"backoff_initial_s must be finite and >= 0, got "
                              f"{backoff_initial_s!r}")
@@ -299,6 +306,7 @@ class ResilientBus:
             raise UserError(f"backoff_max_s must be finite and >= backoff_initial_s, got "
                              f"{backoff_max_s!r}")
         self.config = cfg
+        self.log = log
         self._backoff_initial = float(backoff_initial_s)
         self._backoff_max = float(backoff_max_s)
         self._clock = clock
@@ -430,6 +438,8 @@ class ResilientBus:
             return False
         self._succeeded()
         self.tx_frames += 1
+        if self.log is not None:
+            self.log.add(msg, received=False)
         return True
 
     def recv(self, timeout_s: float | None = 0.0) -> can.Message | None:
@@ -481,6 +491,8 @@ class ResilientBus:
                     return None
                 continue
             self.rx_frames += 1
+            if self.log is not None:
+                self.log.add(msg, received=True)
             return msg
 
     def close(self) -> None:

@@ -40,6 +40,7 @@ import can
 import numpy as np
 
 from can_bridge.bus import BusConfig, ResilientBus, open_bus, receive_time
+from can_bridge.can_log import CanLog
 from can_bridge.codec import Encoder, Receiver
 from damper_emulator.realtime.rt import (
     GIL_SWITCH_INTERVAL_S,
@@ -132,9 +133,11 @@ def dyno_answers(bus_cfg: BusConfig, db, timeout_s: float) -> bool:
 
 def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event, *,
                     realtime: RealtimeRequest | None = None,
-                    progress: Callable[[str], None] | None = None) -> LinkStats:
+                    progress: Callable[[str], None] | None = None,
+                    can_log: CanLog | None = None) -> LinkStats:
     """Run ``host`` against the dyno on ``bus_cfg`` until it has finished or ``stop`` is
-    set; returns the link's statistics."""
+    set; returns the link's statistics.  ``can_log`` gets every frame the link sends and
+    receives (:class:`~can_bridge.can_log.CanLog`)."""
     receiver = Receiver(db, [FEEDBACK, AUX])
     encoder = Encoder(db, COMMAND)
     stats = LinkStats()
@@ -187,7 +190,7 @@ def run_hybrid_link(bus_cfg: BusConfig, db, host: RigHost, stop: threading.Event
             progress(phase)
 
     try:
-        with ResilientBus(bus_cfg) as bus:
+        with ResilientBus(bus_cfg, log=can_log) as bus:
             last_cycle = time.monotonic()
             offset = time.time() - time.monotonic()
             last_counter: int | None = None

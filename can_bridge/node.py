@@ -30,6 +30,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from can_bridge.bus import BusConfig, CanBusError, ResilientBus, open_bus
+from can_bridge.can_log import CanLog, CanLogError
 from can_bridge.core import BridgeCore
 from can_bridge.dbc import ForceStatus, load_database
 from can_bridge.settings import (
@@ -116,6 +117,12 @@ class BridgeNode(ManagedNode):
             open_bus(self._bus_config).shutdown()  # a wrong interface or channel: exit 2
         except CanBusError as exc:
             raise ParameterError(str(exc)) from None
+        #: the raw traffic's log (``can_log``), over the node's whole life: a configure
+        #: after a cleanup goes on writing it
+        try:
+            self.can_log = CanLog(p.can_log) if p.can_log else None
+        except CanLogError as exc:
+            raise ParameterError(str(exc)) from None
         self.core: BridgeCore | None = None
         self.bus: ResilientBus | None = None
         self._state_pub = self._valve_pub = self._diag_pub = None
@@ -150,7 +157,7 @@ class BridgeNode(ManagedNode):
         self._force_id = self.core.force_encoder.frame_id
         self._motion_id = self.core.motion_encoder.frame_id
         self.bus = ResilientBus(self._bus_config, backoff_initial_s=p.backoff_initial_s,
-                                backoff_max_s=p.backoff_max_s)
+                                backoff_max_s=p.backoff_max_s, log=self.can_log)
         qos = control_qos(topics.PUBLISHER_DEPTH)
         if p.mode == "dyno":
             self._state_pub = self.create_lifecycle_publisher(JointState, topics.STATE, qos)
@@ -266,6 +273,13 @@ class BridgeNode(ManagedNode):
         self._stop_io()
         if self.bus is not None:
             self.bus.close()
+        if self.can_log is not None:
+            try:
+                self.can_log.close()
+                self.get_logger().info(f"wrote {self.can_log.path} "
+                                       f"({self.can_log.frames} CAN frames)")
+            except CanLogError as exc:
+                self.get_logger().error(str(exc))
 
     # ---- CAN → ROS --------------------------------------------------------------------
 

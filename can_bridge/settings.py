@@ -73,6 +73,9 @@ class BridgeParams:
                                       "say so in one error line when the emulator is not "
                                       "active after this long [s] (the bridge runs on, "
                                       "sending fault frames)", 120.0)
+    can_log: str = rule("text", "also log every CAN frame the bridge sends and receives to "
+                                "this new file, Vector BLF (.blf) or ASC (.asc), closed "
+                                "when the node ends ('' = no log)", "")
 
 
 def bridge_params_from_mapping(data: Mapping[str, Any] | None,

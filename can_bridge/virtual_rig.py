@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import can
 
 from can_bridge.bus import BusConfig, ResilientBus, receive_time
+from can_bridge.can_log import CanLog
 from can_bridge.codec import Encoder, Receiver
 from damper_emulator.realtime.rt import (
     GIL_SWITCH_INTERVAL_S,
@@ -102,8 +103,10 @@ class RigStats:
 def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Event, *,
                     faults: RigFaults = RigFaults(),
                     realtime: RealtimeRequest | None = None,
-                    log: Callable[[str], None] | None = None) -> RigStats:
-    """Run the rig until ``stop`` is set; returns its statistics."""
+                    log: Callable[[str], None] | None = None,
+                    can_log: CanLog | None = None) -> RigStats:
+    """Run the rig until ``stop`` is set; returns its statistics.  ``can_log`` gets every
+    frame the rig sends and receives (:class:`~can_bridge.can_log.CanLog`)."""
     receiver = Receiver(db, [COMMAND])
     feedback_enc = Encoder(db, FEEDBACK)
     aux_enc = Encoder(db, AUX)
@@ -119,7 +122,7 @@ def run_virtual_rig(bus_cfg: BusConfig, db, rig: VirtualRig, stop: threading.Eve
     switch = sys.getswitchinterval()
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     try:
-        with ResilientBus(bus_cfg) as bus:
+        with ResilientBus(bus_cfg, log=can_log) as bus:
             t0 = time.monotonic()
             deadline = t0
             first_command: float | None = None

@@ -130,7 +130,7 @@ from damper_emulator.realtime.settings import (
 )
 from damper_emulator.replay_emulation import emulate, run_model
 from damper_emulator.replay_figure import PRELOAD
-from damper_emulator.replay_input import JOINT_STATE, read_bag
+from damper_emulator.replay_input import JOINT_STATE, BagData, read_bag
 from damper_emulator.replay_report import compare, replay_traces, write_replay_bag
 from damper_emulator.schema import node_parameters, read_yaml
 
@@ -142,6 +142,14 @@ __all__ = [
 REPLAY_BAG = "replay_bag"
 REPLAY_JSON = "replay.json"
 REPLAY_PNG = "replay.png"
+
+
+#: reads a recording as the replay's input: ``(data, what it held)``
+Reader = Callable[[Path], tuple[BagData, dict[str, Any]]]
+
+
+def _read_bag(path: Path) -> tuple[BagData, dict[str, Any]]:
+    return read_bag(path), {"kind": "bag"}
 
 
 def load_emulator_params(path: str | os.PathLike[str] | None = None
@@ -185,9 +193,13 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
                params_file: str | os.PathLike[str] | None = None,
                emulator_params_file: str | os.PathLike[str] | None = None,
                plot: bool = True,
-               progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+               progress: Callable[[str], None] | None = None,
+               reader: Reader | None = None) -> dict[str, Any]:
     """Replay ``bag`` into the folder ``out`` (module docstring); returns the JSON
     document, also written to ``out/replay.json`` and ``json_path``.
+
+    ``reader`` reads another kind of recording as a bag's topics, and says what it held
+    (``replay.json``'s ``input``): a CAN log, :func:`can_bridge.log_input.read_can_log`.
 
     ``out`` and ``json_path`` are written as one set
     (:class:`~damper_emulator.outputs.Outputs`): checked before the replay, renamed into
@@ -213,14 +225,14 @@ def run_replay(bag: str | os.PathLike[str], out: str | os.PathLike[str],
         with (PlotProcess("damper_emulator.replay_figure", "plot_replay", PRELOAD) if plot
               else contextlib.nullcontext()) as painter:
             return _replay(Path(bag), Path(out), staged, json_at, params_file,
-                           emulator_params_file, painter, progress)
+                           emulator_params_file, painter, progress, reader or _read_bag)
 
 
 def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
             params_file: str | os.PathLike[str] | None,
             emulator_params_file: str | os.PathLike[str] | None,
-            painter: PlotProcess | None, progress: Callable[[str], None] | None
-            ) -> dict[str, Any]:
+            painter: PlotProcess | None, progress: Callable[[str], None] | None,
+            reader: Reader) -> dict[str, Any]:
     """:func:`run_replay`, its outputs written into ``staged`` (named as in ``out``) and
     ``json_at``; the figure drawn by ``painter`` (None: no figure)."""
     import json
@@ -245,7 +257,7 @@ def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
     gc.disable()
     try:
         t0 = time.perf_counter()
-        data = read_bag(bag)
+        data, held = reader(bag)
         t1 = time.perf_counter()
         rep = emulate(data, model, params)
         t2 = time.perf_counter()
@@ -266,6 +278,7 @@ def _replay(bag: Path, out: Path, staged: Path, json_at: Path | None,
     duration = data.recorded_duration_s
     doc: dict[str, Any] = {
         "bag": str(bag),
+        "input": held,
         "trigger": rep.trigger,
         "forces": int(rep.stamp_ns.size),
         "compared": cmp.compared,

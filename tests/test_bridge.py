@@ -530,8 +530,10 @@ def model_bridge(tmp_path_factory, db):
 
     tmp = tmp_path_factory.mktemp("model")
     channel = udp_channel(OFFSETS["model"])
+    can_log = tmp / "bridge.asc"
     node = NodeProcess("model_bridge", node_command(
-        "bridge", bridge_params(channel, model=True, **{"emulator.max_velocity_m_s": 1.0}),
+        "bridge", bridge_params(channel, model=True, can_log=str(can_log),
+                                **{"emulator.max_velocity_m_s": 1.0}),
         [ROOT / "config" / "touring.yaml"]),
         ros_environment(DOMAINS["model"]), tmp / "logs")
     tap, probe = None, None
@@ -557,7 +559,8 @@ def model_bridge(tmp_path_factory, db):
             return bool(seen["state"]) and bool(seen["force"])
 
         assert tap.wait_for(observed, 30), node.log_tail()
-        yield SimpleNamespace(tap=tap, probe=probe, seen=seen, enc=enc, node=node)
+        yield SimpleNamespace(tap=tap, probe=probe, seen=seen, enc=enc, node=node,
+                              can_log=can_log, tmp=tmp)
         assert node.poll() is None, f"the bridge stopped: {node.log_tail()}"
     finally:
         if probe is not None:
@@ -633,6 +636,36 @@ class TestModelInTheBridge:
                      if round(v["StrokeUsed"] / STROKE_STEP) == 3000]
         assert int(answer["Status"]) == int(ForceStatus.INPUT_REJECTED)
         assert answer["Force"] == pytest.approx(got[-1], abs=resolution)
+
+    def test_its_can_log_holds_the_traffic_and_replays_as_it_ran(self, model_bridge, db):
+        """``can_log`` (ASC here: written as the bridge runs, flushed within 0.5 s): every
+        DAMPER_STATE the bridge received and DAMPER_FORCE it sent, in python-can's reader;
+        replayed, the log runs ``input`` (each force answered its own state) and gives the
+        bridge's forces back, on the states' stamps as the log keeps them (to the µs)."""
+        rig = model_bridge
+        strokes = 0.006 + 0.004 * np.sin(2 * np.pi * np.arange(300) / 300)
+        _stream(rig.tap, rig.enc, strokes, 0.05)
+        time.sleep(1.0)                                     # the ASC writer's flush
+        frames = list(can.ASCReader(rig.can_log))
+        ids = {db.get_message_by_name(n).frame_id: n for n in (STATE, FORCE)}
+        names = [(ids.get(f.arbitration_id), f.is_rx) for f in frames]
+        assert set(names) == {(STATE, True), (FORCE, False)}, set(names)
+        assert names.count((FORCE, False)) >= names.count((STATE, True)) >= strokes.size
+        out = rig.tmp / "replay"
+        checks = rig.tmp / "emulator.yaml"          # the bridge's own input check
+        checks.write_text("/**:\n  ros__parameters:\n    emulator:\n"
+                          "      max_velocity_m_s: 1.0\n")
+        r = subprocess.run([*CLI, "replay", str(rig.can_log), "--out", str(out), "--params",
+                            str(ROOT / "config" / "touring.yaml"), "--emulator-params",
+                            str(checks)], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        doc = json.loads((out / "replay.json").read_text())
+        assert doc["input"]["kind"] == "emulator" and doc["trigger"] == "input", doc["input"]
+        assert doc["compared"] >= strokes.size
+        # the Force signal's resolution is 0.5 N: rounding leaves 0.14 N r.m.s.; the log's
+        # times to the µs (ASC) add a little (0.16 N r.m.s., 0.253 N at most here)
+        resolution = db.get_message_by_name(FORCE).get_signal_by_name("Force").scale
+        assert doc["rms_N"] < 0.5 * resolution and doc["max_abs_N"] < resolution, doc
 
 
 # ======================================================================================

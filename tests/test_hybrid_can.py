@@ -21,6 +21,7 @@ import threading
 import warnings
 from pathlib import Path
 
+import can
 import numpy as np
 import pytest
 from host_stalls import RUNS_THROUGH_STALLS, Sentinels
@@ -120,7 +121,8 @@ def machine_stalled(proc, out: Path, rig_stats: dict, host_stalls) -> str | None
 
 def run_pair(tmp: Path, bus: BusConfig, rig_args=(), hybrid_args=(), tap=False, env=None):
     """``virtual-rig`` in the background, then ``hybrid`` to its end; returns the hybrid
-    process, its output folder, the rig's statistics and the tap (or None).  A run that the
+    process, its output folder, the rig's statistics and the tap (or None).  ``{run}`` in
+    ``hybrid_args`` is the run's own folder.  A run that the
     machine stalled (:func:`machine_stalled`) runs again, with a warning."""
     for run in range(1, RUNS_THROUGH_STALLS + 1):
         folder = tmp / f"run{run}"
@@ -147,7 +149,7 @@ def _run_pair_once(tmp: Path, bus: BusConfig, rig_args, hybrid_args, tap, env):
     out = tmp / "out"
     try:
         proc = subprocess.run([*CLI, "hybrid", "--out", str(out), "--config", str(config),
-                               *bus_args, *hybrid_args],
+                               *bus_args, *(a.replace("{run}", str(tmp)) for a in hybrid_args)],
                               capture_output=True, text=True, timeout=300, env=env)
     finally:
         rig.send_signal(2)
@@ -171,7 +173,8 @@ def bus_db():
 def ride(tmp_path_factory):
     """A compensated 3 s ride on the virtual rig's sport prototype, with the twin learned
     from it first (``--learn``), every 100th feedback frame corrupted on the way, its live
-    ``/diagnostics`` (``--ros``) received by a node of the test's."""
+    ``/diagnostics`` (``--ros``) received by a node of the test's, its CAN traffic logged
+    (``--can-log``) and its time series written as CSV and MDF4 (``--format both``)."""
     from ros_probe import Probe
 
     from damper_emulator.ros.launch import ros_environment
@@ -193,7 +196,8 @@ def ride(tmp_path_factory):
     spinner.start()
     try:
         result = run_pair(tmp_path_factory.mktemp("ride"), bus, ["--corrupt-every", "100"],
-                          ["--duration", "3", "--ros", "--learn"],
+                          ["--duration", "3", "--ros", "--learn", "--format", "both",
+                           "--can-log", "{run}/ride.blf"],
                           env=ros_environment(DOMAIN))
     finally:
         stop.set()
@@ -300,6 +304,84 @@ def test_csv_and_bag_hold_the_ride(ride):
     for png in ("hybrid_tracking.png", "hybrid_force.png", "hybrid_transfer.png"):
         assert (out / png).stat().st_size > 10_000
     assert "Tracking" in (out / "report.md").read_text()
+
+
+def test_the_rides_time_series_as_mdf4_are_the_csvs(ride):
+    """``--format both``: hybrid.mf4 holds hybrid.csv's record, with units, comments and
+    the conversions a measurement tool shows (raw ns as seconds, the enable as text), and
+    ride_measured.mf4 reads back as ride_measured.csv does; read by asammdf."""
+    from asammdf import MDF
+
+    from damper_emulator.dyno.measured_bag import read_measured
+
+    _proc, out, _, _, _ = ride
+    data = np.loadtxt(out / "hybrid.csv", delimiter=",", skiprows=1)
+    mdf = MDF(out / "hybrid.mf4")
+    try:
+        raw_ns = mdf.get("t_monotonic", raw=True)
+        assert raw_ns.samples.dtype.kind == "i"
+        assert np.array_equal(raw_ns.samples, data[:, 0].astype(np.int64))
+        assert mdf.get("t_monotonic").unit == "s"
+        assert np.allclose(mdf.get("t_monotonic").samples, data[:, 0] * 1e-9, rtol=1e-12)
+        for i, name in enumerate(CSV_COLUMNS[2:7], start=2):
+            signal = mdf.get(name)
+            assert signal.unit == ("m" if name.startswith("stroke") else "N")
+            assert signal.comment
+            assert np.allclose(signal.samples, data[:, i], rtol=1e-8, atol=1e-12,
+                               equal_nan=True), name
+        assert np.allclose(mdf.get("force_measured").timestamps, data[:, 1], atol=1e-6)
+        enable = mdf.get("enable")
+        assert set(enable.samples.tolist()) <= {b"enabled", b"disabled"}
+        assert np.array_equal(enable.samples == b"enabled", data[:, 7] == 1)
+    finally:
+        mdf.close()
+    csv_data, mf4_data = (read_measured(out / f"ride_measured.{s}") for s in ("csv", "mf4"))
+    for field in ("time", "displacement", "velocity", "force"):
+        assert np.allclose(getattr(mf4_data, field), getattr(csv_data, field), rtol=1e-8,
+                           atol=1e-12), field
+
+
+def test_the_rides_can_log_holds_its_traffic_and_replays(ride, bus_db, tmp_path):
+    """``--can-log``: every frame the link sent and received, as python-can's BLF reader
+    reads it back, counted as the link counted them; ``replay`` takes the log (the
+    measured stroke in, the measured force to compare with) and runs the learned twin
+    against the damper on the rig, as the host did during the ride."""
+    _proc, out, _, _, _ = ride
+    doc = json.loads((out / "hybrid.json").read_text())
+    link = doc["link"]
+    log = out.parent / "ride.blf"
+    frames = list(can.BLFReader(log))
+    ids = {m.name: m.frame_id for m in bus_db.messages}
+    sent = [f for f in frames if not f.is_rx]
+    got = [f for f in frames if f.is_rx]
+    assert {f.arbitration_id for f in sent} == {ids["DYNO_COMMAND"]}
+    assert len(sent) == link["commands_sent"]
+    assert len(got) == link["feedback"] + link["aux"] + link["dropped"]
+    assert link["dropped"] >= 1                           # the rig's corrupted frames
+    # the forces the log holds are those the run recorded as measured
+    receiver = Receiver(bus_db, ["DYNO_FEEDBACK"])
+    logged = [receiver.accept(f.arbitration_id, bytes(f.data)) for f in got
+              if f.arbitration_id == ids["DYNO_FEEDBACK"]]
+    forces = np.array([d.values["Force"] for d in logged if d is not None])
+    assert forces.size == link["feedback"]
+    measured = np.loadtxt(out / "hybrid.csv", delimiter=",", skiprows=1)[:, 5]
+    assert np.isin(measured[np.isfinite(measured)], forces).all()
+    replay = tmp_path / "replay"
+    twin = out / "learn" / "twin_learned.yaml"
+    r = subprocess.run([*CLI, "replay", str(log), "--out", str(replay), "--params",
+                        str(twin)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((replay / "replay.json").read_text())
+    assert rep["input"]["kind"] == "damper" and rep["trigger"] == "input"
+    assert rep["compared"] == link["feedback"]
+    assert rep["input"]["dropped"]["checksum"] == link["dropped_checksum"]
+    # the learned twin against the damper, from the log, offline (the stroke's smoothed
+    # derivative, the whole log) and as the host ran it beside the ride (the central
+    # difference, the evaluated part, its online correction left out): one residual
+    # (75.6 and 69.8 N r.m.s. here)
+    online = doc["twin"]["online"]["without"]["residual_rms_n"]
+    if quiet_ride(doc):
+        assert rep["rms_N"] == pytest.approx(online, rel=0.3), (rep["rms_N"], online)
 
 
 def test_feedback_cut_clears_enable_within_50_ms_and_exits_3(tmp_path, bus_db):

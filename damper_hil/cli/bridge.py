@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from damper_hil.cli.common import PROG, Formatter
+from damper_hil.cli.virtual_rig import add_can_log_option
 
 
 def add_parser(sub) -> None:
@@ -24,7 +25,10 @@ def add_parser(sub) -> None:
                f"  {PROG} bridge --ros-args -p can_interface:=socketcan -p can_channel:=vcan0\n"
                f"  {PROG} bridge --ros-args -p can_interface:=udp_multicast "
                "-p \"can_channel:='[ff11::d4:1]:43000'\" -p mode:=controller\n"
+               f"  {PROG} bridge --can-log bridge_run.blf --ros-args -p "
+               "can_interface:=udp_multicast -p \"can_channel:='[ff11::d4:1]:43000'\"\n"
                "(a channel with a port needs the inner YAML quotes)")
+    add_can_log_option(bridge)
     bridge.set_defaults(handler=run, takes_ros_args=True)
 
 
@@ -32,4 +36,8 @@ def run(args: argparse.Namespace) -> int:
     from can_bridge.node import BridgeNode
     from damper_emulator.ros.common import spin_node
 
-    return spin_node(BridgeNode, args.ros_args)
+    ros_args = list(args.ros_args)
+    if args.can_log is not None:   # the node's parameter can_log, as a YAML string
+        quoted = str(args.can_log).replace("'", "''")
+        ros_args += ["-p", f"can_log:='{quoted}'"]
+    return spin_node(BridgeNode, ros_args)

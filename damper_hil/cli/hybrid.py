@@ -20,7 +20,12 @@ from damper_hil.cli.common import (
     schema_type,
     write_json,
 )
-from damper_hil.cli.virtual_rig import add_bus_options, open_checked_bus
+from damper_hil.cli.virtual_rig import (
+    add_bus_options,
+    add_can_log_option,
+    can_log_of,
+    open_checked_bus,
+)
 from ride_sim.hybrid.params import COMPENSATION_MODES, ROAD_CLASSES, HybridRunParams
 
 if TYPE_CHECKING:
@@ -88,6 +93,7 @@ def add_parser(sub) -> None:
     hy.add_argument("--quarter-car", metavar="FILE", type=Path, default=None,
                     help="quarter-car parameter file (default: config/quarter_car.yaml)")
     add_bus_options(hy)
+    add_can_log_option(hy)
     hy.add_argument("--json", metavar="FILE", type=Path, default=None,
                     help="also write hybrid.json's content to FILE")
     hy.add_argument("--no-bag", action="store_true", help="do not record the bag")
@@ -225,9 +231,10 @@ def run(args: argparse.Namespace) -> int:
 
         started = time.monotonic()
         with HybridRecorder(out, host, bag=not args.no_bag, writer=writer,
-                            on_status=on_status if status is not None else None) as recorder:
+                            on_status=on_status if status is not None else None) as recorder, \
+                can_log_of(args) as can_log:
             stats = run_hybrid_link(bus, db, host, stop, realtime=realtime,
-                                    progress=progress)
+                                    progress=progress, can_log=can_log)
         if recorder.error is not None:
             raise recorder.error
     finally:

@@ -12,9 +12,17 @@ from damper_hil.cli.common import PROG, CliError, Formatter
 def add_parser(sub) -> None:
     replay = sub.add_parser(
         "replay", formatter_class=Formatter,
-        help="offline replay of a recorded bag through the emulator's model (no ROS)",
+        help="offline replay of a recorded bag or CAN log through the emulator's model "
+             "(no ROS)",
         description="Replay /damper/state of a recorded bag through the damper model as the\n"
                     "emulator node did, and compare with the recorded /damper/force.\n\n"
+                    "A CAN log (.blf, .asc: --can-log of bridge, hybrid, virtual-rig, or a\n"
+                    "dyno's own) replays too, its frames checked and decoded through the\n"
+                    "CAN database: DAMPER_STATE frames are the inputs and DAMPER_FORCE the\n"
+                    "recorded outputs (a dyno and the emulator); else DYNO_FEEDBACK frames\n"
+                    "are both, the measured stroke in and the measured force to compare\n"
+                    "with (a physical damper: the model against it).  See\n"
+                    "can_bridge/log_input.py.\n\n"
                     "The trigger is detected from the bag: every force stamp a state stamp\n"
                     "-> 'input' (one force per state sample, as in lockstep); else 'timer'\n"
                     "(one force per recorded tick: the tick's input sample is found by its\n"
@@ -30,9 +38,14 @@ def add_parser(sub) -> None:
         epilog="examples:\n"
                f"  {PROG} replay demo_out/bag --out replay_out\n"
                f"  {PROG} replay demo_out/bag --out replay_out --json replay.json "
-               "--params fitted.yaml")
+               "--params fitted.yaml\n"
+               f"  {PROG} replay hybrid_out/run.blf --out replay_hybrid --params "
+               "config/prototype.yaml")
     replay.add_argument("bag", metavar="BAG", type=Path,
-                        help="rosbag2 bag directory with /damper/state and /damper/force")
+                        help="rosbag2 bag directory with /damper/state and /damper/force, "
+                             "or a CAN log (.blf, .asc)")
+    replay.add_argument("--dbc", metavar="FILE", type=Path, default=None,
+                        help="CAN database of a CAN log (default: config/damper.dbc)")
     replay.add_argument("--out", metavar="DIR", type=Path, required=True,
                         help="output directory (created if missing; an earlier replay's "
                              "replay_bag/ there is replaced)")
@@ -50,13 +63,23 @@ def run(args: argparse.Namespace) -> int:
     from damper_emulator.bag import BagError
     from damper_emulator.replay import run_replay
 
+    reader = None
+    if args.bag.suffix.lower() in (".blf", ".asc"):
+        from can_bridge.log_input import read_can_log
+
+        def reader(path: Path):
+            return read_can_log(path, args.dbc)
+    elif args.dbc is not None:
+        raise CliError("--dbc is for a CAN log (.blf, .asc), not a bag")
+
     def progress(text: str) -> None:
         print(text, file=sys.stderr, flush=True)
 
     print(f"replaying {args.bag} ...", file=sys.stderr, flush=True)
     try:
         doc = run_replay(args.bag, args.out, json_path=args.json, params_file=args.params,
-                         emulator_params_file=args.emulator_params, progress=progress)
+                         emulator_params_file=args.emulator_params, progress=progress,
+                         reader=reader)
     except BagError as exc:
         raise CliError(str(exc)) from None
     rms = (f"r.m.s. {doc['rms_N']:.3g} N, max {doc['max_abs_N']:.3g} N"

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from can_bridge.settings import BridgeParams
 from damper_hil.cli.common import (
@@ -19,6 +22,9 @@ from damper_hil.cli.common import (
     write_json,
 )
 
+if TYPE_CHECKING:
+    from can_bridge.can_log import CanLog
+
 
 def add_bus_options(parser: argparse.ArgumentParser) -> None:
     """``--can-interface``, ``--can-channel``: the dyno's bus."""
@@ -28,6 +34,51 @@ def add_bus_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--can-channel", metavar="CHANNEL", default=BridgeParams.can_channel,
                         help=f"channel (default: {BridgeParams.can_channel}; udp_multicast: "
                              "an interface-local group and port, e.g. '[ff11::d5:1]:43210')")
+
+
+def _can_log_path(text: str) -> Path:
+    """A ``--can-log`` value: a new ``.blf`` or ``.asc`` file (checked as the options are
+    read, before any work)."""
+    from can_bridge.can_log import CanLogError, check_log_path
+
+    try:
+        return check_log_path(text)
+    except CanLogError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_can_log_option(parser: argparse.ArgumentParser) -> None:
+    """``--can-log FILE``: the process's CAN traffic as BLF or ASC."""
+    parser.add_argument("--can-log", metavar="FILE.blf", type=_can_log_path, default=None,
+                        help="also log every CAN frame this process sends and receives, "
+                             "as Vector BLF (.blf) or ASC (.asc) by python-can's writers "
+                             "(replay reads them back)")
+
+
+@contextlib.contextmanager
+def can_log_of(args: argparse.Namespace) -> Iterator[CanLog | None]:
+    """The :class:`~can_bridge.can_log.CanLog` of ``--can-log`` (None: not asked for),
+    closed when the block ends, with a line saying what it holds; a log that could not be
+    written whole is one error line (unless the block failed: its error is the one told)."""
+    from can_bridge.can_log import CanLog, CanLogError
+
+    try:
+        log = None if args.can_log is None else CanLog(args.can_log)
+    except CanLogError as exc:
+        raise CliError(str(exc)) from None
+    try:
+        yield log
+    except BaseException:
+        if log is not None:
+            with contextlib.suppress(CanLogError):
+                log.close()
+        raise
+    if log is not None:
+        try:
+            log.close()
+        except CanLogError as exc:
+            raise CliError(str(exc)) from None
+        say(f"wrote {log.path} ({log.frames} CAN frames)")
 
 
 def open_checked_bus(args: argparse.Namespace):
@@ -73,6 +124,7 @@ def add_parser(sub) -> None:
     rig.add_argument("--damping", metavar="ZETA", type=positive_float, default=None,
                      help="servo damping ratio (default: the config's, 0.7)")
     add_bus_options(rig)
+    add_can_log_option(rig)
     rig.add_argument("--duration", metavar="S", type=positive_float, default=None,
                      help="stop after S seconds (default: until SIGINT/SIGTERM)")
     rig.add_argument("--json", metavar="FILE", type=Path, default=None,
@@ -143,8 +195,9 @@ def run(args: argparse.Namespace) -> int:
     log(f"on {bus.interface} {bus.channel}: {model.cfg.damper.name} specimen{with_ext}"
         f"; delay {actuator.delay_s * 1e3:g} ms, servo {actuator.bandwidth_hz:g} Hz "
         f"damping {actuator.damping:g}; {config.virtual_rig.rate_hz:g} Hz")
-    stats = run_virtual_rig(bus, db, rig, stop, faults=faults,
-                            realtime=RealtimeRequest(priority=args.priority, cpu=args.cpu), log=log)
+    with can_log_of(args) as can_log:
+        stats = run_virtual_rig(bus, db, rig, stop, faults=faults, log=log, can_log=can_log,
+                                realtime=RealtimeRequest(priority=args.priority, cpu=args.cpu))
     say(f"[virtual-rig] stopped: {stats.cycles} cycles, {stats.commands} valid commands, "
         f"{stats.dropped} dropped, {stats.feedback_sent} feedback frames sent")
     if args.json:

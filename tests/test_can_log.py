@@ -1,0 +1,205 @@
+"""CAN traffic logged as BLF and ASC (``--can-log``, the bridge's ``can_log``), read back
+by python-can's own readers, and CAN logs replayed (``damper-hil replay run.blf``).
+
+The replayed logs are written here with python-can's writers from frames encoded through
+the CAN database, their forces computed by the model's batch simulation on the decoded
+(quantised) inputs: the replay must give them back to the force's resolution.  The log
+of a real ride (``hybrid --can-log``) is replayed in tests/test_hybrid_can.py.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from can_bridge.bus import BusConfig, ResilientBus
+from can_bridge.can_log import CanLog, CanLogError, check_log_path
+from can_bridge.codec import Encoder
+from can_bridge.dbc import load_database
+from can_bridge.log_input import read_can_log
+from damper_emulator.model.compressible import DamperModel
+from damper_emulator.params import load_config
+from damper_emulator.replay import run_replay
+from damper_emulator.replay_emulation import run_model
+
+pytestmark = pytest.mark.can
+
+CLI = [sys.executable, "-m", "damper_hil.cli"]
+#: DAMPER_FORCE's resolution [N] (config/damper.dbc): the most a replay may differ by,
+#: half of it, plus the float rounding of the time steps
+FORCE_STEP_N = 0.5
+
+
+@pytest.fixture(scope="module")
+def db():
+    return load_database()
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_every_frame_sent_and_received_is_in_the_log(tmp_path, suffix):
+    """Two buses on one virtual channel: what the logged bus sends and receives is in the
+    file, in order, marked Tx/Rx, with its data and a time stamp of when it passed; read
+    back by python-can's reader."""
+    channel = f"log-{suffix[1:]}-{time.monotonic_ns()}"
+    path = tmp_path / f"run{suffix}"
+    log = CanLog(path)
+    sent, received = [], []
+    with ResilientBus(BusConfig(interface="virtual", channel=channel), log=log) as ours, \
+            ResilientBus(BusConfig(interface="virtual", channel=channel)) as theirs:
+        assert ours.ensure_open() and theirs.ensure_open()
+        before = time.time()
+        for i in range(40):
+            frame = can.Message(arbitration_id=0x100 + i % 3, data=bytes([i, 255 - i, 7]),
+                                is_extended_id=False)
+            assert ours.send(frame)
+            sent.append(frame)
+            reply = can.Message(arbitration_id=0x1F0, data=bytes([i] * 8),
+                                is_extended_id=False)
+            assert theirs.send(reply)
+            got = ours.recv(1.0)
+            assert got is not None
+            received.append(got)
+    log.close()
+    log.close()                                          # idempotent
+    after = time.time()
+    assert log.frames == 80 and log.error is None
+    # (the ASC reader's times count from the file's start unless asked for the wall clock)
+    frames = list(can.ASCReader(path, relative_timestamp=False) if suffix == ".asc"
+                  else can.BLFReader(path))
+    assert len(frames) == 80
+    assert [f.is_rx for f in frames] == [False, True] * 40
+    expect = [m for pair in zip(sent, received) for m in pair]
+    for got, want in zip(frames, expect):
+        assert got.arbitration_id == want.arbitration_id
+        assert bytes(got.data) == bytes(want.data)
+    stamps = np.array([f.timestamp for f in frames])
+    assert before - 1e-3 <= stamps.min() and stamps.max() <= after + 1e-3
+    assert np.all(np.diff(stamps) >= -1e-6)
+
+
+def test_a_log_path_that_would_lose_or_misname_a_recording_is_one_line(tmp_path):
+    with pytest.raises(CanLogError, match=r"\.blf \(Vector binary\) or \.asc"):
+        check_log_path(tmp_path / "run.txt")
+    existing = tmp_path / "run.blf"
+    existing.write_bytes(b"old")
+    with pytest.raises(CanLogError, match="never overwrites a recording"):
+        CanLog(existing)
+    assert existing.read_bytes() == b"old"
+    for args in (["virtual-rig", "--can-log", str(tmp_path / "x.log"), "--duration", "1"],
+                 ["hybrid", "--out", str(tmp_path / "o"), "--can-log", str(existing)],
+                 ["bridge", "--can-log", str(existing)]):
+        r = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2, (args, r.stderr)
+        assert "Traceback" not in r.stderr and "--can-log" in r.stderr, r.stderr
+
+
+def _sine(n: int = 1500, rate_hz: float = 1000.0) -> tuple[np.ndarray, np.ndarray,
+                                                             np.ndarray]:
+    t = np.arange(n) / rate_hz
+    x = 0.03 * np.sin(2 * np.pi * 2.0 * t) + 0.005 * np.sin(2 * np.pi * 11.0 * t)
+    v = np.gradient(x, t)
+    return t, x, v
+
+
+def _write_log(path: Path, frames: list[tuple[float, int, bytes, bool]]) -> None:
+    """An independent writer: python-can's, by suffix."""
+    with can.Logger(path) as writer:
+        for stamp, frame_id, data, rx in sorted(frames, key=lambda f: f[0]):
+            writer.on_message_received(can.Message(timestamp=stamp, arbitration_id=frame_id,
+                                                   data=data, is_extended_id=False,
+                                                   is_rx=rx))
+
+
+def _emulator_log(db, path: Path, answer_every: int = 1, fault_frames: int = 0):
+    """A dyno's DAMPER_STATE frames and the emulator's DAMPER_FORCE answers (each 300 µs
+    after its state; ``answer_every`` > 1 leaves states unanswered), the forces the model's
+    on the decoded states.  Returns the forces sent [N]."""
+    state_enc, force_enc = Encoder(db, "DAMPER_STATE"), Encoder(db, "DAMPER_FORCE")
+    state_msg = db.get_message_by_name("DAMPER_STATE")
+    t, x, v = _sine()
+    t0 = 1.7e9
+    frames, decoded = [], []
+    for ti, xi, vi in zip(t, x, v):
+        data, _ = state_enc.encode(Stroke=xi, Velocity=vi)
+        frames.append((t0 + ti, state_enc.frame_id, bytes(data), True))
+        values = state_msg.decode(bytes(data))
+        decoded.append((values["Stroke"], values["Velocity"]))
+    xq, vq = np.array(decoded).T
+    # the model steps by the states' stamps as python-can reads them back (seconds since
+    # the epoch in a float: to about 0.24 µs, which moves a force by up to some 3 N)
+    _write_log(path, frames)
+    stamps = np.array([m.timestamp for m in can.LogReader(path)])
+    path.unlink()
+    model = DamperModel(load_config(None))
+    force = run_model(model, np.round(stamps * 1e9).astype(np.int64), xq, vq)[0]
+    sent = []
+    for i in range(0, t.size, answer_every):
+        data, _ = force_enc.encode(Force=force[i], Status=0, InputAge=0.0,
+                                   StrokeUsed=xq[i])
+        frames.append((t0 + t[i] + 3e-4, force_enc.frame_id, bytes(data), False))
+        sent.append(force[i])
+    for k in range(fault_frames):     # the bridge's own: no force from the emulator
+        data, _ = force_enc.encode(Force=0.0, Status=32, InputAge=0.0, StrokeUsed=0.0)
+        frames.append((t0 + t[-1] + 0.02 * (k + 1), force_enc.frame_id, bytes(data), False))
+    _write_log(path, frames)
+    return np.array(sent)
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_a_dyno_and_emulator_log_replays_to_the_forces_resolution(db, tmp_path, suffix):
+    """Every state answered by its own force: the replay runs ``input``, one force per
+    state at its stamp, and gives the logged forces back within half their resolution;
+    the bridge's fault frames are counted, not compared."""
+    log = tmp_path / f"dyno{suffix}"
+    sent = _emulator_log(db, log, fault_frames=3)
+    doc = run_replay(log, tmp_path / "out", plot=False,
+                     reader=lambda p: read_can_log(p))
+    assert doc["trigger"] == "input"
+    assert doc["input"]["kind"] == "emulator" and doc["input"]["bridge_fault_frames"] == 3
+    assert doc["input"]["outputs_answer_their_inputs"] is True
+    assert doc["compared"] == sent.size == doc["state_messages"]
+    assert doc["max_abs_N"] <= FORCE_STEP_N / 2 + 1e-6
+    assert doc["recorded_rms_N"] == pytest.approx(np.sqrt(np.mean(sent ** 2)), abs=0.3)
+    # the output bag holds the states and the replayed forces: an independent reader
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([tmp_path / "out" / "replay_bag"]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts == {"/damper/state": sent.size, "/damper/force": sent.size}
+
+
+def test_a_timer_emulators_log_replays_tick_by_tick(db, tmp_path):
+    """Forces that do not answer each state one for one (every third here): the replay
+    runs ``timer``, a tick per logged force, its input found by ``StrokeUsed``."""
+    log = tmp_path / "timer.blf"
+    sent = _emulator_log(db, log, answer_every=3)
+    doc = run_replay(log, tmp_path / "out", plot=False, reader=lambda p: read_can_log(p))
+    assert doc["trigger"] == "timer" and doc["input"]["outputs_answer_their_inputs"] is False
+    assert doc["compared"] == sent.size
+    # the model steps three samples at a time here, where the forces were computed at
+    # every sample: a step three times as long, a little further from the exact solution
+    assert doc["relative_rms"] < 0.02
+
+
+def test_a_log_without_frames_to_replay_and_a_damaged_one_are_one_line(db, tmp_path):
+    empty = tmp_path / "other.blf"
+    _write_log(empty, [(1.0 + i * 1e-3, 0x7FF, bytes(8), True) for i in range(10)])
+    r = subprocess.run([*CLI, "replay", str(empty), "--out", str(tmp_path / "o1")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "no DAMPER_STATE with DAMPER_FORCE frames, nor DYNO_FEEDBACK" in r.stderr
+    damaged = tmp_path / "damaged.blf"
+    _emulator_log(db, damaged)
+    raw = damaged.read_bytes()
+    damaged.write_bytes(raw[:200] + bytes(range(256)) * 8 + raw[2000:])
+    r = subprocess.run([*CLI, "replay", str(damaged), "--out", str(tmp_path / "o2")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert str(damaged) in r.stderr and len(r.stderr.strip().splitlines()) <= 2, r.stderr
+    assert not (tmp_path / "o2").exists()

@@ -63,6 +63,9 @@ BRIDGE_NO_FORCE = 32
 EMULATOR_BITS = 0x0F
 #: the input samples searched back from an output for the one it answered
 ANSWER_WINDOW = 16
+#: the largest time stamp taken [s]: nanoseconds of it fit an int64 (a damaged log's
+#: stamp beyond it is refused)
+MAX_STAMP_S = 9.2e9
 #: the samples of the measured stroke's derivative (a cubic Savitzky–Golay one): the
 #: stroke comes in steps of 10 µm, whose plain derivative at 1 kHz is ±10 mm/s of noise,
 #: some ±30 N of a damper's force at rest; over 11 ms the derivative is flat to some 50 Hz
@@ -79,8 +82,12 @@ def is_can_log(path: str | os.PathLike[str]) -> bool:
 def _frames(path: Path) -> Iterator[can.Message]:
     try:
         reader = can.LogReader(path)
-    except (OSError, ValueError) as exc:
-        raise CanLogError(f"{path}: cannot read the CAN log: {one_line(exc)}") from None
+    except OSError as exc:
+        raise CanLogError(f"{path}: cannot read the CAN log: "
+                          f"{exc.strerror or one_line(exc)}") from None
+    except Exception as exc:  # noqa: BLE001 - python-can raises what its parser meets
+        raise CanLogError(f"{path}: not a CAN log python-can can read "
+                          f"({one_line(exc, with_type=True)})") from None
     try:
         yield from reader
     except Exception as exc:  # noqa: BLE001 - python-can raises what its parser meets
@@ -99,7 +106,11 @@ def _decode(path: Path, dbc: str | os.PathLike[str] | None
             continue
         got = receiver.accept(msg.arbitration_id, bytes(msg.data), msg.is_extended_id)
         if got is not None:
-            found[got.name].append((float(msg.timestamp), got.values))
+            stamp = float(msg.timestamp)
+            if not abs(stamp) < MAX_STAMP_S:
+                raise CanLogError(f"{path}: a {got.name} frame's time stamp, {stamp!r} s, "
+                                  f"is not a time")
+            found[got.name].append((stamp, got.values))
     return found, receiver
 
 

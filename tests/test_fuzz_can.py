@@ -346,3 +346,63 @@ def test_load_database_corrupted(workdir, blob):
         assert str(path) in str(exc)
         return
     check_usable(db)
+
+
+def _a_log(suffix: str) -> bytes:
+    """A small valid CAN log of a dyno and the emulator, by python-can's writer."""
+    import tempfile
+    from pathlib import Path
+
+    import can
+
+    db = load_database()
+    state, force = Encoder(db, "DAMPER_STATE"), Encoder(db, "DAMPER_FORCE")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"log{suffix}"
+        with can.Logger(path) as writer:
+            for i in range(40):
+                x = 0.01 * math.sin(i / 6.0)
+                for enc, values, rx in ((state, {"Stroke": x, "Velocity": 0.1}, True),
+                                        (force, {"Force": 100.0 * x, "Status": 0,
+                                                 "InputAge": 0.0, "StrokeUsed": x}, False)):
+                    data, _ = enc.encode(**values)
+                    writer.on_message_received(can.Message(
+                        timestamp=1.7e9 + i * 1e-3 + (0 if rx else 3e-4),
+                        arbitration_id=enc.frame_id, data=data, is_extended_id=False,
+                        is_rx=rx))
+        return path.read_bytes()
+
+
+@st.composite
+def can_logs(draw):
+    suffix = draw(st.sampled_from((".blf", ".asc")))
+    kind = draw(st.sampled_from(("junk", "mutated", "mutated", "text")))
+    if kind == "junk":
+        return suffix, draw(junk_bytes)
+    if kind == "text":
+        return suffix, draw(junk_text).encode("utf-8", "surrogatepass")
+    return suffix, draw(mutated_bytes(_LOGS.setdefault(suffix, _a_log(suffix))))
+
+
+_LOGS: dict[str, bytes] = {}
+
+
+@given(log=can_logs())
+def test_can_log_any_bytes(workdir, log):
+    """read_can_log (replay's CAN input) on random or damaged BLF and ASC files: the
+    replay's input, or one line of CanLogError naming the file; never another exception,
+    never a hang."""
+    from can_bridge.can_log import CanLogError
+    from can_bridge.log_input import read_can_log
+
+    suffix, blob = log
+    path = workdir / f"run{suffix}"
+    path.write_bytes(blob)
+    try:
+        with time_limit():
+            data, info = read_can_log(path)
+    except CanLogError as exc:
+        assert str(path) in str(exc) and "\n" not in str(exc)
+        return
+    assert info["kind"] in ("emulator", "damper")
+    assert len(data.state) >= 1 and len(data.force) >= 1

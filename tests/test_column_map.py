@@ -16,12 +16,16 @@ from measured_support import assert_same_identification, protocol_records
 from scipy.integrate import trapezoid
 
 from damper_emulator.dyno.column_map import (
+    SIDECAR,
     ColumnMap,
     ColumnMapError,
     dissipated_fraction,
+    load_column_map,
     parse_assignments,
     read_mapped_csv,
+    sidecar_map,
     unit_in_name,
+    write_sidecar,
 )
 from damper_emulator.dyno.measured import MeasuredDataError, read_measured_csv, write_measured_csv
 from damper_emulator.dyno.measured_bag import read_measured
@@ -294,3 +298,17 @@ def test_one_stroke_is_not_judged_and_command_line_settings_join_the_sidecar(tmp
     data = read_measured(path, options.for_file(path))
     np.testing.assert_allclose(data.force, force, rtol=1e-12)
     np.testing.assert_allclose(data.displacement, x, rtol=1e-12, atol=1e-15)
+
+
+def test_a_map_written_as_a_sidecar_reads_back_as_it_was(tmp_path):
+    """write_sidecar is load_column_map's inverse: a folder of exports carries its map,
+    and every file in it is read through it."""
+    cmap = ColumnMap(columns=LAB_MAP.columns, force_sign=-1.0, displacement_zero="mid-stroke",
+                     velocity_window=7)
+    path = write_sidecar(tmp_path, cmap)
+    assert path == tmp_path / SIDECAR
+    assert load_column_map(path) == cmap
+    assert sidecar_map(tmp_path / "any.csv") == cmap
+    assert "sample_rate_hz" not in path.read_text()          # defaults left out
+    rate = ColumnMap(columns={"force": "F [kN]"}, sample_rate_hz=300.0)
+    assert load_column_map(write_sidecar(tmp_path / "rate", rate)) == rate

@@ -264,7 +264,13 @@ def test_a_column_map_alone_reads_every_top_level_run_as_the_fsae_reader(runs):
         for q in ("time", "displacement", "force", "velocity", "temperature"):
             np.testing.assert_array_equal(getattr(mapped, q), getattr(reader, q),
                                           err_msg=f"{name}: {q}")
+    # the map the tools give each folder (tools/fsae_identify.py's sidecars) is this one
+    from damper_emulator.dyno.fsae import column_map
+
+    assert all(column_map(DATA / name) == cmap for name in top)
     flipped = [k for k in runs if k.startswith("pressure_testing/")]
+    assert flipped and all(column_map(DATA / name) == dataclasses.replace(cmap, force_sign=-1.0)
+                           for name in flipped)
     for name in flipped[:1]:
         with pytest.raises(MeasuredDataError, match="--force-sign -1"):
             read_mapped_csv(DATA / name, cmap)

@@ -17,9 +17,10 @@ Two cases, each through the ordinary command line:
 
 Writes ``docs/measured/fsae_diagnose/<setting>/`` (the diagnose report: report.md, overlay
 plots, ranking), the identified parameters beside it (``params_<setting>.yaml``) and
-``docs/measured/fsae_diagnose/summary.json``.  The vendor files are
-exported to a temporary directory and deleted afterwards: nothing from them is written into
-the repository except derived figures and figures of merit.
+``docs/measured/fsae_diagnose/summary.json``.  The commands read the vendor's files as
+they are, through their folder's column map (``fsae_identify.link_runs``); the stretches
+of the 2_2_12_12 run are written to a temporary directory and deleted afterwards: nothing
+from the files is written into the repository except derived figures and figures of merit.
 
 Usage: ``.venv/bin/python tools/fsae_diagnose.py [--data DIR] [--keep DIR]``
 """
@@ -34,10 +35,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from fsae_identify import ALPHA_BOUNDS, FIXED, run_cli
+from fsae_identify import ALPHA_BOUNDS, FIXED, link_runs, run_cli
 
 from damper_emulator.dyno.fsae import export_fsae_csv, read_fsae_ttx25
 from damper_emulator.dyno.measured import MeasuredData
+from damper_emulator.dyno.measured_bag import read_measured
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured" / "fsae_ttx25"
@@ -99,7 +101,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--keep", type=Path, default=None,
-                    help="export the runs here and keep them (default: a temporary dir)")
+                    help="link the runs here and keep them (default: a temporary dir)")
     ap.add_argument("--only", choices=("3_3_24_24", "2_2_12_12"), default=None,
                     help="run one case; the other's entry of summary.json is kept")
     args = ap.parse_args()
@@ -111,16 +113,13 @@ def main() -> None:
         summary = json.loads(old.read_text()) if args.only and old.exists() else {}
         # 3_3_24_24: cold run, two heat-gun runs
         slow_stem = "t1_1_1_18_18_s1_n10_100psi"
-        slow = export_fsae_csv(args.data / "pressure_testing" / f"{slow_stem}.csv.gz", work)
+        (slow,) = link_runs(args.data, [slow_stem], work).values()
         if args.only in (None, "3_3_24_24"):
-            runs = {}
-            for stem in ("t1_3_3_24_24_s5_n10_100psi",
-                         "t1_3_3_24_24_s5_n100_100psi_with_heat_gun",
-                         "t2_3_3_24_24_s5_n100_100psi_with_heat_gun"):
-                runs[stem] = read_fsae_ttx25(args.data / f"{stem}.csv.gz")
-            paths = {s: export_fsae_csv(d, work) for s, d in runs.items()}
+            paths = link_runs(args.data, ["t1_3_3_24_24_s5_n10_100psi",
+                                          "t1_3_3_24_24_s5_n100_100psi_with_heat_gun",
+                                          "t2_3_3_24_24_s5_n100_100psi_with_heat_gun"], work)
             cold, hg1, hg2 = paths.values()
-            temps = {p.name: temperature_range(runs[s]) for s, p in paths.items()}
+            temps = {p.name: temperature_range(read_measured(p)) for p in paths.values()}
             summary["3_3_24_24"] = case(work, "3_3_24_24", [slow, cold], [cold, hg1], [hg2],
                                         temps)
         # 2_2_12_12: one heat-gun run in three stretches
@@ -129,7 +128,7 @@ def main() -> None:
             run = read_fsae_ttx25(args.data / f"{stem}.csv.gz")
             parts = [cut(run, i / 3.0, (i + 1) / 3.0, f"{stem}_part{i + 1}.csv")
                      for i in range(3)]
-            ppaths = [export_fsae_csv(p, work) for p in parts]
+            ppaths = [export_fsae_csv(p, work / "stretches") for p in parts]
             temps = {p.name: temperature_range(p) for p in parts}
             summary["2_2_12_12"] = case(work, "2_2_12_12", [slow, ppaths[0]], ppaths[:2],
                                         [ppaths[2]], temps)

@@ -10,8 +10,9 @@ and α fitted (``--fit-alpha``), and writes
   kept),
 * the identification and validation report figures under ``docs/measured/fsae_identify/``.
 
-The vendor files are exported to a temporary directory as measured-data CSVs and deleted
-afterwards: nothing from them is written into the repository except derived figures.
+The commands read the vendor's files as they are, through the column map of their folder
+(:func:`link_runs`: links to them in a temporary directory, beside a ``columns.yaml``):
+nothing from them is written into the repository except derived figures.
 
 Usage: ``.venv/bin/python tools/fsae_identify.py [--data DIR] [--keep DIR]``
 """
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import tempfile
 import time
@@ -27,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from damper_emulator.dyno.fsae import export_fsae_csv, parse_fsae_name
+from damper_emulator.dyno.column_map import write_sidecar
+from damper_emulator.dyno.fsae import FLIPPED_FOLDER, column_map, parse_fsae_name
 from damper_emulator.params import load_config, save_config
 from damper_hil.cli import main as cli
 
@@ -51,6 +54,26 @@ FIXED = ("smoothing_g=1.5",)
 ALPHA_BOUNDS = ("1e-9", "3e-7")
 
 
+def link_runs(data: Path, stems: list[str], work: Path) -> dict[str, Path]:
+    """Each run (a file stem, at the top of ``data`` or in its :data:`FLIPPED_FOLDER`)
+    linked into a folder of ``work`` that holds the column map its folder needs (a
+    ``columns.yaml`` sidecar: every command then reads the vendor's file as it is).  The
+    links are named ``<stem>.csv`` (the reader knows gzip by its first bytes)."""
+    linked = {}
+    for stem in stems:
+        source = data / f"{stem}.csv.gz"
+        if not source.is_file():
+            source = data / FLIPPED_FOLDER / f"{stem}.csv.gz"
+        folder = work / source.parent.name
+        folder.mkdir(parents=True, exist_ok=True)
+        write_sidecar(folder, column_map(source))
+        link = folder / f"{stem}.csv"
+        link.unlink(missing_ok=True)
+        link.symlink_to(source.resolve())
+        linked[stem] = link
+    return linked
+
+
 def run_cli(args: list[str]) -> None:
     print("damper-hil " + " ".join(args), file=sys.stderr, flush=True)
     status = cli(args)
@@ -67,8 +90,19 @@ def params_at_charge(params: Path, psi: float, out: Path) -> Path:
     return out
 
 
+def collect_figures(report: Path, figures: Path, suffix: str = "") -> None:
+    """The PNGs of one command's report folder into ``figures`` (``suffix`` added to the
+    validation summary's name): each command replaces its own report folder as a whole,
+    so every command writes its own, and the figures are gathered in one place."""
+    figures.mkdir(parents=True, exist_ok=True)
+    for png in report.glob("*.png"):
+        name = (f"validation_summary{suffix}.png" if png.name == "validation_summary.png"
+                else png.name)
+        shutil.copyfile(png, figures / name)
+
+
 def identify_and_validate(work: Path, csvs: dict[str, Path], label: str,
-                          extra: list[str], report: Path | None) -> dict:
+                          extra: list[str], figures: Path | None) -> dict:
     params = work / f"params_{label}.yaml"
     qs = [str(csvs[r]) for r, role in RUNS if role == "quasi-static"]
     chirp = [str(csvs[r]) for r, role in RUNS if role == "chirp"]
@@ -76,11 +110,14 @@ def identify_and_validate(work: Path, csvs: dict[str, Path], label: str,
             "--out", str(params), "--json", str(work / f"identify_{label}.json")]
     for fix in FIXED:
         args += ["--fix", fix]
-    if report is not None:
+    report = work / f"report_{label}_identify"
+    if figures is not None:
         args += ["--report", str(report)]
     started = time.perf_counter()
     run_cli(args + extra)
     elapsed = time.perf_counter() - started
+    if figures is not None:
+        collect_figures(report, figures)
     ident = json.loads((work / f"identify_{label}.json").read_text())
     files: dict[str, dict] = {}
     by_charge: dict[float, list[str]] = {}
@@ -91,12 +128,12 @@ def identify_and_validate(work: Path, csvs: dict[str, Path], label: str,
         out_json = work / f"validate_{label}_{psi:g}.json"
         args = ["validate", "--params", str(p), *(str(csvs[r]) for r in runs),
                 "--json", str(out_json)]
-        if report is not None:
+        report = work / f"report_{label}_{psi:g}psi"
+        if figures is not None:
             args += ["--report", str(report)]
         run_cli(args)
-        summary = report / "validation_summary.png" if report is not None else None
-        if summary is not None and summary.exists():
-            summary.rename(report / f"validation_summary_{psi:g}psi.png")
+        if figures is not None:
+            collect_figures(report, figures, f"_{psi:g}psi")
         files.update(json.loads(out_json.read_text())["files"])
     return {"identify": ident, "validate": files, "elapsed_s": elapsed}
 
@@ -174,7 +211,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--keep", type=Path, default=None,
-                        help="keep the exported CSVs and results in this directory")
+                        help="keep the linked runs and results in this directory")
     args = parser.parse_args(argv)
     if not (args.data / "pressure_testing").is_dir():
         print(f"fsae_identify: no data under {args.data}", file=sys.stderr)
@@ -182,12 +219,11 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        csvs, temps = {}, {}
-        for run, _role in RUNS:
-            csvs[run] = export_fsae_csv(args.data / "pressure_testing" / f"{run}.csv.gz", work)
-        from damper_emulator.dyno.measured import read_measured_csv
-        for run, path in csvs.items():
-            temps[run] = float(np.mean(read_measured_csv(path).temperature))
+        from damper_emulator.dyno.measured_bag import read_measured
+
+        csvs = link_runs(args.data, [run for run, _role in RUNS], work)
+        temps = {run: float(np.mean(read_measured(path).temperature))
+                 for run, path in csvs.items()}
         FIGURES.mkdir(parents=True, exist_ok=True)
         for old in FIGURES.glob("*.png"):
             old.unlink()

@@ -158,6 +158,28 @@ class ColumnOptions:
                                    **self.settings)
 
 
+def column_map_yaml(cmap: ColumnMap) -> str:
+    """``cmap`` as the YAML of a column-map file (what :func:`load_column_map` reads):
+    the columns, and each setting that is not the default."""
+    import yaml
+
+    doc: dict[str, Any] = {"columns": dict(cmap.columns)}
+    default = ColumnMap()
+    for f in dataclasses.fields(ColumnMap):
+        value = getattr(cmap, f.name)
+        if f.name != "columns" and value != getattr(default, f.name):
+            doc[f.name] = value
+    return yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
+
+
+def write_sidecar(folder: str | Path, cmap: ColumnMap) -> Path:
+    """Write ``cmap`` as the :data:`SIDECAR` of ``folder``: every data file there is then
+    read through it.  Returns its path."""
+    from damper_emulator.outputs import write_text
+
+    return write_text(Path(folder) / SIDECAR, column_map_yaml(cmap))
+
+
 def sidecar_map(path: str | Path) -> ColumnMap | None:
     """The column map of the :data:`SIDECAR` beside ``path``, or None where there is
     none."""

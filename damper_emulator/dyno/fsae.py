@@ -41,6 +41,7 @@ energy, ``∮ F dx > 0`` on every cycle of every file, which then fixes the disp
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass
 from datetime import datetime
@@ -49,7 +50,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
-from damper_emulator.dyno.column_map import SAVGOL_ORDER, mid_stroke, savgol_velocity
+from damper_emulator.dyno.column_map import SAVGOL_ORDER, ColumnMap, mid_stroke, savgol_velocity
 from damper_emulator.dyno.measured import (
     MeasuredData,
     check_measured,
@@ -86,6 +87,15 @@ FORCE_COLUMN = "Force (V)"
 DISPLACEMENT_COLUMN = "Displacement (V)"
 TEMPERATURE_COLUMN = "Temperature (C)"
 _USED = (TIME_COLUMN, FORCE_COLUMN, DISPLACEMENT_COLUMN, TEMPERATURE_COLUMN)
+
+#: the runs read through a column map alone, to the reader's arrays bit for bit (the
+#: vendor's converted columns, its ISO stamps, the mid-stroke zero and the velocity filter);
+#: in :data:`FLIPPED_FOLDER` the ``Force (N)`` column has the other sign
+COLUMN_MAP = ColumnMap(columns={"time": TIME_COLUMN, "displacement": "Displacement (mm)",
+                                "force": "Force (N)", "temperature": TEMPERATURE_COLUMN},
+                       displacement_zero="mid-stroke", velocity_window=SAVGOL_WINDOW)
+#: the folder whose ``Force (N)`` is compression-positive
+FLIPPED_FOLDER = "pressure_testing"
 
 _NAME_RE = re.compile(
     r"^t(?P<trial>\d+)_(?P<a>\d+)_(?P<b>\d+)_(?P<c>\d+)_(?P<d>\d+)_s(?P<speed>\d+)"
@@ -165,6 +175,13 @@ def fsae_files(root: str | Path) -> list[Path]:
                 continue
             out.append(p)
     return out
+
+
+def column_map(path: str | Path) -> ColumnMap:
+    """The column map that reads the vendor file ``path`` as :func:`read_fsae_ttx25` does
+    (:data:`COLUMN_MAP`; the force's sign flipped in :data:`FLIPPED_FOLDER`)."""
+    flipped = Path(path).parent.name == FLIPPED_FOLDER
+    return dataclasses.replace(COLUMN_MAP, force_sign=-1.0) if flipped else COLUMN_MAP
 
 
 def read_fsae_ttx25(path: str | Path) -> MeasuredData:

@@ -73,7 +73,7 @@ def plot_validation(path: str | Path, result: Mapping[str, Any],
     ax_e.set_ylabel("F_sim − F_meas [N]")
     ax_e.grid(True, alpha=0.35)
     name = result.get("name") or "data"
-    fig.suptitle(title or f"{name}: {rms_caption(result)}")
+    fig.suptitle(title or f"{name}: {rms_caption(result)}", wrap=True)
     return save(fig, path)
 
 

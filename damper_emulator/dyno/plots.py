@@ -211,7 +211,7 @@ def plot_loops(path: str | Path, data: Any, title: str, cfg=None,
     ax_fv.set_title("force–velocity")
     decorate(ax_fx, "displacement [mm] (extension +)", "force [kN] (rebound +)")
     ax_fx.set_title("force–displacement")
-    fig.suptitle(title)
+    fig.suptitle(title, wrap=True)
     return save(fig, path)
 
 
@@ -241,7 +241,7 @@ def plot_sines_overlay(path: str | Path,
     decorate(ax_fx, "displacement [mm] (extension +)", "force [kN] (rebound +)",
               legend=False)
     ax_fx.set_title("force–displacement")
-    fig.suptitle(title)
+    fig.suptitle(title, wrap=True)
     return save(fig, path)
 
 

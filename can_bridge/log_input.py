@@ -203,7 +203,8 @@ def _emulator_log(path: Path, states: _Frames, forces: _Frames
     info = {"kind": "emulator", "input_frames": int(st.size),
             "output_frames": int(len(forces)), "bridge_fault_frames": int(own.sum()),
             "outputs_answer_their_inputs": one_for_one}
-    return BagData(path, state_raw, state, force_raw, force), info
+    return BagData(path, state_raw, state, force_raw, force,
+                   recorded="DAMPER_FORCE (the emulator's)"), info
 
 
 def _cycle_times(t: np.ndarray, counters: np.ndarray) -> np.ndarray:
@@ -232,7 +233,8 @@ def _damper_log(path: Path, feedback: _Frames) -> tuple[BagData, dict[str, Any]]
     force_raw, force = _topic(FORCE, stamp_ns, force_message.names("damper"), position,
                               velocity, effort)
     info = {"kind": "damper", "input_frames": int(x.size), "output_frames": int(x.size)}
-    return BagData(path, state_raw, state, force_raw, force), info
+    return BagData(path, state_raw, state, force_raw, force,
+                   recorded="DYNO_FEEDBACK force (the damper's, measured)"), info
 
 
 def read_can_log(path: str | os.PathLike[str], dbc: str | os.PathLike[str] | None = None

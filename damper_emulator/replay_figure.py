@@ -31,6 +31,7 @@ class ReplayTraces:
     compared: np.ndarray       # the outputs compared (indices, Comparison.index)
     difference_n: np.ndarray   # replayed − recorded there
     label: str                 # the difference's legend: its r.m.s. and max
+    recorded: str = "/damper/force"   # what the recorded forces are
 
 
 def plot_replay(path: str | os.PathLike[str], traces: ReplayTraces, title: str,
@@ -50,7 +51,7 @@ def plot_replay(path: str | os.PathLike[str], traces: ReplayTraces, title: str,
 
     def overlay(a, faults: np.ndarray) -> None:
         a.plot(t_rec, f_rec * 1e-3, color="tab:blue", linewidth=2.2, alpha=0.45,
-               label="recorded /damper/force")
+               label=f"recorded {traces.recorded}")
         a.plot(t_rep, traces.f_rep * 1e-3, color="black", linewidth=0.7,
                label="replayed (model and fault outputs)")
         if faults.size:

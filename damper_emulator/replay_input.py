@@ -34,6 +34,8 @@ class BagData:
     force: JointStates
     #: ``(log_ns, command)`` of the recorded ``/damper/valve_command`` (None: not recorded)
     valve: tuple[np.ndarray, np.ndarray] | None = None
+    #: what the recorded forces are, as the figure names them
+    recorded: str = FORCE
 
     @property
     def recorded_duration_s(self) -> float:

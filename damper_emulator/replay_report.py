@@ -135,4 +135,4 @@ def replay_traces(data: BagData, rep: Replayed, cmp: Comparison) -> ReplayTraces
              "model outputs" if cmp.compared else "")
     return ReplayTraces((data.force.stamp_ns - t0) * 1e-9, data.force.effort[:, 0].copy(),
                         (rep.stamp_ns - t0) * 1e-9, rep.force_n, np.flatnonzero(~rep.model),
-                        cmp.index, cmp.difference_n, label)
+                        cmp.index, cmp.difference_n, label, data.recorded)

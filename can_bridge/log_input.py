@@ -20,11 +20,12 @@ dropped and counted) and gives the replay what it reads from a bag
   from the emulator) are not the emulator's outputs and are left out, counted.
 * **A physical damper on a dyno** (``DYNO_FEEDBACK`` frames: the log of ``hybrid``, or
   of the dyno): each feedback is an input sample (``StrokeMeasured``, on the dyno's
-  cycles counted by the alive counter at the log's median period) and the force measured
-  in the same frame the recorded output, at the same stamp: the replay runs ``input`` and
-  compares the model with the real damper.  The velocity is the stroke's cubic
+  cycles counted by the alive counter, at the period that fits the frames' times) and the
+  force measured in the same frame the recorded output, at the same stamp: the replay
+  runs ``input`` and compares the model with the real damper.  The velocity is the stroke's cubic
   Savitzky–Golay derivative over :data:`VELOCITY_WINDOW` cycles (as ``--velocity-window``
-  of a measured-data file's column map).
+  of a measured-data file's column map), on the grid of the dyno's cycles: a cycle whose
+  frame is not in the log (lost, or dropped by its checks) filled by interpolation.
 
 A log with neither is one line (:class:`~can_bridge.can_log.CanLogError`), as is one that
 python-can cannot read.
@@ -207,14 +208,38 @@ def _emulator_log(path: Path, states: _Frames, forces: _Frames
                    recorded="DAMPER_FORCE (the emulator's)"), info
 
 
-def _cycle_times(t: np.ndarray, counters: np.ndarray) -> np.ndarray:
-    """The feedback frames' times on the dyno's cycles: the cycles between two frames by
-    the alive counter, at the log's median period per cycle."""
+def _cycles(t: np.ndarray, counters: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """The dyno's cycle of each feedback frame, counted from the first, the cycle's period
+    [s] and the first cycle's time [s]: the cycles between two frames by the alive
+    counter, whole counter turns (16 cycles or more lost) by the time between them at the
+    median period; then the period and start that fit the frames' times best (their
+    arrival jitters, the dyno's clock does not)."""
+    if t.size < 2:
+        return np.zeros(t.size, dtype=np.int64), 0.0, float(t[0]) if t.size else 0.0
     steps = np.diff(counters) % COUNTER_CYCLES
     steps[steps == 0] = COUNTER_CYCLES
-    period = float(np.median(np.diff(t) / steps)) if t.size > 1 else 0.0
-    times: np.ndarray = t[0] + period * np.concatenate([[0], np.cumsum(steps)])
-    return times
+    period = float(np.median(np.diff(t) / steps))
+    if period > 0:
+        turns = np.round((np.diff(t) / period - steps) / COUNTER_CYCLES)
+        steps = steps + COUNTER_CYCLES * np.maximum(turns, 0).astype(np.int64)
+    cycle = np.concatenate([[0], np.cumsum(steps)]).astype(np.int64)
+    slope, start = np.polyfit(cycle.astype(float), t - t[0], 1)
+    return cycle, float(slope), float(t[0] + start)
+
+
+def _velocity(x: np.ndarray, cycle: np.ndarray, period: float) -> np.ndarray:
+    """The stroke's derivative at each frame: on the whole grid of cycles (the lost ones
+    filled by linear interpolation, so that the filter's window spans cycles, not frames),
+    a cubic Savitzky–Golay derivative over :data:`VELOCITY_WINDOW` cycles."""
+    if x.size < 2 or period <= 0:
+        return np.zeros_like(x)
+    grid = np.arange(int(cycle[-1]) + 1)
+    filled = np.interp(grid, cycle, x)
+    if filled.size < VELOCITY_WINDOW:
+        gradient: np.ndarray = np.gradient(x, cycle * period)
+        return gradient
+    velocity: np.ndarray = savgol_velocity(filled, grid * period, VELOCITY_WINDOW)[cycle]
+    return velocity
 
 
 def _damper_log(path: Path, feedback: _Frames) -> tuple[BagData, dict[str, Any]]:
@@ -222,17 +247,18 @@ def _damper_log(path: Path, feedback: _Frames) -> tuple[BagData, dict[str, Any]]
     t = np.array([s for s, _ in feedback])
     x = np.array([v["StrokeMeasured"] for _, v in feedback], dtype=float)
     f = np.array([v["Force"] for _, v in feedback], dtype=float)
-    cycles = _cycle_times(t, np.array([int(v["Counter"]) for _, v in feedback]))
-    v = (savgol_velocity(x, cycles, VELOCITY_WINDOW) if x.size >= VELOCITY_WINDOW
-         else np.gradient(x, cycles) if x.size > 1 else np.zeros_like(x))
-    stamp_ns = _stamps_ns(cycles)
+    cycle, period, start = _cycles(t, np.array([int(v["Counter"]) for _, v in feedback]))
+    v = _velocity(x, cycle, period)
+    stamp_ns = _stamps_ns(start + cycle * period)
     state_raw, state = _topic(STATE, stamp_ns, ["damper"], x[:, None], v[:, None],
                               np.zeros((x.size, 0)))
     position, velocity, effort = force_message.columns(f, np.zeros(x.size, np.int64), x, v,
                                                        np.zeros(x.size))
     force_raw, force = _topic(FORCE, stamp_ns, force_message.names("damper"), position,
                               velocity, effort)
-    info = {"kind": "damper", "input_frames": int(x.size), "output_frames": int(x.size)}
+    info = {"kind": "damper", "input_frames": int(x.size), "output_frames": int(x.size),
+            "cycle_period_s": period, "cycles_without_frame": int(cycle[-1] + 1 - x.size)
+            if x.size else 0}
     return BagData(path, state_raw, state, force_raw, force,
                    recorded="DYNO_FEEDBACK force (the damper's, measured)"), info
 

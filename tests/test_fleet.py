@@ -29,6 +29,7 @@ from damper_emulator.dyno.protocols import QuasiStatic
 from damper_emulator.params import load_config
 from damper_hil.engine import EngineError, command_cluster, open_engine
 from damper_hil.fleet.example import write_example
+from damper_hil.fleet.inputs import find_dampers
 from damper_hil.fleet.runner import RESULT_FILE, run_fleet
 from damper_hil.fleet.scatter import DEFECTS
 
@@ -307,3 +308,44 @@ def test_a_damper_folder_whose_name_is_not_utf8_is_a_row_with_its_name_escaped(
         assert (out / latin1 / RESULT_FILE).is_file()
         assert not [p for p in out.iterdir() if ".partial-" in p.name or ".tmp" in p.name]
     assert "2 of 2 dampers already finished" in res.stderr
+
+
+def test_a_damper_whose_tests_are_mdf4_and_tdms_files_is_read_as_its_csvs(batch, tmp_path):
+    """A unit's tests as MDF4 (as ``dyno --format mf4`` writes them) and one as TDMS
+    (nptdms's writer), beside other files: found by their roles, read through the one
+    measured-data reader, and identified as the same unit's CSVs are, to the bit."""
+    from nptdms import ChannelObject, TdmsWriter
+
+    from damper_emulator.dyno.mdf_writer import write_measured_mdf
+    from damper_emulator.dyno.measured import read_measured_csv
+
+    csv_unit = shutil.copytree(batch / "unit_01", tmp_path / "data" / "csv_unit")
+    other = tmp_path / "data" / "lab_unit"
+    other.mkdir()
+    shutil.copy(csv_unit / "base.yaml", other / "base.yaml")
+    (other / "notes.txt").write_text("not a test\n")
+    for path in sorted(csv_unit.glob("*.csv")):
+        d = read_measured_csv(path)
+        if path.stem == "sine_3hz":
+            with TdmsWriter(other / "sine_3hz.tdms") as w:
+                w.write_segment([ChannelObject("dyno", q, getattr(d, q)) for q in
+                                 ("time", "displacement", "velocity", "force")])
+        else:
+            write_measured_mdf(other / f"{path.stem}.mf4", d.time, d.displacement, d.force,
+                               d.velocity, d.temperature)
+    (unit,) = [u for u in find_dampers(tmp_path / "data") if u.id == "lab_unit"]
+    assert [p.name for p in unit.quasi_static] == ["quasi_static.mf4"]
+    assert [p.name for p in unit.chirp] == ["chirp.mf4"]
+    assert sorted(p.name for p in unit.validate) == ["sine_12hz.mf4", "sine_1hz.mf4",
+                                                     "sine_3hz.tdms"]
+    with open_engine(workers=1) as engine:
+        run_fleet(tmp_path / "data", tmp_path / "out", engine, say=lambda m: None)
+    rows = {r["id"]: r for r in _parquet_rows(tmp_path / "out" / "results.parquet")}
+    assert rows["lab_unit"]["status"] == "ok", rows["lab_unit"]
+    fitted = [k for k in rows["csv_unit"] if k.endswith("_se")]
+    assert len(fitted) >= 10
+    for key in (k[:-3] for k in fitted):
+        assert rows["lab_unit"][key] == rows["csv_unit"][key], key
+    assert rows["lab_unit"]["validation_files"] == 3
+    assert rows["lab_unit"]["validation_rms_n"] == pytest.approx(
+        rows["csv_unit"]["validation_rms_n"], rel=1e-6)

@@ -21,6 +21,7 @@ from damper_emulator import force_message
 from damper_emulator.bag import BagError, cdr_fast
 from damper_emulator.bag.raw_topics import read_raw
 from damper_emulator.dyno.column_map import ColumnMap, read_mapped_csv, sidecar_map
+from damper_emulator.dyno.mdf import SUFFIXES as MDF_SUFFIXES
 from damper_emulator.dyno.mdf import is_mdf, read_mapped_mdf
 from damper_emulator.dyno.measured import (
     MeasuredData,
@@ -80,6 +81,20 @@ def read_measured_bag(path: str | os.PathLike[str]) -> MeasuredData:
 
     check_measured(data, fail)
     return data
+
+
+#: the file names :func:`read_measured` reads as measured data (lower case), longest first
+DATA_SUFFIXES = (".csv.gz", ".csv", ".tdms", *MDF_SUFFIXES)
+
+
+def data_stem(name: str) -> str | None:
+    """``name`` without its measured-data suffix (:data:`DATA_SUFFIXES`, any case); None
+    for a file of another kind."""
+    low = name.lower()
+    for suffix in DATA_SUFFIXES:
+        if low.endswith(suffix):
+            return name[:len(name) - len(suffix)]
+    return None
 
 
 def read_measured(path: str | os.PathLike[str], columns: ColumnMap | None = None

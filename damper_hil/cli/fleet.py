@@ -14,8 +14,8 @@ def add_parser(sub) -> None:
         help="identify, validate (and diagnose) many dampers' dyno tests on Dask",
         description="Every subfolder of DATA_DIR is one damper's test set: measured-data\n"
                     "files named by protocol (quasi_static*.csv and chirp*.csv: identified\n"
-                    "on; sine_*.csv: validated on; .csv.gz too) and an optional base.yaml,\n"
-                    "the damper's data sheet (as identify --base; default\n"
+                    "on; sine_*.csv: validated on; .csv.gz, .tdms, .mf4 too) and an optional\n"
+                    "base.yaml, the damper's data sheet (as identify --base; default\n"
                     "config/sport.yaml).  Each damper is one Dask task: identify, validate\n"
                     "on the sines and, with --diagnose, diagnose, with the single commands'\n"
                     "defaults (docs/fleet.md).\n\n"

@@ -6,7 +6,8 @@ In each subfolder, measured-data files (CONTRACT "Measured-data files") named by
 * ``chirp*.csv``: identification, valve fit (one or more);
 * ``sine_*.csv``: validation (held out; at least one);
 
-each also as ``.csv.gz``; and an optional ``base.yaml``, the damper's data sheet
+each also as ``.csv.gz``, ``.tdms``, ``.mf4`` or ``.mdf`` (read through a ``columns.yaml``
+beside them where the folder has one); and an optional ``base.yaml``, the damper's data sheet
 (geometry, γ, ν, α and numerics, as ``identify --base``; default ``config/sport.yaml``).
 Other files are ignored.  The subfolder's name is the damper's id.
 """
@@ -17,10 +18,12 @@ import fnmatch
 from dataclasses import dataclass
 from pathlib import Path
 
+from damper_emulator.dyno.measured_bag import data_stem
 from damper_emulator.errors import UserError
 
-#: file-name patterns of each role (lower case; ``.csv`` or ``.csv.gz``)
-ROLES = {"quasi_static": "quasi_static*.csv", "chirp": "chirp*.csv", "validate": "sine_*.csv"}
+#: file-name patterns of each role (lower case), before the measured-data suffix
+#: (:data:`~damper_emulator.dyno.measured_bag.DATA_SUFFIXES`: ``.csv``, ``.csv.gz``, ...)
+ROLES = {"quasi_static": "quasi_static*", "chirp": "chirp*", "validate": "sine_*"}
 #: the data sheet's file name in a damper's folder
 BASE_FILE = "base.yaml"
 
@@ -38,16 +41,17 @@ class DamperInputs:
 
     def problem(self) -> str | None:
         """Why this test set cannot be used (one line), or ``None``."""
-        missing = [f"{role} ({ROLES[role]})" for role in ROLES if not getattr(self, role)]
+        missing = [f"{role} ({ROLES[role]}.csv)" for role in ROLES if not getattr(self, role)]
         if missing:
             return f"{self.folder}: no {' and no '.join(missing)} file"
         return None
 
 
 def _role_of(name: str) -> str | None:
-    low = name.lower()
-    if low.endswith(".gz"):
-        low = low[:-3]
+    stem = data_stem(name)
+    if stem is None:
+        return None
+    low = stem.lower()
     for role, pattern in ROLES.items():
         if fnmatch.fnmatchcase(low, pattern):
             return role
@@ -77,5 +81,5 @@ def find_dampers(data_dir: Path) -> list[DamperInputs]:
                                 base if base.is_file() else None))
     if not out:
         raise UserError(f"{data_dir}: no damper subfolders (expected one per damper, each "
-                        f"with {', '.join(ROLES.values())} files)")
+                        f"with {', '.join(p + '.csv' for p in ROLES.values())} files)")
     return out

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from can_bridge.bus import BusConfig
+from can_bridge.can_log import CanLog
 from can_bridge.dbc import cycle_time_s
 from can_bridge.hybrid_link import FEEDBACK, run_hybrid_link
 from damper_emulator.realtime.rt import RealtimeRequest
@@ -49,16 +50,20 @@ class RigEngine:
         For the loop's thread.
     progress : callable, optional
         Called with one line per phase.
+    can_log : CanLog, optional
+        Gets every frame of every run (:class:`~can_bridge.can_log.CanLog`).
     """
 
     def __init__(self, bus: BusConfig, db: Any, config: HybridConfig, *,
                  realtime: RealtimeRequest | None = None,
-                 progress: Callable[[str], None] | None = None) -> None:
+                 progress: Callable[[str], None] | None = None,
+                 can_log: CanLog | None = None) -> None:
         self.bus = bus
         self.db = db
         self.config = config
         self.realtime = realtime
         self.progress = progress
+        self.can_log = can_log
         period = cycle_time_s(db.get_message_by_name(FEEDBACK))
         self.dt_s = float(period) if period else 1e-3
         self.runs: list[dict[str, Any]] = []
@@ -78,7 +83,7 @@ class RigEngine:
                             executor=self._executor)
         host.warm_up()
         stats = run_hybrid_link(self.bus, self.db, host, self.stop, realtime=self.realtime,
-                                progress=self.progress)
+                                progress=self.progress, can_log=self.can_log)
         run: dict[str, Any] = {"samples": int(grid.size), "phase_at_end": host.phase,
                                "reason": host.reason or "", "link": stats.summary(),
                                "identification": host.identification_report()}

@@ -686,7 +686,8 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
         try:
             proc = subprocess.run([*CLI, "dyno", "--protocol", "sine", "--frequency", "2",
                                    "--amplitude", "0.02", "--cycles", "2", "--out", str(out),
-                                   "--rig-config", str(config), *bus_args],
+                                   "--rig-config", str(config), *bus_args,
+                                   "--can-log", str(out / "rig.asc")],
                                   capture_output=True, text=True, timeout=300)
         finally:
             sentinels.close()
@@ -701,6 +702,11 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     doc = json.loads((out / "dyno.json").read_text())
     run = doc["rig"]["runs"][0]
     assert run["phase_at_end"] == "done" and run["tracking_nrms"] < 0.03
+    # --can-log: the run's traffic, as python-can's reader reads it back
+    frames = list(can.ASCReader(out / "rig.asc"))
+    assert sum(not f.is_rx for f in frames) == run["link"]["commands_sent"]
+    assert sum(f.is_rx for f in frames) == (run["link"]["feedback"] + run["link"]["aux"]
+                                            + run["link"]["dropped"])
     measured = read_measured_csv(out / "sine_2hz.csv")
     specimen = DamperModel(load_config(PROTOTYPE_FILE))      # the rig's
     run_sine(specimen, tmp_path / "model", 2.0, 0.02, cycles=2)

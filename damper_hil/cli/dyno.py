@@ -22,6 +22,7 @@ from damper_hil.cli.common import (
     schema_type,
     write_json,
 )
+from damper_hil.cli.virtual_rig import add_can_log_option
 
 #: unit suffixes of the schema's field names, left out of the option names
 _UNIT_SUFFIXES = ("_m_s", "_hz", "_s", "_m")
@@ -129,6 +130,7 @@ def add_parser(sub) -> None:
                         "(docs/hybrid.md), compensated for its delay and servo; the CSVs "
                         "record the stroke and force it measured; exit status 3 when the "
                         "safety layer stops it")
+    add_can_log_option(r)
     dyno.set_defaults(handler=run)
 
 
@@ -141,6 +143,9 @@ def run(args: argparse.Namespace) -> int:
         return _dyno_over_can(args, opts, model, params_file)
     if args.can_interface is not None or args.can_channel is not None:
         return _dyno_on_rig(args, opts, model, params_file)
+    if args.can_log is not None:
+        raise CliError("--can-log is for a physical dyno (--can-interface without "
+                       "--over-can)")
     if args.rig_config is not None:
         raise CliError("--rig-config needs --can-interface and --can-channel (the dyno's "
                        "bus)")
@@ -151,7 +156,7 @@ def _dyno_on_rig(args: argparse.Namespace, opts: dict, model, params_file) -> in
     from can_bridge.dbc import HYBRID_SIGNALS, load_database
     from can_bridge.dyno_rig import RigEngine, RigStopped
     from damper_emulator.realtime.rt import RealtimeRequest
-    from damper_hil.cli.virtual_rig import open_checked_bus
+    from damper_hil.cli.virtual_rig import can_log_of, open_checked_bus
     from ride_sim.hybrid.params import load_hybrid_config
 
     if args.noise_std:
@@ -163,21 +168,25 @@ def _dyno_on_rig(args: argparse.Namespace, opts: dict, model, params_file) -> in
     config = load_hybrid_config(args.rig_config)
     db = load_database(required=HYBRID_SIGNALS)
     bus = open_checked_bus(args)
-    engine = RigEngine(bus, db, config, realtime=RealtimeRequest(priority=70),
-                       progress=lambda phase: print(f"dyno on the rig: {phase}",
-                                                    file=sys.stderr, flush=True))
     try:
-        status = _run_dyno(args, opts, model, params_file, engine=engine,
-                           extra={"rig": {"interface": bus.interface,
-                                          "channel": bus.channel, "runs": engine.runs}})
+        with can_log_of(args) as can_log:
+            engine = RigEngine(bus, db, config, realtime=RealtimeRequest(priority=70),
+                               progress=lambda phase: print(f"dyno on the rig: {phase}",
+                                                            file=sys.stderr, flush=True),
+                               can_log=can_log)
+            try:
+                status = _run_dyno(args, opts, model, params_file, engine=engine,
+                                   extra={"rig": {"interface": bus.interface,
+                                                  "channel": bus.channel,
+                                                  "runs": engine.runs}})
+            finally:
+                engine.close()
     except RigStopped as exc:
         write_json(args.out / "dyno.json", {"protocol": args.protocol, "status": "stopped",
                                             "reason": str(exc),
                                             "rig": {"runs": engine.runs}})
         print(f"{PROG}: stopped: {exc}", file=sys.stderr)
         return 3
-    finally:
-        engine.close()
     return status
 def _protocol_options(args: argparse.Namespace) -> dict[str, Any]:
     """The options of ``args.protocol``, defaults filled in; an option given for another

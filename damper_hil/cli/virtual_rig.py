@@ -70,8 +70,9 @@ def can_log_of(args: argparse.Namespace) -> Iterator[CanLog | None]:
         yield log
     except BaseException:
         if log is not None:
-            with contextlib.suppress(CanLogError):
+            with contextlib.suppress(CanLogError):    # the block's error is the one told
                 log.close()
+                say(f"wrote {log.path} ({log.frames} CAN frames)")
         raise
     if log is not None:
         try:

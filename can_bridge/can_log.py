@@ -5,11 +5,12 @@
 receives, as it passes, and writes it from a thread of its own: the bus's thread (a
 real-time loop) only appends a tuple to a queue, never formats, compresses or waits on the
 disk.  A received frame keeps the time stamp its interface gave it (the kernel's, for
-socketcan and udp_multicast), a sent one is stamped when the bus took it; both on the
-wall clock (seconds since the epoch, as python-can stamps frames), marked received or sent
-(``Rx``/``Tx``), and written in the order of those stamps (held
-:data:`REORDER_WINDOW_S` for it).  python-can's readers (:class:`can.LogReader`), Vector's tools and
-``damper-hil replay`` read the files back.
+socketcan and udp_multicast; one on another clock is replaced by the time it is logged),
+a sent one is stamped when the bus took it: both on the wall clock (seconds since the
+epoch, as python-can stamps frames), marked received or sent (``Rx``/``Tx``), and written
+in the order of those stamps (held :data:`REORDER_WINDOW_S` for it).  python-can's
+readers (:class:`can.LogReader`), Vector's tools and ``damper-hil replay`` read the files
+back.
 
 A BLF file is written in compressed containers: frames reach the disk a container at a
 time, and the file is whole once :meth:`CanLog.close` has run (the runs close it on every
@@ -42,6 +43,9 @@ FLUSH_PERIOD_S = 0.5
 #: arrived while this process was answering the one before reaches the log after the
 #: answer; python-can's writers take time stamps in order only
 REORDER_WINDOW_S = 0.1
+#: a received frame's stamp further than this from the wall clock is an interface's own
+#: clock (a device's time since its start), not a time: the frame is stamped when logged
+STAMP_TOLERANCE_S = 1.0
 #: the longest close() waits for the writer thread [s]
 CLOSE_TIMEOUT_S = 30.0
 
@@ -117,7 +121,10 @@ class CanLog:
     def add(self, msg: can.Message, received: bool) -> None:
         """Log ``msg`` (``received``: from the bus; else sent by this process).  Cheap and
         never blocking: the frame is copied into a queue the writer thread empties."""
-        stamp = float(msg.timestamp) if received and msg.timestamp else time.time()
+        now = time.time()
+        stamp = float(msg.timestamp) if received and msg.timestamp else now
+        if not abs(stamp - now) < STAMP_TOLERANCE_S:    # an interface's own clock
+            stamp = now
         self._queue.put((stamp, msg.arbitration_id, bytes(msg.data), msg.is_extended_id,
                          msg.is_remote_frame, received))
 
@@ -156,8 +163,8 @@ class CanLog:
             self._writer.on_message_received(can.Message(
                 timestamp=stamp, arbitration_id=frame_id, data=data, is_extended_id=extended,
                 is_remote_frame=remote, is_rx=received, channel=self.channel, dlc=len(data)))
-        except (OSError, ValueError) as exc:
-            self.error = f"{self.path}: the CAN log stopped: {one_line(exc)}"
+        except Exception as exc:  # noqa: BLE001 - python-can's writers raise what they meet
+            self.error = f"{self.path}: the CAN log stopped: {one_line(exc, with_type=True)}"
             return
         self.frames += 1
 

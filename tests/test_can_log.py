@@ -249,3 +249,20 @@ def test_a_damper_logs_lost_frames_keep_their_cycles(db, tmp_path):
     error = np.abs(replayed - force[kept])
     assert error.max() < 0.05 * np.abs(force).max()
     assert error[near].max() < 0.5 * error[~near].max()
+
+
+def test_a_frame_stamped_on_an_interfaces_own_clock_is_logged_when_it_came(tmp_path):
+    """Some interfaces stamp frames with their own clock (a device's time since its
+    start): such a stamp is no time of the log's, and the frame takes the time it was
+    logged, between its neighbours."""
+    path = tmp_path / "clocks.blf"
+    log = CanLog(path)
+    before = time.time()
+    for stamp in (before, 5.0, before + 0.5):        # the second from a device's clock
+        log.add(can.Message(timestamp=stamp, arbitration_id=0x100, data=b"\x01"),
+                received=True)
+    log.close()
+    stamps = [m.timestamp for m in can.BLFReader(path)]
+    assert len(stamps) == 3 and stamps == sorted(stamps)
+    assert stamps[0] == pytest.approx(before, abs=1e-6)
+    assert before <= stamps[1] <= before + 0.5 <= stamps[2] + 1e-6

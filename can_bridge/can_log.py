@@ -51,8 +51,6 @@ CLOSE_TIMEOUT_S = 30.0
 
 #: one frame in the queue: stamp [s], identifier, data, extended, remote, received
 _Frame = tuple[float, int, bytes, bool, bool, bool]
-#: the queue's other item (None: stop)
-_FLUSH: _Frame = (0.0, -1, b"", False, False, False)
 
 
 class CanLogError(UserError):
@@ -137,10 +135,10 @@ class CanLog:
             try:
                 item = self._queue.get(timeout=REORDER_WINDOW_S)
             except queue.Empty:
-                item = _FLUSH
-            if item is None:
-                break
-            if item is not _FLUSH:
+                pass                       # nothing came: write what is due, flush
+            else:
+                if item is None:
+                    break
                 heapq.heappush(held, (item[0], order, item))
                 order += 1
             due = time.time() - REORDER_WINDOW_S

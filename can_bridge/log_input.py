@@ -22,10 +22,11 @@ dropped and counted) and gives the replay what it reads from a bag
   of the dyno): each feedback is an input sample (``StrokeMeasured``, on the dyno's
   cycles counted by the alive counter, at the period that fits the frames' times) and the
   force measured in the same frame the recorded output, at the same stamp: the replay
-  runs ``input`` and compares the model with the real damper.  The velocity is the stroke's cubic
-  Savitzky–Golay derivative over :data:`VELOCITY_WINDOW` cycles (as ``--velocity-window``
-  of a measured-data file's column map), on the grid of the dyno's cycles: a cycle whose
-  frame is not in the log (lost, or dropped by its checks) filled by interpolation.
+  runs ``input`` and compares the model with the real damper.  The velocity is the
+  stroke's cubic Savitzky–Golay derivative over :data:`VELOCITY_WINDOW` cycles (as
+  ``--velocity-window`` of a measured-data file's column map), on the grid of the dyno's
+  cycles: a cycle whose frame is not in the log (lost, or dropped by its checks) filled
+  by interpolation.
 
 A log with neither is one line (:class:`~can_bridge.can_log.CanLogError`), as is one that
 python-can cannot read.
@@ -33,6 +34,7 @@ python-can cannot read.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -41,7 +43,7 @@ from typing import Any
 import can
 import numpy as np
 
-from can_bridge.can_log import SUFFIXES, CanLogError
+from can_bridge.can_log import CanLogError
 from can_bridge.codec import Receiver
 from can_bridge.dbc import load_database
 from damper_emulator import force_message
@@ -52,7 +54,7 @@ from damper_emulator.errors import one_line
 from damper_emulator.replay_input import JOINT_STATE, BagData
 from damper_emulator.topics import FORCE, STATE
 
-__all__ = ["is_can_log", "read_can_log"]
+__all__ = ["read_can_log"]
 
 #: decoded frames of one message: (time stamp [s], signal values)
 _Frames = list[tuple[float, dict[str, Any]]]
@@ -73,11 +75,6 @@ MAX_STAMP_S = 9.2e9
 VELOCITY_WINDOW = 11
 #: the alive counter's cycle (the DBC's 4-bit ``Counter``)
 COUNTER_CYCLES = 16
-
-
-def is_can_log(path: str | os.PathLike[str]) -> bool:
-    """A CAN log, by its name (``.blf``, ``.asc``)."""
-    return Path(path).suffix.lower() in SUFFIXES
 
 
 def _frames(path: Path) -> Iterator[can.Message]:
@@ -199,8 +196,8 @@ def _emulator_log(path: Path, states: _Frames, forces: _Frames
         used, velocity_used, np.array([v["InputAge"] for v in fv], dtype=float))
     force_raw, force = _topic(FORCE, force_ns, force_message.names("damper"), position,
                               velocity, effort)
-    force_raw = RawTopic(FORCE, JOINT_STATE, _stamps_ns(ft), force_raw.offsets,
-                         force_raw.lengths, force_raw.buf)
+    # logged when the frames went, whatever their stamps
+    force_raw = dataclasses.replace(force_raw, log_ns=_stamps_ns(ft))
     info = {"kind": "emulator", "input_frames": int(st.size),
             "output_frames": int(len(forces)), "bridge_fault_frames": int(own.sum()),
             "outputs_answer_their_inputs": one_for_one}

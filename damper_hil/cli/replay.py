@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from damper_emulator.replay import run_replay
 
     reader = None
+    # by name, as can_bridge.can_log.SUFFIXES: a bag's replay imports no CAN code
     if args.bag.suffix.lower() in (".blf", ".asc"):
         from can_bridge.log_input import read_can_log
 

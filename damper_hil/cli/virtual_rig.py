@@ -66,20 +66,21 @@ def can_log_of(args: argparse.Namespace) -> Iterator[CanLog | None]:
         log = None if args.can_log is None else CanLog(args.can_log)
     except CanLogError as exc:
         raise CliError(str(exc)) from None
+    def close() -> None:
+        if log is not None:
+            log.close()
+            say(f"wrote {log.path} ({log.frames} CAN frames)")
+
     try:
         yield log
     except BaseException:
-        if log is not None:
-            with contextlib.suppress(CanLogError):    # the block's error is the one told
-                log.close()
-                say(f"wrote {log.path} ({log.frames} CAN frames)")
+        with contextlib.suppress(CanLogError):    # the block's error is the one told
+            close()
         raise
-    if log is not None:
-        try:
-            log.close()
-        except CanLogError as exc:
-            raise CliError(str(exc)) from None
-        say(f"wrote {log.path} ({log.frames} CAN frames)")
+    try:
+        close()
+    except CanLogError as exc:
+        raise CliError(str(exc)) from None
 
 
 def open_checked_bus(args: argparse.Namespace):

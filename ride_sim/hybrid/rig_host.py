@@ -608,7 +608,7 @@ def export_measured(host: RigHost, path: Path, fmt: str = DEFAULT_FORMAT) -> lis
                           comment="damper-hil hybrid: the damper's measured samples")
 
 
-#: the record's channels in an MDF4 file: unit, comment (``RECORD_COLUMNS``' order)
+#: the record's channels in an MDF4 file (``RECORD_COLUMNS`` by name): unit, comment
 RECORD_MDF = {
     "stroke_target": ("m", "the quarter car's damper stroke (the target)"),
     "stroke_command": ("m", "the stroke demand sent to the dyno (lag compensated)"),
@@ -627,8 +627,8 @@ def export_record_mdf(host: RigHost, path: Path) -> Path:
     k = host.k
     channels = [MdfChannel("t_monotonic", host.t_ns[:k].copy(), "s",
                            "CLOCK_MONOTONIC when the command was sent", linear=(1e-9, 0.0))]
-    channels += [MdfChannel(name, host.record[i, :k].copy(), unit, comment)
-                 for i, (name, (unit, comment)) in enumerate(RECORD_MDF.items())]
+    channels += [MdfChannel(name, host.record[RECORD_COLUMNS.index(name), :k].copy(), unit,
+                            comment) for name, (unit, comment) in RECORD_MDF.items()]
     enable = np.nan_to_num(host.record[RECORD_COLUMNS.index("enable"), :k]).astype(np.uint8)
     channels.append(MdfChannel("enable", enable, "", "the dyno's drive enable",
                                states={0: "disabled", 1: "enabled"}))

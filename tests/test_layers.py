@@ -225,10 +225,11 @@ def test_the_graph_is_real():
 
 #: what the command line's start (its parser, every subcommand's options and help) must
 #: not import: each subcommand imports its own work when it runs, so that a user error, a
-#: ``--help`` and every node's start do not pay for the diagnosis, Dask, plots or ROS
+#: ``--help`` and every node's start do not pay for the diagnosis, Dask, plots, ROS or CAN
+#: (python-can imports asammdf and pandas for its MF4 writer: 0.4 s)
 START_FORBIDDEN = ("damper_emulator.diagnose", "damper_emulator.identify", "scipy.signal",
                    "scipy.ndimage", "scipy.optimize", "dask", "distributed", "matplotlib",
-                   "rclpy")
+                   "rclpy", "can", "asammdf", "pandas")
 
 
 def test_the_command_line_starts_without_the_heavy_modules():

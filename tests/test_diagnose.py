@@ -94,6 +94,12 @@ def test_two_effects_together_are_both_found_by_forward_selection():
     assert sorted(active) == sorted(pair)
     after = pooled(diag.rms_after, diag.held_out)
     assert after <= max(diag.floor_n, 2.0 * NOISE_N)
+    # the first effect tried away once the search ended: both are in the truth, it stays
+    (tried,) = doc["pruned"]
+    assert tried["effect"] == diag.steps[0]._added.effect and not tried["went"]
+    assert tried["held_out_gain"] >= MIN_SCORE
+    assert pooled(tried["rms_held_out_without"], diag.held_out) > after
+    assert f"- {tried['effect']} ({tried['family']}): " in markdown(diag)
 
 
 def test_two_effects_the_identification_files_confound_are_found_as_a_pair():

@@ -289,6 +289,26 @@ class StepFit:
         return doc
 
 
+@dataclass(frozen=True)
+class Pruned:
+    """An effect of the forward selection tried away once the search ended (backward
+    elimination, :meth:`~damper_emulator.diagnose.rounds.LibraryRounds.prune`): the held-out
+    gain and ΔBIC of the effects with it against them refitted without it, whether it
+    went, and the held-out r.m.s. per file without it [N]."""
+
+    effect: str
+    family: str
+    gain: float
+    delta_bic: float
+    went: bool
+    rms_held_out_without: dict[str, float]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"effect": self.effect, "family": self.family, "held_out_gain": self.gain,
+                "delta_bic": self.delta_bic, "went": self.went,
+                "rms_held_out_without": self.rms_held_out_without}
+
+
 @dataclass
 class Diagnosis:
     """Result of :func:`~damper_emulator.diagnose.selection.diagnose`; :meth:`to_json` is
@@ -328,6 +348,8 @@ class Diagnosis:
     records: list[Record] = field(default_factory=list)
     #: the term discovered in what the library left (:mod:`.discovery`), if it ran
     discovered: Discovery | None = None
+    #: the effects tried away once the forward selection ended, kept or gone
+    pruned: list[Pruned] = field(default_factory=list)
     #: the identified model's residual r.m.s. with the rig's findings taken out (lines,
     #: per-file zero and gain) [N]; ``rms_before`` is on the files as recorded
     rms_before_rig: dict[str, float] = field(default_factory=dict)
@@ -447,6 +469,7 @@ class Diagnosis:
             "rms_before": self.rms_before, "rms_after": self.rms_after,
             "candidates": [c.to_json() for c in self.ranking],
             "effects": effects,
+            "pruned": [p.to_json() for p in self.pruned],
             "held_out": self.held_out,
             "fit_files": [r.name for r in self.records if not r.held_out],
             "parameters": main["parameters"] if main else None,

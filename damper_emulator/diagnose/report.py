@@ -215,6 +215,21 @@ def _base_table(diag: Diagnosis) -> list[str]:
     return lines
 
 
+def _pruned_lines(pruned: list[dict]) -> list[str]:
+    """The effects tried away once the search ended (the JSON's ``pruned``)."""
+    if not pruned:
+        return []
+    lines = ["", "Once the search ended, each effect added before the last was tried away: "
+             "the others refitted without it, the gain of the effects with it on the "
+             "held-out files.", ""]
+    for p in pruned:
+        lines.append(f"- {p['effect']} ({p['family']}): {100 * p['held_out_gain']:+.1f} %, "
+                     f"ΔBIC {p['delta_bic']:.0f}: "
+                     + ("it went (it had stood in for part of an effect added after it)"
+                        if p["went"] else "kept"))
+    return lines
+
+
 def markdown(diag: Diagnosis, params_file: str = "") -> str:
     """The report's text; ``params_file``: the identified parameters as the report names
     them (:func:`named_from`)."""
@@ -236,6 +251,7 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
         for k, (e, st) in enumerate(zip(effects, diag.steps), 1):
             lines.append(f"| {k} | {e['effect']} | {e['family']} | "
                          f"{100 * e['held_out_gain']:.1f} % | {st.delta_bic:.0f} |")
+        lines += _pruned_lines(doc["pruned"])
         for e, st in zip(effects, diag.steps):
             c = st.candidate
             lines += ["", f"**{e['effect']}** ({e['family']})"

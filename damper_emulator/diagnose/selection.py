@@ -54,6 +54,10 @@ The library's rounds and the answer (steps 1–7):
    fitted again on top of it (step 3); this repeats until none is significant, the
    held-out residual is within :data:`SEARCH_NOISE_FACTOR` × its noise level (the floor
    before the first effect), or :data:`MAX_EFFECTS` are in.
+   **Backward elimination** once the search ends with two effects or more (not a pair):
+   each effect added before the last is tried away, the others refitted without it; it
+   goes where the effects with it are not significant against them
+   (:meth:`~damper_emulator.diagnose.rounds.LibraryRounds.prune`).
    **A pair** when nothing is significant alone but structure above the floor remains:
    the candidate with the most evidence on the identification files (the lowest ΔBIC,
    at most ``MAX_DELTA_BIC``) is fitted with each other candidate, and a pair that is
@@ -231,6 +235,7 @@ def answer(session: Session, found: RoundsOutcome, drift: SeriesResult) -> Diagn
                      floor_n=floor, noise_n=noise, base_model=session.base,
                      records=session.records, pair_gain=pair_gain, series=drift,
                      dropped=found.steps if closest is not None else [],
+                     pruned=found.pruned,
                      dropped_pair_gain=found.pair_gain if closest is not None else None)
     after_model, after_rig = diag.model_after(), diag.rig_after()
     after = {r.name: r.residual(after_model, rig=after_rig) for r in session.records}

@@ -142,3 +142,21 @@ def test_a_pair_and_a_single_effect_are_left_as_found(library):
     rounds, _, tried = _rounds(sheet, [a], {})
     rounds.prune(refit)
     assert rounds.steps == [a] and not tried
+
+
+def test_the_held_out_files_decide_not_the_fit_files(library):
+    """Beside the others an effect may add nothing on the fit files (ΔBIC > 0: its
+    parameters cost more than they gain there) and hold most of what the held-out files
+    show: it stays (the benchmark's cavity beside free air, +69 %, ΔBIC +12)."""
+    sheet, lib = library
+    refit = _fit(sheet, lib, [], 400.0, 900.0)
+    a = _fit(sheet, lib, ["cavitation"], 150.0, 100.0)
+    b = _fit(sheet, lib, ["cavitation", "air_entrainment"], 100.0, 90.0)
+    a.score_against(refit, False)
+    b.score_against(a, False)
+    alone = _fit(sheet, lib, ["air_entrainment"], 100.0 / 0.31, 90.0, added=False)
+    rounds, _, _ = _rounds(sheet, [a, b], {("air_entrainment",): alone})
+    rounds.prune(refit)
+    (kept,) = rounds.pruned
+    assert kept.delta_bic > 0 and kept.gain == pytest.approx(0.69)
+    assert not kept.went and rounds.steps == [a, b]

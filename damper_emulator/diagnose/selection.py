@@ -56,7 +56,7 @@ The library's rounds and the answer (steps 1–7):
    before the first effect), or :data:`MAX_EFFECTS` are in.
    **Backward elimination** once the search ends with two effects or more (not a pair):
    each effect added before the last is tried away, the others refitted without it; it
-   goes where the effects with it are not significant against them
+   goes where the effects with it gain less than :data:`MIN_SCORE` held out against them
    (:meth:`~damper_emulator.diagnose.rounds.LibraryRounds.prune`).
    **A pair** when nothing is significant alone but structure above the floor remains:
    the candidate with the most evidence on the identification files (the lowest ΔBIC,

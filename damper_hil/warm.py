@@ -11,7 +11,8 @@ and without a valve command (about 1 s of a first replay's compiling otherwise),
 the damper over a recorded history (``identify``, ``validate``, ``diagnose``, ``dyno``).
 A second process warms, beside them, the quarter car's ride and the many-design kernel in
 its SIMD lanes and one by one (``tune``; about 11 s of a first run's compiling
-otherwise).  Prints one line with the time it took.
+otherwise) and ``identify``'s valve fits (:func:`warm_identify`).  Prints one line with
+the time it took.
 """
 
 from __future__ import annotations
@@ -19,9 +20,18 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from damper_emulator.model.compressible import DamperModel
 
 #: The option that makes this module warm the batch kernels (the second process).
 BATCH = "--batch"
+#: the identification warmed: a chirp this long [s] ...
+WARM_CHIRP_S = 4.0
+#: ... and force noise of this r.m.s. [N] on its files (a fit of exact data is not the
+#: path a measured file takes)
+WARM_NOISE_N = 4.0
 
 
 def warm() -> float:
@@ -51,6 +61,28 @@ def warm_batch() -> None:
     ride(car, CompressiblePlugin(model), np.zeros(64), 1e-3)
     simulate_many(car, [model] * LANES, np.zeros(64), 1e-3)   # one block of lanes
     simulate_many(car, [model] * 2, np.zeros(64), 1e-3, lanes=False)
+    warm_identify(model)
+
+
+def warm_identify(model: DamperModel) -> None:
+    """``identify``'s valve fits: the valve characteristic's derivatives and its
+    complex-step specialisations, on a short quasi-static test and chirp of ``model``.
+    Compiled in the first ``identify`` instead, they would also give that run other last
+    bits than every later one: numba's freshly compiled code and the code it loads from
+    its cache differ there, and a diagnosis can follow them."""
+    import numpy as np
+
+    from damper_emulator.dyno import protocols
+    from damper_emulator.dyno.measured import MeasuredData
+    from damper_emulator.identify.pipeline import identify
+    from damper_emulator.model.compressible import simulate
+
+    rng = np.random.default_rng(0)
+    files = [MeasuredData(t, x, simulate(model, t, x, v).force_n
+                          + rng.normal(0.0, WARM_NOISE_N, t.size), v)
+             for t, x, v in (protocols.quasi_static(cycles=1),
+                             protocols.chirp(duration_s=WARM_CHIRP_S))]
+    identify(files[0], files[1], model.cfg)
 
 
 def warm_nodes() -> None:

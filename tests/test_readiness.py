@@ -121,6 +121,44 @@ def test_cache_lives_outside_the_source_tree_and_is_keyed_by_the_sources(tmp_pat
     assert Path(out.strip()).parent == tmp_path / "nc"
 
 
+def test_after_the_installs_warm_up_identify_loads_every_kernel(tmp_path):
+    """``python -m damper_hil.warm`` (``make``'s install step) on an empty cache, then
+    ``identify`` in another process: every kernel it runs is loaded from the cache, none
+    compiled.  A kernel compiled in the first ``identify`` would cost it seconds and give
+    it other last bits than every later run (numba's fresh and cached code differ), and a
+    diagnosis can follow those bits to another answer."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    subprocess.run([sys.executable, "-m", "damper_hil.warm"], cwd=ROOT, env=env,
+                   check=True, capture_output=True, timeout=600)
+    out = _run_python("""
+        import gc
+        import numpy as np
+        from numba.core.registry import CPUDispatcher
+        from damper_emulator.dyno import protocols
+        from damper_emulator.dyno.measured import MeasuredData
+        from damper_emulator.identify.pipeline import identify
+        from damper_emulator.model.compressible import DamperModel, simulate
+        from damper_emulator.params import load_config
+
+        model = DamperModel(load_config("config/touring.yaml"))
+        rng = np.random.default_rng(5)
+        qs, chirp = (MeasuredData(t, x, simulate(model, t, x, v).force_n
+                                  + rng.normal(0.0, 4.0, t.size), v)
+                     for t, x, v in (protocols.quasi_static(cycles=1),
+                                     protocols.chirp(duration_s=6.0)))
+        identify(qs, chirp, load_config("config/touring.yaml"))
+        missed = sorted(f"{d.py_func.__module__}.{d.py_func.__name__}"
+                        for d in gc.get_objects() if isinstance(d, CPUDispatcher)
+                        and d.stats.cache_misses)
+        hits = sum(sum(d.stats.cache_hits.values()) for d in gc.get_objects()
+                   if isinstance(d, CPUDispatcher))
+        print(hits, *missed)
+    """, env=env)
+    hits, *missed = out.split()
+    assert int(hits) > 0  # the kernels came from the cache
+    assert not missed, f"compiled in the first identify: {missed}"
+
+
 def test_cold_emulate_is_active_before_its_first_force(tmp_path):
     """A cold start: `damper-hil emulate` compiles while configuring, answers `active`
     over its lifecycle service, and publishes its first force only then; from that force

@@ -42,6 +42,19 @@ def _fit(sheet, library, effects, held_rms, fit_mse, added=True) -> StepFit:
         "seconds": 0.0, "evaluations": 0})
 
 
+def _two_steps(sheet, library, first, second, figures):
+    """The refitted paper's model and two steps (``first``, then ``second`` on top of it),
+    each scored against the one before: ``figures`` their (held-out r.m.s., fit mean
+    square) in that order."""
+    (r_rms, r_ms), (a_rms, a_ms), (b_rms, b_ms) = figures
+    refit = _fit(sheet, library, [], r_rms, r_ms)
+    a = _fit(sheet, library, [first], a_rms, a_ms)
+    b = _fit(sheet, library, [first, second], b_rms, b_ms)
+    a.score_against(refit, False)
+    b.score_against(a, False)
+    return refit, a, b
+
+
 def _rounds(sheet, steps, refits):
     """``LibraryRounds`` whose fits are ``refits`` (the model with the effects given as
     a tuple, refitted); ``tried`` collects the effects of every model refitted."""
@@ -98,11 +111,8 @@ def test_an_effect_that_stood_in_for_a_later_one_goes_and_the_first_stays(librar
 
 def test_effects_that_each_gain_beside_the_others_all_stay(library):
     sheet, lib = library
-    refit = _fit(sheet, lib, [], 30.0, 900.0)
-    a = _fit(sheet, lib, ["valve_lag"], 15.0, 300.0)
-    b = _fit(sheet, lib, ["valve_lag", "lugre_friction"], 5.0, 20.0)
-    a.score_against(refit, False)
-    b.score_against(a, False)
+    refit, a, b = _two_steps(sheet, lib, "valve_lag", "lugre_friction",
+                             ((30.0, 900.0), (15.0, 300.0), (5.0, 20.0)))
     alone = _fit(sheet, lib, ["lugre_friction"], 25.0, 700.0, added=False)
     rounds, _, tried = _rounds(sheet, [a, b], {("lugre_friction",): alone})
     rounds.prune(refit)
@@ -114,11 +124,8 @@ def test_effects_that_each_gain_beside_the_others_all_stay(library):
 
 def test_the_first_effect_goes_too_where_a_later_one_holds_all_it_did(library):
     sheet, lib = library
-    refit = _fit(sheet, lib, [], 30.0, 900.0)
-    a = _fit(sheet, lib, ["series_compliance"], 20.0, 300.0)
-    b = _fit(sheet, lib, ["series_compliance", "valve_lag"], 5.0, 20.0)
-    a.score_against(refit, False)
-    b.score_against(a, False)
+    refit, a, b = _two_steps(sheet, lib, "series_compliance", "valve_lag",
+                             ((30.0, 900.0), (20.0, 300.0), (5.0, 20.0)))
     # the valve lag alone leaves as little: the compliance gains 1 % beside it
     alone = _fit(sheet, lib, ["valve_lag"], 5.0 / 0.99, 20.5, added=False)
     rounds, _, _ = _rounds(sheet, [a, b], {("valve_lag",): alone})
@@ -132,9 +139,8 @@ def test_the_first_effect_goes_too_where_a_later_one_holds_all_it_did(library):
 
 def test_a_pair_and_a_single_effect_are_left_as_found(library):
     sheet, lib = library
-    refit = _fit(sheet, lib, [], 30.0, 900.0)
-    a = _fit(sheet, lib, ["bypass_groove"], 29.0, 300.0)
-    b = _fit(sheet, lib, ["bypass_groove", "viscosity_temperature"], 5.0, 20.0)
+    refit, a, b = _two_steps(sheet, lib, "bypass_groove", "viscosity_temperature",
+                             ((30.0, 900.0), (29.0, 300.0), (5.0, 20.0)))
     rounds, _, tried = _rounds(sheet, [a, b], {})
     rounds.pair_gain = 0.8
     rounds.prune(refit)
@@ -149,11 +155,8 @@ def test_the_held_out_files_decide_not_the_fit_files(library):
     parameters cost more than they gain there) and hold most of what the held-out files
     show: it stays (the benchmark's cavity beside free air, +69 %, ΔBIC +12)."""
     sheet, lib = library
-    refit = _fit(sheet, lib, [], 400.0, 900.0)
-    a = _fit(sheet, lib, ["cavitation"], 150.0, 100.0)
-    b = _fit(sheet, lib, ["cavitation", "air_entrainment"], 100.0, 90.0)
-    a.score_against(refit, False)
-    b.score_against(a, False)
+    refit, a, b = _two_steps(sheet, lib, "cavitation", "air_entrainment",
+                             ((400.0, 900.0), (150.0, 100.0), (100.0, 90.0)))
     alone = _fit(sheet, lib, ["air_entrainment"], 100.0 / 0.31, 90.0, added=False)
     rounds, _, _ = _rounds(sheet, [a, b], {("air_entrainment",): alone})
     rounds.prune(refit)

@@ -419,18 +419,18 @@ class LibraryRounds:
         held-out files decide alone: ΔBIC weighs the parameters against the fit files,
         where beside the others an effect may add little (a cavity beside free air,
         ΔBIC +12) and still hold most of what the held-out files show (+69 %).  An
-        effect taken early may only have stood in
-        for part of one added later: a LuGre friction took 5.9 % beside a gas heat
-        transfer before free air, which it half followed, was in; with the air in it
-        gained nothing.  The last effect was significant on top of all the others when
-        it was added.  A pair (found together, neither alone) is left as found.  The
-        model without an effect that goes is the last step, scored against the step
-        before it (``refit``, the first round's reference, where none is left)."""
+        effect taken early may only have stood in for part of one added later: a LuGre
+        friction took 5.9 % beside a gas heat transfer before free air, which it half
+        followed, was in; with the air in, the effects lost 67 % with it.  The last
+        effect was significant on top of all the others when it was added.  A pair
+        (found together, neither alone) is left as found.  The model without an effect
+        that goes is the last step, scored against the step before it (``refit``, the
+        first round's reference, where none is left)."""
         if len(self.steps) < 2 or self.pair_gain is not None:
             return
         for st in sorted(self.steps[:-1], key=lambda f: f.score):
             final = self.steps[-1]
-            k = self.steps.index(st)
+            k = next(i for i, f in enumerate(self.steps) if f is st)
             keep = [j for j in range(len(final.candidates)) if j != k]
             without = StepFit(self.s.cfg, [final.candidates[j] for j in keep], {
                 **final.out, "effect": None,

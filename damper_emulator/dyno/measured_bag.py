@@ -30,6 +30,7 @@ from damper_emulator.dyno.measured import (
     failure,
     read_measured_csv,
 )
+from damper_emulator.dyno.tdms import SUFFIX as TDMS_SUFFIX
 from damper_emulator.dyno.tdms import is_tdms, read_mapped_tdms
 
 #: The topic read.
@@ -84,7 +85,7 @@ def read_measured_bag(path: str | os.PathLike[str]) -> MeasuredData:
 
 
 #: the file names :func:`read_measured` reads as measured data (lower case), longest first
-DATA_SUFFIXES = (".csv.gz", ".csv", ".tdms", *MDF_SUFFIXES)
+DATA_SUFFIXES = (".csv.gz", ".csv", TDMS_SUFFIX, *MDF_SUFFIXES)
 
 
 def data_stem(name: str) -> str | None:

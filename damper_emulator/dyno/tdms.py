@@ -30,11 +30,13 @@ from damper_emulator.errors import one_line
 
 #: the channel property LabVIEW and NI DAQ write a channel's unit into
 UNIT_PROPERTY = "unit_string"
+#: a TDMS file's name ends so (any case)
+SUFFIX = ".tdms"
 
 
 def is_tdms(path: str | Path) -> bool:
-    """A TDMS file, by its name."""
-    return Path(path).suffix.lower() == ".tdms"
+    """A TDMS file, by its name (:data:`SUFFIX`)."""
+    return Path(path).suffix.lower() == SUFFIX
 
 
 def read_mapped_tdms(path: str | Path, cmap: ColumnMap) -> MeasuredData:

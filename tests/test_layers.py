@@ -251,3 +251,16 @@ def test_figures_come_from_the_one_plotting_helper():
                         or d == "matplotlib.use" for d in deps))
     assert not bad, bad
     assert "matplotlib.figure" in EXTERNAL["damper_emulator.dyno.plots"]
+
+
+def test_the_can_packages_lazy_names_are_its_exports_and_resolve():
+    """``can_bridge`` imports its modules when a name is asked for: every exported name
+    has a home there, and each resolves to the object of its module."""
+    import importlib
+
+    import can_bridge
+
+    assert set(can_bridge._HOME) == set(can_bridge.__all__)
+    for name, home in can_bridge._HOME.items():
+        module = importlib.import_module(f"can_bridge.{home}")
+        assert getattr(can_bridge, name) is getattr(module, name), name

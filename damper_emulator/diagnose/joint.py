@@ -626,10 +626,14 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
        from where the first left the paper's parameters, and a joint fit from there can
        stop in the first one's valley (end stops on a series spring: the gas spring that
        absorbed the stops is only given back by the stops' own re-identification).
+       Taken where its pre-fit is lower, with the forward order kept as a second start
+       for step 4: a lower pre-fit need not end lower (an air entrainment fitted on top
+       of a gas's heat transfer from the order without it lost the heat transfer's part).
     4. **Joint fit** of every free parameter — :func:`base_parameters` of ``cfg`` (bounds
        around the identified values), each accepted effect's and the candidate's — from
        there, ``nfev`` evaluations of the weighted residual ``w_f (F_sim − F_meas)``
-       (``weights``: one per record).
+       (``weights``: one per record); from the second start too where step 2 or 3 left
+       one, the better end kept.
     5. **Hold what the files do not determine**: an optional form part
        (``Parameter.optional``) with force but a σ at least its value held at its low
        end, the form without it, and the fit repeated from there, kept unless the
@@ -665,8 +669,10 @@ class _Start:
     reidentified: bool = False
     friction_factor: float | None = None
     #: a second start that goes to step 4 too (a re-identification under the candidate's
-    #: configuration of a present model fitted jointly with the rig's delay)
-    other: tuple[dict[str, float], list[dict[str, float]]] | None = None
+    #: configuration of a present model fitted jointly with the rig's delay, or the
+    #: forward order where the other order was taken): its paper's parameters, its
+    #: effects' values (the candidate's last), whether it was re-identified
+    other: tuple[dict[str, float], list[dict[str, float]], bool] | None = None
 
 
 class _JointFit:
@@ -725,7 +731,8 @@ class _JointFit:
                     alternative: tuple[Mapping[str, float], Mapping[str, Mapping[str, float]]]
                     ) -> None:
         """Step 3: the candidate's own fit of the round before with the newest accepted
-        effect pre-fitted on top of it, taken where it fits the records better."""
+        effect pre-fitted on top of it, taken where it fits the records better; the
+        forward order then goes to step 4 as the second start (``_Start.other``)."""
         alt_base, alt_effects = alternative
         last = len(self.cands) - 1
         alt_vals = [alt_effects.get(c.effect, v)
@@ -735,6 +742,9 @@ class _JointFit:
                                                       start.values[-1]])
         start.evaluations += n
         if alt_cost < start.cost:
+            # a lower pre-fit need not end lower: the forward order goes to step 4 too
+            start.other = (dict(start.base_values),
+                           [*start.values, start.candidate_values], start.reidentified)
             start.base_values = {**start.base_values, **alt_base}
             start.values = [*(dict(v) for v in alt_vals[:-2]), alt_new]
             start.candidate_values, start.cost = dict(alt_vals[-1]), alt_cost
@@ -815,7 +825,7 @@ class _JointFit:
             # the present model was fitted jointly with the rig's delay (no effect
             # accepted yet), its re-identification under the candidate's configuration
             # not: both go to step 4
-            start.other = (new_base, [*start.values, alt_values])
+            start.other = (new_base, [*start.values, alt_values], True)
 
     def fit_from(self, bv: Mapping[str, float], vals: Sequence[Mapping[str, float]],
                  cands: Sequence[Candidate] | None = None, nfev: int | None = None
@@ -833,11 +843,11 @@ class _JointFit:
     def result(self, start: _Start) -> JointFit:
         """Step 4 from the start (and the other start, where there is one), the better
         end kept, with its σ; then step 5, :meth:`without_undetermined`."""
-        ends = [self.fit_from(start.base_values, start.values)]
+        ends = [(*self.fit_from(start.base_values, start.values), start.reidentified)]
         if start.other is not None:
-            ends.append(self.fit_from(*start.other))
-        space, sol = min(ends, key=lambda e: float(e[1].cost))
-        reidentified = start.reidentified or space is not ends[0][0]
+            other_base, other_values, other_reidentified = start.other
+            ends.append((*self.fit_from(other_base, other_values), other_reidentified))
+        space, sol, reidentified = min(ends, key=lambda e: float(e[1].cost))
         evaluations = start.evaluations + sum(e[0].evaluations for e in ends)
         space, sol, std, n = self.without_undetermined(space, sol)
         evaluations += n

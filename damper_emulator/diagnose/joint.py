@@ -626,14 +626,14 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
        from where the first left the paper's parameters, and a joint fit from there can
        stop in the first one's valley (end stops on a series spring: the gas spring that
        absorbed the stops is only given back by the stops' own re-identification).
-       Taken where its pre-fit is lower, with the forward order kept as a second start
+       Taken where its pre-fit is lower, with the forward order kept as a further start
        for step 4: a lower pre-fit need not end lower (an air entrainment fitted on top
        of a gas's heat transfer from the order without it lost the heat transfer's part).
     4. **Joint fit** of every free parameter — :func:`base_parameters` of ``cfg`` (bounds
        around the identified values), each accepted effect's and the candidate's — from
        there, ``nfev`` evaluations of the weighted residual ``w_f (F_sim − F_meas)``
-       (``weights``: one per record); from the second start too where step 2 or 3 left
-       one, the better end kept.
+       (``weights``: one per record); from the further starts too where steps 2 and 3
+       left any, the best end kept.
     5. **Hold what the files do not determine**: an optional form part
        (``Parameter.optional``) with force but a σ at least its value held at its low
        end, the form without it, and the fit repeated from there, kept unless the
@@ -668,11 +668,12 @@ class _Start:
     evaluations: int = 0
     reidentified: bool = False
     friction_factor: float | None = None
-    #: a second start that goes to step 4 too (a re-identification under the candidate's
-    #: configuration of a present model fitted jointly with the rig's delay, or the
-    #: forward order where the other order was taken): its paper's parameters, its
+    #: further starts that go to step 4 too (the forward order where the other order
+    #: was taken; a re-identification under the candidate's configuration of a present
+    #: model fitted jointly with the rig's delay): each its paper's parameters, its
     #: effects' values (the candidate's last), whether it was re-identified
-    other: tuple[dict[str, float], list[dict[str, float]], bool] | None = None
+    others: list[tuple[dict[str, float], list[dict[str, float]], bool]] = field(
+        default_factory=list)
 
 
 class _JointFit:
@@ -732,7 +733,7 @@ class _JointFit:
                     ) -> None:
         """Step 3: the candidate's own fit of the round before with the newest accepted
         effect pre-fitted on top of it, taken where it fits the records better; the
-        forward order then goes to step 4 as the second start (``_Start.other``)."""
+        forward order then goes to step 4 too (``_Start.others``)."""
         alt_base, alt_effects = alternative
         last = len(self.cands) - 1
         alt_vals = [alt_effects.get(c.effect, v)
@@ -743,8 +744,9 @@ class _JointFit:
         start.evaluations += n
         if alt_cost < start.cost:
             # a lower pre-fit need not end lower: the forward order goes to step 4 too
-            start.other = (dict(start.base_values),
-                           [*start.values, start.candidate_values], start.reidentified)
+            start.others.append((dict(start.base_values),
+                                 [*start.values, start.candidate_values],
+                                 start.reidentified))
             start.base_values = {**start.base_values, **alt_base}
             start.values = [*(dict(v) for v in alt_vals[:-2]), alt_new]
             start.candidate_values, start.cost = dict(alt_vals[-1]), alt_cost
@@ -825,7 +827,7 @@ class _JointFit:
             # the present model was fitted jointly with the rig's delay (no effect
             # accepted yet), its re-identification under the candidate's configuration
             # not: both go to step 4
-            start.other = (new_base, [*start.values, alt_values], True)
+            start.others.append((new_base, [*start.values, alt_values], True))
 
     def fit_from(self, bv: Mapping[str, float], vals: Sequence[Mapping[str, float]],
                  cands: Sequence[Candidate] | None = None, nfev: int | None = None
@@ -841,12 +843,10 @@ class _JointFit:
                                   JOINT_MIN_BIC_STEP)
 
     def result(self, start: _Start) -> JointFit:
-        """Step 4 from the start (and the other start, where there is one), the better
+        """Step 4 from the start (and each further start, ``_Start.others``), the best
         end kept, with its σ; then step 5, :meth:`without_undetermined`."""
-        ends = [(*self.fit_from(start.base_values, start.values), start.reidentified)]
-        if start.other is not None:
-            other_base, other_values, other_reidentified = start.other
-            ends.append((*self.fit_from(other_base, other_values), other_reidentified))
+        ends = [(*self.fit_from(bv, vals), reidentified) for bv, vals, reidentified in
+                [(start.base_values, start.values, start.reidentified), *start.others]]
         space, sol, reidentified = min(ends, key=lambda e: float(e[1].cost))
         evaluations = start.evaluations + sum(e[0].evaluations for e in ends)
         space, sol, std, n = self.without_undetermined(space, sol)

@@ -951,8 +951,10 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
             continue
         # a part that is not one over the files is not a property of the damper (it
         # takes the model's error at each file's speeds): the least stable goes
-        model = jf.model(cfg, [c for c, _ in accepted])
-        per_file = per_file_coefficients(model, source, fit, held, delay_rig(jf.base_values))
+        models = jf.models(cfg, [c for c, _ in accepted], len(fit) + len(held),
+                           n_quasi_static)
+        per_file = per_file_coefficients(models, source, fit, held,
+                                         delay_rig(jf.base_values))
         unstable = [k for k in range(len(feats))
                     if not stable_over({n: v[k] for n, v in per_file.items()}, coef[k])[0]]
         if not unstable or len(unstable) == len(feats):
@@ -962,8 +964,10 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
         say(f"discovery: {feats[drop].symbol} dropped after the joint refit: "
             f"{stable_over({n: v[drop] for n, v in per_file.items()}, coef[drop])[1]}")
         del feats[drop], coef[drop]
+    models = jf.models(cfg, [c for c, _ in accepted], len(fit) + len(held), n_quasi_static)
     model = jf.model(cfg, [c for c, _ in accepted])
     rig = delay_rig(jf.base_values)
+    # (the model at speed on every file, as the reference ``ref_fit`` was taken)
     fit_res = [r.term_residual(model, source, coef, rig) for r in fit]
     # each held-out record simulated once: its residual, the term, the parts, the plot
     x_ref, t_ref, _ = scales(fit)
@@ -1002,7 +1006,7 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
     ext = model.cfg.damper.extensions or ExtensionParams()
     out.model = model.with_extensions(dataclasses.replace(ext,
                                                           discovered_term=out.extension()))
-    out.per_file = per_file_coefficients(model, source, fit, held, rig)
+    out.per_file = per_file_coefficients(models, source, fit, held, rig)
     say(f"discovery, refitted with the model: {out.expression}: held-out gain "
         f"{100 * gain:+.1f} %, ΔBIC {dbic:.0f}{' (significant)' if out.significant else ''}"
         f"; {out.trust()}")

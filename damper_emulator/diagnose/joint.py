@@ -138,6 +138,30 @@ class JointFit:
     def model(self, cfg: ModelConfig, candidates: Sequence[Candidate]) -> DamperModel:
         return model_of(cfg, self.base_values, list(zip(candidates, self.values)))
 
+    def models(self, cfg: ModelConfig, candidates: Sequence[Candidate], n_records: int,
+               n_quasi_static: int) -> list[DamperModel]:
+        """The fitted model for each of ``n_records`` records, the first
+        ``n_quasi_static`` quasi-static (:func:`record_models`): the model the fit took
+        each record's residual of."""
+        return record_models(cfg, self.base_values, list(zip(candidates, self.values)),
+                             n_records, n_quasi_static)
+
+
+def record_models(cfg: ModelConfig, base: Mapping[str, float],
+                  effects: Sequence[tuple[Candidate, Mapping[str, float]]], n_records: int,
+                  n_quasi_static: int) -> list[DamperModel]:
+    """The model of ``base`` and ``effects`` for each of ``n_records`` records: its
+    friction scaled by :data:`QUASI_STATIC_FRICTION_RATIO` on the first
+    ``n_quasi_static`` (the quasi-static tests)."""
+    model = model_of(cfg, base, effects)
+    out = [model] * n_records
+    ratio = base.get(QUASI_STATIC_FRICTION_RATIO, 1.0)
+    if ratio != 1.0 and n_quasi_static > 0:
+        slow = model_of(cfg, {**base, "friction_force_n": ratio * base["friction_force_n"]},
+                        effects)
+        out[:n_quasi_static] = [slow] * min(n_quasi_static, n_records)
+    return out
+
 
 class _Converged(Exception):
     """A joint fit's step gained too little to go on (:meth:`Space.solve`)."""
@@ -228,18 +252,10 @@ class Space:
         return model_of(self.cfg, base, list(zip(self.cands, values)))
 
     def models(self, s: np.ndarray) -> list[DamperModel]:
-        """The model at ``s`` for each record: :meth:`model`, its friction scaled by
-        :data:`QUASI_STATIC_FRICTION_RATIO` on the quasi-static records."""
+        """The model at ``s`` for each record (:func:`record_models`)."""
         base, values = self.decode(s)
-        effects = list(zip(self.cands, values))
-        model = model_of(self.cfg, base, effects)
-        out = [model] * len(self.records)
-        ratio = base.get(QUASI_STATIC_FRICTION_RATIO, 1.0)
-        if ratio != 1.0 and self.n_quasi_static > 0:
-            slow = model_of(self.cfg, {**base, "friction_force_n":
-                                       ratio * base["friction_force_n"]}, effects)
-            out[:self.n_quasi_static] = [slow] * min(self.n_quasi_static, len(out))
-        return out
+        return record_models(self.cfg, base, list(zip(self.cands, values)),
+                             len(self.records), self.n_quasi_static)
 
     def cost(self, s: np.ndarray | None = None) -> float:
         """``½ Σ r²`` of :meth:`residuals` at ``s`` (default: the start values)."""

@@ -51,13 +51,15 @@ def spread(per_file: Mapping[str, tuple[float, float]], pooled: float) -> float:
     return (max(values) - min(values)) / abs(pooled)
 
 
-def per_file_coefficients(model: DamperModel, source: TermSource,
+def per_file_coefficients(models: Sequence[DamperModel], source: TermSource,
                           fit: Sequence[Record], held: Sequence[Record],
                           rig: RigParams | None) -> dict[str, list[tuple[float, float]]]:
     """Each part's coefficient fitted on each file alone (the model and what is fitted per
-    file held), with its 1σ: what the term is in every test."""
+    file held), with its 1σ: what the term is in every test.  ``models``: the model of
+    each record of ``fit`` then ``held``, as the fit took it (a quasi-static test's own
+    friction: :func:`~damper_emulator.diagnose.joint.record_models`)."""
     out = {}
-    for rec in [*fit, *held]:
+    for model, rec in zip(models, [*fit, *held], strict=True):
         raw, cols = source(model, rec)
         k = rec.start
         force = rec.recorded(raw, rig)[k:]

@@ -10,9 +10,9 @@ from a set of base values (:func:`config_with`, :func:`model_of`).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -384,9 +384,21 @@ def model_of(cfg: ModelConfig, base_values: Mapping[str, float],
     return model.with_extensions(ExtensionParams(**groups))
 
 
-#: The source of a discovered term's parts in a fit: for a model and a record, the
-#: model's force over the whole record (as :meth:`Record.simulate` gives it without an
-#: estimated chain) and the parts' columns, one per unit coefficient, before any chain
-#: (``n × k``); the fit adds ``Σ c_k column_k`` (``c_k`` the parameters ``TERM_PREFIX k``)
-#: to the force before the chain.
-TermSource = Callable[["DamperModel", "Record"], tuple[np.ndarray, np.ndarray]]
+class TermSource(Protocol):
+    """The source of a discovered term's parts in a fit.
+
+    Called with a model and a record, it gives the model's force over the whole record
+    (as :meth:`Record.simulate` gives it without an estimated chain) and the parts'
+    columns, one per unit coefficient, before any chain (``n × k``); the fit adds
+    ``Σ c_k column_k`` (``c_k`` the parameters ``TERM_PREFIX k``) to the force before the
+    chain.  :meth:`at` gives the columns at the parts' own fitted parameters (a zone's
+    centre and width, parameters of the fit named ``TERM_PREFIX``…): they are made of the
+    record's measured motion alone, so a step of them needs no simulation."""
+
+    def __call__(self, model: DamperModel, rec: Record) -> tuple[np.ndarray, np.ndarray]:
+        ...
+
+    def at(self, rec: Record, cols: np.ndarray, values: Mapping[str, float]) -> np.ndarray:
+        """``cols`` (as the call gave them for ``rec``) with each part that has
+        parameters of its own in ``values`` computed at them."""
+        ...

@@ -893,17 +893,74 @@ def discover(model: DamperModel, rig: RigParams | None, fit: Sequence[Record],
     return best
 
 
-def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:
-    """The :data:`~damper_emulator.diagnose.base.TermSource` of the features ``feats``
-    (their scales from the identification records ``fit``): what a joint fit adds."""
-    x_ref, t_ref, _ = scales(fit)
+def _profile_names(k: int) -> tuple[str, str]:
+    """The joint fit's names of part ``k``'s zone centre and width [m]."""
+    return f"{TERM_PREFIX}centre_{k}", f"{TERM_PREFIX}width_{k}"
 
-    def source(model: DamperModel, rec: Record) -> tuple[np.ndarray, np.ndarray]:
-        m = motion(model, rec, x_ref, t_ref)
+
+class _FeatureSource:
+    """The :class:`~damper_emulator.diagnose.base.TermSource` of the features ``feats``
+    (their scales from the identification records ``fit``): what a joint fit adds.  A
+    zone's centre and width are the fit's to move (:func:`_profile_names`)."""
+
+    def __init__(self, feats: Sequence[Feature], fit: Sequence[Record]):
+        self.feats = list(feats)
+        self.x_ref, self.t_ref, _ = scales(fit)
+
+    def __call__(self, model: DamperModel, rec: Record) -> tuple[np.ndarray, np.ndarray]:
+        m = motion(model, rec, self.x_ref, self.t_ref)
         # (the file's own chain only: the estimated one is the fit's to apply)
         return (rec.through_chain(m.force_model, None),
-                np.column_stack([f.fn(m) for f in feats]))
-    return source
+                np.column_stack([f.fn(m) for f in self.feats]))
+
+    def at(self, rec: Record, cols: np.ndarray, values: Mapping[str, float]) -> np.ndarray:
+        out = cols
+        for k, f in enumerate(self.feats):
+            centre, width = _profile_names(k)
+            if f.profile is None or centre not in values:
+                continue
+            if out is cols:
+                out = cols.copy()
+            column = np.empty(cols.shape[0])
+            profile_history(rec.data.displacement, rec.velocity, float(values[centre]),
+                            float(values[width]), column)
+            out[:, k] = column
+        return out
+
+    def parameters(self, coefficients: Sequence[float]
+                   ) -> tuple[list[Parameter], dict[str, float]]:
+        """The joint fit's parameters of the parts at ``coefficients``, and their start
+        values: each coefficient within ten times its start (a known form within its
+        physical bound: a mass is positive), a zone's centre within the files' stroke and
+        its width from 2 % of it to all of it (as :func:`refine_profile`)."""
+        params, values = [], {}
+        for k, (f, c) in enumerate(zip(self.feats, coefficients)):
+            span = max(10.0 * abs(c), 1e-12)
+            params.append(Parameter(f"{TERM_PREFIX}{k}", 0.0 if f.positive else -span, span,
+                                    float(c), False, f.unit))
+            values[f"{TERM_PREFIX}{k}"] = float(c)
+            if f.profile is not None:
+                for name, v, lo in zip(_profile_names(k), f.profile,
+                                       (-self.x_ref, 0.02 * self.x_ref)):
+                    v = min(max(v, lo), self.x_ref)
+                    params.append(Parameter(name, lo, self.x_ref, v, False, "m"))
+                    values[name] = v
+        return params, values
+
+    def fitted(self, values: Mapping[str, float]) -> list[Feature]:
+        """The features with each zone at its fitted centre and width in ``values``."""
+        out = []
+        for k, f in enumerate(self.feats):
+            centre, width = _profile_names(k)
+            out.append(profile_feature(float(values[centre]), float(values[width]))
+                       if f.profile is not None and centre in values else f)
+        return out
+
+
+def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:
+    """The :class:`~damper_emulator.diagnose.base.TermSource` of the features ``feats``
+    (their scales from the identification records ``fit``): what a joint fit adds."""
+    return _FeatureSource(feats, fit)
 
 
 #: a part of a term whose coefficient after the joint refit is within this many σ of 0
@@ -919,24 +976,28 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
     """The discovered term fitted *with* the model: the paper's parameters, the effects
     ``accepted`` (freed from their values), the estimated chain's delay and the term's
     coefficients in one joint fit (:func:`~damper_emulator.diagnose.joint.joint_fit`)
-    from ``base_values`` and the discovery's coefficients; parts within
-    :data:`MIN_T_RATIO` σ of 0 are dropped.  Scored against the model before (residuals
+    from ``base_values`` and the discovery's coefficients, and from the paper's model
+    identified again without the term's force; parts within :data:`MIN_T_RATIO` σ of 0
+    (or not one over the files) are dropped, and the fit repeated from where the last
+    one ended.  Scored against the model before (residuals
     ``ref_fit``, ``ref_held``) as a candidate is."""
     say = progress or (lambda msg: None)
     feats = list(found.features)
     coef = list(found.coefficients)
+    first = True
     while feats:
-        source = term_source(feats, fit)
-        params = []
-        values = dict(base_values)
-        for k, (f, c) in enumerate(zip(feats, coef)):
-            span = max(10.0 * abs(c), 1e-12)
-            # a known form within its physical bound (a mass is positive)
-            params.append(Parameter(f"{TERM_PREFIX}{k}", 0.0 if f.positive else -span, span,
-                                    float(c), False, f.unit))
-            values[f"{TERM_PREFIX}{k}"] = float(c)
-        jf = joint_fit(cfg, fit, weights, values, accepted, None, nfev, n_quasi_static,
-                       terms=source, term_parameters=params)
+        source = _FeatureSource(feats, fit)
+        params, start = source.parameters(coef)
+        jf = joint_fit(cfg, fit, weights, {**base_values, **start}, accepted, None, nfev,
+                       n_quasi_static, terms=source, term_parameters=params,
+                       identify_without_term=first)
+        # a part dropped: the fit again from where this one ended (its start chosen)
+        base_values = {k: v for k, v in jf.base_values.items() if not k.startswith(TERM_PREFIX)}
+        accepted = [(c, v) for (c, _), v in zip(accepted, jf.values)]
+        first = False
+        # a zone where the joint fit moved it
+        feats = source.fitted(jf.base_values)
+        source = _FeatureSource(feats, fit)
         coef = [jf.base_values[f"{TERM_PREFIX}{k}"] for k in range(len(feats))]
         std = [jf.base_std.get(f"{TERM_PREFIX}{k}", math.inf) for k in range(len(feats))]
         weak = [k for k, (c, s) in enumerate(zip(coef, std))

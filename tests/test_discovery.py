@@ -19,7 +19,7 @@ from damper_emulator.acquisition.chain import (
 from damper_emulator.acquisition.rig import ForceChannel, RigParams
 from damper_emulator.diagnose.base import ACQUISITION_DELAY, make_record
 from damper_emulator.diagnose.candidates import Parameter
-from damper_emulator.diagnose.discovery import discover
+from damper_emulator.diagnose.discovery import FeatureSource, discover, profile_feature
 from damper_emulator.diagnose.joint import Space
 from damper_emulator.diagnose.outcome import MAX_DELTA_BIC, MIN_SCORE
 from damper_emulator.diagnose.truth import Protocol, simulate_session
@@ -120,6 +120,28 @@ def test_a_gaussian_damping_zone_is_placed_and_sized(sport_cfg):
     assert c == pytest.approx(c0, rel=0.05)
     # once the profile is placed, nothing else is needed
     assert len(found.features) == 1, found.expression
+
+
+def test_a_zones_place_is_fitted_in_the_joint_fit_without_simulating(sport_cfg):
+    """A zone's centre and width are parameters of the joint fit beside its gain
+    (``FeatureSource``): made of the measured motion alone, a step of them recomputes a
+    column and simulates nothing.  On the model that made the data, from a zone 2 mm off
+    and a third too narrow at two thirds of the gain, the fit lands on the truth's
+    (x₀ = 8 mm, w = 6 mm, 600 N·s/m) with one simulation of the records in all."""
+    c0, x0, w = 600.0, 0.008, 0.006
+    fit, _ = _records(sport_cfg,
+                      extra=lambda t, x, v: c0 * np.exp(-0.5 * ((x - x0) / w) ** 2) * v)
+    source = FeatureSource([profile_feature(x0 + 0.002, w * 2 / 3)], fit)
+    params, start = source.parameters([c0 * 2 / 3])
+    space = Space(sport_cfg, params, start, [], [], [], fit, _weights(fit), terms=source)
+    sol = space.solve(space.encode(start, []), 40)
+    values = space.decode(sol.x)[0]
+    (zone,) = source.fitted(values)
+    centre, width = zone.profile
+    assert centre == pytest.approx(x0, abs=1e-4)
+    assert width == pytest.approx(w, rel=0.02)
+    assert values[params[0].name] == pytest.approx(c0, rel=0.02)
+    assert space.evaluations == 1
 
 
 def test_a_seal_friction_that_grows_with_the_gas_pressure_reads_as_friction(sport_cfg):

@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from damper_emulator.acquisition.rig import RigParams
-from damper_emulator.diagnose.base import TERM_PREFIX, Record, TermSource, delay_rig
+from damper_emulator.diagnose.base import TERM_PREFIX, Record, delay_rig
 from damper_emulator.diagnose.candidates import Parameter
 from damper_emulator.diagnose.joint import JOINT_NFEV, joint_fit
 from damper_emulator.diagnose.statistics import delta_bic, lag1
@@ -93,8 +93,8 @@ from damper_emulator.model.discovered import (
 from damper_emulator.params import DiscoveredTermParams, ExtensionParams
 from damper_emulator.validation import simulate_measured
 
-__all__ = ["FEATURES", "Discovery", "Feature", "ModelFree", "Motion", "discover",
-           "features"]
+__all__ = ["FEATURES", "Discovery", "Feature", "FeatureSource", "ModelFree", "Motion",
+           "discover", "features"]
 
 #: the smooth sign of velocity: ``tanh(ẋ / V_SIGN)`` [m/s] (a seal's pre-sliding range)
 V_SIGN_M_S = 0.005
@@ -898,7 +898,7 @@ def _profile_names(k: int) -> tuple[str, str]:
     return f"{TERM_PREFIX}centre_{k}", f"{TERM_PREFIX}width_{k}"
 
 
-class _FeatureSource:
+class FeatureSource:
     """The :class:`~damper_emulator.diagnose.base.TermSource` of the features ``feats``
     (their scales from the identification records ``fit``): what a joint fit adds.  A
     zone's centre and width are the fit's to move (:func:`_profile_names`)."""
@@ -957,12 +957,6 @@ class _FeatureSource:
         return out
 
 
-def term_source(feats: Sequence[Feature], fit: Sequence[Record]) -> TermSource:
-    """The :class:`~damper_emulator.diagnose.base.TermSource` of the features ``feats``
-    (their scales from the identification records ``fit``): what a joint fit adds."""
-    return _FeatureSource(feats, fit)
-
-
 #: a part of a term whose coefficient after the joint refit is within this many σ of 0
 #: is dropped (and the refit repeated without it)
 MIN_T_RATIO = 3.0
@@ -986,7 +980,7 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
     coef = list(found.coefficients)
     first = True
     while feats:
-        source = _FeatureSource(feats, fit)
+        source = FeatureSource(feats, fit)
         params, start = source.parameters(coef)
         jf = joint_fit(cfg, fit, weights, {**base_values, **start}, accepted, None, nfev,
                        n_quasi_static, terms=source, term_parameters=params,
@@ -997,7 +991,7 @@ def refit_with_term(found: Discovery, cfg: Any, base_values: Mapping[str, float]
         first = False
         # a zone where the joint fit moved it
         feats = source.fitted(jf.base_values)
-        source = _FeatureSource(feats, fit)
+        source = FeatureSource(feats, fit)
         coef = [jf.base_values[f"{TERM_PREFIX}{k}"] for k in range(len(feats))]
         std = [jf.base_std.get(f"{TERM_PREFIX}{k}", math.inf) for k in range(len(feats))]
         weak = [k for k, (c, s) in enumerate(zip(coef, std))

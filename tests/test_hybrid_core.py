@@ -493,6 +493,46 @@ def test_stale_feedback_is_left_out_on_every_path_after_a_restart(model):
     assert host.safety.enable and len(host.restarts) == 1
 
 
+def test_a_gap_in_the_feedback_while_rearming_is_no_second_stop(model):
+    """In ``rearm`` Enable is clear and the host waits out the rig's watchdog: a fresh
+    frame there, then none for the watchdog's trip, is no stop (it once spent the second
+    restart in ``rearm`` on a loaded machine), nor is the wait for the rig in ``connect``
+    after it; the first frame there starts the new watchdog's clock and the start
+    goes on."""
+    host = HybridHost(HybridRunParams(duration_s=0.5), load_quarter_car(), model,
+                      CompensatorParams(), SafetyParams())
+    dt = host.dt_s
+    watchdog_s = SafetyParams().watchdog_s
+    feedback = Feedback(0.0, -400.0, 0, 25.0)
+    for k in range(50):                                 # connect, then settle
+        host.safety.host_wakes(k * dt)
+        host.cycle(k * dt, feedback, now_s=k * dt)
+    held_until = 0.3                                    # the host held for 250 ms
+    host.safety.host_wakes(held_until)
+    host.cycle(0.05, feedback, now_s=held_until)
+    assert host.phase == "rearm" and len(host.restarts) == 1
+    t = held_until + dt
+    host.safety.host_wakes(t)
+    host.cycle(t, feedback, now_s=t)                    # a fresh frame while rearming
+    assert host.safety.last_valid_s == t
+    while host.phase == "rearm":                        # then none: the rig's watchdog
+        t += dt
+        host.safety.host_wakes(t)
+        host.cycle(t, None, now_s=t)
+    assert host.phase == "connect" and host.safety.enable and len(host.restarts) == 1
+    assert t - held_until >= watchdog_s
+    for _ in range(round(2 * watchdog_s / dt)):         # no rig yet, for two watchdogs
+        t += dt
+        host.safety.host_wakes(t)
+        host.cycle(t, None, now_s=t)
+    assert host.phase == "connect" and host.safety.enable
+    t += dt
+    host.safety.host_wakes(t)
+    host.cycle(t, feedback, now_s=t)                    # the rig is back
+    assert host.phase == "settle" and host.safety.last_valid_s == t
+    assert len(host.restarts) == 1
+
+
 def test_each_restart_is_timed_from_the_runs_start(model):
     """Two stalls, each in an identification: two restarts, each stamped with its time
     into the run (not into the start before it), and the ride completes."""

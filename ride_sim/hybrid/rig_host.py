@@ -324,7 +324,10 @@ class RigHost:
             self._phase_start_s = t_s
         if feedback is not None:
             self.measure(t_s, feedback)
-        safety.watchdog(t_s)
+        if self.phase != "rearm":
+            # (in rearm Enable is clear and the host waits out the rig's watchdog: a gap
+            # in the feedback there is no stop; the new safety layer's starts at connect)
+            safety.watchdog(t_s)
         if not safety.enable and self._may_restart():
             self._restart(t_s, now)
             safety = self.safety
@@ -332,6 +335,7 @@ class RigHost:
             # by the host's clock: the cycles that drain the stall's backlog run on the
             # frames' stamps, from before the restart
             if self._elapsed(now) >= safety.params.watchdog_s:
+                safety.last_valid_s = None
                 self._enter("connect", now)
             return Command(self._demand, 0.0, False)
         if self.phase == "connect":

@@ -49,11 +49,12 @@ from damper_emulator.realtime.rt import (
     apply_realtime,
 )
 from ride_sim.hybrid.rig import Feedback
-from ride_sim.hybrid.rig_host import MISSED_FEEDBACK_PERIODS, Command, RigHost
+from ride_sim.hybrid.rig_host import LATE_CYCLES, MISSED_FEEDBACK_PERIODS, Command, RigHost
 
 COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"
-#: The alive counter's cycle (4 bits: the DBC's ``Counter``).
-COUNTER_CYCLES = 16
+#: The alive counter's cycle (4 bits: the DBC's ``Counter``; the host places a late
+#: feedback by it, :data:`~ride_sim.hybrid.rig_host.LATE_CYCLES`).
+COUNTER_CYCLES = LATE_CYCLES
 #: Commands with Enable clear sent at the end.
 FINAL_COMMANDS = 5
 

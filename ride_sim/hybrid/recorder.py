@@ -46,6 +46,7 @@ from damper_emulator.bag.messages import DIAGNOSTIC_ARRAY, JOINT_STATE, diagnost
 from damper_emulator.errors import DamperHilError
 from damper_emulator.topics import DIAGNOSTICS, FORCE, HYBRID_LOOP, STATE
 from ride_sim.hybrid.host import RECORD_COLUMNS, HybridHost
+from ride_sim.hybrid.rig_host import LATE_CYCLES
 
 #: hybrid.csv's header
 CSV_COLUMNS = ("t_monotonic_ns", "time", *RECORD_COLUMNS)
@@ -373,7 +374,9 @@ class HybridRecorder:
 
     def _hand_over(self, final: bool) -> None:
         host = self.host
-        k = host.k if final else host.k - 1        # the last sample's twin comes later
+        # the newest samples may still take a late feedback (and the last one's twin
+        # comes later): they go with a later chunk
+        k = host.k if final else host.k - LATE_CYCLES
         lo = self._written
         if k <= lo:
             return

@@ -72,6 +72,11 @@ HOST_CYCLE_S = 1e-3
 #: A cycle whose feedback has not come this many periods after the last runs without it
 #: (the link's read times out; :mod:`ride_sim.hybrid.offline` models it).
 MISSED_FEEDBACK_PERIODS = 1.5
+#: A cycle that ran without its feedback takes it when it comes, placed by the dyno's alive
+#: counter (4 bits: the DBC's ``Counter``): at most this many cycles minus one after it ran
+#: (:meth:`RigHost.late`).  A record written while the run goes on holds back this many of
+#: the newest samples: they may still change.
+LATE_CYCLES = 16
 #: A stall, in the identification [cycles]: a fresh feedback more than this many cycles
 #: later than a cycle after the last fresh one, or a command sent more than this many cycles
 #: after its feedback arrived.  Shorter jitter stays in the fit: it moves the demand the rig

@@ -8,6 +8,9 @@ import os
 import time
 from pathlib import Path
 
+#: How long a sender waits for its subscriber to be matched [s].
+DISCOVERY_S = 10.0
+
 
 class Probe:
     """A node of the test process in its own context and domain."""
@@ -60,7 +63,10 @@ def send_states_on_a_grid(domain: int, first_ns: int, period_ns: int, duration_s
     sample at each wall-clock instant ``first_ns + k·period_ns`` for ``duration_s``, from a
     thread under SCHED_FIFO at ``priority`` where permitted, in a process with no other
     Python (a sender in the test's own process shares the GIL with its probe's executor,
-    and on a loaded machine came milliseconds late)."""
+    and on a loaded machine came milliseconds late).  It starts once the subscriber is
+    matched (at most ``DISCOVERY_S``), and where that is past ``first_ns`` (a loaded
+    machine: the process's start and its discovery took seconds), at the next instant of
+    the same grid: ``duration_s`` of samples, all on the grid, whenever it starts."""
     import math
 
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -79,6 +85,12 @@ def send_states_on_a_grid(domain: int, first_ns: int, period_ns: int, duration_s
     pub = node.create_publisher(JointState, topics.STATE, control_qos(10))
     msg = JointState()
     msg.name = ["damper"]
+    deadline = time.monotonic() + DISCOVERY_S
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    late = time.time_ns() - first_ns
+    if late > 0:
+        first_ns += -(-late // period_ns) * period_ns
     end = first_ns + int(duration_s * 1e9)
     due, k = first_ns, 0
     while due < end:

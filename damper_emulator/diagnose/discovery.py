@@ -445,6 +445,17 @@ class Discovery:
             "seconds": round(self.seconds, 2)}
 
 
+#: the narrowest zone a profile is refined or fitted to, as a fraction of the files'
+#: largest stroke (its centre within that stroke, its width up to all of it)
+MIN_PROFILE_WIDTH = 0.02
+
+
+def profile_bounds(x_ref: float) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds ``(lo, hi)`` of a zone's ``(centre, width)`` [m] on files whose largest
+    |stroke| is ``x_ref`` (:data:`MIN_PROFILE_WIDTH`)."""
+    return np.array([-x_ref, MIN_PROFILE_WIDTH * x_ref]), np.array([x_ref, x_ref])
+
+
 def refine_profile(f: Feature, others: np.ndarray, y: np.ndarray, w_rows: np.ndarray,
                    fit: Sequence[Record], motions: Sequence[Motion],
                    rig: RigParams | None) -> Feature:
@@ -467,8 +478,7 @@ def refine_profile(f: Feature, others: np.ndarray, y: np.ndarray, w_rows: np.nda
         out: np.ndarray = y - a @ beta
         return out
 
-    lo = np.array([-x_ref, 0.02 * x_ref])
-    hi = np.array([x_ref, x_ref])
+    lo, hi = profile_bounds(x_ref)
     sol = least_squares(resid, np.clip(np.array(f.profile), lo, hi), bounds=(lo, hi),
                         x_scale=np.array([0.1 * x_ref, 0.1 * x_ref]), max_nfev=40)
     return profile_feature(float(sol.x[0]), float(sol.x[1]))
@@ -932,18 +942,18 @@ class FeatureSource:
         """The joint fit's parameters of the parts at ``coefficients``, and their start
         values: each coefficient within ten times its start (a known form within its
         physical bound: a mass is positive), a zone's centre within the files' stroke and
-        its width from 2 % of it to all of it (as :func:`refine_profile`)."""
+        its width from 2 % of it to all of it (:func:`profile_bounds`)."""
         params, values = [], {}
+        bounds = profile_bounds(self.x_ref)
         for k, (f, c) in enumerate(zip(self.feats, coefficients)):
             span = max(10.0 * abs(c), 1e-12)
             params.append(Parameter(f"{TERM_PREFIX}{k}", 0.0 if f.positive else -span, span,
                                     float(c), False, f.unit))
             values[f"{TERM_PREFIX}{k}"] = float(c)
             if f.profile is not None:
-                for name, v, lo in zip(_profile_names(k), f.profile,
-                                       (-self.x_ref, 0.02 * self.x_ref)):
-                    v = min(max(v, lo), self.x_ref)
-                    params.append(Parameter(name, lo, self.x_ref, v, False, "m"))
+                for name, v, lo, hi in zip(_profile_names(k), f.profile, *bounds):
+                    v = min(max(v, float(lo)), float(hi))
+                    params.append(Parameter(name, float(lo), float(hi), v, False, "m"))
                     values[name] = v
         return params, values
 

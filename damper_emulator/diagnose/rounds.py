@@ -304,7 +304,8 @@ class LibraryRounds:
     def chain_turn(self, st: _Round, small: bool) -> str:
         """The rig's delay weighed against the round's effects: taken where it explains
         more than any (``settled`` where the model with it is within the floor, else
-        ``again``: the round run again on top of it), or fitted with the runners-up where
+        ``again``: the round run again on top of it, with the candidates a next round
+        would take, :meth:`next_candidates`), or fitted with the runners-up where
         an effect gains more but leaves structure; ``on`` otherwise."""
         say, chain_fit = self.s.say, st.chain_fit
         assert chain_fit is not None  # (the caller's test)
@@ -333,7 +334,8 @@ class LibraryRounds:
                 if not self.steps:
                     st.refit = st.present
                 return "settled"
-            nxt = self.run(chain_fit, [None, *st.remaining],
+            # (the candidates of a next round: from the third on, those that gained)
+            nxt = self.run(chain_fit, [None, *self.next_candidates(st.remaining, st.fits)],
                            f"round {len(self.rounds) + 1} (with the rig's delay)",
                            {f._added.effect: f for f in st.fits})
             st.present, st.fits, st.chain_fit = nxt[0], nxt[1:], None

@@ -89,6 +89,7 @@ from damper_emulator.diagnose.truth_series import RigFaults, Series, gas_leak
 from damper_emulator.identify.pipeline import identify
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import EXTENSION_FAMILIES, load_config
+from damper_hil.warm import ensure_warmed
 
 #: the repository (the dampers' files are config/*.yaml there, from any working folder)
 ROOT = Path(__file__).resolve().parents[1]
@@ -393,6 +394,8 @@ def main() -> None:
     todo = [s for s in scenarios() if wanted(s.label)]
     if not todo:
         sys.exit("no such scenario; one of: " + ", ".join(s.label for s in scenarios()))
+    # the kernels an install loads (a diagnosis can follow a fresh compile's last bits)
+    ensure_warmed()
     print("# Identify + diagnose on the truth scenarios\n")
     print(f"machine: {cpu_name()}, {os.cpu_count()} CPUs; diagnose with {args.jobs} "
           f"process(es); force noise {NOISE_N} N")

@@ -13,13 +13,24 @@ A second process warms, beside them, the quarter car's ride and the many-design 
 its SIMD lanes and one by one (``tune``; about 11 s of a first run's compiling
 otherwise) and ``identify``'s valve fits (:func:`warm_identify`).  Prints one line with
 the time it took.
+
+**One set of last bits.**  numba's freshly compiled code and the code it loads from its
+cache can differ in their last bits (a kernel compiled in the middle of a diagnosis,
+among the kernels that run compiled first, is not bit for bit the one a warm-up caches),
+and a diagnosis's fits can follow them to another answer.  So a warm-up fills a cache
+directory from empty, and marks it (:data:`MARKER`) when it is done; a directory that
+some other run filled first is emptied and warmed again.  Every run after it loads the
+same kernels.  :func:`ensure_warmed` is that check for a benchmark or a tool whose figures
+must be the install's.
 """
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -32,6 +43,46 @@ WARM_CHIRP_S = 4.0
 #: ... and force noise of this r.m.s. [N] on its files (a fit of exact data is not the
 #: path a measured file takes)
 WARM_NOISE_N = 4.0
+
+
+#: The file a finished warm-up leaves in the kernel cache's directory.
+MARKER = "warmed"
+
+
+def cache_directory() -> Path:
+    """This source version's kernel cache (:data:`damper_emulator.model.jit.CACHE_DIR`)."""
+    from damper_emulator.model.jit import CACHE_DIR
+    return CACHE_DIR
+
+
+def warmed() -> bool:
+    """Whether a warm-up filled this source version's kernel cache (from empty)."""
+    return (cache_directory() / MARKER).is_file()
+
+
+def warm_from_empty() -> float:
+    """:func:`warm` into this source version's kernel cache, emptied first where no
+    warm-up filled it (module docstring), then marked; returns the seconds it took."""
+    directory = cache_directory()
+    if not warmed() and directory.is_dir():
+        for entry in directory.iterdir():
+            if entry.is_dir():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                entry.unlink(missing_ok=True)
+    seconds = warm()
+    (directory / MARKER).write_text("filled by python -m damper_hil.warm\n")
+    return seconds
+
+
+def ensure_warmed() -> None:
+    """Warm this source version's kernel cache unless a warm-up filled it (for a
+    benchmark or tool whose figures must be those of an installed checkout); one line on
+    stderr when it warms."""
+    if not warmed():
+        seconds = warm_from_empty()
+        print(f"damper-hil: kernels compiled and cached in {seconds:.1f} s (a warm-up "
+              "fills the cache before the figures)", file=sys.stderr)
 
 
 def warm() -> float:
@@ -114,7 +165,7 @@ def main() -> int:
     if sys.argv[1:] == [BATCH]:
         warm_batch()
         return 0
-    seconds = warm()
+    seconds = warm_from_empty()
     print(f"damper-hil: kernels compiled and cached in {seconds:.1f} s", file=sys.stderr)
     return 0
 

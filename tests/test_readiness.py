@@ -121,6 +121,29 @@ def test_cache_lives_outside_the_source_tree_and_is_keyed_by_the_sources(tmp_pat
     assert Path(out.strip()).parent == tmp_path / "nc"
 
 
+def test_a_warm_up_fills_the_cache_from_empty_and_marks_it(tmp_path, monkeypatch):
+    """The install's warm-up empties a kernel cache that another run filled first (its
+    kernels' last bits are that run's), warms it and marks it; a marked cache is kept.
+    (The warm-up itself stubbed: ``make`` runs the real one, and the test below runs its
+    identification part.)"""
+    from damper_hil import warm
+
+    cache = tmp_path / "kernels-0"
+    cache.mkdir()
+    (cache / "compiled_by_a_diagnosis.nbi").write_text("")
+    (cache / "index").mkdir()
+    seen: list[list[str]] = []
+    monkeypatch.setattr(warm, "cache_directory", lambda: cache)
+    monkeypatch.setattr(warm, "warm", lambda: seen.append(sorted(
+        p.name for p in cache.iterdir())) or 1.0)
+    assert not warm.warmed()
+    warm.warm_from_empty()
+    assert seen == [[]] and warm.warmed()
+    (cache / "loaded_later.nbi").write_text("")
+    warm.warm_from_empty()
+    assert seen[-1] == ["loaded_later.nbi", warm.MARKER]
+
+
 def test_after_the_installs_warm_up_identify_loads_every_kernel(tmp_path):
     """``identify``'s part of the install's warm-up (``warm_identify``, which
     ``python -m damper_hil.warm`` runs in ``make``'s install step) on an empty cache, then

@@ -40,6 +40,7 @@ from fsae_identify import ALPHA_BOUNDS, FIXED, link_runs, run_cli
 from damper_emulator.dyno.fsae import export_fsae_csv, read_fsae_ttx25
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.dyno.measured_bag import read_measured
+from damper_hil.warm import ensure_warmed
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "measured" / "fsae_ttx25"
@@ -105,6 +106,8 @@ def main() -> None:
     ap.add_argument("--only", choices=("3_3_24_24", "2_2_12_12"), default=None,
                     help="run one case; the other's entry of summary.json is kept")
     args = ap.parse_args()
+    # the kernels an install loads (a diagnosis can follow a fresh compile's last bits)
+    ensure_warmed()
     OUT.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)

@@ -49,6 +49,15 @@ STAMP_TOLERANCE_S = 1.0
 #: the longest close() waits for the writer thread [s]
 CLOSE_TIMEOUT_S = 30.0
 
+
+class _ASCWriter(can.ASCWriter):
+    """python-can's ASC writer with the start's milliseconds written in three digits.
+    python-can 4.6.1 writes them unpadded: a start 10 ms into its second is written
+    ``.10`` and read back (by python-can's reader, and by CANoe) as 100 ms, every frame's
+    time with it, for one start in ten."""
+
+    FORMAT_DATE = "%a %b %d %H:%M:%S.{:03d} %Y"
+
 #: one frame in the queue: stamp [s], identifier, data, extended, remote, received
 _Frame = tuple[float, int, bytes, bool, bool, bool]
 
@@ -107,7 +116,8 @@ class CanLog:
         self.error: str | None = None
         self._queue: queue.SimpleQueue[_Frame | None] = queue.SimpleQueue()
         try:
-            self._writer = can.Logger(self.path)
+            self._writer = (_ASCWriter(self.path) if self.path.suffix.lower() == ".asc"
+                            else can.Logger(self.path))
         except (OSError, ValueError) as exc:
             raise CanLogError(f"{self.path}: cannot write the CAN log: "
                               f"{one_line(exc)}") from None

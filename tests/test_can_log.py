@@ -9,6 +9,7 @@ of a real ride (``hybrid --can-log``) is replayed in tests/test_hybrid_can.py.
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 import time
@@ -81,6 +82,21 @@ def test_every_frame_sent_and_received_is_in_the_log(tmp_path, suffix):
     stamps = np.array([f.timestamp for f in frames])
     assert before - 1e-3 <= stamps.min() and stamps.max() <= after + 1e-3
     assert np.all(np.diff(stamps) >= -1e-6)
+
+
+@pytest.mark.parametrize("ms", [0, 7, 10, 99, 100, 999])
+def test_an_asc_logs_start_is_read_back_to_the_millisecond(tmp_path, ms):
+    """An ASC file's frames count from its start, written as a date with milliseconds;
+    a start 10 ms into its second written ``.10`` would read back 90 ms late (python-can
+    4.6.1's writer did so: one start in ten)."""
+    path = tmp_path / "start.asc"
+    log = CanLog(path)
+    stamp = math.floor(time.time()) + ms / 1000.0         # within the log's tolerance
+    log.add(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False,
+                        timestamp=stamp), received=True)
+    log.close()
+    (frame,) = can.ASCReader(path, relative_timestamp=False)
+    assert frame.timestamp == pytest.approx(stamp, abs=1e-6 + 1e-3)
 
 
 def test_a_log_path_that_would_lose_or_misname_a_recording_is_one_line(tmp_path):

@@ -92,7 +92,7 @@ def test_a_worker_that_died_fails_its_job_and_the_next_submit():
     pid = w.submit(os.getpid).result()
     job = w.submit(time.sleep, 60)
     os.kill(pid, signal.SIGKILL)
-    wait_done(job)
+    # (waiting, the error gives the worker's status: a poll does not wait for it)
     with pytest.raises(WorkerError, match="status -9"):
         job.result()
     with pytest.raises(WorkerError, match="has ended"):

@@ -37,6 +37,10 @@ T_co = TypeVar("T_co", covariant=True)
 #: How long :meth:`OffLoopWorker.close` waits for an idle worker to end by itself before
 #: it ends it [s].
 CLOSE_TIMEOUT_S = 2.0
+#: How long a waiting read that found the worker's pipe closed waits for the worker's exit
+#: status (the pipe closes as the process dies, a moment before the kernel reports its
+#: status); a poll (:meth:`Job.done`, a loop's) does not wait [s].
+EXIT_STATUS_WAIT_S = 0.5
 
 
 class Pending(Protocol[T_co]):
@@ -195,8 +199,11 @@ class OffLoopWorker:
                 return False
             job, ok, value = conn.recv()
         except (EOFError, OSError):
-            ended = WorkerError(f"{self.name}: the worker process ended (status "
-                                f"{self._process.exitcode}) before it handed a result back")
+            self._process.join(EXIT_STATUS_WAIT_S if wait else 0.0)
+            status = self._process.exitcode
+            ended = WorkerError(f"{self.name}: the worker process ended"
+                                + (f" (status {status})" if status is not None else "")
+                                + " before it handed a result back")
             self._outcomes.update((job, (False, ended)) for job in self._running)
             self._running.clear()
             return True

@@ -26,6 +26,7 @@ must be the install's.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import subprocess
 import sys
@@ -64,14 +65,14 @@ def warm_from_empty() -> float:
     """:func:`warm` into this source version's kernel cache, emptied first where no
     warm-up filled it (module docstring), then marked; returns the seconds it took."""
     directory = cache_directory()
-    if not warmed() and directory.is_dir():
-        for entry in directory.iterdir():
-            if entry.is_dir():
-                shutil.rmtree(entry, ignore_errors=True)
-            else:
-                entry.unlink(missing_ok=True)
+    if not warmed():
+        shutil.rmtree(directory, ignore_errors=True)
+    # (a directory that cannot be made: numba runs without its cache, unmarked)
+    with contextlib.suppress(OSError):
+        directory.mkdir(parents=True, exist_ok=True)
     seconds = warm()
-    (directory / MARKER).write_text("filled by python -m damper_hil.warm\n")
+    with contextlib.suppress(OSError):
+        (directory / MARKER).write_text("filled by python -m damper_hil.warm\n")
     return seconds
 
 

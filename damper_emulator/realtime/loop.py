@@ -40,6 +40,7 @@ class LoopSummary:
     error_p99_us: float        # 99th percentile of |period − nominal|
     overruns: int              # periods longer than twice the nominal one, since start
     skipped: int               # deadlines skipped after falling behind, since start
+                               # (counted as the tick after them runs)
     wake_p50_us: float = float("nan")   # wake-up after the deadline (latency)
     wake_p99_us: float = float("nan")
     work_p99_us: float = float("nan")   # time spent in tick()
@@ -210,6 +211,9 @@ class PeriodicLoop:
         sleep = time.sleep
         deadline = clock() + period
         previous = 0
+        # deadlines skipped since the last tick: counted when the next tick runs (a loop
+        # stopped in between skipped none its ticks show)
+        missed = 0
         try:
             while not self._stop.is_set():
                 delay = deadline - clock()
@@ -221,15 +225,16 @@ class PeriodicLoop:
                 else:
                     stats.first_tick_ns = now
                 previous = now
+                stats.skipped += missed
+                missed = 0
                 self._tick(now)
                 stats.record_tick(now - deadline, clock() - now)
                 deadline += period + self._shift_ns
                 self._shift_ns = 0
                 behind = clock() - deadline
                 if behind > period:
-                    missed = behind // period
+                    missed = int(behind // period)
                     deadline += missed * period
-                    stats.skipped += int(missed)
         except BaseException as exc:  # noqa: BLE001 - reported to the owner
             self.error = exc
             self._stop.set()

@@ -15,6 +15,7 @@ also inside functions; not those under ``if TYPE_CHECKING:``):
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import subprocess
 import sys
@@ -76,6 +77,14 @@ def _type_checking_lines(tree: ast.AST) -> set[int]:
 MODULES = _modules()
 
 
+@functools.cache
+def _tree(name: str) -> ast.Module:
+    """A module's syntax tree, parsed once (when a test first asks: the graphs are built
+    by the worker that runs these tests, not by every collecting process)."""
+    return ast.parse(MODULES[name].read_text(encoding="utf-8"))
+
+
+@functools.cache
 def _graph(type_checking: bool = False) -> tuple[dict[str, set[str]], dict[str, set[str]]]:
     """``(internal, external)``: per module, the project modules and the top-level
     third-party modules it imports (with ``type_checking``, those for the type checker
@@ -84,7 +93,7 @@ def _graph(type_checking: bool = False) -> tuple[dict[str, set[str]], dict[str, 
     internal: dict[str, set[str]] = defaultdict(set)
     external: dict[str, set[str]] = defaultdict(set)
     for name, path in mods.items():
-        tree = ast.parse(path.read_text(encoding="utf-8"))
+        tree = _tree(name)
         skip = set() if type_checking else _type_checking_lines(tree)
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
         for node in ast.walk(tree):
@@ -114,13 +123,23 @@ def _graph(type_checking: bool = False) -> tuple[dict[str, set[str]], dict[str, 
 
 
 
-GRAPH, EXTERNAL = _graph()
-#: with the imports for the type checker: a reader follows those too
-TYPED_GRAPH, _ = _graph(type_checking=True)
+def _imports() -> dict[str, set[str]]:
+    """Per module, the project modules it imports."""
+    return _graph()[0]
+
+
+def _external() -> dict[str, set[str]]:
+    """Per module, the third-party modules it imports."""
+    return _graph()[1]
+
+
+def _typed_imports() -> dict[str, set[str]]:
+    """:func:`_imports` with the imports for the type checker: a reader follows those too."""
+    return _graph(type_checking=True)[0]
 
 
 def test_packages_depend_downward_only():
-    bad = sorted(f"{a} imports {b}" for a, deps in GRAPH.items() for b in deps
+    bad = sorted(f"{a} imports {b}" for a, deps in _imports().items() for b in deps
                  if PACKAGES.index(b.split(".")[0]) > PACKAGES.index(a.split(".")[0]))
     assert not bad, "\n".join(bad)
 
@@ -133,12 +152,13 @@ def test_no_module_imports_itself_back():
     stack: list[str] = []
     on_stack: set[str] = set()
     cycles: list[list[str]] = []
+    graph = _typed_imports()
 
     def visit(v: str) -> None:         # Tarjan's strongly connected components
         index[v] = low[v] = len(index)
         stack.append(v)
         on_stack.add(v)
-        for w in TYPED_GRAPH.get(v, ()):
+        for w in graph.get(v, ()):
             if w not in index:
                 visit(w)
                 low[v] = min(low[v], low[w])
@@ -155,7 +175,7 @@ def test_no_module_imports_itself_back():
             if len(comp) > 1:
                 cycles.append(sorted(comp))
 
-    for v in sorted(set(TYPED_GRAPH) | {w for d in TYPED_GRAPH.values() for w in d}):
+    for v in sorted(set(graph) | {w for d in graph.values() for w in d}):
         if v not in index:
             visit(v)
     assert not cycles, cycles
@@ -165,8 +185,8 @@ def _private_imports() -> list[str]:
     """Every use of another project module's private name (``_x``): ``from m import _x``
     and ``m._x`` where ``m`` is a project module."""
     found = []
-    for name, path in MODULES.items():
-        tree = ast.parse(path.read_text(encoding="utf-8"))
+    for name in MODULES:
+        tree = _tree(name)
         modules: dict[str, str] = {}        # local name → the project module it is
         for node in ast.walk(tree):
             if isinstance(node, ast.Import):
@@ -203,7 +223,7 @@ def _reach(start: str) -> set[str]:
         if m in seen:
             continue
         seen.add(m)
-        todo.extend(GRAPH.get(m, ()))
+        todo.extend(_imports().get(m, ()))
     return seen
 
 
@@ -211,16 +231,17 @@ def _reach(start: str) -> set[str]:
 def test_cores_reach_no_ros_plots_or_application(core):
     reached = _reach(core)
     assert reached, f"{core}: no such module"
-    bad = sorted({f"{m} → {x}" for m in reached for x in (*GRAPH.get(m, ()), *EXTERNAL.get(m, ()))
+    bad = sorted({f"{m} → {x}" for m in reached
+                  for x in (*_imports().get(m, ()), *_external().get(m, ()))
                   if any(x == f or x.startswith(f + ".") for f in FORBIDDEN)})
     assert not bad, "\n".join(bad)
 
 
 def test_the_graph_is_real():
     """The walk sees what we know is there (guards against a walk that finds nothing)."""
-    assert "damper_emulator.model.compressible" in GRAPH["damper_emulator.replay"]
-    assert "rclpy" in EXTERNAL["damper_emulator.ros.emulator"]
-    assert any(d.startswith("ride_sim") for d in GRAPH["damper_hil.hil_demo"])
+    assert "damper_emulator.model.compressible" in _imports()["damper_emulator.replay"]
+    assert "rclpy" in _external()["damper_emulator.ros.emulator"]
+    assert any(d.startswith("ride_sim") for d in _imports()["damper_hil.hil_demo"])
 
 
 #: what the command line's start (its parser, every subcommand's options and help) must
@@ -246,11 +267,11 @@ def test_figures_come_from_the_one_plotting_helper():
     """Every figure is made by :func:`damper_emulator.dyno.plots.new_figure` and saved by
     its ``save`` (the Agg canvas, printable labels): no module drives pyplot, whose global
     backend and figure registry are not thread-safe and not headless by default."""
-    bad = sorted(m for m, deps in EXTERNAL.items()
+    bad = sorted(m for m, deps in _external().items()
                  if any(d == "matplotlib.pyplot" or d.startswith("matplotlib.pyplot.")
                         or d == "matplotlib.use" for d in deps))
     assert not bad, bad
-    assert "matplotlib.figure" in EXTERNAL["damper_emulator.dyno.plots"]
+    assert "matplotlib.figure" in _external()["damper_emulator.dyno.plots"]
 
 
 def test_the_can_packages_lazy_names_are_its_exports_and_resolve():

@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-cores test-nodes fuzz bench clean
+.PHONY: demo test lint test-collect test-cores test-nodes fuzz bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -35,13 +35,23 @@ demo: $(STAMP)
 # wall-clock checks that need the machine to themselves (timing), alone.  Each test process
 # takes one BLAS thread: four of them share two cores, and OpenBLAS's threads spin before
 # they sleep (with a thread per core the cores stage took a tenth more CPU time)
-PYTEST := OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q --durations=10
+# pytest rewrites each test module's asserts when it imports it, and where
+# PYTHONDONTWRITEBYTECODE is set it does so again in every process that collects (4 of the
+# 9 s of a collection, five collections): the tests let it keep that in tests/__pycache__,
+# and one collection fills it beside the type check, before the workers start
+PYTEST := PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q --durations=10
 
 test: $(STAMP)
-	$(BIN)/ruff check .
-	$(BIN)/mypy
+	$(MAKE) --no-print-directory -j2 --output-sync=target lint test-collect
 	$(MAKE) --no-print-directory -j2 --output-sync=target test-cores test-nodes
 	$(PYTEST) -m timing
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/mypy
+
+test-collect: $(STAMP)
+	@$(PYTEST) --collect-only -qq > $(VENV)/collect.log || { cat $(VENV)/collect.log; exit 1; }
 
 test-cores: $(STAMP)
 	$(PYTEST) -n 2 --dist loadscope -m "not ros and not can and not timing"

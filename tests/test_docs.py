@@ -103,7 +103,10 @@ def test_the_pre_commit_hooks_run_what_make_test_runs():
 
     config = yaml.safe_load((REPO / ".pre-commit-config.yaml").read_text(encoding="utf-8"))
     hooks = {h["id"]: h for repo in config["repos"] for h in repo["hooks"]}
-    recipe = (REPO / "Makefile").read_text(encoding="utf-8").split("\ntest:", 1)[1]
+    makefile = (REPO / "Makefile").read_text(encoding="utf-8")
+    # make test runs the lint target first
+    assert " lint " in makefile.split("\ntest:", 1)[1].splitlines()[1]
+    recipe = makefile.split("\nlint:", 1)[1]
     made = [line.strip().replace("$(BIN)", ".venv/bin") for line in recipe.splitlines()[1:3]]
     # make test lints the whole tree (ruff check .); the hook gets the changed files
     assert made == [hooks["ruff"]["entry"] + " .", hooks["mypy"]["entry"]]

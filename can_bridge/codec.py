@@ -31,6 +31,7 @@ from cantools.database.can import Database, Message
 from can_bridge.crc import crc8_sae_j1850
 from can_bridge.dbc import (
     CHECKSUM_SIGNAL,
+    COUNTER_CYCLES,
     COUNTER_SIGNAL,
     check_message,
     checksum_byte,
@@ -39,8 +40,6 @@ from can_bridge.dbc import (
 )
 
 __all__ = ["Decoded", "EncodedFrame", "Encoder", "FrameCounters", "Receiver"]
-
-_COUNTER_MODULO = 16
 
 
 class EncodedFrame(NamedTuple):
@@ -244,7 +243,7 @@ class Encoder:
                                               strict=False))
         i = self._crc_index
         data[i] = crc8_sae_j1850(data[:i] + data[i + 1:])
-        self._counter = (self._counter + 1) % _COUNTER_MODULO
+        self._counter = (self._counter + 1) % COUNTER_CYCLES
         self.frames += 1
         if saturated:
             self.saturated_frames += 1
@@ -387,7 +386,7 @@ class Receiver:
         counter = int(values[COUNTER_SIGNAL])
         last = rx.last_counter
         if last is not None:
-            step = (counter - last) % _COUNTER_MODULO
+            step = (counter - last) % COUNTER_CYCLES
             if step == 0:
                 counts.counter += 1
                 total.counter += 1

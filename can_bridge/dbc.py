@@ -23,6 +23,8 @@ from damper_emulator.errors import UserError, one_line
 
 __all__ = [
     "CHECKSUM_SIGNAL",
+    "COUNTER_BITS",
+    "COUNTER_CYCLES",
     "COUNTER_SIGNAL",
     "DEFAULT_DBC",
     "HYBRID_SIGNALS",
@@ -44,6 +46,10 @@ __all__ = [
 DEFAULT_DBC = Path(__file__).resolve().parents[1] / "config" / "damper.dbc"
 
 COUNTER_SIGNAL = "Counter"
+#: The alive counter's width [bits] and cycle: every message's ``Counter`` counts
+#: 0 … ``COUNTER_CYCLES - 1`` and wraps (:func:`check_message` refuses another width).
+COUNTER_BITS = 4
+COUNTER_CYCLES = 1 << COUNTER_BITS
 CHECKSUM_SIGNAL = "Checksum"
 
 #: Messages the bridge needs and their data signals (each also has Counter and Checksum).
@@ -215,8 +221,9 @@ def check_message(message: Message, data_signals: Iterable[str] = ()) -> None:
         raise UserError(f"message {message.name}: containers and multiplexing are not "
                          "supported")
     counter = message.get_signal_by_name(COUNTER_SIGNAL)
-    if counter.length != 4 or counter.is_signed or counter.is_float:
-        raise UserError(f"message {message.name}: {COUNTER_SIGNAL} must be a 4-bit unsigned "
+    if counter.length != COUNTER_BITS or counter.is_signed or counter.is_float:
+        raise UserError(f"message {message.name}: {COUNTER_SIGNAL} must be a "
+                         f"{COUNTER_BITS}-bit unsigned "
                          f"integer, not {counter.length} bits"
                          f"{' signed' if counter.is_signed else ''}")
     checksum = message.get_signal_by_name(CHECKSUM_SIGNAL)

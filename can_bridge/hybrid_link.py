@@ -42,6 +42,7 @@ import numpy as np
 from can_bridge.bus import BusConfig, ResilientBus, open_bus, receive_time
 from can_bridge.can_log import CanLog
 from can_bridge.codec import Encoder, Receiver
+from can_bridge.dbc import COUNTER_CYCLES
 from damper_emulator.realtime.rt import (
     GIL_SWITCH_INTERVAL_S,
     RealtimeReport,
@@ -49,12 +50,9 @@ from damper_emulator.realtime.rt import (
     apply_realtime,
 )
 from ride_sim.hybrid.rig import Feedback
-from ride_sim.hybrid.rig_host import LATE_CYCLES, MISSED_FEEDBACK_PERIODS, Command, RigHost
+from ride_sim.hybrid.rig_host import MISSED_FEEDBACK_PERIODS, Command, RigHost
 
 COMMAND, FEEDBACK, AUX = "DYNO_COMMAND", "DYNO_FEEDBACK", "DYNO_AUX"
-#: The alive counter's cycle (4 bits: the DBC's ``Counter``; the host places a late
-#: feedback by it, :data:`~ride_sim.hybrid.rig_host.LATE_CYCLES`).
-COUNTER_CYCLES = LATE_CYCLES
 #: Commands with Enable clear sent at the end.
 FINAL_COMMANDS = 5
 

@@ -45,7 +45,7 @@ import numpy as np
 
 from can_bridge.can_log import CanLogError
 from can_bridge.codec import Receiver
-from can_bridge.dbc import load_database
+from can_bridge.dbc import COUNTER_CYCLES, load_database
 from damper_emulator import force_message
 from damper_emulator.bag import cdr_fast
 from damper_emulator.bag.raw_topics import RawTopic
@@ -73,8 +73,6 @@ MAX_STAMP_S = 9.2e9
 #: stroke comes in steps of 10 µm, whose plain derivative at 1 kHz is ±10 mm/s of noise,
 #: some ±30 N of a damper's force at rest; over 11 ms the derivative is flat to some 50 Hz
 VELOCITY_WINDOW = 11
-#: the alive counter's cycle (the DBC's 4-bit ``Counter``)
-COUNTER_CYCLES = 16
 
 
 def _frames(path: Path) -> Iterator[can.Message]:

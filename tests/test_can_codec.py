@@ -217,6 +217,18 @@ def test_counter_advances_mod_16(db):
     assert rx.drops == FrameCounters(accepted=40) and rx.total is rx.drops
 
 
+def test_every_part_counts_the_alive_counter_in_the_dbcs_cycle(db):
+    """The DBC's ``Counter`` is 4 bits: the codec wraps it, the log's reader unwraps it
+    and the hybrid host places a late feedback within it, all by one cycle (the host's,
+    in ``ride_sim`` below the CAN layer, kept equal to it here)."""
+    from can_bridge.dbc import COUNTER_BITS, COUNTER_CYCLES
+    from ride_sim.hybrid.rig_host import LATE_CYCLES
+
+    for message in db.messages:
+        assert message.get_signal_by_name("Counter").length == COUNTER_BITS
+    assert COUNTER_CYCLES == 16 == LATE_CYCLES
+
+
 def test_saturation_is_reported(db):
     enc = Encoder(db, "DAMPER_FORCE")
     data, saturated = enc.encode(Force=20_000.0, Status=0, InputAge=0.1, StrokeUsed=-0.01)

@@ -340,7 +340,7 @@ class RigHost:
             # by the host's clock: the cycles that drain the stall's backlog run on the
             # frames' stamps, from before the restart
             if self._elapsed(now) >= safety.params.watchdog_s:
-                safety.last_valid_s = None
+                safety.await_feedback()
                 self._enter("connect", now)
             return Command(self._demand, 0.0, False)
         if self.phase == "connect":

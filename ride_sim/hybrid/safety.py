@@ -141,6 +141,12 @@ class SafetyLayer:
             self.stop(t_s, f"measured force {force_n:+.0f} N beyond the limit "
                            f"±{p.force_limit_n:g} N")
 
+    def await_feedback(self) -> None:
+        """Run the watchdog again only from the next valid feedback on (a host that
+        re-arms after a stall: the rig's own watchdog cleared Enable, and the frames of
+        before it are no measure of the link)."""
+        self.last_valid_s = None
+
     def watchdog(self, t_s: float) -> None:
         """Stop when the last valid feedback is :data:`WATCHDOG_TRIP` of ``watchdog_s``
         old: the command that clears ``Enable`` goes out within ``watchdog_s`` even when

@@ -232,6 +232,48 @@ def _run(model, *, mode="model", delay_s=0.004, duration_s=4.0, specimen=None,
     return host, rig
 
 
+def _late_ride(model, out, every=7, late_cycles=5):
+    """A short ride whose every ``every``-th feedback comes ``late_cycles`` cycles late,
+    recorded with a hand-over after each cycle (the most a recorder's thread can do)."""
+    from ride_sim.hybrid.recorder import HybridRecorder
+
+    host = HybridHost(HybridRunParams(duration_s=0.5), load_quarter_car(), model,
+                      CompensatorParams(), SafetyParams())
+    rig = VirtualRig(model, ActuatorParams(delay_s=0.004), RigParams())
+    out.mkdir()
+    with HybridRecorder(out, host, bag=False, in_process=True, period_s=3600.0) as rec:
+        run_offline(host, rig, disturbance=Disturbance(late_every=every,
+                                                       late_cycles=late_cycles),
+                    after_cycle=rec.hand_over, max_time_s=30.0)
+    written = np.loadtxt(out / "hybrid.csv", delimiter=",", skiprows=1)
+    return host, written
+
+
+def test_a_late_feedback_is_in_the_record_the_recorder_wrote_while_the_run_went_on(
+        model, tmp_path, monkeypatch):
+    """Every 7th feedback comes 5 cycles late: its cycle runs on the last measurement, and
+    the host puts the measurement in that sample's place when it comes.  The recorder
+    hands over after every cycle, all but the newest ``LATE_CYCLES`` samples: hybrid.csv
+    holds every late measurement in its place, as the host's record does.  Handing over
+    every sample at once (no hold-back) writes the late ones before they come: the same
+    check finds them."""
+    import ride_sim.hybrid.recorder as recorder
+
+    host, written = _late_ride(model, tmp_path / "held")
+    assert host.phase == "done", host.reason
+    n = host.k
+    assert host.placed_late >= n // 7 - 2     # (those in the run proper, all placed)
+    measured = written[:, 4:6].T              # stroke_measured, force_measured
+    assert written.shape[0] == n
+    np.testing.assert_allclose(measured, host.record[2:4, :n], rtol=1e-8, atol=1e-12)
+
+    monkeypatch.setattr(recorder, "LATE_CYCLES", 0)
+    host, written = _late_ride(model, tmp_path / "not_held")
+    stale = ~np.isclose(written[:, 4:6].T, host.record[2:4, :host.k], rtol=1e-8,
+                        atol=1e-12).all(axis=0)
+    assert stale.sum() == host.placed_late > 0
+
+
 def test_a_ride_shorter_than_its_ramps_goes_on_with_the_periodic_road():
     """The ramp out continues the evaluated road (one period of the periodic road) with its
     start, also when the ride is shorter than the ramp."""

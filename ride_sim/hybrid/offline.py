@@ -10,11 +10,12 @@ tests of the loop's logic, and the benchmark's offline column.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from ride_sim.hybrid.host import HybridHost
 from ride_sim.hybrid.rig import Feedback, VirtualRig
-from ride_sim.hybrid.rig_host import MISSED_FEEDBACK_PERIODS
+from ride_sim.hybrid.rig_host import LATE_CYCLES, MISSED_FEEDBACK_PERIODS
 
 #: Frame times on a 500 kbit/s bus, about one 8-byte frame each way [s].
 FEEDBACK_LATENCY_S = 0.25e-3
@@ -39,6 +40,12 @@ class Disturbance:
     #: the feedback frames a stall's backlog holds at most (a socket's receive buffer):
     #: the newest beyond are dropped; None: all are kept
     backlog_frames: int | None = None
+    #: every n-th feedback frame comes ``late_cycles`` rig cycles late (an adapter that
+    #: held it back): its cycle runs without it, on the last measurement, and the host
+    #: takes it when it comes as the link does (:meth:`RigHost.late`, placed by the
+    #: alive counter; at most :data:`~ride_sim.hybrid.rig_host.LATE_CYCLES`); 0: none
+    late_every: int = 0
+    late_cycles: int = 1
 
     def stalled(self, t_s: float) -> float | None:
         """The end of the host stall ``t_s`` falls in, or None."""
@@ -51,14 +58,20 @@ class Disturbance:
 def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0,
                 disturbance: Disturbance = Disturbance(),
                 feedback_latency_s: float = FEEDBACK_LATENCY_S,
-                command_latency_s: float = COMMAND_LATENCY_S) -> HybridHost:
+                command_latency_s: float = COMMAND_LATENCY_S,
+                after_cycle: Callable[[], None] | None = None) -> HybridHost:
     """Run ``host`` against ``rig`` until the host has finished (or ``max_time_s``).
 
+    ``after_cycle`` is called after each of the host's cycles (a recorder's hand-over at
+    a point of the run the test chooses, where a real run's thread takes its own).
     Returns the host, its record filled.
     """
     period = rig.period_s
     d = disturbance
+    if d.late_every and not 1 <= d.late_cycles <= LATE_CYCLES:
+        raise ValueError(f"late_cycles must be 1 … {LATE_CYCLES}, not {d.late_cycles}")
     queued: list[tuple[float, Feedback | None]] = []   # arrived during a host stall
+    late: dict[int, Feedback] = {}                     # held back: by the cycle it comes
     released_at = 0.0
     j = 0
 
@@ -69,6 +82,8 @@ def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0
         rig.command(sent_s + command_latency_s, command.stroke_m, command.enable,
                     command.velocity_m_s)
         host.after_send()
+        if after_cycle is not None:
+            after_cycle()
 
     while not host.finished and j * period < max_time_s:
         t = j * period
@@ -89,6 +104,13 @@ def run_offline(host: HybridHost, rig: VirtualRig, *, max_time_s: float = 3600.0
         feedback = rig.step(t)
         lost = (d.drop_every and (j + 1) % d.drop_every == 0) or (
             d.feedback_cut_at_s is not None and t >= d.feedback_cut_at_s)
+        held = late.pop(j, None)
+        if held is not None and not host.finished:
+            # its cycle ran late_cycles ago; the cycles since (all but this one) after it
+            host.late(t_host, held, d.late_cycles - 1)
+        if d.late_every and (j + 1) % d.late_every == 0 and not lost:
+            late[j + d.late_cycles] = feedback
+            feedback, lost = None, True
         end = d.stalled(t_host)
         if end is not None:
             if d.backlog_frames is None or len(queued) < d.backlog_frames:

@@ -351,7 +351,7 @@ class HybridRecorder:
         if self._thread is not None:
             self._thread.join()
         try:
-            self._hand_over(final=True)
+            self.hand_over(final=True)
         finally:
             if self._writer is not None:
                 self._writer.close()
@@ -365,14 +365,20 @@ class HybridRecorder:
     def _run(self) -> None:
         while not self._stop.wait(self._period):
             try:
-                self._hand_over(final=False)
+                self.hand_over()
             except BaseException as exc:  # noqa: BLE001 - kept; the caller raises it after the run
                 self.error = exc
                 # a run that cannot be recorded does not go on
                 self.host.safety.stop(time.monotonic(), f"the recording failed: {exc}")
                 return
 
-    def _hand_over(self, final: bool) -> None:
+    def hand_over(self, final: bool = False) -> None:
+        """Hand the writer the samples that can no longer change: all but the newest
+        :data:`~ride_sim.hybrid.rig_host.LATE_CYCLES`, which a late feedback may still
+        take (:meth:`RigHost.late`), or all of them with ``final`` (the run is over).  The
+        recorder's thread calls it every ``period_s``; an offline run may call it after
+        each of its cycles instead (``run_offline(after_cycle=...)``, with a ``period_s``
+        longer than the run)."""
         host = self.host
         # the newest samples may still take a late feedback (and the last one's twin
         # comes later): they go with a later chunk

@@ -12,8 +12,9 @@ real-time consumer's p99 was 746 µs, alone 516 µs):
 * a real-time consumer, as the project's own (the bridge, the ride) take the force:
   SCHED_FIFO, the serialized message taken from rclpy's wait set without an executor,
   stamped on arrival, decoded after the run by rclpy's own deserializer;
-* a consumer as rclpy's examples write one: a callback served by ``rclpy.spin_once`` (the
-  executor's Python on every message).
+* a consumer as rclpy's examples write one: a callback served by a single-threaded
+  executor that holds the node, as ``rclpy.spin(node)`` serves it (the executor's Python on
+  every message).
 
 The sender serializes each sample with rclpy's serializer, notes the time, and hands the
 bytes to DDS; the latency runs from there to the consumer's take.
@@ -91,7 +92,7 @@ def input_period_s(duration_s: float) -> float:
 VELOCITY_TAG = 1e-6          # sample k carries velocity k * VELOCITY_TAG [m/s]
 #: the two consumers of /damper/force, one per run, and their columns' key suffix: a
 #: real-time one (a wait set; its run gives the loop's columns too), and rclpy's executor
-#: (a callback served by ``spin_once``)
+#: (a callback served by a single-threaded executor)
 RECEIVERS = {"waitset": "_waitset", "executor": ""}
 #: the wait-set receiver's SCHED_FIFO priority (below the emulator's loop, 80)
 RECEIVER_PRIORITY = 70
@@ -101,12 +102,13 @@ def receive(domain: int, n_max: int, duration_s: float, out: str, ready,
             waitset: bool = False) -> None:
     """Child process: record when each tagged force arrives (CLOCK_MONOTONIC is shared by
     all processes of the machine).  A consumer as rclpy's examples write one (a callback
-    served by ``rclpy.spin_once``: the executor's Python on every message), or, with
+    served by a single-threaded executor: its Python on every message), or, with
     ``waitset``, as a real-time one would (SCHED_FIFO, serialized messages taken from
     rclpy's wait set without an executor, stamped as taken and decoded after the run)."""
     os.environ.update({"ROS_DOMAIN_ID": str(domain),
                        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
     import rclpy
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.impl.implementation_singleton import rclpy_implementation as impl
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import JointState
@@ -147,9 +149,15 @@ def receive(domain: int, n_max: int, duration_s: float, out: str, ready,
                     break
                 arrivals.append((time.monotonic_ns(), taken[0]))
     else:
+        # as ``rclpy.spin(node)`` serves it: one executor that holds the node throughout
+        # (``rclpy.spin_once(node)`` adds the node to the global executor and removes it
+        # again on every call, a wait set rebuilt and a guard condition more per message)
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
         ready.set()
         while time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=0.05)
+            executor.spin_once(timeout_sec=0.05)
+        executor.shutdown()
     for now, data in arrivals:
         msg = deserialize_message(data, JointState)
         k = int(round(msg.velocity[0] / VELOCITY_TAG))

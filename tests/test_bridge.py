@@ -96,9 +96,13 @@ class BusTap:
                 self.frames.append((time.monotonic_ns(), msg.arbitration_id, bytes(msg.data)))
 
     def send(self, frame_id: int, data: bytes) -> int:
+        """Send a frame; returns the time [ns, monotonic] just before it went out: no
+        receiver can have had it earlier (a time taken after the send returns can be late
+        by a preemption, on a loaded machine more than a millisecond)."""
+        sent = time.monotonic_ns()
         assert self.bus.send(can.Message(arbitration_id=frame_id, data=data,
                                          is_extended_id=False)), self.bus.last_error
-        return time.monotonic_ns()
+        return sent
 
     def of(self, name: str, since_ns: int = 0,
            until_ns: float = math.inf) -> list[tuple[int, bytes]]:

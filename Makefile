@@ -36,9 +36,9 @@ demo: $(STAMP)
 # takes one BLAS thread: four of them share two cores, and OpenBLAS's threads spin before
 # they sleep (with a thread per core the cores stage took a tenth more CPU time)
 # pytest rewrites each test module's asserts when it imports it, and where
-# PYTHONDONTWRITEBYTECODE is set it does so again in every process that collects (4 of the
-# 9 s of a collection, five collections): the tests let it keep that in tests/__pycache__,
-# and one collection fills it beside the type check, before the workers start
+# PYTHONDONTWRITEBYTECODE is set it does so again in every process that collects (a third
+# of a collection, five of them): the tests let it keep that in tests/__pycache__, and one
+# collection fills it beside the type check, before the workers start
 PYTEST := PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q --durations=10
 
 test: $(STAMP)

@@ -357,7 +357,7 @@ def assert_one_blas_thread_inside(monkeypatch, module, name: str, call) -> None:
     BLAS library, from a caller at two, who has its two back after."""
     from threadpoolctl import threadpool_limits
 
-    from damper_emulator.diagnose.tasks import FIT_BLAS_THREADS
+    from damper_emulator.blas import FIT_BLAS_THREADS
 
     seen: list[list[int]] = []
 
@@ -399,6 +399,20 @@ def test_a_diagnosis_runs_blas_on_one_thread_in_its_own_process_too(monkeypatch)
     assert_one_blas_thread_inside(
         monkeypatch, selection, "check_inputs",
         lambda: diagnose(DamperModel(load_config()), data[:2], data[2:]))
+
+
+def test_identify_runs_blas_on_one_thread_so_its_bits_do_not_follow_the_core_count(
+        monkeypatch):
+    """The identified model is where a diagnosis starts, and its fits can follow the last
+    bits: an identification on the caller's BLAS threads (threaded sums split by thread)
+    gave a diagnosis on two cores another answer than on one.  The caller gets its threads
+    back."""
+    from damper_emulator.identify import pipeline
+
+    _, data = truth_session("valve_lag")
+    assert_one_blas_thread_inside(
+        monkeypatch, pipeline, "aligned_tests",
+        lambda: pipeline.identify(data[0], data[1], load_config()))
 
 
 def test_noise_level_and_structure_ratio_follow_their_definitions():

@@ -28,6 +28,7 @@ import pytest
 PACKAGES = ("damper_emulator", "ride_sim", "can_bridge", "damper_hil")
 #: the cores: modules (and sub-packages) that must stay free of ROS, plots and the app
 CORES = ("damper_emulator.errors", "damper_emulator.outputs", "damper_emulator.params",
+         "damper_emulator.blas",
          "damper_emulator.schema",
          "damper_emulator.model", "damper_emulator.realtime", "damper_emulator.bag",
          "damper_emulator.force_message", "damper_emulator.acquisition",

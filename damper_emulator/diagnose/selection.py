@@ -115,6 +115,7 @@ from typing import cast
 
 import numpy as np
 
+from damper_emulator.blas import one_blas_thread
 from damper_emulator.diagnose.base import Record
 from damper_emulator.diagnose.discovery import Discovery, ModelFree, discover, refit_with_term
 from damper_emulator.diagnose.joint import JOINT_NFEV, model_jacobians
@@ -145,7 +146,6 @@ from damper_emulator.diagnose.scale import scale_findings, weigh_scale
 from damper_emulator.diagnose.series import SeriesResult
 from damper_emulator.diagnose.series_stage import follow_series
 from damper_emulator.diagnose.session import Say, Session, check_inputs, prepare, records_of
-from damper_emulator.diagnose.tasks import one_blas_thread
 from damper_emulator.diagnose.undetermined import (
     MIN_UNDETERMINED_SHARE,
     determined_masks,
@@ -472,7 +472,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     The fits run on ``executor`` (any :class:`concurrent.futures.Executor`, e.g. a Dask
     client's ``get_executor()``) or, without one, in ``jobs`` forked processes (default
     one: in this process); those in this process on one BLAS thread, as each task's
-    (:func:`~damper_emulator.diagnose.tasks.one_blas_thread`: OpenBLAS's threads spin
+    (:func:`~damper_emulator.blas.one_blas_thread`: OpenBLAS's threads spin
     before they sleep, against the Jacobian's threads and the pool's fits).
 
     Raises

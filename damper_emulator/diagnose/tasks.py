@@ -4,16 +4,15 @@ its runner (:func:`run_fit_task`), for any executor: a process pool, Dask worker
 
 from __future__ import annotations
 
-import functools
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ParamSpec, TypeVar
+from typing import Any
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from damper_emulator.acquisition.chain import ESTIMATED_DELAY_START_S
+from damper_emulator.blas import one_blas_thread
 from damper_emulator.diagnose.base import ACQUISITION_DELAY, PerFile, delay_rig, make_record
 from damper_emulator.diagnose.candidates import candidates as make_candidates
 from damper_emulator.diagnose.joint import JOINT_NFEV, joint_fit
@@ -50,38 +49,12 @@ class FitTask:
     per_file: tuple[tuple[str, PerFile], ...] = ()
 
 
-#: BLAS threads a fit task runs with (:func:`run_fit_task`).  The fits are the parallel
-#: work, one task per core; OpenBLAS would otherwise start a pool of one thread per core in
-#: every worker, and those threads (which spin before they sleep) compete with the other
-#: worker's fit: with two processes on two cores every task runs about 1.4× longer than
-#: alone; with one BLAS thread per task the diagnosis takes about a third less
-#: (benchmarks/diagnose_bench.py).  Dask's nanny sets the same for its workers
-#: (``OPENBLAS_NUM_THREADS=1``, ``distributed.nanny.pre-spawn-environ``).  It also keeps
-#: the fits' sums independent of the machine's core count (threaded BLAS splits them by
-#: thread, and a fit's path can follow the last bits: docs/diagnose.md).
-FIT_BLAS_THREADS = 1
-
-
-_P = ParamSpec("_P")
-_R = TypeVar("_R")
-
-
-def one_blas_thread(fn: Callable[_P, _R]) -> Callable[_P, _R]:
-    """``fn`` run with :data:`FIT_BLAS_THREADS` BLAS threads, the caller's given back after
-    (each fit task, and a diagnosis's own process: its refits beside the Jacobian's
-    threads and the pool's fits)."""
-    @functools.wraps(fn)
-    def limited(*args: _P.args, **kwargs: _P.kwargs) -> _R:
-        with threadpool_limits(limits=FIT_BLAS_THREADS, user_api="blas"):
-            return fn(*args, **kwargs)
-    return limited
-
-
 @one_blas_thread
 def run_fit_task(task: FitTask) -> dict[str, Any]:
-    """Run one :class:`FitTask` (in any process, with :data:`FIT_BLAS_THREADS` BLAS
-    threads): the joint fit and the plain figures the selection needs (per file: MSE,
-    lag-1 autocorrelation and samples of the fit files, SSE of the held-out files)."""
+    """Run one :class:`FitTask` (in any process, with
+    :data:`~damper_emulator.blas.FIT_BLAS_THREADS` BLAS threads): the joint fit and the
+    plain figures the selection needs (per file: MSE, lag-1 autocorrelation and samples of
+    the fit files, SSE of the held-out files)."""
     t0 = time.perf_counter()
     per_file = dict(task.per_file)
     fit = [make_record(d, False, per_file.get(d.name or d.path)) for d in task.fit]

@@ -19,6 +19,7 @@ from scipy.optimize import minimize_scalar
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from damper_emulator.acquisition.chain import delayed, relative_delay, unscaled
+from damper_emulator.blas import one_blas_thread
 from damper_emulator.dyno.measured import MeasuredData
 from damper_emulator.identify.fitting import FitResult
 from damper_emulator.identify.quasi_static import IdentificationError, fit_quasi_static
@@ -262,6 +263,7 @@ def chirp_simulation_rms(cfg: ModelConfig, chirp: MeasuredData) -> float:
     return float(np.sqrt(np.mean((res.force_n - chirp.force) ** 2)))
 
 
+@one_blas_thread
 def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
              progress: Progress = None, correct_compressibility: bool = True,
              hysteresis_filter_on: bool = True,
@@ -303,6 +305,11 @@ def identify(quasi_static: Tests, chirp: Tests, base: ModelConfig,
     Records that carry their rig's measurement chain (``MeasuredData.acquisition``) are
     fitted with their force moved earlier by the chain's delay of the force against the
     displacement (:func:`aligned`): the staged fits compare samples, not simulations.
+
+    It runs its BLAS on one thread (:func:`~damper_emulator.blas.one_blas_thread`), the
+    caller's threads given back after: threaded BLAS splits sums by thread, and the
+    identified model's last bits, which a diagnosis's fits can follow, would otherwise
+    depend on the machine's core count.
 
     Raises
     ------

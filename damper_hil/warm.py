@@ -11,8 +11,8 @@ and without a valve command (about 1 s of a first replay's compiling otherwise),
 the damper over a recorded history (``identify``, ``validate``, ``diagnose``, ``dyno``).
 A second process warms, beside them, the quarter car's ride and the many-design kernel in
 its SIMD lanes and one by one (``tune``; about 11 s of a first run's compiling
-otherwise) and ``identify``'s valve fits (:func:`warm_identify`).  Prints one line with
-the time it took.
+otherwise), ``identify``'s valve fits and ``diagnose``'s discovery (:func:`warm_fits`).
+Prints one line with the time it took.
 
 **One set of last bits.**  numba's freshly compiled code and the code it loads from its
 cache can differ in their last bits (a kernel compiled in the middle of a diagnosis,
@@ -20,8 +20,9 @@ among the kernels that run compiled first, is not bit for bit the one a warm-up 
 and a diagnosis's fits can follow them to another answer.  So a warm-up fills a cache
 directory from empty, and marks it (:data:`MARKER`) when it is done; a directory that
 some other run filled first is emptied and warmed again.  Every run after it loads the
-same kernels.  :func:`ensure_warmed` is that check for a benchmark or a tool whose figures
-must be the install's.
+same kernels.  The process that compiled a kernel runs it as compiled, not as loaded, so
+no figure is taken there: :func:`ensure_warmed`, the check for a benchmark or a tool
+whose figures must be the install's, warms in another process.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from damper_emulator.dyno.measured import MeasuredData
     from damper_emulator.model.compressible import DamperModel
 
 #: The option that makes this module warm the batch kernels (the second process).
@@ -44,6 +46,9 @@ WARM_CHIRP_S = 4.0
 #: ... and force noise of this r.m.s. [N] on its files (a fit of exact data is not the
 #: path a measured file takes)
 WARM_NOISE_N = 4.0
+#: the discovery warmed: the reference temperature [°C] and a zone's width [m]
+WARM_TEMPERATURE_C = 25.0
+WARM_ZONE_WIDTH_M = 0.01
 
 
 #: The file a finished warm-up leaves in the kernel cache's directory.
@@ -78,12 +83,13 @@ def warm_from_empty() -> float:
 
 def ensure_warmed() -> None:
     """Warm this source version's kernel cache unless a warm-up filled it (for a
-    benchmark or tool whose figures must be those of an installed checkout); one line on
-    stderr when it warms."""
+    benchmark or tool whose figures must be those of an installed checkout), in another
+    process (``python -m damper_hil.warm``, which says how long it took): this one then
+    loads every kernel from the cache, as an installed run does.  (Compiled here, the
+    kernels would run here as compiled, not as loaded, and their last bits differ: module
+    docstring.)"""
     if not warmed():
-        seconds = warm_from_empty()
-        print(f"damper-hil: kernels compiled and cached in {seconds:.1f} s (a warm-up "
-              "fills the cache before the figures)", file=sys.stderr)
+        subprocess.run([sys.executable, "-m", "damper_hil.warm"], check=True)
 
 
 def warm() -> float:
@@ -113,15 +119,17 @@ def warm_batch() -> None:
     ride(car, CompressiblePlugin(model), np.zeros(64), 1e-3)
     simulate_many(car, [model] * LANES, np.zeros(64), 1e-3)   # one block of lanes
     simulate_many(car, [model] * 2, np.zeros(64), 1e-3, lanes=False)
-    warm_identify(model)
+    warm_fits(model)
 
 
-def warm_identify(model: DamperModel) -> None:
-    """``identify``'s valve fits: the valve characteristic's derivatives and its
-    complex-step specialisations, on a short quasi-static test and chirp of ``model``.
-    Compiled in the first ``identify`` instead, they would also give that run other last
-    bits than every later one: numba's freshly compiled code and the code it loads from
-    its cache differ there, and a diagnosis can follow them."""
+def warm_fits(model: DamperModel) -> None:
+    """``identify``'s valve fits (the valve characteristic's derivatives and its
+    complex-step specialisations) and ``diagnose``'s discovery (the features of a record,
+    a zone's profile, a lag: :func:`warm_discovery`), on a short quasi-static test and
+    chirp of ``model``.  Compiled in the first ``identify`` or ``diagnose`` instead, they
+    would also give that run other last bits than every later one: numba's freshly
+    compiled code and the code it loads from its cache differ there, and a diagnosis can
+    follow them."""
     import numpy as np
 
     from damper_emulator.dyno import protocols
@@ -135,6 +143,23 @@ def warm_identify(model: DamperModel) -> None:
              for t, x, v in (protocols.quasi_static(cycles=1),
                              protocols.chirp(duration_s=WARM_CHIRP_S))]
     identify(files[0], files[1], model.cfg)
+    warm_discovery(model, files[1])
+
+
+def warm_discovery(model: DamperModel, data: MeasuredData) -> None:
+    """The kernels of ``diagnose``'s discovery (stage 5), through its own calls on ``data``:
+    a record's features under ``model``, at a second sign width, a zone's profile and a
+    lag."""
+    import numpy as np
+
+    from damper_emulator.diagnose.base import make_record
+    from damper_emulator.diagnose.discovery import LAGS_S, V_SIGN_M_S, Feature, motion
+
+    m = motion(model, make_record(data, False), float(np.max(np.abs(data.displacement))),
+               WARM_TEMPERATURE_C)
+    m.terms_at(2.0 * V_SIGN_M_S)
+    Feature("zone", "N·s/m", "position", 0, profile=(0.0, WARM_ZONE_WIDTH_M)).fn(m)
+    Feature("lag", "-", "lag", 0, lag_s=LAGS_S[0]).fn(m)
 
 
 def warm_nodes() -> None:

@@ -144,24 +144,49 @@ def test_a_warm_up_fills_the_cache_from_empty_and_marks_it(tmp_path, monkeypatch
     assert seen[-1] == ["loaded_later.nbi", warm.MARKER]
 
 
-def test_after_the_installs_warm_up_identify_loads_every_kernel(tmp_path):
-    """``identify``'s part of the install's warm-up (``warm_identify``, which
-    ``python -m damper_hil.warm`` runs in ``make``'s install step) on an empty cache, then
-    ``identify`` in another process: every kernel it runs is loaded from the cache, none
-    compiled.  A kernel compiled in the first ``identify`` would cost it seconds and give
-    it other last bits than every later run (numba's fresh and cached code differ), and a
-    diagnosis can follow those bits to another answer.  (Only that part: the whole
-    warm-up costs three times the CPU, and ``make`` runs it anyway.)"""
+def test_a_benchmark_warms_in_another_process_and_loads_the_kernels_itself(tmp_path,
+                                                                         monkeypatch):
+    """``ensure_warmed`` (the truth benchmark's, the FSAE tool's) warms an unmarked cache
+    in another process, never in its own: a process that compiled its kernels runs them as
+    compiled, with other last bits than every run that loads them (a diagnosis went
+    another way in the process that warmed).  A marked cache is left as it is."""
+    from damper_hil import warm
+
+    cache = tmp_path / "kernels-0"
+    runs: list[list[str]] = []
+    monkeypatch.setattr(warm, "cache_directory", lambda: cache)
+    monkeypatch.setattr(warm, "warm", lambda: pytest.fail("warmed in this process"))
+    monkeypatch.setattr(subprocess, "run", lambda cmd, check: runs.append(cmd))
+    warm.ensure_warmed()
+    assert runs == [[sys.executable, "-m", "damper_hil.warm"]]
+    cache.mkdir()
+    (cache / warm.MARKER).write_text("")
+    warm.ensure_warmed()
+    assert len(runs) == 1
+
+
+def test_after_the_installs_warm_up_identify_and_the_discovery_load_every_kernel(tmp_path):
+    """The fits' part of the install's warm-up (``warm_fits``, which ``python -m
+    damper_hil.warm`` runs in ``make``'s install step) on an empty cache, then in another
+    process ``identify`` and the features of ``diagnose``'s discovery (a record's, at a
+    second sign width, a zone's profile, a lag), on another damper's files: every kernel
+    they run is loaded from the cache, none compiled.  A kernel compiled in the first
+    ``identify`` or ``diagnose`` would cost it seconds and give it other last bits than
+    every later run (numba's fresh and cached code differ), and a diagnosis can follow
+    those bits to another answer.  (Only that part: the whole warm-up costs three times
+    the CPU, and ``make`` runs it anyway.)"""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
     _run_python("""
         from damper_emulator.model.compressible import DamperModel
-        from damper_hil.warm import warm_identify
-        warm_identify(DamperModel())
+        from damper_hil.warm import warm_fits
+        warm_fits(DamperModel())
     """, env=env)
     out = _run_python("""
         import gc
         import numpy as np
         from numba.core.registry import CPUDispatcher
+        from damper_emulator.diagnose.base import make_record
+        from damper_emulator.diagnose.discovery import LAGS_S, Feature, motion
         from damper_emulator.dyno import protocols
         from damper_emulator.dyno.measured import MeasuredData
         from damper_emulator.identify.pipeline import identify
@@ -174,17 +199,20 @@ def test_after_the_installs_warm_up_identify_loads_every_kernel(tmp_path):
                                   + rng.normal(0.0, 4.0, t.size), v)
                      for t, x, v in (protocols.quasi_static(cycles=1),
                                      protocols.chirp(duration_s=6.0)))
-        identify(qs, chirp, load_config("config/touring.yaml"))
-        missed = sorted(f"{d.py_func.__module__}.{d.py_func.__name__}"
-                        for d in gc.get_objects() if isinstance(d, CPUDispatcher)
-                        and d.stats.cache_misses)
-        hits = sum(sum(d.stats.cache_hits.values()) for d in gc.get_objects()
-                   if isinstance(d, CPUDispatcher))
-        print(hits, *missed)
+        fitted = DamperModel(identify(qs, chirp, load_config("config/touring.yaml")).config)
+        m = motion(fitted, make_record(chirp, True), 0.04, 30.0)
+        m.terms_at(0.02)
+        Feature("z", "N", "position", 0, profile=(0.01, 0.005)).fn(m)
+        Feature("l", "-", "lag", 0, lag_s=LAGS_S[-1]).fn(m)
+        ours = [d for d in gc.get_objects() if isinstance(d, CPUDispatcher)
+                and d.py_func.__module__.startswith(("damper_emulator", "ride_sim"))]
+        missed = sorted(f"{d.py_func.__module__}.{d.py_func.__name__}" for d in ours
+                        if d.stats.cache_misses)
+        print(sum(sum(d.stats.cache_hits.values()) for d in ours), *missed)
     """, env=env)
     hits, *missed = out.split()
     assert int(hits) > 0  # the kernels came from the cache
-    assert not missed, f"compiled in the first identify: {missed}"
+    assert not missed, f"compiled in the first identify or discovery: {missed}"
 
 
 def test_cold_emulate_is_active_before_its_first_force(tmp_path):

@@ -12,7 +12,8 @@ without numba's reference-counting runtime (see :data:`_physics`).
 ``$XDG_CACHE_HOME/damper-hil`` (default ``~/.cache/damper-hil``), or ``$NUMBA_CACHE_DIR``
 when that is set (numba's own variable; the tests use it for a cold start).  Inside it the
 kernels of one version of the sources live in ``kernels-<key>``, where ``key`` hashes every
-Python source file of the packages that define or feed kernels (:data:`KEYED_PACKAGES`).
+Python source file of the packages that define or feed kernels (:data:`KEYED_PACKAGES`)
+and where the checkout is.
 numba's own index notices a change of the file that *defines* a kernel, but not of a kernel
 it calls from another file, nor of a module-level constant it froze in at compile time
 (e.g. the ride loop calling :func:`damper_emulator.model.step.step`): with the key,
@@ -57,9 +58,12 @@ def _source_root() -> Path:
 
 def source_key(root: Path | None = None) -> str:
     """Hash of every ``.py`` file of :data:`KEYED_PACKAGES` under ``root`` (path and bytes),
-    with numba's version and the fast-math flags."""
+    with numba's version, the fast-math flags and where ``root`` is (numba indexes its
+    cache by the source file's path: a checkout elsewhere has none of these kernels, and a
+    warm-up's mark, ``damper_hil.warm``, must not speak for it)."""
     root = _source_root() if root is None else root
-    h = hashlib.sha256(f"numba {numba.__version__} {sorted(FASTMATH_FLAGS)}".encode())
+    h = hashlib.sha256(f"numba {numba.__version__} {sorted(FASTMATH_FLAGS)} "
+                       f"{root.resolve()}".encode())
     for pkg in KEYED_PACKAGES:
         for path in sorted((root / pkg).rglob("*.py")):
             h.update(str(path.relative_to(root)).encode() + b"\0")

@@ -1,5 +1,5 @@
-"""Shared fixtures: the paper's 'sport' damper; one cold run of the demo; the command
-line run in this process.  And the hypothesis profiles, chosen by ``HYPOTHESIS_PROFILE``."""
+"""Shared fixtures: the paper's 'sport' damper; one run of the demo; the command line
+run in this process.  And the hypothesis profiles, chosen by ``HYPOTHESIS_PROFILE``."""
 
 import os
 import subprocess
@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
-from ros_probe import cold_environment
 
 from damper_emulator.model.compressible import DamperModel
 from damper_emulator.params import load_config
@@ -61,7 +60,7 @@ def cli(capsys):
 
 ROOT = Path(__file__).resolve().parents[1]
 #: ROS domain of the shared demo run (away from every test module's own)
-COLD_DEMO_DOMAIN = 141
+DEMO_DOMAIN = 141
 
 
 @dataclass
@@ -80,19 +79,21 @@ class DemoRun:
 
 
 @pytest.fixture(scope="session")
-def cold_demo_run(tmp_path_factory) -> DemoRun:
-    """``damper-hil demo --duration 5 --live PORT --format mf4`` as a new user runs it,
-    nothing cached
-    (an empty ``NUMBA_CACHE_DIR``), with a live-view client listening.  One run serves the
-    start-up checks, the bag's contents and the live view (tests/test_demo_run.py, one
-    module: one worker runs it once); a demo takes 30-50 s."""
+def demo_run(tmp_path_factory) -> DemoRun:
+    """``damper-hil demo --duration 5 --live PORT --format mf4`` as ``make demo`` runs it
+    for a new user: on the kernels the install's warm-up cached (a start with nothing
+    cached is the emulator's, tests/test_readiness.py), with a live-view client listening.
+    One run serves the start-up checks, the bag's contents and the live view
+    (tests/test_demo_run.py, one module: one worker runs it once)."""
     import socket
     import threading
 
     from live_client import connect_when_up
 
-    root = tmp_path_factory.mktemp("cold_demo")
-    env = cold_environment(root, COLD_DEMO_DOMAIN)
+    from damper_emulator.ros.launch import ros_environment
+
+    root = tmp_path_factory.mktemp("demo")
+    env = ros_environment(DEMO_DOMAIN)
     out = root / "demo"
     with socket.socket() as s:                      # a free port on this machine
         s.bind(("127.0.0.1", 0))
@@ -117,6 +118,6 @@ def cold_demo_run(tmp_path_factory) -> DemoRun:
 
 
 @pytest.fixture(scope="session")
-def cold_demo(cold_demo_run):
-    """The :func:`cold_demo_run`'s finished process and ``--out`` folder."""
-    return cold_demo_run.proc, cold_demo_run.out
+def demo(demo_run):
+    """The :func:`demo_run`'s finished process and ``--out`` folder."""
+    return demo_run.proc, demo_run.out

@@ -7,7 +7,7 @@ compiled kernels are cached, and a first start with a cold cache.
   compiled kernel specialisations must not grow (it grows on any compile or cache load).
 - The emulator is a managed node: ``/damper_emulator/get_state`` answers ``active`` once it
   publishes, and the first ``/damper/force`` of a cold start comes from a warmed model.
-- ``damper-hil demo`` runs with an empty numba cache and exits 0.
+- After the install's warm-up, ``identify`` and the discovery compile nothing.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 #: ROS domains of this file (away from the other node tests' and the demo's 40..89)
-DOMAINS = {"cold_emulate": 140, "not_ready": 142}  # 141: conftest's cold demo
+DOMAINS = {"cold_emulate": 140, "not_ready": 142}  # 141: conftest's demo
 
 
 def _run_python(code: str, env: dict | None = None, timeout: float = 300) -> str:

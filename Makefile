@@ -2,6 +2,7 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+DEPS := $(VENV)/.dependencies
 STAMP := $(VENV)/.installed
 
 .PHONY: demo test lint test-collect test-cores test-nodes fuzz bench clean
@@ -14,12 +15,16 @@ $(BIN)/python:
 # dependencies' wheels, ROS 2's included, are most of a fresh `make test`); pip if uv fails.
 # --compile-bytecode as pip does, and compileall for the packages here: where
 # PYTHONDONTWRITEBYTECODE is set, every process would otherwise compile each module it
-# imports again (a CLI start 1.1 -> 2.8 s); then the kernels a first run needs are
-# compiled into numba's cache (damper_hil.warm), so a newcomer's first demo loads them
-$(STAMP): $(BIN)/python pyproject.toml
+# imports again (a CLI start 1.1 -> 2.8 s)
+$(DEPS): $(BIN)/python pyproject.toml
 	$(BIN)/python -m uv pip install --quiet --compile-bytecode --python $(BIN)/python -e '.[test]' \
 	    || $(BIN)/python -m pip install --quiet -e '.[test]'
 	$(BIN)/python -m compileall -q damper_emulator ride_sim can_bridge damper_hil
+	touch $(DEPS)
+
+# the install's second half: the kernels a first run needs compiled into numba's cache
+# (damper_hil.warm, on one core), so a newcomer's first demo loads them
+$(STAMP): $(DEPS)
 	$(BIN)/python -m damper_hil.warm
 	touch $(STAMP)
 
@@ -38,19 +43,20 @@ demo: $(STAMP)
 # pytest rewrites each test module's asserts when it imports it, and where
 # PYTHONDONTWRITEBYTECODE is set it does so again in every process that collects (a third
 # of a collection, five of them): the tests let it keep that in tests/__pycache__, and one
-# collection fills it beside the type check, before the workers start
+# collection fills it before the workers start, beside the type check and the install's
+# warm-up (which needs one core)
 PYTEST := PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q --durations=10
 
-test: $(STAMP)
-	$(MAKE) --no-print-directory -j2 --output-sync=target lint test-collect
+test: $(DEPS)
+	$(MAKE) --no-print-directory -j3 --output-sync=target $(STAMP) lint test-collect
 	$(MAKE) --no-print-directory -j2 --output-sync=target test-cores test-nodes
 	$(PYTEST) -m timing
 
-lint: $(STAMP)
+lint: $(DEPS)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
-test-collect: $(STAMP)
+test-collect: $(DEPS)
 	@$(PYTEST) --collect-only -qq > $(VENV)/collect.log || { cat $(VENV)/collect.log; exit 1; }
 
 test-cores: $(STAMP)

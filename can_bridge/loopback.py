@@ -30,6 +30,15 @@ from damper_emulator.signals import signals_held
 
 #: interface-local IPv6 multicast groups (never leave the host) for private loopback runs
 PRIVATE_GROUP_PREFIX = "ff11::d4"
+#: The UDP ports of private loopback runs: ``PRIVATE_PORT_BASE + pid % PRIVATE_PORT_SPAN``.
+#: python-can binds the port on every address, so the port must be no one else's: above
+#: the ports DDS takes for every ROS domain valid on Linux (``7400 + 250 · domain + …``,
+#: domains 0..101: below 32900), and above the kernel's default ephemeral range
+#: (32768..60999).  (A port derived as ``20000 + pid % 30000`` once fell on a DDS
+#: participant's port of the run's own domain, which also follows the process id, and the
+#: bridge could not open the bus.)
+PRIVATE_PORT_BASE = 61000
+PRIVATE_PORT_SPAN = 4500
 #: A force that came back more than this many sample periods after its state was sent is
 #: counted ``late_samples``: the emulator computed it on a stale input (a host stall; the
 #: loop's own round trip is about one emulator period, 1 ms)
@@ -39,12 +48,14 @@ LATE_PERIODS = 2.0
 def default_bus(interface: str | None = None, channel: str | None = None) -> BusConfig:
     """The bus of a loopback run: as given; else ``socketcan`` on ``vcan0`` where the kernel
     has it, else ``udp_multicast`` on a group and port private to this process (python-can
-    binds the port on every address, so the port is what keeps concurrent runs apart)."""
+    binds the port on every address, so the port is what keeps concurrent runs apart:
+    :data:`PRIVATE_PORT_BASE`)."""
     if interface is None:
         interface = "socketcan" if socketcan_available() else "udp_multicast"
     if channel is None:
         channel = "vcan0" if interface == "socketcan" else (
-            f"[{PRIVATE_GROUP_PREFIX}:{os.getpid() & 0xFFFF:x}]:{20000 + os.getpid() % 30000}"
+            f"[{PRIVATE_GROUP_PREFIX}:{os.getpid() & 0xFFFF:x}]:"
+            f"{PRIVATE_PORT_BASE + os.getpid() % PRIVATE_PORT_SPAN}"
             if interface == "udp_multicast"
             else "loopback")
     return BusConfig(interface=interface, channel=channel)

@@ -196,3 +196,24 @@ def test_core_motion_frames_are_decimated_to_the_dbc_cycle(db):
     assert values["WheelVelocity"] == pytest.approx(0.5678, abs=1e-4)
     assert values["DamperVelocity"] == pytest.approx(0.69, abs=1e-4)
     assert core.counters.motion_out == 10
+
+
+def test_a_private_loopback_bus_port_is_no_dds_port_nor_ephemeral(monkeypatch):
+    """The UDP port of a private ``udp_multicast`` bus (the demo's, ``dyno --over-can``'s),
+    for every process id: none of the ports Fast DDS takes for a ROS domain valid on Linux
+    (RTPS port mapping: ``7400 + 250·domain`` plus offsets under 250, domains 0..101), so
+    in particular none of the run's own domain, which follows the process id too; and
+    outside the kernel's default ephemeral range.  (``20000 + pid % 30000`` put pid 30914
+    on port 20914, a discovery port of its domain 54: the bridge could not open the bus.)"""
+    import os
+
+    from can_bridge import loopback
+    from damper_emulator.ros import launch
+
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    for pid in (30914, *range(1, 200_000, 997)):
+        monkeypatch.setattr(os, "getpid", lambda pid=pid: pid)
+        port = int(loopback.default_bus("udp_multicast").channel.rsplit(":", 1)[1])
+        domain = int(launch.ros_environment()["ROS_DOMAIN_ID"])
+        assert not 7400 + 250 * domain <= port < 7400 + 250 * (domain + 1), (pid, port)
+        assert port >= 7400 + 250 * 102 and not 32768 <= port <= 60999 and port < 65536

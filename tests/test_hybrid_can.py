@@ -540,8 +540,8 @@ def test_a_stall_of_the_host_before_the_ride_starts_it_again(tmp_path):
         run = held_run(tmp_path / f"run{attempt}", OFFSETS["restart"], 2.0, "identify", 0.4)
         why = machine_stalled(run.proc, run.out, run.rig_stats, run.host_stalls)
         if why is None and "starting again" in run.before:
-            # the machine's timing stopped it before the test held it (once here, in an
-            # idle clean clone: the hold then made restart 2 of 2)
+            # the machine's timing stopped it before the test held it: the hold then
+            # makes restart 2 of 2, not the restart this test is about
             why = "restarted before the hold: " + run.before.split("starting again")[0][-200:]
         if why is None:
             break

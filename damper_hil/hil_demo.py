@@ -14,6 +14,7 @@ interface-local group and port private to the run.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import time
@@ -29,6 +30,8 @@ from damper_emulator.signals import signals_held
 from damper_hil.hil_report import write_report
 from ride_sim import loop_delay
 from ride_sim.params import load_ride_config
+from ride_sim.road import RoadError
+from ride_sim.session import check_run_road
 
 #: Seconds allowed beyond the ride's own length for start-up and shut-down.
 START_STOP_ALLOWANCE_S = 120.0
@@ -36,6 +39,18 @@ START_STOP_ALLOWANCE_S = 120.0
 
 class DemoError(DamperHilError, RuntimeError):
     """The demo could not complete (one line, with the failing node's log)."""
+
+
+def check_ride(duration_s: float) -> None:
+    """Raise :class:`DemoError` before any node starts if the ride node would refuse a run
+    of ``duration_s`` on its road (a road shorter than the band's longest wavelength)."""
+    cfg = load_ride_config()
+    run = dataclasses.replace(cfg.ride, duration_s=duration_s)
+    try:
+        check_run_road(cfg.road, run, cfg.simulation.step_s)
+    except RoadError as exc:
+        raise DemoError(f"a ride of {duration_s:g} s at {run.speed_m_s:g} m/s: {exc}"
+                        ) from None
 
 
 def _clear_bag(bag: Path) -> None:
@@ -133,6 +148,9 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
     ``live_port``, also the live view (``damper-hil live``) on that port; with ``mf4``, the
     recording's time series as ``out/demo.mf4`` too."""
     started = time.monotonic()
+    if control not in CONTROLS:
+        raise DemoError(f"control must be one of {', '.join(CONTROLS)}, got {control!r}")
+    check_ride(duration_s)
     out.mkdir(parents=True, exist_ok=True)
     bag = out / "bag"
     _clear_bag(bag)
@@ -142,8 +160,6 @@ def run_demo(out: Path, duration_s: float = 20.0, *, clock: str = "realtime",
     sky_json = out / "skyhook.json"
     for f in (stats, metrics, sky_json):
         f.unlink(missing_ok=True)
-    if control not in CONTROLS:
-        raise DemoError(f"control must be one of {', '.join(CONTROLS)}, got {control!r}")
     bus = default_bus()
     env = ros_environment(domain_id)
     emulator_params = {"emulator.stats_file": str(stats)}

@@ -36,16 +36,28 @@ from ride_sim.quarter_car import (
     road_pair,
     simulate,
 )
-from ride_sim.study_runs import metrics, random_road_input, start_state
+from ride_sim.study_runs import check_random_road, metrics, random_road_input, start_state
+
+
+def _run_road_params(road: RoadParams, run: RideRunParams) -> RoadParams:
+    """The road of the run: ``speed_m_s × duration_s`` long, with the run's lead-in."""
+    return dataclasses.replace(road, length_m=run.speed_m_s * run.duration_s,
+                               lead_in_s=run.lead_in_s)
 
 
 def run_road(road: RoadParams, run: RideRunParams, dt_s: float
              ) -> tuple[np.ndarray, int]:
     """Road heights of the run at the samples and the number of lead-in samples."""
-    road = dataclasses.replace(road, length_m=run.speed_m_s * run.duration_s,
-                               lead_in_s=run.lead_in_s)
-    heights, n_lead, _ = random_road_input(road, run.speed_m_s, run.seed, dt_s)
+    heights, n_lead, _ = random_road_input(_run_road_params(road, run), run.speed_m_s,
+                                           run.seed, dt_s)
     return heights, n_lead
+
+
+def check_run_road(road: RoadParams, run: RideRunParams, dt_s: float) -> None:
+    """Raise :class:`~ride_sim.road.RoadError` (one line) now if the run's road cannot be
+    synthesised (:func:`~ride_sim.study_runs.check_random_road`): a caller that starts
+    processes for the run (``damper-hil demo``) learns it before it starts them."""
+    check_random_road(_run_road_params(road, run), run.speed_m_s, dt_s)
 
 
 #: Samples of the scratch session of :meth:`RideSession.warm_up` (the first and the last

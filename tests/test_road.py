@@ -476,3 +476,28 @@ def test_roughness_dataclass():
     assert r.variance_m2((0.1, 1.0)) == pytest.approx(closed_form_variance(2e-6, 2.0, 0.1, 1.0))
     with pytest.raises(RoadError):
         RoadRoughness(0.0, 2.0)
+
+
+def test_the_demo_refuses_a_ride_shorter_than_its_roads_longest_wave_before_any_node(
+        tmp_path, capsys):
+    """The ride's road is one period of ``round(V T / Δ) + 1`` samples of ``Δ = V dt``
+    (``random_road``): it must hold the band's longest wavelength ``1 / n_min``.  The demo
+    checks that before it starts a node or writes its folder: one line, exit 2."""
+    from damper_hil.cli import main
+    from damper_hil.hil_demo import DemoError, check_ride
+    from ride_sim.params import load_ride_config
+
+    cfg = load_ride_config()
+    speed, dt = cfg.ride.speed_m_s, cfg.simulation.step_s
+    n_min = cfg.road.band_cycles_per_m[0]
+    if cfg.road.band_scaling == "temporal":
+        n_min *= cfg.road.speed_m_s / speed
+    shortest = (1.0 / n_min - dt * speed) / speed    # (N Δ >= 1 / n_min, N = V T / Δ + 1)
+    check_ride(shortest + dt)                        # a sample either side
+    with pytest.raises(DemoError, match="longer than the road period"):
+        check_ride(shortest - dt)
+    out = tmp_path / "demo"
+    assert main(["demo", "--duration", f"{0.6 * shortest:g}", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("damper-hil: error: a ride of "), err
+    assert not out.exists()

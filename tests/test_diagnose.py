@@ -304,13 +304,14 @@ def test_a_zone_beside_a_cavity_is_fitted_where_the_truth_has_it():
     further.  The term discovered beside the cavity is the zone; fitted with the model
     (its centre and width free, from the paper's model identified again without the
     term's force) it comes back where the truth has it, and the held-out residual to the
-    noise."""
+    noise.  On the longer chirp: on the 8 s one the fits followed the kernels' last bits
+    (with those of a process that had compiled the kernels, this test failed)."""
     gain, centre, width = 600.0, 0.008, 0.006
 
     def zone(t, x, v):
         return gain * np.exp(-0.5 * ((x - centre) / width) ** 2) * v
 
-    sheet, data = truth_session(("cavitation",), extra_force=zone)
+    sheet, data = truth_session(("cavitation",), extra_force=zone, protocol=LONGER_PROTOCOL)
     diag = identify_and_diagnose(sheet, data, ["cavitation", "air_entrainment"])
     doc = diag.to_json()
     assert [s.candidate.effect for s in diag.steps] == ["cavitation"], doc["rounds"]

@@ -791,8 +791,7 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     # the displacement is the rig's measurement, not the demand: close to it, not equal,
     # to the tracking bound above (in r.m.s.: a stall of the host moves a few samples, and
     # the peak is the stall's; 1.17 mm once in a clean clone's make test)
-    miss = measured.displacement - model.displacement[kept]
-    assert 0 < np.sqrt(np.mean(miss ** 2) / np.mean(model.displacement ** 2)) < 0.03
+    assert 0 < relative_rms(measured.displacement, model.displacement[kept]) < 0.03
 
     # each sample's stroke and force are one cycle's: the model on the measured motion
     # gives the measured force (0.5 % here; a sample held from an earlier cycle, as before

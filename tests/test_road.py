@@ -486,12 +486,11 @@ def test_the_demo_refuses_a_ride_shorter_than_its_roads_longest_wave_before_any_
     from damper_hil.cli import main
     from damper_hil.hil_demo import DemoError, check_ride
     from ride_sim.params import load_ride_config
+    from ride_sim.study_setup import band_at_speed
 
     cfg = load_ride_config()
     speed, dt = cfg.ride.speed_m_s, cfg.simulation.step_s
-    n_min = cfg.road.band_cycles_per_m[0]
-    if cfg.road.band_scaling == "temporal":
-        n_min *= cfg.road.speed_m_s / speed
+    n_min = band_at_speed(cfg.road, speed)[0]
     shortest = (1.0 / n_min - dt * speed) / speed    # (N Δ >= 1 / n_min, N = V T / Δ + 1)
     check_ride(shortest + dt)                        # a sample either side
     with pytest.raises(DemoError, match="longer than the road period"):

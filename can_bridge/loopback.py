@@ -34,9 +34,8 @@ PRIVATE_GROUP_PREFIX = "ff11::d4"
 #: python-can binds the port on every address, so the port must be no one else's: above
 #: the ports DDS takes for every ROS domain valid on Linux (``7400 + 250 · domain + …``,
 #: domains 0..101: below 32900), and above the kernel's default ephemeral range
-#: (32768..60999).  (A port derived as ``20000 + pid % 30000`` once fell on a DDS
-#: participant's port of the run's own domain, which also follows the process id, and the
-#: bridge could not open the bus.)
+#: (32768..60999).  (A port under 32900 can be a DDS participant's port of the run's own
+#: domain, which follows the process id too; the bridge then cannot open the bus.)
 PRIVATE_PORT_BASE = 61000
 PRIVATE_PORT_SPAN = 4500
 #: A force that came back more than this many sample periods after its state was sent is

@@ -304,8 +304,9 @@ def test_a_zone_beside_a_cavity_is_fitted_where_the_truth_has_it():
     further.  The term discovered beside the cavity is the zone; fitted with the model
     (its centre and width free, from the paper's model identified again without the
     term's force) it comes back where the truth has it, and the held-out residual to the
-    noise.  On the longer chirp: on the 8 s one the fits followed the kernels' last bits
-    (with those of a process that had compiled the kernels, this test failed)."""
+    noise.  On the longer chirp: on the 8 s one the joint fit ends where the kernels'
+    last bits take it (those of a process that compiled the kernels and those of one
+    that loaded them give two answers there)."""
     gain, centre, width = 600.0, 0.008, 0.006
 
     def zone(t, x, v):

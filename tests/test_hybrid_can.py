@@ -704,9 +704,9 @@ def stall_moved_the_rig(proc, out: Path, host_stalls) -> str | None:
     """Why a completed ``dyno`` run's record says nothing about the code, or None: a
     sentinel saw the machine stall during the run, and the recorded force is off the
     specimen on the recorded motion.  The virtual rig's servo and specimen (a process of
-    the test's, not the code under test) catch up a stall in one step: the stroke jumps
-    (0.85 m/s on a 0.25 m/s sine once, a 25 ms stall on both CPUs) through samples the
-    record cannot hold, and the force after it follows a motion the file does not show."""
+    the test's, not the code under test) catch up a stall in one step: the stroke jumps,
+    far past the sine's peak velocity, through samples the record cannot hold, and the
+    force after it follows a motion the file does not show."""
     if proc.returncode != 0 or not host_stalls:
         return None
     from damper_emulator.dyno.measured import read_measured_csv

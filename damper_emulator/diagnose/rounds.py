@@ -290,14 +290,22 @@ class LibraryRounds:
     def score_round(self, st: _Round) -> tuple[list[np.ndarray], float, bool]:
         """Every fit of the round scored against the present model: the held-out
         residual, the floor (once an effect is in, ``SEARCH_NOISE_FACTOR`` × its noise)
-        and whether the residual is within it; ``st.sig`` the significant fits."""
+        and whether the residual is within it; ``st.sig`` the significant fits (below
+        the first floor, none that trades files: :meth:`StepFit.refuse_trade`)."""
         held_res = st.present.residuals(self.s.held)
         floor, noise = floor_level(self.s.held, held_res)
+        below = bool(self.steps) and pooled_rms(held_res) <= floor
         if self.steps:  # an effect is in: the search goes on while structure remains
             floor = SEARCH_NOISE_FACTOR * noise
         small = pooled_rms(held_res) <= floor
         for f in st.fits:
             f.score_against(st.present, small)
+            if below and f.refuse_trade(st.present):
+                assert f.trades is not None  # (refused)
+                self.s.say(f"round {len(self.rounds) + 1}: {f._added.effect} gains "
+                           f"{100 * f.score:+.1f} % below the floor but makes "
+                           f"{f.trades[0]} worse (ΔBIC {f.trades[1]:+.0f}): it trades "
+                           "files, not significant")
         st.sig = [f for f in st.fits if f.significant]
         return held_res, floor, small
 

@@ -53,7 +53,11 @@ The library's rounds and the answer (steps 1–7):
    is added, its joint fit becomes the present model, and the remaining candidates are
    fitted again on top of it (step 3); this repeats until none is significant, the
    held-out residual is within :data:`SEARCH_NOISE_FACTOR` × its noise level (the floor
-   before the first effect), or :data:`MAX_EFFECTS` are in.
+   before the first effect), or :data:`MAX_EFFECTS` are in.  Below that first floor a
+   candidate that makes one identification file worse by more than
+   :data:`~damper_emulator.diagnose.outcome.MAX_FILE_BIC_RISE` of its own effective BIC is
+   not significant: it trades files, standing in for the present effects' form error
+   (:meth:`StepFit.refuse_trade`).
    **Backward elimination** once the search ends with two effects or more (not a pair):
    each effect added before the last is tried away, the others refitted without it; it
    goes where the effects with it gain less than :data:`MIN_SCORE` held out against them

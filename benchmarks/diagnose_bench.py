@@ -386,6 +386,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", metavar="DIR", type=Path, default=None,
                     help="write each scenario's diagnose JSON there (LABEL.json)")
+    ap.add_argument("--perturb", type=float, default=0.0, metavar="REL",
+                    help="scale every file's force by 1 + REL (e.g. 1e-12): the fits' last "
+                         "bits move as on another machine or build; a robust answer "
+                         "stays")
     args = ap.parse_args()
 
     def wanted(label: str) -> bool:
@@ -398,7 +402,8 @@ def main() -> None:
     ensure_warmed()
     print("# Identify + diagnose on the truth scenarios\n")
     print(f"machine: {cpu_name()}, {os.cpu_count()} CPUs; diagnose with {args.jobs} "
-          f"process(es); force noise {NOISE_N} N")
+          f"process(es); force noise {NOISE_N} N"
+          + (f"; every force scaled by 1 + {args.perturb:g}" if args.perturb else ""))
     print()
     print("| scenario | expected | diagnosed (effects added) | ok | held-out r.m.s. [N]: "
           "identified → refit → after (floor) | ≤ 3σ | rig's findings; drift | main effect "
@@ -407,6 +412,9 @@ def main() -> None:
     walls, oks, within = [], [], []
     for sc in todo:
         sheet, files = session(sc, args.seed)
+        if args.perturb:
+            files = [dataclasses.replace(f, force=f.force * (1.0 + args.perturb))
+                     for f in files]
         n_fit = sc.protocol.n_fit
         t0 = time.perf_counter()
         cfg = identify(files[0], files[1:n_fit], sheet).config

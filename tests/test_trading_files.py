@@ -70,7 +70,7 @@ def test_a_significant_fit_that_makes_a_file_worse_beyond_the_rise_is_refused(
              ratio_b * MS_BEFORE)
     f.score_against(present, False)
     assert f.significant and f.delta_bic < -100.0
-    assert f.refuse_trade(present) is refused
+    assert (f.refuse_trade(present) is not None) is refused
     assert f.significant is not refused
     doc = f.to_json()
     if refused:
@@ -87,7 +87,7 @@ def test_a_fit_that_was_not_significant_is_not_said_to_trade(library):
     f = _fit(sheet, lib, ["end_stops", "valve_lag"], 12.9, MS_BEFORE, WORSE * MS_BEFORE)
     f.score_against(present, False)
     assert not f.significant
-    assert not f.refuse_trade(present) and f.trades is None
+    assert f.refuse_trade(present) is None and f.trades is None
 
 
 def _held(force_rms: float, residual: np.ndarray):

@@ -291,17 +291,18 @@ class StepFit:
         name = max(rises, key=lambda k: rises[k])
         return name, rises[name]
 
-    def refuse_trade(self, ref: StepFit) -> bool:
+    def refuse_trade(self, ref: StepFit) -> tuple[str, float] | None:
         """Below the floor: a significant fit that makes an identification file worse
         than ``ref`` by more than ``MAX_FILE_BIC_RISE`` is not significant (it trades
-        files; :attr:`trades`).  Whether it was refused."""
+        files).  The file and its effective ΔBIC where it was refused (also
+        :attr:`trades`), else ``None``."""
         if not self.significant:
-            return False
+            return None
         name, rise = self.worst_file(ref)
         if rise <= MAX_FILE_BIC_RISE:
-            return False
+            return None
         self.significant, self.trades = False, (name, rise)
-        return True
+        return self.trades
 
     def to_json(self) -> dict[str, Any]:
         c = self.candidate

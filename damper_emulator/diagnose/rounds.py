@@ -300,11 +300,10 @@ class LibraryRounds:
         small = pooled_rms(held_res) <= floor
         for f in st.fits:
             f.score_against(st.present, small)
-            if below and f.refuse_trade(st.present):
-                assert f.trades is not None  # (refused)
+            if below and (trade := f.refuse_trade(st.present)) is not None:
                 self.s.say(f"round {len(self.rounds) + 1}: {f._added.effect} gains "
                            f"{100 * f.score:+.1f} % below the floor but makes "
-                           f"{f.trades[0]} worse (ΔBIC {f.trades[1]:+.0f}): it trades "
+                           f"{trade[0]} worse (ΔBIC {trade[1]:+.0f}): it trades "
                            "files, not significant")
         st.sig = [f for f in st.fits if f.significant]
         return held_res, floor, small

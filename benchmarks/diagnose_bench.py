@@ -387,9 +387,9 @@ def main() -> None:
     ap.add_argument("--json", metavar="DIR", type=Path, default=None,
                     help="write each scenario's diagnose JSON there (LABEL.json)")
     ap.add_argument("--perturb", type=float, default=0.0, metavar="REL",
-                    help="scale every file's force by 1 + REL (e.g. 1e-12): the fits' last "
-                         "bits move as on another machine or build; a robust answer "
-                         "stays")
+                    help="scale every file's force by 1 + REL (e.g. 1e-12): every fit's "
+                         "arithmetic moves as on another machine or build; a robust "
+                         "answer stays")
     args = ap.parse_args()
 
     def wanted(label: str) -> bool:

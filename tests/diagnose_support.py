@@ -1,5 +1,6 @@
 """What the diagnosis tests share: the truth's shorter protocol, the sessions, identify
-then diagnose (tests/test_diagnose.py, tests/test_diagnose_families.py)."""
+then diagnose (tests/test_diagnose.py, tests/test_diagnose_discovery.py,
+tests/test_diagnose_families.py)."""
 
 from __future__ import annotations
 

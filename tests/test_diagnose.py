@@ -345,6 +345,10 @@ def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
     assert {c["effect"] for c in doc["candidates"]} == set(chosen)
     assert doc["thresholds"]["floor_force_fraction"] == FLOOR_FORCE_FRACTION
     assert doc["floor_N"] > 0 and doc["refit"]["rms"].keys() == set(names)
+    # the noise level of what the valve lag left is the noise the truth added (the
+    # refitted model's, the first floor's, is raised by the lag's own residual)
+    assert doc["noise_after_N"] == pytest.approx(NOISE_N, rel=0.15)
+    assert doc["noise_N"] > doc["noise_after_N"]
     for c in doc["candidates"]:
         assert c["family"] == EXTENSION_FAMILIES[c["effect"]]
         assert isinstance(c["score"], float)

@@ -380,8 +380,11 @@ class Diagnosis:
     #: term discovery may take them back beside its term)
     dropped: list[StepFit] = field(default_factory=list)
     dropped_pair_gain: float | None = None
+    #: the first floor and the noise level it was taken from (the refitted model's
+    #: held-out residual), and the noise level of what is left after [N]
     floor_n: float = 0.0
     noise_n: float = 0.0
+    noise_after_n: float = 0.0
     #: the two effects were found together (step 6's pair): their held-out gain against
     #: the refitted model (neither alone was significant); ``None`` otherwise
     pair_gain: float | None = None
@@ -552,6 +555,7 @@ class Diagnosis:
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "floor_N": self.floor_n, "noise_N": self.noise_n,
+            "noise_after_N": self.noise_after_n,
             "thresholds": {"min_score": MIN_SCORE, "max_delta_bic": MAX_DELTA_BIC,
                            "structure_ratio": STRUCTURE_RATIO,
                            "min_explained": MIN_EXPLAINED,

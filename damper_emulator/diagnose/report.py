@@ -329,7 +329,8 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                   "re-identified jointly (the reference of the first round).", "",
               f"Structure ratio of the held-out residual (r.m.s. / noise level): "
               f"{diag.structure_before:.2f} identified, {diag.structure_after:.2f} after.  "
-              f"Floor {diag.floor_n:.2f} N, noise level {diag.noise_n:.2f} N.", ""]
+              f"Floor {diag.floor_n:.2f} N, noise level {diag.noise_n:.2f} N (of what is left "
+              f"after: {diag.noise_after_n:.2f} N).", ""]
     for k, rnd in enumerate(diag.rounds, 1):
         lines += [f"## Round {k}", "",
                   "| effect | family | held-out gain | ΔBIC | significant | parameters | "

@@ -245,9 +245,21 @@ def answer(session: Session, found: RoundsOutcome, drift: SeriesResult) -> Diagn
     after = {r.name: r.residual(after_model, rig=after_rig) for r in session.records}
     diag.rms_after = {r.name: rms(after[r.name]) for r in session.records}
     diag.structure_after = structure_ratio([after[r.name] for r in held])
+    diag.noise_after_n = floor_level(held, [after[r.name] for r in held])[1]
     diag.undetermined = undetermined_findings(accepted, values, held,
                                               [after[r.name] for r in held])
     return diag
+
+
+def discovery_floor(first: float, noise_after: float | None) -> float:
+    """The floor of the term discovery's gate [N]: ``first``, the refitted model's
+    (:func:`~damper_emulator.diagnose.outcome.floor_level`), or, once an effect is in,
+    :data:`SEARCH_NOISE_FACTOR` times ``noise_after``, the noise level of what the
+    model after leaves on the held-out files, as the rounds go on.  The refitted model's
+    level is not the noise's where an effect leaves a large smooth residual: a 4 ms valve
+    lag's 370 N at 12 Hz raised it from 4 N to 10 N, and a second effect's 20 N was
+    below its floor."""
+    return first if noise_after is None else SEARCH_NOISE_FACTOR * noise_after
 
 
 def discover_term(diag: Diagnosis, session: Session) -> Discovery:
@@ -261,9 +273,9 @@ def discover_term(diag: Diagnosis, session: Session) -> Discovery:
     diagnosis.  A significant term then holds the diagnosis's figures (and its family,
     where the library added nothing)."""
     say, fit, held, weights = session.say, session.fit, session.held, session.weights
-    base, floor = session.base, diag.floor_n
-    final = diag.final
+    base, final = session.base, diag.final
     after_model, after_rig = diag.model_after(), diag.rig_after()
+    floor = discovery_floor(diag.floor_n, diag.noise_after_n if diag.steps else None)
     say("discovery: what the library left, regressed on the dictionary of motion and "
         "model states")
     found = discover(after_model, after_rig, fit, held, weights, floor,
@@ -288,7 +300,9 @@ def discover_term(diag: Diagnosis, session: Session) -> Discovery:
     diag.discovered = found
     if found.significant:
         diag.rms_after = dict(found.rms_after)
-        diag.structure_after = structure_ratio(held_with_term(found))
+        left = held_with_term(found)
+        diag.structure_after = structure_ratio(left)
+        diag.noise_after_n = floor_level(held, left)[1]
         if not diag.steps and diag.effect != "drift":
             diag.family = found.family_hint or "other"
             diag.effect = "discovered"

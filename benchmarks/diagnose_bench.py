@@ -51,7 +51,9 @@ stops, each halving the held-out r.m.s. at least; both effects named in the pair
 series, the family expected (``none`` for the rig's) with the rig's findings and the
 drifting parameter; in every case no effect named of a family the truth lacks; each
 diagnosis ≤ 3 minutes.  Each row also says whether the held-out
-r.m.s. after is within 3× the noise.
+r.m.s. after is within 3× the noise the truth added (:data:`NOISE_N`; not the diagnosis's
+own noise levels, shown beside its floor: the refitted model's, which a large smooth
+residual raises, and that of what is left after).
 
 Usage: ``python benchmarks/diagnose_bench.py [--jobs N] [--only NAME ...]``
 (``NAME`` a scenario label as printed, e.g. ``sport:valve_lag``,
@@ -406,8 +408,8 @@ def main() -> None:
           + (f"; every force scaled by 1 + {args.perturb:g}" if args.perturb else ""))
     print()
     print("| scenario | expected | diagnosed (effects added) | ok | held-out r.m.s. [N]: "
-          "identified → refit → after (floor) | ≤ 3σ | rig's findings; drift | main effect "
-          "fitted | identify + diagnose [s] |")
+          "identified → refit → after (floor; noise level: refit, after) | ≤ 3σ | rig's findings; "
+          "drift | main effect fitted | identify + diagnose [s] |")
     print("|---|---|---|---|---|---|---|---|---|")
     walls, oks, within = [], [], []
     for sc in todo:
@@ -454,7 +456,7 @@ def main() -> None:
         # an effect named that the truth lacks is a wrong answer, beside a right one too
         ok = ok and set(found) <= fams
         oks.append(ok)
-        near = a <= 3.0 * d.noise_n
+        near = a <= 3.0 * NOISE_N
         if d.family != "none":
             within.append(near)
         c = d.chosen or d.closest
@@ -472,9 +474,10 @@ def main() -> None:
         rig = ", ".join(sorted(kinds - {"delay", "filter", "skew"})) or "–"
         rig += "; " + (", ".join(sorted(drifting)) or "–")
         print(f"| {sc.label} | {' + '.join(sorted(fams))} | {shown} | {'✓' if ok else '✗'} | "
-              f"{b:.1f} → {r:.1f} → {a:.1f} ({d.floor_n:.1f}) | {'✓' if near else '✗'} | "
+              f"{b:.1f} → {r:.1f} → {a:.1f} ({d.floor_n:.1f}; {d.noise_n:.1f}, "
+              f"{d.noise_after_n:.1f}) | {'✓' if near else '✗'} | "
               f"{rig} | {fitted} | {t1 - t0:.0f} + {wall - (t1 - t0):.0f} |", flush=True)
-    print(f"\n{sum(oks)} of {len(oks)} right; held-out within 3× the noise in "
+    print(f"\n{sum(oks)} of {len(oks)} right; held-out within 3× the noise ({3 * NOISE_N:g} N) in "
           f"{sum(within)} of {len(within)} with an effect or a drift; diagnose wall time "
           f"median {np.median(walls):.0f} s, max {max(walls):.0f} s (target ≤ 180 s)")
 

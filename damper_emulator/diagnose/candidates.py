@@ -92,6 +92,11 @@ class Candidate:
     #: identified one (``ModelConfig -> ModelConfig``), for an effect that changes what a
     #: stage's closed form assumes; ``None``: the identified configuration
     identify_as: Callable[[ModelConfig], ModelConfig] | None = None
+    #: for a later effect (others accepted first): the paper's parameters it takes from
+    #: that re-identification, the rest of the present model kept (the staged fits know
+    #: nothing of the accepted effects, and would put them into the valves again); empty:
+    #: a later effect is re-identified as any other
+    identify_keeps: tuple[str, ...] = ()
     #: where it acts, the effect holds the force at a level that trades with the friction
     #: at speed (a cavity's plateau, ``p_gas A_pt − p_cav A_annulus`` less the friction):
     #: its re-identification searches the friction at speed (``joint_fit``)
@@ -176,6 +181,11 @@ def temperature_stats(data: Sequence[MeasuredData]) -> tuple[float, float, float
         return None
     allt = np.concatenate(temps)
     return float(np.mean(allt)), float(np.min(allt)), float(np.max(allt))
+
+
+#: the gas spring's parameters (eq 3) that an isothermal quasi-static fit (eq 37 with
+#: γ = 1) gives a later gas that exchanges heat
+GAS_PARAMETERS = ("gas_pressure_static_pa", "gas_volume_static_m3")
 
 
 def isothermal_gas(cfg: ModelConfig) -> ModelConfig:
@@ -506,11 +516,12 @@ def _gas(s: Scales) -> Candidate:
     100 s (adiabatic at all but the quasi-static test).  The quasi-static fit (eq 37)
     assumes the data sheet's γ; a gas that exchanges heat is isothermal over a test that
     slow, so the re-identification fits eq 37 with γ = 1 (and the joint fit starts from
-    the gas charge and volume that gives)."""
+    the gas charge and volume that gives; as a later effect, from those two alone, the
+    rest of the present model kept)."""
     return Candidate(
         "gas_heat_transfer",
         (Parameter("thermal_time_constant_s", 0.01, 100.0, 1.0, True, "s"),), _with({}),
-        extra_starts=((0.1,),), identify_as=isothermal_gas)
+        extra_starts=((0.1,),), identify_as=isothermal_gas, identify_keeps=GAS_PARAMETERS)
 
 
 def _inertia(s: Scales) -> Candidate:

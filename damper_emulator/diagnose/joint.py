@@ -641,9 +641,14 @@ def joint_fit(cfg: ModelConfig, records: Sequence[Record], weights: Sequence[flo
        (a first effect re-identified under its own configuration on a present model
        fitted jointly with the rig's delay: step 4 from both, the better end kept, as the
        re-identification has not been fitted jointly yet: from the present model alone
-       the gas's heat exchange was left adiabatic).  (A second effect needs the
-       re-identification too: a valve lag fitted on top of a cavity starts from the valves
-       the cavity's own fit left, which had absorbed the lag as well.)
+       the gas's heat exchange was left adiabatic); for a later effect, of that
+       configuration's re-identification only what the candidate names
+       (``Candidate.identify_keeps``: the charge and volume of an isothermal gas), the
+       rest of the present model kept (after a valve lag, the heat exchange gained
+       1 % from the present model's adiabatic gas and 77 % from the isothermal one).
+       (A second effect needs the re-identification too: a valve lag fitted on top of a
+       cavity starts from the valves the cavity's own fit left, which had absorbed the
+       lag as well.)
        The valve fits take the quasi-static fit's friction; for a candidate whose force
        trades with the friction at speed (``Candidate.friction_coupled``) the
        re-identification is repeated over :func:`search_friction`'s friction levels and
@@ -794,11 +799,12 @@ class _JointFit:
 
     def restart(self, start: _Start, candidate: Candidate, factor: float,
                 masks: Sequence[np.ndarray] | None, as_cfg: ModelConfig | None = None,
-                screen: bool = True) -> _Restart | None:
-        """Re-identified base (``friction_factor``), the candidate pre-fitted on it
-        (from its own starts and the first pre-fit's values, or with ``screen`` false
-        from the latter only): ``(cost, base, candidate's values, simulations,
-        factor)``; ``None`` if the re-identification failed."""
+                screen: bool = True, keep: Sequence[str] | None = None) -> _Restart | None:
+        """Re-identified base (``friction_factor``; of it only the parameters ``keep``,
+        where given, the rest of ``start`` kept), the candidate pre-fitted on it (from
+        its own starts and the first pre-fit's values, or with ``screen`` false from the
+        latter only): ``(cost, base, candidate's values, simulations, factor)``; ``None``
+        if the re-identification failed."""
         cfg = as_cfg or self.cfg
         if OIL_COMPRESSIBILITY in start.base_values:  # the force's scale taken
             cfg = config_with(cfg, {OIL_COMPRESSIBILITY: start.base_values[OIL_COMPRESSIBILITY]})
@@ -806,6 +812,8 @@ class _JointFit:
                         delay_rig(start.base_values))
         if nb is None:
             return None
+        if keep is not None:
+            nb = {k: v for k, v in nb.items() if k in keep}
         nb = {**start.base_values, **nb}
         pre = start.candidate_values
         starts = [*self.own_starts(candidate), pre] if screen else [pre]
@@ -822,14 +830,18 @@ class _JointFit:
 
     def reidentified(self, start: _Start, candidate: Candidate, accepted: bool) -> None:
         """Step 2: the staged identification again without the samples where the local
-        effects act, or under the candidate's own configuration for a first effect, with
-        the friction at speed searched for a friction-coupled candidate; the pre-fit on
-        it taken where it fits the records better."""
+        effects act, or under the candidate's own configuration (for a later effect, of
+        it only ``Candidate.identify_keeps``), with the friction at speed searched for a
+        friction-coupled candidate; the pre-fit on it taken where it fits the records
+        better."""
         tried: list[_Restart | None] = []
         search = False  # the friction at speed searched (search_friction)
-        if not accepted and candidate.identify_as is not None:
-            tried.append(self.restart(start, candidate, 1.0, None,
-                                      candidate.identify_as(self.cfg)))
+        if candidate.identify_as is not None and (not accepted or candidate.identify_keeps):
+            # a later effect: only what it names, without where the accepted local ones act
+            tried.append(self.restart(
+                start, candidate, 1.0, self.masks(start, candidate) if accepted else None,
+                candidate.identify_as(self.cfg),
+                keep=candidate.identify_keeps if accepted else None))
         else:
             masks = self.masks(start, candidate)
             search = masks is not None and candidate.friction_coupled

@@ -49,9 +49,9 @@ def test_an_effect_outside_the_library_is_discovered_and_read_as_inertia(tmp_pat
 
     sheet, data = truth_session(None, extra_force=inertia, chain_given=False,
                                 protocol=LONGER_PROTOCOL)
-    # the two candidates that act on the force's phase most as a mass does (the benchmark
-    # runs all nine)
-    diag = identify_and_diagnose(sheet, data, ["valve_lag", "series_compliance"])
+    # the candidate that acts on the force's phase most as a mass does, and takes part of
+    # it first (the benchmark runs all nine)
+    diag = identify_and_diagnose(sheet, data, ["valve_lag"])
     assert diag.structure_before > STRUCTURE_RATIO  # there is something to find
     doc = diag.to_json()
     found = doc["discovered"]

@@ -39,7 +39,8 @@ def test_a_later_gas_that_exchanges_heat_starts_from_the_isothermal_gas():
     records = [make_record(d, False) for d in data[:2]]
     weights = [1.0 / (math.sqrt(r.counted) * NOISE_N) for r in records]
     start = {p.name: p.start for p in base_parameters(cfg, data[:2], ["valve_lag"])}
-    library = {c.effect: c for c in candidates(cfg, data[:2])}
+    library = {c.effect: c
+               for c in candidates(cfg, data[:2], ["valve_lag", "gas_heat_transfer"])}
     gas = library["gas_heat_transfer"]
     assert gas.identify_keeps == GAS_PARAMETERS
     accepted = [(library["valve_lag"], {"time_constant_s": TAU_LAG_S})]

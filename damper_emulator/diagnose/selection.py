@@ -244,10 +244,10 @@ def answer(session: Session, found: RoundsOutcome, drift: SeriesResult) -> Diagn
     after_model, after_rig = diag.model_after(), diag.rig_after()
     after = {r.name: r.residual(after_model, rig=after_rig) for r in session.records}
     diag.rms_after = {r.name: rms(after[r.name]) for r in session.records}
-    diag.structure_after = structure_ratio([after[r.name] for r in held])
-    diag.noise_after_n = floor_level(held, [after[r.name] for r in held])[1]
-    diag.undetermined = undetermined_findings(accepted, values, held,
-                                              [after[r.name] for r in held])
+    held_after = [after[r.name] for r in held]
+    diag.structure_after = structure_ratio(held_after)
+    diag.noise_after_n = floor_level(held, held_after)[1]
+    diag.undetermined = undetermined_findings(accepted, values, held, held_after)
     return diag
 
 

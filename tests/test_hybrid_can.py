@@ -700,23 +700,38 @@ def off_model_on_its_motion(measured) -> float:
     return relative_rms(measured.force[settled], on_motion[settled])
 
 
-def stall_moved_the_rig(proc, out: Path, host_stalls) -> str | None:
-    """Why a completed ``dyno`` run's record says nothing about the code, or None: a
-    sentinel saw the machine stall during the run, and the recorded force is off the
-    specimen on the recorded motion.  The virtual rig's servo and specimen (a process of
-    the test's, not the code under test) catch up a stall in one step: the stroke jumps,
-    far past the sine's peak velocity, through samples the record cannot hold, and the
-    force after it follows a motion the file does not show."""
-    if proc.returncode != 0 or not host_stalls:
+#: the recorded force's r.m.s. off the rig's specimen on the protocol's history (the
+#: stroke demanded, not the one measured), relative: the rig's tracking too (1-2 % quiet)
+ON_HISTORY_BOUND = 0.1
+
+
+def stall_moved_the_rig(out: Path, stalls, on_history: float) -> str | None:
+    """Why the record in ``out`` of a completed ``dyno`` run says nothing about the code,
+    or None: a sentinel saw the machine stall, or the virtual rig fell behind its cycle,
+    during the run, and the recorded force is off the specimen on the recorded motion, or
+    ``on_history`` (the force off the specimen on the protocol's history) is past
+    :data:`ON_HISTORY_BOUND`.  The virtual rig's servo and specimen (a process of the
+    test's, not the code under test) catch up a stall in one step: the stroke jumps, far
+    past the sine's peak velocity, through samples the record cannot hold, and the force
+    after it follows a motion the file does not show, or one off the protocol's."""
+    if not stalls:
         return None
     from damper_emulator.dyno.measured import read_measured_csv
 
     off = off_model_on_its_motion(read_measured_csv(out / "sine_2hz.csv"))
-    if off < ON_MOTION_BOUND:
+    if off < ON_MOTION_BOUND and on_history < ON_HISTORY_BOUND:
         return None
-    late = max(ms for _, ms in host_stalls)
+    late = max(ms for _, ms in stalls)
     return (f"the recorded force {100 * off:.1f} % off the specimen on the recorded "
-            f"motion; a sentinel woke late by {late:.0f} ms")
+            f"motion, {100 * on_history:.1f} % on the protocol's; a stall of {late:.0f} ms")
+
+
+def rig_stalls(rig_json: Path) -> list[tuple[float, float]]:
+    """The virtual rig's own stalls (:class:`can_bridge.virtual_rig.RigStats`): each time it
+    fell behind its cycle by ``STALL_LOG_MS`` or more, (its start [s], length [ms])."""
+    if not rig_json.exists():
+        return []
+    return [(float(s), float(ms)) for s, ms in json.loads(rig_json.read_text())["stalls"]]
 
 
 def _sentinel_late_by(reason: str, pause_ms: float, host_stalls) -> str | None:
@@ -744,11 +759,21 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     bus_args = ["--can-interface", "udp_multicast", "--can-channel", ch]
     config = tmp_path / "short.yaml"
     config.write_text(SHORT)
+    specimen = DamperModel(load_config(PROTOTYPE_FILE))      # the rig's
+    run_sine(specimen, tmp_path / "model", 2.0, 0.02, cycles=2)
+    model = read_measured_csv(tmp_path / "model" / "sine_2hz.csv")
+
+    def off_the_history(out: Path) -> tuple[float, np.ndarray]:
+        measured = read_measured_csv(out / "sine_2hz.csv")
+        kept = np.searchsorted(model.time, measured.time)
+        return relative_rms(measured.force, model.force[kept]), kept
+
     for attempt in range(1, RUNS_THROUGH_STALLS + 1):
         out = tmp_path / f"rig{attempt}"
         out.mkdir()
         rig = start_rig([*bus_args, "--config", str(config), "--late-every",
-                         str(LATE_EVERY), "--corrupt-every", str(CORRUPT_EVERY)])
+                         str(LATE_EVERY), "--corrupt-every", str(CORRUPT_EVERY),
+                         "--json", str(out / "rig.json")])
         sentinels = Sentinels(out)
         try:
             proc = subprocess.run([*CLI, "dyno", "--protocol", "sine", "--frequency", "2",
@@ -760,8 +785,10 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
             sentinels.close()
             rig.send_signal(2)
             rig.wait(timeout=20)
-        why = (dyno_stalled(proc, out, sentinels.stalls)
-               or stall_moved_the_rig(proc, out, sentinels.stalls))
+        stalls = sentinels.stalls + rig_stalls(out / "rig.json")
+        why = dyno_stalled(proc, out, sentinels.stalls)
+        if why is None and proc.returncode == 0:
+            why = stall_moved_the_rig(out, stalls, off_the_history(out)[0])
         if why is None:
             break
         warnings.warn(f"run {attempt} disturbed by a stall of the machine: {why}",
@@ -776,16 +803,13 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     assert sum(f.is_rx for f in frames) == (run["link"]["feedback"] + run["link"]["aux"]
                                             + run["link"]["dropped"])
     measured = read_measured_csv(out / "sine_2hz.csv")
-    specimen = DamperModel(load_config(PROTOTYPE_FILE))      # the rig's
-    run_sine(specimen, tmp_path / "model", 2.0, 0.02, cycles=2)
-    model = read_measured_csv(tmp_path / "model" / "sine_2hz.csv")
+    on_history, kept = off_the_history(out)
     # the late frames were put in their cycles; a sample whose frame never came (a
     # corrupted one, one a stall of the machine cost) is left out of the file
     link, missing = run["link"], run["samples_without_measurement"]
     assert link["late_feedback"] >= run["samples_measured_late"] >= 0.5 * run["samples"] \
         / LATE_EVERY
     assert missing >= 0.5 * run["samples"] / CORRUPT_EVERY
-    kept = np.searchsorted(model.time, measured.time)
     assert np.allclose(model.time[kept], measured.time, rtol=0, atol=1e-9)
     assert 0 < model.time.size - measured.time.size <= missing + 2
     # the displacement is the rig's measurement, not the demand: close to it, not equal,
@@ -797,12 +821,12 @@ def test_dyno_protocol_on_the_rig_writes_measured_data(tmp_path):
     # gives the measured force (0.5 % here; a sample held from an earlier cycle, as before
     # the late frames were placed, made it 3.9 %)
     consistent = off_model_on_its_motion(measured)
-    on_history = relative_rms(measured.force, model.force[kept])
     if missing <= QUIET_LINK_SHARE * run["samples"]:
         assert consistent < ON_MOTION_BOUND
         # on the protocol's history: the rig's tracking too, which the machine's stalls
-        # disturb (6.5 % once, the machine stalling a third of the cycles then; 1-2 % quiet)
-        assert on_history < 0.1
+        # disturb (6.5 % once, the machine stalling a third of the cycles then; 13 % once
+        # in CI, its record under 2 % off on its motion)
+        assert on_history < ON_HISTORY_BOUND
     else:
         warnings.warn(f"the recorded force unchecked ({100 * consistent:.1f} % off the model "
                       f"on the measured motion, {100 * on_history:.1f} % on the history): "

@@ -58,7 +58,7 @@ residual raises, and that of what is left after).
 Usage: ``python benchmarks/diagnose_bench.py [--jobs N] [--only NAME ...]``
 (``NAME`` a scenario label as printed, e.g. ``sport:valve_lag``,
 ``sport:lugre_friction+valve_lag`` or ``touring:none@100Hz+rig``, or a label's start
-followed by ``*``).
+followed by ``*``; run in the order given).
 """
 
 from __future__ import annotations
@@ -380,11 +380,28 @@ def _pooled(rms: dict, counts: dict) -> float:
     return float(np.sqrt(sum(rms[k] ** 2 * c for k, c in counts.items()) / n))
 
 
+def chosen(every: list[Scenario], only: list[str] | None) -> list[Scenario]:
+    """The scenarios ``--only`` names, in the order it names them (a label's start with
+    ``*``: its scenarios in their order), each once; every scenario without ``--only``.
+    Exits with one line on a name that matches none."""
+    if only is None:
+        return every
+    out: list[Scenario] = []
+    for o in only:
+        found = [s for s in every
+                 if s.label == o or (o.endswith("*") and s.label.startswith(o[:-1]))]
+        if not found:
+            sys.exit(f"no scenario {o!r}; one of: " + ", ".join(s.label for s in every))
+        out += [s for s in found if s not in out]
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=min(os.cpu_count() or 1, 4))
     ap.add_argument("--only", nargs="+", default=None,
-                    help="scenario labels, or a label's start followed by '*'")
+                    help="scenario labels, or a label's start followed by '*', run in "
+                         "the order given")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", metavar="DIR", type=Path, default=None,
                     help="write each scenario's diagnose JSON there (LABEL.json)")
@@ -394,12 +411,7 @@ def main() -> None:
                          "answer stays")
     args = ap.parse_args()
 
-    def wanted(label: str) -> bool:
-        return args.only is None or any(
-            label == o or (o.endswith("*") and label.startswith(o[:-1])) for o in args.only)
-    todo = [s for s in scenarios() if wanted(s.label)]
-    if not todo:
-        sys.exit("no such scenario; one of: " + ", ".join(s.label for s in scenarios()))
+    todo = chosen(scenarios(), args.only)
     # the kernels an install loads (a diagnosis can follow a fresh compile's last bits)
     ensure_warmed()
     print("# Identify + diagnose on the truth scenarios\n")

@@ -32,14 +32,16 @@ demo: $(STAMP)
 	$(BIN)/damper-hil demo --out demo_out
 
 # the tests in three parts: the cores (one process per core, pytest-xdist, each module on
-# one worker, its fixtures built once) and, at the same time, the ROS and CAN tests (each
-# file on one of two workers, --dist loadfile: a file's ROS domains, buses and shared runs
-# stay on one worker); the ROS and CAN tests leave part of the CPU idle while their runs
-# wait on the wall clock, and the nodes' loops run under SCHED_FIFO and ride through the
-# cores' load; each part's output printed whole when it ends (--output-sync); then the
-# wall-clock checks that need the machine to themselves (timing), alone.  Each test process
-# takes one BLAS thread: four of them share two cores, and OpenBLAS's threads spin before
-# they sleep (with a thread per core the cores stage took a tenth more CPU time)
+# one worker, its fixtures built once; the modules with slow tests first,
+# tests/conftest.py, not xdist's order by the number of tests) and, at the same time, the
+# ROS and CAN tests (each file on one of two workers, --dist loadfile: a file's ROS
+# domains, buses and shared runs stay on one worker); the ROS and CAN tests leave part of
+# the CPU idle while their runs wait on the wall clock, and the nodes' loops run under
+# SCHED_FIFO and ride through the cores' load; each part's output printed whole when it
+# ends (--output-sync); then the wall-clock checks that need the machine to themselves
+# (timing), alone.  Each test process takes one BLAS thread: four of them share two cores,
+# and OpenBLAS's threads spin before they sleep (with a thread per core the cores stage
+# took a tenth more CPU time)
 # pytest rewrites each test module's asserts when it imports it, and where
 # PYTHONDONTWRITEBYTECODE is set it does so again in every process that collects (a third
 # of a collection, five of them): the tests let it keep that in tests/__pycache__, and one
@@ -60,7 +62,7 @@ test-collect: $(DEPS)
 	@$(PYTEST) --collect-only -qq > $(VENV)/collect.log || { cat $(VENV)/collect.log; exit 1; }
 
 test-cores: $(STAMP)
-	$(PYTEST) -n 2 --dist loadscope -m "not ros and not can and not timing"
+	$(PYTEST) -n 2 --dist loadscope --no-loadscope-reorder -m "not ros and not can and not timing"
 
 test-nodes: $(STAMP)
 	$(PYTEST) -n 2 --dist loadfile -m "(ros or can) and not timing"

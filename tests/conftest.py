@@ -1,5 +1,6 @@
 """Shared fixtures: the paper's 'sport' damper; one run of the demo; the command line
-run in this process.  And the hypothesis profiles, chosen by ``HYPOTHESIS_PROFILE``."""
+run in this process.  The hypothesis profiles, chosen by ``HYPOTHESIS_PROFILE``.  And the
+order of the modules: the slow ones first."""
 
 import os
 import subprocess
@@ -25,6 +26,19 @@ _PROFILE_COMMON = {"deadline": None, "print_blob": True,
 settings.register_profile("default", max_examples=60, **_PROFILE_COMMON)
 settings.register_profile("fuzz", max_examples=2500, **_PROFILE_COMMON)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
+
+
+def pytest_collection_modifyitems(config, items):
+    """The modules with a test marked ``slow`` first, each module's tests together and in
+    their order.  ``make test``'s workers (``--dist loadscope --no-loadscope-reorder``)
+    take whole modules in this order: the long ones start first, and the short ones fill
+    in at the end.  (xdist's own order, by the number of tests, sent the diagnosis's few
+    long tests last, and one worker ran them alone at the end.)"""
+    def module(item: pytest.Item) -> str:
+        return item.nodeid.split("::", 1)[0]
+
+    slow = {module(item) for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: module(item) not in slow)
 
 
 @pytest.fixture(scope="session")

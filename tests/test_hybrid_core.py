@@ -662,6 +662,7 @@ def test_measured_velocity_counts_the_cycles_of_lost_frames():
 # -- the twin learns the specimen --------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_the_twin_learns_a_specimen_that_is_not_its_model(model, tmp_path):
     """The characterisation (a quasi-static test and a chirp) on the sport prototype
     (``config/prototype.yaml``: other valves, a stiffer oil, a LuGre friction, a thermal
@@ -705,6 +706,7 @@ def test_the_twin_learns_a_specimen_that_is_not_its_model(model, tmp_path):
                                simulate(learned.model, t, x, v).force_n, rtol=1e-9, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("safety", "stall", "calls"), [
     (SafetyParams(), True, 3),                          # run again: QS twice, the chirp
     (SafetyParams(force_limit_n=100.0), False, 1),      # a limit: no second run

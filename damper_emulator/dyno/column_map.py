@@ -405,15 +405,14 @@ def read_mapped_csv(path: str | Path, cmap: ColumnMap) -> MeasuredData:
 def assemble(arrays: dict[str, np.ndarray], rows: int, cmap: ColumnMap, fail: Any,
              path: Path) -> MeasuredData:
     """The quantities of a file read through ``cmap`` (SI values; ``time`` absent where
-    the map gives a sample rate) as checked :class:`MeasuredData`: time from the first
-    sample, the signs, the zero, the velocity (module docstring), the plain reader's
-    checks and the convention's."""
-    if "time" in arrays:
-        arrays["time"] = arrays["time"] - arrays["time"][0]
-    elif cmap.sample_rate_hz is not None:
+    the map gives a sample rate) as checked :class:`MeasuredData`: the time as recorded
+    (as the plain CSV reader keeps it: a series' files on one clock keep their places,
+    :func:`damper_emulator.diagnose.series.series_positions`), the signs, the zero, the
+    velocity (module docstring), the plain reader's checks and the convention's."""
+    if "time" not in arrays:
+        if cmap.sample_rate_hz is None:
+            raise fail("no time: map a time column, or give a sample rate")
         arrays["time"] = np.arange(rows) / cmap.sample_rate_hz
-    else:
-        raise fail("no time: map a time column, or give a sample rate")
     window = cmap.velocity_window
     if window is not None and rows < window:
         raise fail(f"{rows} data rows; need at least {window} for the velocity filter")

@@ -171,23 +171,47 @@ def low_flow_line(b0: _Num, b1: _Num, k_leak: _Num, k_port: _Num, nu4: float
 
 
 @kernel
-def _open_branch(q_tot: _Num, k_leak: _Num, k_port: _Num, k_spring: _Num, preload_pa: _Num,
-                 nu_m2_s: float, form: int
-                 ) -> tuple[_Num, _Num, _Num, _Num, _Num, _Num]:
-    """:func:`pressure_drop_open` with what its derivatives need: ``(Δp, Q_leak, B0, B1,
-    B2, B3)``; ``Q_leak`` is ``B0`` below the blow-off flow (the linear extension)."""
+def open_constants(k_leak: _Num, k_port: _Num, k_spring: _Num, preload_pa: _Num,
+                   nu_m2_s: float) -> tuple[float, _Num, _Num, _Num, _Num, _Num, _Num]:
+    """What the open characteristic needs of one valve, whatever the flow: ``(ν^¼, B0,
+    B1, B2, B3, H0, H1)`` (:func:`blow_off_coefficients`, :func:`low_flow_line`).
+    Computed once per valve by the loops over flows: these powers are half of
+    :func:`pressure_drop`'s cost (benchmarks/model_bench.py's model load)."""
     nu4 = nu_m2_s ** 0.25
     b0, b1, b2, b3 = blow_off_coefficients(k_leak, k_spring, preload_pa, nu_m2_s)
+    h0, h1 = low_flow_line(b0, b1, k_leak, k_port, nu4)
+    return nu4, b0, b1, b2, b3, h0, h1
+
+
+@kernel
+def _open_branch_with(q_tot: _Num, k_leak: _Num, k_port: _Num, k_spring: _Num,
+                      preload_pa: _Num, nu_m2_s: float, form: int,
+                      const: tuple[float, _Num, _Num, _Num, _Num, _Num, _Num]
+                      ) -> tuple[_Num, _Num]:
+    """``(Δp, Q_leak)`` of the open branch (:func:`_open_branch`) from the valve's
+    :func:`open_constants`."""
+    nu4, b0, b1, b2, b3, h0, h1 = const
     if q_tot.real >= b0.real:
         if form == FORM_EXACT:
             q_leak = leak_flow_exact(q_tot, k_leak, k_spring, preload_pa, nu_m2_s, b0)
         else:
             q_leak = leak_flow_cardano(q_tot, b0, b1, b2, b3)
         dp: _Num = nu4 * (k_leak * q_leak ** FLOW_EXPONENT + k_port * q_tot ** FLOW_EXPONENT)
-        return dp, q_leak, b0, b1, b2, b3
-    h0, h1 = low_flow_line(b0, b1, k_leak, k_port, nu4)
+        return dp, q_leak
     dp_low: _Num = h0 + h1 * (q_tot - b0)  # eq 29
-    return dp_low, b0, b0, b1, b2, b3
+    return dp_low, b0
+
+
+@kernel
+def _open_branch(q_tot: _Num, k_leak: _Num, k_port: _Num, k_spring: _Num, preload_pa: _Num,
+                 nu_m2_s: float, form: int
+                 ) -> tuple[_Num, _Num, _Num, _Num, _Num, _Num]:
+    """:func:`pressure_drop_open` with what its derivatives need: ``(Δp, Q_leak, B0, B1,
+    B2, B3)``; ``Q_leak`` is ``B0`` below the blow-off flow (the linear extension)."""
+    const = open_constants(k_leak, k_port, k_spring, preload_pa, nu_m2_s)
+    dp, q_leak = _open_branch_with(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s,
+                                   form, const)
+    return dp, q_leak, const[1], const[2], const[3], const[4]
 
 
 @kernel
@@ -217,9 +241,23 @@ def pressure_drop(q_tot: _Num, k_leak: _Num, k_port: _Num, k_spring: _Num, prelo
     (eqs 27, 29) characteristics.  ``form`` is ``FORM_CARDANO`` (eq 22 as published) or
     ``FORM_EXACT`` (root of eq 19).
     """
+    dp: _Num = pressure_drop_with(q_tot, k_leak, k_port, k_spring, preload_pa, g, nu_m2_s,
+                                  form, open_constants(k_leak, k_port, k_spring, preload_pa,
+                                                       nu_m2_s))
+    return dp
+
+
+@kernel
+def pressure_drop_with(q_tot: _Num, k_leak: _Num, k_port: _Num, k_spring: _Num,
+                       preload_pa: _Num, g: _Num, nu_m2_s: float, form: int,
+                       const: tuple[float, _Num, _Num, _Num, _Num, _Num, _Num]) -> _Num:
+    """:func:`pressure_drop` from the valve's :func:`open_constants` ``const``: a loop over
+    flows of one valve computes them once."""
     closed = pressure_drop_closed(q_tot, k_leak, k_port, nu_m2_s)
-    opened = pressure_drop_open(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, form)
-    return smooth_transition(opened, closed, g)
+    opened = _open_branch_with(q_tot, k_leak, k_port, k_spring, preload_pa, nu_m2_s, form,
+                               const)[0]
+    dp: _Num = smooth_transition(opened, closed, g)
+    return dp
 
 
 @kernel
@@ -328,8 +366,11 @@ def pressure_drop_gradient(q_tot: float, k_leak: float, k_port: float, k_spring:
 def _pressure_drop_loop(q: NDArray[np.float64], k_leak: float, k_port: float, k_spring: float,
                         preload_pa: float, g: float, nu_m2_s: float, form: int,
                         out: NDArray[np.float64]) -> None:
+    """:func:`pressure_drop` at each flow, the valve's :func:`open_constants` once."""
+    const = open_constants(k_leak, k_port, k_spring, preload_pa, nu_m2_s)
     for i in range(q.size):
-        out[i] = pressure_drop(q[i], k_leak, k_port, k_spring, preload_pa, g, nu_m2_s, form)
+        out[i] = pressure_drop_with(q[i], k_leak, k_port, k_spring, preload_pa, g, nu_m2_s,
+                                    form, const)
 
 
 def form_code(form: str) -> int:

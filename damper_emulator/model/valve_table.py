@@ -29,7 +29,13 @@ from numpy.typing import NDArray
 from damper_emulator.errors import UserError
 from damper_emulator.model.jit import inlined_kernel, kernel
 from damper_emulator.model.pchip import pchip_coefficients
-from damper_emulator.model.valve import FLOW_EXPONENT, form_code, pressure_drop, pressure_drop_array
+from damper_emulator.model.valve import (
+    FLOW_EXPONENT,
+    form_code,
+    open_constants,
+    pressure_drop_array,
+    pressure_drop_with,
+)
 
 # pressure_drop_of_z's square roots are the power FLOW_EXPONENT − 1 = 3/4
 assert FLOW_EXPONENT == 1.75
@@ -153,12 +159,15 @@ def _flows_at(dp_nodes: NDArray[np.float64], q_hi: float, valve: tuple[float, ..
     this takes about ten, and a table costs about a fifth: it is rebuilt at every change
     of a valve constant while ``diagnose`` fits them.)"""
     k_leak, k_port, k_spring, preload, g = valve
+    const = open_constants(k_leak, k_port, k_spring, preload, nu)
     q_prev = 0.0
     for i in range(dp_nodes.size):
         target = dp_nodes[i]
         lo, hi = q_prev, q_hi
-        f_lo = pressure_drop(lo, k_leak, k_port, k_spring, preload, g, nu, form) - target
-        f_hi = pressure_drop(hi, k_leak, k_port, k_spring, preload, g, nu, form) - target
+        f_lo = pressure_drop_with(lo, k_leak, k_port, k_spring, preload, g, nu, form,
+                                  const) - target
+        f_hi = pressure_drop_with(hi, k_leak, k_port, k_spring, preload, g, nu, form,
+                                  const) - target
         if f_lo >= 0.0:
             out[i] = lo
             continue
@@ -173,7 +182,8 @@ def _flows_at(dp_nodes: NDArray[np.float64], q_hi: float, valve: tuple[float, ..
             q = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
             if not lo < q < hi:
                 q = 0.5 * (lo + hi)
-            f = pressure_drop(q, k_leak, k_port, k_spring, preload, g, nu, form) - target
+            f = pressure_drop_with(q, k_leak, k_port, k_spring, preload, g, nu, form,
+                                   const) - target
             if f == 0.0:
                 lo = hi = q
                 break

@@ -112,6 +112,7 @@ from damper_emulator.model.layout import (
     S_P_COM,
     S_P_PREV,
     S_P_REB,
+    S_Q_PREV,
     S_Q_VALVE,
     S_V,
     S_X,
@@ -235,6 +236,7 @@ def _store_lane(dstate: _Vec, j: int, lv: _Vec, b: int) -> None:
     if lv[L_H_PREV * LANES + b] > 0.0:
         # stepped: without the valve lag the one-design solve keeps no valve flow
         st[S_Q_VALVE] = 0.0
+        st[S_Q_PREV] = 0.0
 
 
 @kernel

@@ -91,10 +91,11 @@ P_SIZE = P_DT_COEF + N_TERMS
 # gas temperature ratio T/T_wall and the spring force one sub-step earlier [N] (for BDF2);
 # the discovered term's: the velocity two samples back [m/s] and the step before the last
 # [s] (the acceleration), the energy dissipated so far [J], the lagged force and the force
-# without the term [N]; then its features at the last sample (scratch).
+# without the term [N]; the lagged flow one sub-step earlier [m³/s] (for BDF2); then the
+# discovered term's features at the last sample (scratch).
 (S_P_REB, S_Z, S_X, S_V, S_FORCE, S_P_COM, S_P_PREV, S_H_PREV, S_CMD, S_CMD_EFF,
  S_TEMP_IN, S_HEAT_DT, S_BRISTLE, S_V_CAV, S_Q_VALVE, S_MOUNT_F, S_GAS_THETA, S_MOUNT_PREV,
- S_Z_PREV, S_V2, S_H2, S_DT_ENERGY, S_DT_LAG, S_DT_FORCE, S_DT_ROW) = range(25)
+ S_Z_PREV, S_V2, S_H2, S_DT_ENERGY, S_DT_LAG, S_DT_FORCE, S_Q_PREV, S_DT_ROW) = range(26)
 S_SIZE = S_DT_ROW + N_TERMS
 
 

@@ -117,6 +117,7 @@ from damper_emulator.model.layout import (
     S_P_COM,
     S_P_PREV,
     S_P_REB,
+    S_Q_PREV,
     S_Q_VALVE,
     S_TEMP_IN,
     S_V,
@@ -305,6 +306,7 @@ def init_state(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: 
     state[S_H_PREV] = 0.0
     state[S_V_CAV] = 0.0
     state[S_Q_VALVE] = q_valve
+    state[S_Q_PREV] = q_valve
     state[S_MOUNT_F] = force
     state[S_MOUNT_PREV] = force
     state[S_GAS_THETA] = 1.0
@@ -357,8 +359,9 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
     mount_prev = state[S_MOUNT_PREV]
     theta = state[S_GAS_THETA]
     xd_prev = x0 - mount_f / k_m if k_m > 0.0 else x0
-    lag_w = lag_weight(prm[P_VL_TAU], h) if prm[P_VL_TAU] > 0.0 else 0.0
+    lagged = prm[P_VL_TAU] > 0.0
     q_lag = state[S_Q_VALVE]
+    q_lag_prev = state[S_Q_PREV]
     cavitation = prm[P_CAV_ON] > 0.0
     v_cav = state[S_V_CAV]
     air = prm[P_AIR_EPS] > 0.0
@@ -374,6 +377,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
             # variable-step BDF2: p − p̂ = h_eff f(p)
             p_hat = bdf2_combination(p, p_prev, w)
             h_eff = bdf2_step(h, w)
+            q_hat = bdf2_combination(q_lag, q_lag_prev, w)
             if k_m > 0.0:
                 mount_hat = bdf2_combination(mount_f, mount_prev, w)
             if air:
@@ -382,8 +386,13 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
         else:
             p_hat = p
             h_eff = h
+            q_hat = q_lag
             if air:
                 air_hat = 1.0 / max(p, AIR_PRESSURE_FLOOR)
+        # a valve lag by the same multistep formula as the pressure (its own history)
+        lag_w = lag_weight(prm[P_VL_TAU], h_eff) if lagged else 0.0
+        q_lag_prev = q_lag
+        q_lag = q_hat
         p_prev = p
         mount_c = 0.0
         mount_off = 0.0
@@ -415,11 +424,25 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
             z = z_of(prm, p - p_com, visc)
             q = flow_state(z, prm, coef_r, coef_c, bp_area, gr_area, visc, q_lag, lag_w)
             q_lag = q[5]
-            q_in = vs * prm[P_A_ANNULUS] - mount_c * (prm[P_A_ANNULUS] * p + mount_off)
+            # the piston's inflow over the sub-step by the trapezoid rule (the velocity
+            # is linear across the sample: its mean over the sub-step)
+            v_mid = vs - 0.5 * (v - v0) / n_sub
+            q_in = v_mid * prm[P_A_ANNULUS] - mount_c * (prm[P_A_ANNULUS] * p + mount_off)
             v_cav += (q[2] - q_in) * h
-            if v_cav < 0.0:
-                v_cav = 0.0
             h_prev = 0.0  # restart the multistep formula from here
+            if v_cav < 0.0:
+                # the cavity closed within the sub-step, at its fill rate's time: from
+                # there the oil's pressure equation again (backward Euler)
+                h_rest = -v_cav / (q_in - q[2])
+                v_cav = 0.0
+                if h_rest > 0.0:
+                    z, p, q_lag, f = implicit_substep(
+                        prm, coef_r, coef_c, p, z, xd, vs, h_rest, bp_area, p_com, visc,
+                        q_lag, lag_weight(prm[P_VL_TAU], h_rest) if lagged else 0.0,
+                        gr_area, prm[P_A_ANNULUS] / (k_m * h_rest) if k_m > 0.0 else 0.0,
+                        mount_f, f_const, gas_c, mount_f,
+                        1.0 / max(p, AIR_PRESSURE_FLOOR) if air else 0.0)
+                    flags |= f
         else:
             # the Newton solve starts from z extrapolated along the last two sub-steps (the
             # previous z alone costs about one more iteration per solve)
@@ -465,6 +488,7 @@ def step(prm: _Vec, coef_r: _Vec, coef_c: _Vec, state: _Vec, x: float, v: float,
     state[S_V] = v
     state[S_FORCE] = force
     state[S_Q_VALVE] = q_lag
+    state[S_Q_PREV] = q_lag_prev if lagged else q_lag  # (BDF2's history of a lag only)
     state[S_MOUNT_F] = mount_f
     state[S_MOUNT_PREV] = mount_prev
     state[S_GAS_THETA] = theta

@@ -9,9 +9,10 @@ The data come from the truth simulation (``damper_emulator/diagnose/truth.py``) 
 paper's protocol as the virtual dyno runs it (quasi-static 150 s at 50 Hz, chirp 60 s at
 1 kHz, sines 1 Hz/3 Hz at 50 mm and 12 Hz at 5 mm), with 4 N of force noise, a
 temperature column (25 → 50 °C over the chirp, sines at 55/65/45 °C) and the model-form
-differences of ``truth.REALISTIC``: smooth friction (tanh, 5 mm/s) in place of eq 4's
-switch and 5 µm of displacement noise; the noise-only truths are also integrated on 4×
-shorter sub-steps (``REALISTIC_FINE``).  Scenarios:
+differences of ``truth.REALISTIC_FINE``: smooth friction (tanh, 5 mm/s) in place of eq 4's
+switch, 5 µm of displacement noise, and every truth integrated on 4× shorter sub-steps
+than the data sheet's (a damper is continuous: the model's own sub-step is part of what
+it leaves).  Scenarios:
 
 * ``none``: no extra effect, on the sport, touring and van dampers (config/*.yaml);
 * one effect of each family (``EXAMPLE_EFFECTS``) on the sport damper, and one on each
@@ -80,7 +81,6 @@ from machine import cpu_name
 from damper_emulator.diagnose.selection import diagnose
 from damper_emulator.diagnose.truth import (
     EXAMPLE_EFFECTS,
-    REALISTIC,
     REALISTIC_FINE,
     SPEED_PROGRAMME,
     Protocol,
@@ -338,7 +338,7 @@ def session(sc: Scenario, seed: int):
     series = series_of(sc.series, sheet)
     if sc.series is not None and sc.series.startswith("warm"):
         truth = example_config(("viscosity_temperature",), sheet)
-    form = REALISTIC_FINE if not effects and sc.series is None else REALISTIC
+    form = REALISTIC_FINE
     rig = rig_of(sc.fc)
     data = simulate_session(truth, sc.protocol, NOISE_N, seed, temperature=True,
                             extra_force=extra, form=form, rig=rig, series=series)

@@ -272,9 +272,9 @@ class ModelForm:
 #: The model-form difference of the benchmark and the tests: a 5 mm/s friction smoothing
 #: and 5 µm displacement noise.
 REALISTIC = ModelForm(friction_smoothing_m_s=0.005, displacement_noise_m=5e-6)
-#: ... and a 4× finer integrator: on the truths without an extra effect (a first-order
-#: valve lag or a cavity integrated on 0.5 ms sub-steps differs from one on 0.125 ms by
-#: 16–18 N r.m.s. on the chirp, which no parameter of the emulator's model can remove).
+#: ... and a 4× finer integrator, the benchmark's truth (a damper is continuous: with a
+#: valve lag and a cavity the model on the data sheet's 0.5 ms sub-steps is about 20 N
+#: r.m.s. on the chirp off the same on 0.125 ms, which no parameter of the model removes).
 REALISTIC_FINE = ModelForm(friction_smoothing_m_s=0.005, integrator_refinement=4,
                            displacement_noise_m=5e-6)
 

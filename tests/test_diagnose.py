@@ -378,6 +378,14 @@ def test_cli_identify_then_diagnose_writes_the_contract_json_report_and_params(
     assert "round 1 [3/3]" in out.err
     assert doc["acquisition"]["source"] == "given"
     assert doc["acquisition"]["rig"]["force"]["filter"] == "none"
+    # the valve lag on the data sheet's 0.5 ms sub-step: its own integration error is
+    # reported, with the remedy (diagnose.numerics; the chirp alone moves 6 N on halving)
+    num = doc["numerics"]
+    assert num["max_substep_s"] == load_config().numerics.max_substep_s
+    assert set(num["change_on_halving_per_file_n"]) == set(names)
+    assert num["change_on_halving_n"] > num["noise_fraction"] * num["noise_n"]
+    assert num["converged"] is False
+    assert "**The model's integration.**" in text and "0.25 ms or less" in text
 
 
 @pytest.mark.parametrize(("extra", "message"), [

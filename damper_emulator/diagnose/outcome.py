@@ -409,6 +409,8 @@ class Diagnosis:
     #: what lies of the held-out residual where the fit files leave an effect's law
     #: undetermined (``undetermined.Undetermined``, one per such effect)
     undetermined: list[Any] = field(default_factory=list)
+    #: the model after's own integration error on the records (``numerics.SubstepCheck``)
+    numerics: Any = None
 
     @property
     def chosen(self) -> StepFit | None:
@@ -552,6 +554,7 @@ class Diagnosis:
                        if self.series is not None else None),
             "scale": self.scale.to_json() if self.scale is not None else None,
             "undetermined": [u.to_json() for u in self.undetermined],
+            "numerics": self.numerics.to_json() if self.numerics is not None else None,
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "floor_N": self.floor_n, "noise_N": self.noise_n,

@@ -306,6 +306,8 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                   + ("  The effects are weighed where the files determine their laws."
                      if diag.steps and diag.explained < doc["thresholds"]["min_explained"]
                      else ""), ""]
+    if diag.numerics is not None and not diag.numerics.converged:
+        lines += ["**The model's integration.** " + diag.numerics.sentence(), ""]
     lines += (_rig_lines(doc) + _series_lines(diag) + _chain_lines(doc["acquisition"])
               + _discovery_lines(diag))
     lines += ["## The paper's parameters", "",
@@ -331,6 +333,8 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
               f"{diag.structure_before:.2f} identified, {diag.structure_after:.2f} after.  "
               f"Floor {diag.floor_n:.2f} N, noise level {diag.noise_n:.2f} N (of what is left "
               f"after: {diag.noise_after_n:.2f} N).", ""]
+    if diag.numerics is not None and diag.numerics.converged:
+        lines += [diag.numerics.sentence(), ""]
     for k, rnd in enumerate(diag.rounds, 1):
         lines += [f"## Round {k}", "",
                   "| effect | family | held-out gain | ΔBIC | significant | parameters | "

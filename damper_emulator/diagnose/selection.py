@@ -130,6 +130,7 @@ from damper_emulator.diagnose.measurement import (
     screen_delay,
     take_out_lines,
 )
+from damper_emulator.diagnose.numerics import check_substep
 from damper_emulator.diagnose.outcome import (
     MAX_DELTA_BIC,
     MAX_EFFECTS,
@@ -535,6 +536,12 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     if discovery:
         discover_term(diag, session)
     drift.refresh(session.records, diag.model_after(), diag.rig_after())
+    diag.numerics = check_substep(diag.model_after(), diag.records, diag.rig_after(),
+                                  diag.noise_after_n)
+    if not diag.numerics.converged:
+        say(f"the model's integration: halving its sub-step moves its force by "
+            f"{diag.numerics.change_n:.2f} N r.m.s. (noise level "
+            f"{diag.numerics.noise_n:.2f} N): a shorter numerics.max_substep_s is worth it")
     diag.scale = scale
     diag.measurement = [*line_findings(lines), *drift_findings(drift.taken),
                         *scale_findings(scale),

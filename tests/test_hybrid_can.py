@@ -287,10 +287,13 @@ def test_corrupted_frames_are_counted_and_the_ride_goes_on(ride):
     link = doc["link"]
     assert rig["corrupted"] > 50
     # the host dropped each corrupted feedback frame it received (the rig ran longer): one
-    # in a hundred, and lost none besides
+    # in a hundred, and none besides, unless the rig's log witnesses a stall of the
+    # machine: frames are lost on the way then, and a frame after a gap of 16 carries the
+    # 4-bit counter of the last one accepted, which the host drops as not advanced
     received = link["feedback"] + link["dropped_checksum"]
     assert abs(link["dropped_checksum"] - received / 100) <= 2
-    assert link["dropped"] == link["dropped_checksum"] > 30
+    assert link["dropped_checksum"] > 30
+    assert link["dropped"] == link["dropped_checksum"] or rig["stalls"], link
     assert doc["status"] == "completed"
 
 

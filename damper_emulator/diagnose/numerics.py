@@ -14,14 +14,15 @@ the noise: the remedy is a shorter ``numerics.max_substep_s`` in the data sheet.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from damper_emulator.acquisition.rig import RigParams
 from damper_emulator.diagnose.base import Record
+from damper_emulator.diagnose.outcome import pooled_rms
 from damper_emulator.model.compressible import DamperModel
+from damper_emulator.validation import rms
 
 __all__ = ["SUBSTEP_NOISE_FRACTION", "SubstepCheck", "check_substep"]
 
@@ -76,12 +77,7 @@ def check_substep(model: DamperModel, records: Sequence[Record], rig: RigParams 
     ``noise_n`` [N]."""
     h = model.cfg.numerics.max_substep_s
     finer = model.with_max_substep(h / 2.0)
-    per_file: dict[str, float] = {}
-    total, n = 0.0, 0
-    for rec in records:
-        k = rec.start
-        d = rec.simulate(model, rig=rig)[k:] - rec.simulate(finer, rig=rig)[k:]
-        ss = float(d @ d)
-        per_file[rec.name] = math.sqrt(ss / max(d.size, 1))
-        total, n = total + ss, n + d.size
-    return SubstepCheck(h, math.sqrt(total / max(n, 1)), noise_n, per_file)
+    change = {rec.name: (rec.simulate(model, rig=rig) - rec.simulate(finer, rig=rig))[rec.start:]
+              for rec in records}
+    return SubstepCheck(h, pooled_rms(list(change.values())), noise_n,
+                        {name: rms(d) for name, d in change.items()})

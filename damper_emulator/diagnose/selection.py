@@ -535,9 +535,9 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
     diag.lines = lines
     if discovery:
         discover_term(diag, session)
-    drift.refresh(session.records, diag.model_after(), diag.rig_after())
-    diag.numerics = check_substep(diag.model_after(), diag.records, diag.rig_after(),
-                                  diag.noise_after_n)
+    after, rig_after = diag.model_after(), diag.rig_after()
+    drift.refresh(session.records, after, rig_after)
+    diag.numerics = check_substep(after, diag.records, rig_after, diag.noise_after_n)
     if not diag.numerics.converged:
         say(f"the model's integration: halving its sub-step moves its force by "
             f"{diag.numerics.change_n:.2f} N r.m.s. (noise level "

@@ -59,3 +59,57 @@ def test_the_change_on_halving_the_sub_step_measures_the_integration_error(sport
         again = check_substep(model.with_max_substep(found.max_substep_s / 2), records,
                               None, noise_n=4.0)
         assert again.change_n < found.change_n / 3.0
+
+
+def _step(session, effects, values):
+    """A step of the rounds with ``effects`` at ``values`` (by candidate parameter name;
+    the candidate's start where none is given) on the identified paper's parameters."""
+    from damper_emulator.diagnose.outcome import StepFit
+
+    cands = [session.candidates[e] for e in effects]
+    vals = [{p.name: values.get(p.name, p.start) for p in c.parameters} for c in cands]
+    return StepFit(session.cfg, cands, {
+        "effect": effects[-1] if effects else None, "effects": list(effects),
+        "values": vals, "std": [{} for _ in cands], "base_values": dict(session.base_values),
+        "held": {}, "fit": {}, "seconds": 0.0, "evaluations": 0})
+
+
+def test_the_rounds_refit_a_step_on_half_the_sub_step_once_where_its_integration_fails():
+    """``LibraryRounds.refine`` on the truth's own session (a cavity and a 4 ms valve lag
+    behind the sport damper): the paper's model alone is within the check and stays as it
+    is; the model with the cavity and the lag at the truth's values is not, and is fitted
+    again (a real joint fit) on half the sub-step, which the session keeps for every
+    later fit; a second failing step is not refined again."""
+    from diagnose_support import FEW_NFEV, truth_session
+
+    from damper_emulator.diagnose.pool import LocalPool
+    from damper_emulator.diagnose.rounds import LibraryRounds
+    from damper_emulator.diagnose.session import prepare
+
+    sheet, data = truth_session(("cavitation", "valve_lag"))
+    effects = ["cavitation", "valve_lag"]
+    said: list[str] = []
+    session = prepare(DamperModel(sheet), data[:2], data[2:], effects, 1, FEW_NFEV,
+                      said.append)
+    h = session.cfg.numerics.max_substep_s
+    truth = {"cavitation_pressure_pa": 2.0e4, "time_constant_s": 4e-3}
+    with LocalPool(1) as local:
+        rounds = LibraryRounds(session, local, None, 4)
+        paper = _step(session, [], {})
+        assert rounds.refine(paper, "round 1") is paper and rounds.refined is None
+        assert session.cfg.numerics.max_substep_s == h and not said
+        step = _step(session, effects, truth)
+        step.score, step.significant = 0.7, True
+        fine = rounds.refine(step, "round 2")
+        check = rounds.refined
+        assert check is not None and not check.converged and check.max_substep_s == h
+        assert session.cfg.numerics.max_substep_s == h / 2
+        assert fine is not step and fine.cfg.numerics.max_substep_s == h / 2
+        assert fine.model().cfg.numerics.max_substep_s == h / 2
+        assert fine.effects == effects and fine.candidate is step.candidate
+        assert (fine.score, fine.significant) == (0.7, True)
+        assert fine.evaluations > 0 and set(fine.rms_held_out) == {r.name for r in session.held}
+        assert any(f"every fit from here on {1e3 * h / 2:.3g} ms" in s for s in said)
+        again = _step(session, effects, truth)
+        assert rounds.refine(again, "round 3") is again
+        assert session.cfg.numerics.max_substep_s == h / 2

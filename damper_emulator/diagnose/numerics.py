@@ -9,7 +9,12 @@ diagnosis: the force as the records hold it on the model's sub-step and on half 
 Second order, the error of the sub-step is about 4/3 of that change; where an event falls
 within a sub-step (a cavity's opening) up to twice it.  The diagnosis reports it
 (:class:`SubstepCheck`, the JSON's ``numerics``) and says so where it is not small against
-the noise: the remedy is a shorter ``numerics.max_substep_s`` in the data sheet.
+the noise: the remedy is a shorter ``numerics.max_substep_s`` in the data sheet.  The
+library's rounds run the same check on the model with the effects they found, and where it
+fails fit it again on half the sub-step before weighing each effect against the others
+(:meth:`~damper_emulator.diagnose.rounds.LibraryRounds.refine`; the JSON's
+``numerics.refined_from``): on the model's sub-step an effect can stand in for another's
+integration error.
 """
 
 from __future__ import annotations
@@ -62,6 +67,16 @@ class SubstepCheck:
                 f"`numerics.max_substep_s` to {1e3 * h / 2:.3g} ms or less in the data sheet "
                 "and run the identification and the diagnosis again (each simulation takes "
                 "twice as long).")
+
+    def refinement_sentence(self) -> str:
+        """One sentence for the report where this check made the rounds halve the
+        sub-step."""
+        return (f"The model with the effects the rounds found moved by {self.change_n:.2f} N "
+                f"r.m.s. on halving its sub-step, against a noise level of "
+                f"{self.noise_n:.2f} N: it was fitted again, and every fit after it (the "
+                "effects weighed against each other, the rig's delay, the discovery), on "
+                f"{1e3 * self.max_substep_s / 2:.3g} ms sub-steps, which the model after "
+                "keeps (`numerics.max_substep_s`).")
 
     def to_json(self) -> dict[str, Any]:
         return {"max_substep_s": self.max_substep_s, "change_on_halving_n": self.change_n,

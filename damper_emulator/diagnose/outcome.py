@@ -411,6 +411,9 @@ class Diagnosis:
     undetermined: list[Any] = field(default_factory=list)
     #: the model after's own integration error on the records (``numerics.SubstepCheck``)
     numerics: Any = None
+    #: the check that made the rounds halve the sub-step (``numerics.SubstepCheck``), or
+    #: ``None``
+    numerics_refined: Any = None
 
     @property
     def chosen(self) -> StepFit | None:
@@ -554,7 +557,9 @@ class Diagnosis:
                        if self.series is not None else None),
             "scale": self.scale.to_json() if self.scale is not None else None,
             "undetermined": [u.to_json() for u in self.undetermined],
-            "numerics": self.numerics.to_json() if self.numerics is not None else None,
+            "numerics": ({**self.numerics.to_json(), "refined_from": (
+                self.numerics_refined.to_json() if self.numerics_refined is not None
+                else None)} if self.numerics is not None else None),
             "structure_ratio_before": self.structure_before,
             "structure_ratio_after": self.structure_after,
             "floor_N": self.floor_n, "noise_N": self.noise_n,

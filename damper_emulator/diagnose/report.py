@@ -307,7 +307,7 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
                      if diag.steps and diag.explained < doc["thresholds"]["min_explained"]
                      else ""), ""]
     if diag.numerics is not None and not diag.numerics.converged:
-        lines += ["**The model's integration.** " + diag.numerics.sentence(), ""]
+        lines += ["**The model's integration.** " + _numerics_text(diag), ""]
     lines += (_rig_lines(doc) + _series_lines(diag) + _chain_lines(doc["acquisition"])
               + _discovery_lines(diag))
     lines += ["## The paper's parameters", "",
@@ -334,7 +334,7 @@ def markdown(diag: Diagnosis, params_file: str = "") -> str:
               f"Floor {diag.floor_n:.2f} N, noise level {diag.noise_n:.2f} N (of what is left "
               f"after: {diag.noise_after_n:.2f} N).", ""]
     if diag.numerics is not None and diag.numerics.converged:
-        lines += [diag.numerics.sentence(), ""]
+        lines += [_numerics_text(diag), ""]
     for k, rnd in enumerate(diag.rounds, 1):
         lines += [f"## Round {k}", "",
                   "| effect | family | held-out gain | ΔBIC | significant | parameters | "
@@ -406,6 +406,14 @@ def _series_lines(diag: Diagnosis) -> list[str]:
                      + (f"  A change of the {d.ambiguous_with} fits nearly as well: the data "
                         "do not tell them apart." if d.ambiguous_with else ""))
     return [*lines, ""]
+
+
+def _numerics_text(diag: Diagnosis) -> str:
+    """The model's integration error after the diagnosis, and the rounds' halving of its
+    sub-step where they made one (:mod:`damper_emulator.diagnose.numerics`)."""
+    refined = diag.numerics_refined
+    return ((refined.refinement_sentence() + "  " if refined is not None else "")
+            + diag.numerics.sentence())
 
 
 def _chain_lines(acq: dict[str, Any]) -> list[str]:

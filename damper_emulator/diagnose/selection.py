@@ -530,6 +530,7 @@ def diagnose(base: DamperModel, fit_data: Sequence[MeasuredData],
         scale = weigh_scale(session, rounds, present)
         found = rounds.select(present if scale is None or not scale.taken else None)
     diag = answer(session, found, drift)
+    diag.numerics_refined = found.refined
     diag.rms_before = rms_recorded
     diag.rms_before_rig = dict(session.rms_before)
     diag.lines = lines

@@ -19,6 +19,7 @@ from damper_emulator.acquisition.chain import chain_json, estimated_rig
 from damper_emulator.acquisition.rig import RigParams, rig_to_mapping
 from damper_emulator.diagnose.base import (
     ACQUISITION_DELAY,
+    BASE_PARAMETERS,
     OIL_COMPRESSIBILITY,
     TERM_PREFIX,
     Record,
@@ -85,6 +86,12 @@ MIN_GAIN_OVER_LEADER = 0.5
 #: a file's noise level in the fit's weights is at least this fraction of its force
 #: r.m.s. (data without noise would otherwise get an infinite weight)
 MIN_NOISE_FRACTION = 1e-3
+#: a paper's parameter the joint refit with a discovered term moves by more than this
+#: factor from the model with the library's effects is reported beside the term: the
+#: term then holds part of what the parameter held (a smooth friction term where eq 4's
+#: friction fell from 44 N to 6 N is the seal's own friction in another form), and the
+#: two are read together.  A fit's ordinary trade between parameters stays well within ×2.
+TERM_MOVED_FACTOR = 2.0
 
 
 def _sd(x: float | None) -> float | None:
@@ -455,6 +462,25 @@ class Diagnosis:
             return None
         return {"values": _damper(values), "uncertainties": _sds(_damper(std))}
 
+    def term_moved(self) -> dict[str, tuple[float, float]]:
+        """The paper's parameters the joint refit with the discovered term moved by more
+        than :data:`TERM_MOVED_FACTOR` either way from the model it was added to (the
+        library's effects, or the refitted paper's model): ``{path: (before, after)}``,
+        empty without a significant term.  Only the paper's parameters
+        (:data:`~damper_emulator.diagnose.base.BASE_PARAMETERS`) count: not the fit's
+        nuisance parameters, the rig's delay or the term's own coefficients."""
+        found, final = self.term, self.final
+        if found is None or final is None:
+            return {}
+        before, after = final.out["base_values"], found.base_values
+        moved = {}
+        for name in (bp.path for bp in BASE_PARAMETERS):
+            b, a = before.get(name), after.get(name)
+            if (b is not None and a is not None and b > 0.0 and a > 0.0
+                    and max(a / b, b / a) > TERM_MOVED_FACTOR):
+                moved[name] = (float(b), float(a))
+        return moved
+
     def rig_after(self) -> RigParams | None:
         """The chain estimated with :meth:`model_after` (``None``: given, or none)."""
         if self.term is not None:
@@ -548,7 +574,9 @@ class Diagnosis:
                          **f.trade_json()} for f in rnd]
                        for rnd in self.rounds],
             "acquisition": self.acquisition_json(),
-            "discovered": self.discovered.to_json() if self.discovered is not None else None,
+            "discovered": ({**self.discovered.to_json(), "moved_parameters": {
+                k: {"before": b, "after": a} for k, (b, a) in self.term_moved().items()}}
+                if self.discovered is not None else None),
             "rms_before_without_rig": self.rms_before_rig,
             "measurement": [f.to_json() for f in self.measurement],
             "drift": ([d.to_json(self.series.reference) for d in self.series.taken]

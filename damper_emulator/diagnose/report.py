@@ -33,7 +33,7 @@ import numpy as np
 
 from damper_emulator.acquisition import save_rig
 from damper_emulator.diagnose.base import Record
-from damper_emulator.diagnose.outcome import Diagnosis
+from damper_emulator.diagnose.outcome import TERM_MOVED_FACTOR, Diagnosis
 from damper_emulator.diagnose.residual import plot_residual, residual_record
 from damper_emulator.params import save_config
 from damper_emulator.validation import report_stem
@@ -475,6 +475,14 @@ def _discovery_lines(diag: Diagnosis) -> list[str]:
             lines.append(f"| {name} | " + " | ".join(f"{_fmt(c)} ± {_fmt_sd(sd)}"
                                                    for c, sd in parts) + " |")
     lines += ["", f"**Ready to trust?** {found.trust()}."]
+    moved = diag.term_moved()
+    if moved:
+        lines += ["", "**What the term took from the model.** Refitted with the term, these "
+                  "of the paper's parameters moved by more than "
+                  f"{TERM_MOVED_FACTOR:g}× from the model with the library's effects: "
+                  + "; ".join(f"`{k}` {_fmt(b)} → {_fmt(a)}" for k, (b, a) in moved.items())
+                  + ".  The term holds part of what they held: read it with them, as their "
+                  "law in another form, not only as an effect beside them."]
     return [*lines, ""]
 
 

@@ -87,10 +87,11 @@ MIN_GAIN_OVER_LEADER = 0.5
 #: r.m.s. (data without noise would otherwise get an infinite weight)
 MIN_NOISE_FRACTION = 1e-3
 #: a paper's parameter the joint refit with a discovered term moves by more than this
-#: factor from the model with the library's effects is reported beside the term: the
-#: term then holds part of what the parameter held (a smooth friction term where eq 4's
-#: friction fell from 44 N to 6 N is the seal's own friction in another form), and the
-#: two are read together.  A fit's ordinary trade between parameters stays well within ×2.
+#: factor from the model it was added to is reported beside the term: the term may then
+#: hold part of what the parameter held (a smooth friction term where eq 4's friction
+#: fell from 44 N to 6 N is the seal's own friction in another form), and the two are
+#: read together.  It is a report, not a test: a valve constant moved ×3.6 beside that
+#: friction term, a trade within the fit.
 TERM_MOVED_FACTOR = 2.0
 
 

@@ -479,7 +479,7 @@ def _discovery_lines(diag: Diagnosis) -> list[str]:
     if moved:
         lines += ["", "**What the term took from the model.** Refitted with the term, these "
                   "of the paper's parameters moved by more than "
-                  f"{TERM_MOVED_FACTOR:g}× from the model with the library's effects: "
+                  f"{TERM_MOVED_FACTOR:g}× from the model it was added to: "
                   + "; ".join(f"`{k}` {_fmt(b)} → {_fmt(a)}" for k, (b, a) in moved.items())
                   + ".  The term holds part of what they held: read it with them, as their "
                   "law in another form, not only as an effect beside them."]

@@ -114,3 +114,21 @@ def test_save_and_load_round_trip(tmp_path, sport_cfg):
     # what is written is a ROS 2 params file that a plain YAML 1.1 reader also parses
     doc = yaml.safe_load(path.read_text())
     assert isinstance(doc["/**"]["ros__parameters"]["damper"]["rebound"]["k_leak"], float)
+
+
+@pytest.mark.parametrize("value", [1.7672139758393378e-06, 1e-20, 2.5e20, 0.1 + 0.2,
+                                   5e-324, 1.7976931348623157e308, 3.0e-7])
+def test_every_float_reads_back_to_the_same_double(tmp_path, sport_cfg, value):
+    """A fitted value keeps all its digits through a params file (a diagnosed model
+    written out is the model the report scored), and reads as a float to a YAML 1.1
+    reader too (a mantissa with a point)."""
+    import dataclasses
+
+    cfg = dataclasses.replace(sport_cfg, damper=dataclasses.replace(
+        sport_cfg.damper, friction_force_n=value))
+    path = tmp_path / "out.yaml"
+    save_config(cfg, path)
+    assert load_config(path).damper.friction_force_n == value
+    written = yaml.safe_load(path.read_text())["/**"]["ros__parameters"]["damper"]
+    assert isinstance(written["friction_force_n"], float)
+    assert written["friction_force_n"] == value

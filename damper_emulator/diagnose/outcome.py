@@ -32,6 +32,7 @@ from damper_emulator.diagnose.interference import Line
 from damper_emulator.diagnose.series import SeriesResult
 from damper_emulator.diagnose.statistics import bic_term, delta_bic
 from damper_emulator.model.compressible import DamperModel
+from damper_emulator.model.discovered import TERM_SIGN
 from damper_emulator.params import ModelConfig
 
 #: a candidate must cut the pooled held-out r.m.s. by at least this fraction
@@ -93,6 +94,52 @@ MIN_NOISE_FRACTION = 1e-3
 #: read together.  It is a report, not a test: a valve constant moved ×3.6 beside that
 #: friction term, a trade within the fit.
 TERM_MOVED_FACTOR = 2.0
+#: eq 4's friction ``F_fr sgn(ẋ)`` [N] (a paper's parameter, :data:`BASE_PARAMETERS`)
+FRICTION = "friction_force_n"
+#: a term's smooth sign ``F tanh(ẋ / v_s)`` is a friction as eq 4's is, and the two are
+#: read as one (:class:`TermFriction`): eq 4's friction in a smoother form where the
+#: model's gave way to the term (:data:`TERM_MOVED_FACTOR`) and the two together hold
+#: what it held, within this fraction of it
+FRICTION_TOGETHER_TOLERANCE = 0.25
+
+
+@dataclass(frozen=True)
+class TermFriction:
+    """A discovered term's smooth-sign part read with eq 4's friction: the friction in the
+    model the term was added to (``before``) and refitted with the term (``after``), and
+    the term's ``F tanh(ẋ / v_s)`` (``term`` [N], ``sign_m_s`` = ``v_s`` [m/s])."""
+
+    before: float
+    after: float
+    term: float
+    sign_m_s: float
+
+    @property
+    def together(self) -> float:
+        """The friction of the two [N] at speed (where ``tanh`` is 1)."""
+        return self.after + self.term
+
+    @property
+    def in_its_place(self) -> bool:
+        """Eq 4's friction in another form: the model's gave way to the term (moved by
+        more than :data:`TERM_MOVED_FACTOR`), and the two together hold what it held
+        (within :data:`FRICTION_TOGETHER_TOLERANCE`)."""
+        gave_way = (self.after * TERM_MOVED_FACTOR < self.before
+                    or self.after > TERM_MOVED_FACTOR * self.before)
+        return bool(self.before > 0.0 and gave_way and abs(self.together / self.before - 1.0)
+                    <= FRICTION_TOGETHER_TOLERANCE)
+
+    def reading(self) -> str:
+        """In words, for the report and the JSON."""
+        if self.in_its_place:
+            return ("eq 4's friction in another form: a sign smoothed over "
+                    f"{1e3 * self.sign_m_s:.3g} mm/s where eq 4 switches at ẋ = 0")
+        return "a friction beside eq 4's"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"parameter": FRICTION, "before": self.before, "after": self.after,
+                "term": self.term, "sign_m_s": self.sign_m_s, "together": self.together,
+                "in_its_place": self.in_its_place, "reading": self.reading()}
 
 
 def _sd(x: float | None) -> float | None:
@@ -482,6 +529,33 @@ class Diagnosis:
                 moved[name] = (float(b), float(a))
         return moved
 
+    def term_friction(self) -> TermFriction | None:
+        """The discovered term's smooth-sign part ``F tanh(ẋ / v_s)`` read with eq 4's
+        friction (:class:`TermFriction`), ``None`` without a significant refitted term
+        that has one."""
+        found, final = self.term, self.final
+        if found is None or final is None:
+            return None
+        part = next((k for k, f in enumerate(found.features)
+                     if f.index == TERM_SIGN and f.sign_m_s is not None), None)
+        before = final.out["base_values"].get(FRICTION)
+        after = found.base_values.get(FRICTION)
+        if part is None or before is None or after is None:
+            return None
+        return TermFriction(float(before), float(after), float(found.coefficients[part]),
+                            float(cast(float, found.features[part].sign_m_s)))
+
+    def discovered_json(self) -> dict[str, Any] | None:
+        """The JSON's ``discovered``: the term, what it took from the model
+        (:meth:`term_moved`) and its friction read with eq 4's (:meth:`term_friction`)."""
+        if self.discovered is None:
+            return None
+        friction = self.term_friction()
+        return {**self.discovered.to_json(),
+                "moved_parameters": {k: {"before": b, "after": a}
+                                     for k, (b, a) in self.term_moved().items()},
+                "friction_with_model": None if friction is None else friction.to_json()}
+
     def rig_after(self) -> RigParams | None:
         """The chain estimated with :meth:`model_after` (``None``: given, or none)."""
         if self.term is not None:
@@ -575,9 +649,7 @@ class Diagnosis:
                          **f.trade_json()} for f in rnd]
                        for rnd in self.rounds],
             "acquisition": self.acquisition_json(),
-            "discovered": ({**self.discovered.to_json(), "moved_parameters": {
-                k: {"before": b, "after": a} for k, (b, a) in self.term_moved().items()}}
-                if self.discovered is not None else None),
+            "discovered": self.discovered_json(),
             "rms_before_without_rig": self.rms_before_rig,
             "measurement": [f.to_json() for f in self.measurement],
             "drift": ([d.to_json(self.series.reference) for d in self.series.taken]

@@ -33,7 +33,7 @@ import numpy as np
 
 from damper_emulator.acquisition import save_rig
 from damper_emulator.diagnose.base import Record
-from damper_emulator.diagnose.outcome import TERM_MOVED_FACTOR, Diagnosis
+from damper_emulator.diagnose.outcome import FRICTION, TERM_MOVED_FACTOR, Diagnosis
 from damper_emulator.diagnose.residual import plot_residual, residual_record
 from damper_emulator.params import save_config
 from damper_emulator.validation import report_stem
@@ -483,6 +483,13 @@ def _discovery_lines(diag: Diagnosis) -> list[str]:
                   + "; ".join(f"`{k}` {_fmt(b)} → {_fmt(a)}" for k, (b, a) in moved.items())
                   + ".  The term holds part of what they held: read it with them, as their "
                   "law in another form, not only as an effect beside them."]
+    friction = diag.term_friction()
+    if friction is not None:
+        lines += ["", f"**Its friction with eq 4's.** `{FRICTION}` {_fmt(friction.after)} N "
+                  f"and the term's {_fmt(friction.term)} N · tanh(ẋ / "
+                  f"{1e3 * friction.sign_m_s:.3g} mm/s) are {_fmt(friction.together)} N of "
+                  f"friction at speed, against {_fmt(friction.before)} N in the model it was "
+                  f"added to: {friction.reading()}."]
     return [*lines, ""]
 
 

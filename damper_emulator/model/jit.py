@@ -137,7 +137,8 @@ _physics = njit(cache=True, fastmath=set(FASTMATH_FLAGS),
                 _nrt=False)  # type: ignore[call-overload]
 _plain = njit(cache=True)
 #: :data:`_physics` that releases the GIL while it runs: the loops over a whole history,
-#: which a diagnosis's Jacobian runs on several threads at once.  Not the real-time step:
+#: and over a valve table's flows, which a diagnosis's Jacobian runs on several threads at
+#: once (a column of a valve's parameter builds its table).  Not the real-time step:
 #: a loop thread that let go of the lock at every step could wait for it back behind
 #: another thread of its process.
 _batch = njit(cache=True, fastmath=set(FASTMATH_FLAGS), _nrt=False,
@@ -163,8 +164,8 @@ def kernel(func: _F) -> _F:
 
 
 def batch_kernel(func: _F) -> _F:
-    """Decorator for a compiled loop over a whole history (:data:`_batch`: as
-    :func:`kernel`, and the GIL released while it runs)."""
+    """Decorator for a compiled loop over a whole history or a valve table's flows
+    (:data:`_batch`: as :func:`kernel`, and the GIL released while it runs)."""
     return cast(_F, _registered(_batch(func)))
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from damper_emulator.errors import UserError
-from damper_emulator.model.jit import kernel
+from damper_emulator.model.jit import batch_kernel, kernel
 
 #: Exponent of the Reybrouck power law ``Δp ∝ Q^(7/4)`` (eqs 8, 9).
 FLOW_EXPONENT = 7.0 / 4.0
@@ -362,7 +362,7 @@ def pressure_drop_gradient(q_tot: float, k_leak: float, k_port: float, k_spring:
             ds_do * do_ks, ds_do * do_p0, ds_dg)
 
 
-@kernel
+@batch_kernel
 def _pressure_drop_loop(q: NDArray[np.float64], k_leak: float, k_port: float, k_spring: float,
                         preload_pa: float, g: float, nu_m2_s: float, form: int,
                         out: NDArray[np.float64]) -> None:
@@ -414,7 +414,7 @@ def pressure_drop_array(q_m3_s: ArrayLike, valve: Iterable[float], nu_m2_s: floa
 COMPLEX_STEP = 1e-30
 
 
-@kernel
+@batch_kernel
 def _pressure_drop_jacobian_loop(q: NDArray[np.float64], k_leak: float, k_port: float,
                                  k_spring: float, preload_pa: float, g: float, nu_m2_s: float,
                                  form: int, out: NDArray[np.float64]) -> None:
@@ -446,7 +446,7 @@ def pressure_drop_jacobian(q_m3_s: ArrayLike, valve: Iterable[float], nu_m2_s: f
     return out
 
 
-@kernel
+@batch_kernel
 def _pressure_drop_slope_loop(q: NDArray[np.float64], k_leak: float, k_port: float,
                               k_spring: float, preload_pa: float, g: float, nu_m2_s: float,
                               form: int, out: NDArray[np.float64]) -> None:

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from damper_emulator.errors import UserError
-from damper_emulator.model.jit import inlined_kernel, kernel
+from damper_emulator.model.jit import batch_kernel, inlined_kernel, kernel
 from damper_emulator.model.pchip import pchip_coefficients
 from damper_emulator.model.valve import (
     FLOW_EXPONENT,
@@ -148,7 +148,7 @@ def valve_row_point(c3: float, c2: float, c1: float, c0: float, e_node: float,
             ((c3 * t + c2) * t + c1) * t + c0, (3.0 * c3 * t + 2.0 * c2) * t + c1)
 
 
-@kernel
+@batch_kernel
 def _flows_at(dp_nodes: NDArray[np.float64], q_hi: float, valve: tuple[float, ...], nu: float,
               form: int, out: NDArray[np.float64]) -> None:
     """Exact inverse of ``Δp(Q)`` at each node (``dp_nodes`` increasing), by the Illinois
@@ -201,7 +201,7 @@ def _flows_at(dp_nodes: NDArray[np.float64], q_hi: float, valve: tuple[float, ..
         q_prev = lo
 
 
-@kernel
+@batch_kernel
 def _table_flow_array(coef: NDArray[np.float64], step: float, z: NDArray[np.float64],
                       out: NDArray[np.float64]) -> None:
     for i in range(z.size):

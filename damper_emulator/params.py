@@ -641,32 +641,16 @@ def config_to_mapping(cfg: ModelConfig, node: str = "/**") -> dict[str, Any]:
                                        "numerics": dataclasses.asdict(cfg.numerics)}}}
 
 
-def float_text(value: float) -> str:
-    """``value`` as a params file writes it: the shortest digits that read back to the same
-    double (``repr``), a mantissa with a point where there is an exponent (``1.0e-20``, not
-    ``1e-20``: YAML 1.1 and ROS 2's parser read the latter as a string)."""
-    text = repr(float(value))
-    mantissa, e, exponent = text.partition("e")
-    if e and "." not in mantissa:
-        text = f"{mantissa}.0e{exponent}"
-    return text
-
-
 def save_config(cfg: ModelConfig, path: str | Path, node: str = "/**") -> None:
     """Write a configuration as a ROS 2 params file (floats with signed exponents)."""
     Path(path).write_text(config_yaml(cfg, node))
 
 
 def config_yaml(cfg: ModelConfig, node: str = "/**") -> str:
-    """A configuration as the text of a ROS 2 params file (:func:`save_config`)."""
-
-    class _Dumper(yaml.SafeDumper):
-        pass
-
-    def _float(dumper: yaml.SafeDumper, value: float) -> yaml.ScalarNode:
-        return dumper.represent_scalar("tag:yaml.org,2002:float", float_text(value))
-
-    _Dumper.add_representer(float, _float)
-    return yaml.dump(config_to_mapping(cfg, node), Dumper=_Dumper, sort_keys=False)
+    """A configuration as the text of a ROS 2 params file (:func:`save_config`).  PyYAML's
+    safe representer writes each float with the shortest digits that read back to the
+    same double, and a point in the mantissa where there is an exponent (``1.0e-20``:
+    YAML 1.1 and ROS 2's parser read ``1e-20`` as a string)."""
+    return yaml.safe_dump(config_to_mapping(cfg, node), sort_keys=False)
 
 

@@ -94,6 +94,13 @@ MIN_NOISE_FRACTION = 1e-3
 #: read together.  It is a report, not a test: a valve constant moved ×3.6 beside that
 #: friction term, a trade within the fit.
 TERM_MOVED_FACTOR = 2.0
+
+
+def moved_beyond_factor(before: float, after: float) -> bool:
+    """Whether a value went from ``before`` (> 0) to ``after`` by more than
+    :data:`TERM_MOVED_FACTOR` either way."""
+    return before > 0.0 and (after * TERM_MOVED_FACTOR < before
+                             or after > TERM_MOVED_FACTOR * before)
 #: eq 4's friction ``F_fr sgn(ẋ)`` [N] (a paper's parameter, :data:`BASE_PARAMETERS`)
 FRICTION = "friction_force_n"
 #: a term's smooth sign ``F tanh(ẋ / v_s)`` is a friction as eq 4's is, and the two are
@@ -124,10 +131,8 @@ class TermFriction:
         """Eq 4's friction in another form: the model's gave way to the term (moved by
         more than :data:`TERM_MOVED_FACTOR`), and the two together hold what it held
         (within :data:`FRICTION_TOGETHER_TOLERANCE`)."""
-        gave_way = (self.after * TERM_MOVED_FACTOR < self.before
-                    or self.after > TERM_MOVED_FACTOR * self.before)
-        return bool(self.before > 0.0 and gave_way and abs(self.together / self.before - 1.0)
-                    <= FRICTION_TOGETHER_TOLERANCE)
+        return (moved_beyond_factor(self.before, self.after)
+                and abs(self.together / self.before - 1.0) <= FRICTION_TOGETHER_TOLERANCE)
 
     def reading(self) -> str:
         """In words, for the report and the JSON."""
@@ -524,8 +529,7 @@ class Diagnosis:
         moved = {}
         for name in (bp.path for bp in BASE_PARAMETERS):
             b, a = before.get(name), after.get(name)
-            if (b is not None and a is not None and b > 0.0 and a > 0.0
-                    and max(a / b, b / a) > TERM_MOVED_FACTOR):
+            if b is not None and a is not None and a > 0.0 and moved_beyond_factor(b, a):
                 moved[name] = (float(b), float(a))
         return moved
 

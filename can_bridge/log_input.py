@@ -14,7 +14,8 @@ dropped and counted) and gives the replay what it reads from a bag
   that of the input sample it answered, found by ``StrokeUsed`` (the latest sample before
   it with that stroke; else the latest sample before it).  Where the outputs answer the
   samples one for one, each in turn (an emulator triggered by its input, or the model in
-  the bridge), the outputs take their samples' stamps and the replay runs ``input`` over
+  the bridge, also where it stalled and answered the samples that came meanwhile in a
+  burst), the outputs take their samples' stamps and the replay runs ``input`` over
   the samples from the first answered to the last; otherwise ``timer``, one tick per
   output at its frame's time.  The bridge's own fault frames (status bit 32: no force
   from the emulator) are not the emulator's outputs and are left out, counted.
@@ -156,6 +157,30 @@ def _answered(state_t: np.ndarray, state_x: np.ndarray, force_t: np.ndarray,
     return out
 
 
+def _one_for_one(state_t: np.ndarray, state_x: np.ndarray, force_t: np.ndarray,
+                 used: np.ndarray, answered: np.ndarray) -> int | None:
+    """The input sample the first output answered where the outputs answer the samples
+    one for one, each in turn (output ``i`` sample ``first + i``: its ``StrokeUsed`` that
+    sample's stroke, sent after it came); else ``None``.
+
+    The first sample is one of those :func:`_answered` finds for the first output (within
+    :data:`ANSWER_WINDOW` samples before it, with its stroke), the latest that holds for
+    every output.  The outputs after it are not looked up in a window: an emulator that
+    stalled answers the samples that came meanwhile in a burst, the last of them more than
+    the window after its sample came, and still one for one."""
+    n = used.size
+    if n == 0 or answered[0] < 0:
+        return None
+    last = int(np.searchsorted(state_t, force_t[0], side="right")) - 1
+    lo = max(0, last - ANSWER_WINDOW + 1)
+    for first in (lo + np.flatnonzero(state_x[lo:last + 1] == used[0]))[::-1].tolist():
+        span = slice(first, first + n)
+        if (first + n <= state_x.size and np.array_equal(state_x[span], used)
+                and bool(np.all(state_t[span] <= force_t))):
+            return int(first)
+    return None
+
+
 def _emulator_log(path: Path, states: _Frames, forces: _Frames
                   ) -> tuple[BagData, dict[str, Any]]:
     states, forces = _ordered(states), _ordered(forces)
@@ -172,14 +197,14 @@ def _emulator_log(path: Path, states: _Frames, forces: _Frames
     fv = [forces[i][1] for i in keep]
     used = np.array([v["StrokeUsed"] for v in fv], dtype=float)
     answered = _answered(st, sx, ft, used)
-    velocity_used = np.where(answered >= 0, sv[np.maximum(answered, 0)], 0.0)
     # the emulator ran on its input when the outputs answer the input samples one for
     # one, each in turn, from the first answered to the last: the replay then steps the
     # model through those samples (the ones before, the emulator did not see)
-    one_for_one = bool(answered.size and answered[0] >= 0
-                       and np.array_equal(answered, np.arange(answered[0],
-                                                              answered[0] + answered.size))
-                       and (sx[answered] == used).all())
+    first = _one_for_one(st, sx, ft, used, answered)
+    one_for_one = first is not None
+    if first is not None:
+        answered = np.arange(first, first + used.size)
+    velocity_used = np.where(answered >= 0, sv[np.maximum(answered, 0)], 0.0)
     state_ns = _stamps_ns(st)
     if one_for_one:
         span = slice(int(answered[0]), int(answered[-1]) + 1)

@@ -132,10 +132,13 @@ def _write_log(path: Path, frames: list[tuple[float, int, bytes, bool]]) -> None
                                                    is_rx=rx))
 
 
-def _emulator_log(db, path: Path, answer_every: int = 1, fault_frames: int = 0):
+def _emulator_log(db, path: Path, answer_every: int = 1, fault_frames: int = 0,
+                  stall: tuple[int, float] | None = None):
     """A dyno's DAMPER_STATE frames and the emulator's DAMPER_FORCE answers (each 300 µs
     after its state; ``answer_every`` > 1 leaves states unanswered), the forces the model's
-    on the decoded states.  Returns the forces sent [N]."""
+    on the decoded states.  ``stall``: the emulator stops at that state for that long [s],
+    then answers the states that came meanwhile in a burst, 20 µs apart, until it has
+    caught up.  Returns the forces sent [N]."""
     state_enc, force_enc = Encoder(db, "DAMPER_STATE"), Encoder(db, "DAMPER_FORCE")
     state_msg = db.get_message_by_name("DAMPER_STATE")
     t, x, v = _sine()
@@ -155,10 +158,14 @@ def _emulator_log(db, path: Path, answer_every: int = 1, fault_frames: int = 0):
     model = DamperModel(load_config(None))
     force = run_model(model, np.round(stamps * 1e9).astype(np.int64), xq, vq)[0]
     sent = []
+    busy_until = -np.inf
     for i in range(0, t.size, answer_every):
         data, _ = force_enc.encode(Force=force[i], Status=0, InputAge=0.0,
                                    StrokeUsed=xq[i])
-        frames.append((t0 + t[i] + 3e-4, force_enc.frame_id, bytes(data), False))
+        if stall is not None and i == stall[0]:
+            busy_until = t[i] + stall[1]
+        busy_until = max(t[i] + 3e-4, busy_until + 2e-5)
+        frames.append((t0 + busy_until, force_enc.frame_id, bytes(data), False))
         sent.append(force[i])
     for k in range(fault_frames):     # the bridge's own: no force from the emulator
         data, _ = force_enc.encode(Force=0.0, Status=32, InputAge=0.0, StrokeUsed=0.0)
@@ -188,6 +195,19 @@ def test_a_dyno_and_emulator_log_replays_to_the_forces_resolution(db, tmp_path, 
     with AnyReader([tmp_path / "out" / "replay_bag"]) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert counts == {"/damper/state": sent.size, "/damper/force": sent.size}
+
+
+def test_an_emulator_that_stalled_still_answers_one_for_one(db, tmp_path):
+    """An emulator triggered by its input that stalled for 40 ms (a host's hiccup) answers
+    the 40 states that came meanwhile in a burst, the last of them long after the next
+    states came: still each state answered by its own force, in turn, so the replay runs
+    ``input`` and gives the logged forces back."""
+    log = tmp_path / "stalled.asc"
+    sent = _emulator_log(db, log, stall=(700, 0.04))
+    doc = run_replay(log, tmp_path / "out", plot=False, reader=lambda p: read_can_log(p))
+    assert doc["trigger"] == "input" and doc["input"]["outputs_answer_their_inputs"] is True
+    assert doc["compared"] == sent.size == doc["state_messages"]
+    assert doc["max_abs_N"] <= FORCE_STEP_N / 2 + 1e-6
 
 
 def test_a_timer_emulators_log_replays_tick_by_tick(db, tmp_path):

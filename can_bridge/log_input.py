@@ -146,8 +146,7 @@ def _answered(state_t: np.ndarray, state_x: np.ndarray, force_t: np.ndarray,
     for i, last in enumerate(latest.tolist()):
         if last < 0:
             continue
-        lo = max(0, last - ANSWER_WINDOW + 1)
-        hits = lo + np.flatnonzero(state_x[lo:last + 1] == used[i])
+        hits = _window_hits(state_x, last, used[i])
         after = hits[hits > previous]
         if after.size:
             out[i] = int(after[0])
@@ -157,23 +156,28 @@ def _answered(state_t: np.ndarray, state_x: np.ndarray, force_t: np.ndarray,
     return out
 
 
+def _window_hits(state_x: np.ndarray, last: int, stroke: float) -> np.ndarray:
+    """The input samples with ``stroke`` among the :data:`ANSWER_WINDOW` up to ``last``."""
+    lo = max(0, last - ANSWER_WINDOW + 1)
+    return lo + np.flatnonzero(state_x[lo:last + 1] == stroke)
+
+
 def _one_for_one(state_t: np.ndarray, state_x: np.ndarray, force_t: np.ndarray,
-                 used: np.ndarray, answered: np.ndarray) -> int | None:
+                 used: np.ndarray) -> int | None:
     """The input sample the first output answered where the outputs answer the samples
     one for one, each in turn (output ``i`` sample ``first + i``: its ``StrokeUsed`` that
     sample's stroke, sent after it came); else ``None``.
 
-    The first sample is one of those :func:`_answered` finds for the first output (within
-    :data:`ANSWER_WINDOW` samples before it, with its stroke), the latest that holds for
-    every output.  The outputs after it are not looked up in a window: an emulator that
-    stalled answers the samples that came meanwhile in a burst, the last of them more than
-    the window after its sample came, and still one for one."""
+    The first sample is one of those :func:`_answered` would take for the first output
+    (:func:`_window_hits`), the latest that holds for every output.  The outputs after it
+    are not looked up in a window: an emulator that stalled answers the samples that came
+    meanwhile in a burst, the last of them more than the window after its sample came,
+    and still one for one."""
     n = used.size
-    if n == 0 or answered[0] < 0:
+    if n == 0:
         return None
     last = int(np.searchsorted(state_t, force_t[0], side="right")) - 1
-    lo = max(0, last - ANSWER_WINDOW + 1)
-    for first in (lo + np.flatnonzero(state_x[lo:last + 1] == used[0]))[::-1].tolist():
+    for first in _window_hits(state_x, last, used[0])[::-1].tolist():
         span = slice(first, first + n)
         if (first + n <= state_x.size and np.array_equal(state_x[span], used)
                 and bool(np.all(state_t[span] <= force_t))):
@@ -196,14 +200,14 @@ def _emulator_log(path: Path, states: _Frames, forces: _Frames
     ft = np.array([forces[i][0] for i in keep])
     fv = [forces[i][1] for i in keep]
     used = np.array([v["StrokeUsed"] for v in fv], dtype=float)
-    answered = _answered(st, sx, ft, used)
     # the emulator ran on its input when the outputs answer the input samples one for
     # one, each in turn, from the first answered to the last: the replay then steps the
-    # model through those samples (the ones before, the emulator did not see)
-    first = _one_for_one(st, sx, ft, used, answered)
+    # model through those samples (the ones before, the emulator did not see); else each
+    # output's sample is looked up on its own
+    first = _one_for_one(st, sx, ft, used)
     one_for_one = first is not None
-    if first is not None:
-        answered = np.arange(first, first + used.size)
+    answered = (np.arange(first, first + used.size) if first is not None
+                else _answered(st, sx, ft, used))
     velocity_used = np.where(answered >= 0, sv[np.maximum(answered, 0)], 0.0)
     state_ns = _stamps_ns(st)
     if one_for_one:

@@ -94,13 +94,6 @@ MIN_NOISE_FRACTION = 1e-3
 #: read together.  It is a report, not a test: a valve constant moved ×3.6 beside that
 #: friction term, a trade within the fit.
 TERM_MOVED_FACTOR = 2.0
-
-
-def moved_beyond_factor(before: float, after: float) -> bool:
-    """Whether a value went from ``before`` (> 0) to ``after`` by more than
-    :data:`TERM_MOVED_FACTOR` either way."""
-    return before > 0.0 and (after * TERM_MOVED_FACTOR < before
-                             or after > TERM_MOVED_FACTOR * before)
 #: eq 4's friction ``F_fr sgn(ẋ)`` [N] (a paper's parameter, :data:`BASE_PARAMETERS`)
 FRICTION = "friction_force_n"
 #: a term's smooth sign ``F tanh(ẋ / v_s)`` is a friction as eq 4's is, and the two are
@@ -108,6 +101,13 @@ FRICTION = "friction_force_n"
 #: model's gave way to the term (:data:`TERM_MOVED_FACTOR`) and the two together hold
 #: what it held, within this fraction of it
 FRICTION_TOGETHER_TOLERANCE = 0.25
+
+
+def moved_beyond_factor(before: float, after: float) -> bool:
+    """Whether a value went from ``before`` (> 0) to ``after`` by more than
+    :data:`TERM_MOVED_FACTOR` either way."""
+    return before > 0.0 and (after * TERM_MOVED_FACTOR < before
+                             or after > TERM_MOVED_FACTOR * before)
 
 
 @dataclass(frozen=True)
